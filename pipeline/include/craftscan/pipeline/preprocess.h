@@ -1,0 +1,39 @@
+// Image preprocessing of method.md §2: histogram equalization, then Canny
+// edges with thresholds derived from image statistics, dilated to close gaps.
+#pragma once
+
+#include <string>
+
+#include <opencv2/core/mat.hpp>
+
+namespace craftscan {
+
+struct PreprocessOptions {
+  // Equalize the histogram of the luminance (grey images: the image itself;
+  // colour images: Y of YCrCb, so hue is kept).
+  bool equalize = true;
+  // Adaptive Canny thresholds around the median m of the equalized grey image:
+  // low = max(min_threshold, (1 - canny_sigma)·m), high = min(255, (1 + canny_sigma)·m).
+  double canny_sigma = 0.33;        // dimensionless, (0, 1]
+  double canny_min_threshold = 10;  // grey levels, floor for the low threshold
+  int canny_aperture = 3;           // Sobel aperture for Canny: 3, 5 or 7
+  int dilate_radius_px = 1;         // radius of the square dilation; 0 = none
+
+  bool IsValid(std::string* why) const;
+};
+
+struct Preprocessed {
+  cv::Mat image;     // equalized image, same type as the input (CV_8UC1 or CV_8UC3)
+  cv::Mat grey;      // equalized grey, CV_8UC1
+  cv::Mat gradient;  // Sobel (3×3) gradient magnitude of `grey`, CV_32FC1
+  cv::Mat edges;     // dilated Canny edge map, CV_8UC1, 255 = edge
+  double canny_low = 0;   // thresholds actually used
+  double canny_high = 0;
+};
+
+// Preprocesses one 8-bit grey (CV_8UC1) or BGR (CV_8UC3) image. Throws
+// std::invalid_argument for an empty image, another type, or invalid options.
+// Thread-safe (no shared state).
+Preprocessed Preprocess(const cv::Mat& image, const PreprocessOptions& options);
+
+}  // namespace craftscan

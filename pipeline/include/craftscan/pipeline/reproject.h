@@ -1,0 +1,32 @@
+// Disparity → coloured 3D points through OpenCV's Q matrix (method.md §6).
+#pragma once
+
+#include <cstdint>
+#include <string>
+#include <vector>
+
+#include <opencv2/core/mat.hpp>
+
+namespace craftscan {
+
+struct ColoredPoint {
+  float x, y, z;        // mm, in the rig frame (rectified left camera)
+  std::uint8_t r, g, b;
+};
+
+struct ReprojectOptions {
+  double min_depth_mm = 0;         // points with z outside [min, max] are dropped
+  double max_depth_mm = 1e9;
+  bool IsValid(std::string* why) const;
+};
+
+// Reprojects every valid disparity (see IsValidDisparity) of `disparity`
+// (CV_32FC1) with `Q` (4×4, CV_64F, from cv::stereoRectify) into points in
+// the units of Q (mm for craftscan calibrations). `color` is the rectified
+// left image (CV_8UC1 or CV_8UC3 BGR, same size) or empty (grey 255).
+// Throws std::invalid_argument on mismatched inputs. Thread-safe.
+std::vector<ColoredPoint> ReprojectToPoints(const cv::Mat& disparity, const cv::Mat& Q,
+                                            const cv::Mat& color,
+                                            const ReprojectOptions& options = {});
+
+}  // namespace craftscan

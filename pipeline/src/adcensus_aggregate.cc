@@ -1,0 +1,319 @@
+// Cross-based cost aggregation, scanline optimization and winner-take-all.
+//
+// All passes run over the [y][x][d] volume with the disparity axis innermost,
+// so every inner loop is a contiguous, vectorizable loop over d. Horizontal
+// passes are row-local (one row of the volume fits in L2); vertical passes
+// walk rows top to bottom over a band of columns, keeping one row of state.
+#include <algorithm>
+#include <cmath>
+#include <cstring>
+#include <limits>
+
+#include "adcensus_internal.h"
+
+namespace craftscan::adcensus {
+namespace {
+
+using Buffer = std::vector<float>;
+
+// Columns per vertical-pass work item: small enough to balance two threads,
+// large enough that each row access is a long contiguous run.
+constexpr int kColumnBand = 32;
+
+// out[k] = (hi[k] − lo[k]) · scale over the padded disparity axis.
+inline void WindowSum(const float* __restrict hi, const float* __restrict lo, float scale,
+                      int n, float* __restrict out) {
+  for (int k = 0; k < n; ++k) out[k] = (hi[k] - lo[k]) * scale;
+}
+
+inline void Accumulate(const float* __restrict prev, const float* __restrict add, int n,
+                       float* __restrict out) {
+  for (int k = 0; k < n; ++k) out[k] = prev[k] + add[k];
+}
+
+// Sums the cost along each pixel's horizontal arm; scales by inv_count when
+// given (end of an iteration) — otherwise leaves raw sums.
+void HorizontalPass(const Arms& arms, const std::vector<float>* inv_count,
+                    const Parallel& parallel, CostVolume* cost) {
+  const int width = cost->width(), stride = cost->stride();
+  parallel.For(0, cost->height(), [&](int y0, int y1) {
+    Buffer prefix(static_cast<std::size_t>(width + 1) * stride);
+    for (int y = y0; y < y1; ++y) {
+      std::fill_n(prefix.data(), stride, 0.f);
+      for (int x = 0; x < width; ++x)
+        Accumulate(&prefix[static_cast<std::size_t>(x) * stride], cost->at(y, x), stride,
+                   &prefix[static_cast<std::size_t>(x + 1) * stride]);
+      for (int x = 0; x < width; ++x) {
+        const std::size_t i = arms.index(y, x);
+        const float scale = inv_count ? (*inv_count)[i] : 1.f;
+        WindowSum(&prefix[static_cast<std::size_t>(x + arms.right[i] + 1) * stride],
+                  &prefix[static_cast<std::size_t>(x - arms.left[i]) * stride], scale, stride,
+                  cost->at(y, x));
+      }
+    }
+  });
+}
+
+// The vertical counterpart; prefix sums run down a band of columns.
+void VerticalPass(const Arms& arms, const std::vector<float>* inv_count, const Parallel& parallel,
+                  CostVolume* cost) {
+  const int width = cost->width(), height = cost->height(), stride = cost->stride();
+  const int bands = (width + kColumnBand - 1) / kColumnBand;
+  parallel.For(0, bands, [&](int b0, int b1) {
+    Buffer prefix;
+    for (int b = b0; b < b1; ++b) {
+      const int x0 = b * kColumnBand, x1 = std::min(width, x0 + kColumnBand);
+      const std::size_t band = static_cast<std::size_t>(x1 - x0) * stride;
+      prefix.assign((height + 1) * band, 0.f);
+      for (int y = 0; y < height; ++y)
+        Accumulate(&prefix[y * band], cost->at(y, x0), static_cast<int>(band),
+                   &prefix[(y + 1) * band]);
+      for (int y = 0; y < height; ++y) {
+        for (int x = x0; x < x1; ++x) {
+          const std::size_t i = arms.index(y, x);
+          const float scale = inv_count ? (*inv_count)[i] : 1.f;
+          const std::size_t off = static_cast<std::size_t>(x - x0) * stride;
+          WindowSum(&prefix[(y + arms.down[i] + 1) * band + off],
+                    &prefix[(y - arms.up[i]) * band + off], scale, stride, cost->at(y, x));
+        }
+      }
+    }
+  });
+}
+
+// 1 / support size for each pixel.
+std::vector<float> InverseSupportSizes(const Arms& arms, bool horizontal_first) {
+  std::vector<float> inv(static_cast<std::size_t>(arms.width) * arms.height);
+  for (int y = 0; y < arms.height; ++y)
+    for (int x = 0; x < arms.width; ++x)
+      inv[arms.index(y, x)] = 1.f / static_cast<float>(SupportSize(arms, y, x, horizontal_first));
+  return inv;
+}
+
+}  // namespace
+
+int SupportSize(const Arms& arms, int y, int x, bool horizontal_first) {
+  const std::size_t i = arms.index(y, x);
+  int n = 0;
+  if (horizontal_first) {
+    for (int v = y - arms.up[i]; v <= y + arms.down[i]; ++v) {
+      const std::size_t j = arms.index(v, x);
+      n += arms.left[j] + arms.right[j] + 1;
+    }
+  } else {
+    for (int u = x - arms.left[i]; u <= x + arms.right[i]; ++u) {
+      const std::size_t j = arms.index(y, u);
+      n += arms.up[j] + arms.down[j] + 1;
+    }
+  }
+  return n;
+}
+
+void Aggregate(const Arms& arms, int iterations, const Parallel& parallel, CostVolume* cost) {
+  if (iterations <= 0) return;
+  const std::vector<float> inv_h = InverseSupportSizes(arms, true);
+  const std::vector<float> inv_v = iterations > 1 ? InverseSupportSizes(arms, false)
+                                                  : std::vector<float>();
+  for (int it = 0; it < iterations; ++it) {
+    if (it % 2 == 0) {  // horizontal-first: union of horizontal segments along the vertical arm
+      HorizontalPass(arms, nullptr, parallel, cost);
+      VerticalPass(arms, &inv_h, parallel, cost);
+    } else {
+      VerticalPass(arms, nullptr, parallel, cost);
+      HorizontalPass(arms, &inv_v, parallel, cost);
+    }
+  }
+}
+
+// ---------------------------------------------------------------------------
+// Scanline optimization
+
+namespace {
+
+inline int ColourDiff(const std::uint8_t* a, const std::uint8_t* b, int channels) {
+  int d = std::abs(a[0] - b[0]);
+  for (int c = 1; c < channels; ++c) d = std::max(d, std::abs(a[c] - b[c]));
+  return d;
+}
+
+// Colour differences of the right image between each pixel and its
+// predecessor along x (horizontal) or y (vertical), stored per row reversed
+// and padded so that for a left pixel x the values at x_r = x − d_min − k are
+// contiguous and increasing in k.
+class RightDiffs {
+ public:
+  RightDiffs(const cv::Mat& right, int min_disparity, int ndisp, bool vertical)
+      : width_(right.cols), xr_hi_(right.cols + std::abs(min_disparity) + 2) {
+    const int xr_lo = -std::abs(min_disparity) - ndisp - 2;
+    len_ = xr_hi_ - xr_lo + 1;
+    data_.assign(static_cast<std::size_t>(right.rows + 1) * len_, 0);
+    const int ch = right.channels();
+    for (int y = 0; y < right.rows; ++y) {
+      if (vertical && y == 0) continue;
+      const std::uint8_t* r = right.ptr<std::uint8_t>(y);
+      const std::uint8_t* prev = vertical ? right.ptr<std::uint8_t>(y - 1) : r;
+      std::uint8_t* out = &data_[static_cast<std::size_t>(y) * len_];
+      for (int xr = vertical ? 0 : 1; xr < width_; ++xr)
+        out[xr_hi_ - xr] =
+            static_cast<std::uint8_t>(ColourDiff(r + ch * xr, prev + ch * (vertical ? xr : xr - 1), ch));
+    }
+  }
+  // Row y (0 … rows; row `rows` is all zero), values for x_r = base − k.
+  const std::uint8_t* At(int y, int base_xr) const {
+    return &data_[static_cast<std::size_t>(y) * len_ + (xr_hi_ - base_xr)];
+  }
+
+ private:
+  int width_, xr_hi_, len_;
+  std::vector<std::uint8_t> data_;
+};
+
+struct Penalties {
+  float p1[3], p2[3];  // index: number of colour differences at or above tau_so
+};
+
+// One step of a path: out = a + min(prev, prev(k±1) + P1, prev_min + P2) − prev_min.
+// prev has one +inf sentinel before and after (prev[-1], prev[ndisp]).
+// Returns min over k of out.
+inline float PathStep(const float* __restrict a, const float* __restrict prev, float prev_min,
+                      bool d1_big, const std::uint8_t* __restrict d2, float tau_so,
+                      const Penalties& pen, int ndisp, float* __restrict out) {
+  const int base = d1_big ? 1 : 0;
+  float out_min = std::numeric_limits<float>::infinity();
+  for (int k = 0; k < ndisp; ++k) {
+    const int n = base + (d2[k] >= tau_so ? 1 : 0);
+    const float p1 = pen.p1[n], p2 = pen.p2[n];
+    float best = std::min(prev[k], prev_min + p2);
+    best = std::min(best, std::min(prev[k - 1], prev[k + 1]) + p1);
+    const float v = a[k] + best - prev_min;
+    out[k] = v;
+    out_min = std::min(out_min, v);
+  }
+  return out_min;
+}
+
+}  // namespace
+
+void ScanlineOptimize(const cv::Mat& left, const cv::Mat& right, int min_disparity,
+                      const ADCensusOptions& options, const Parallel& parallel,
+                      CostVolume* cost) {
+  const int width = cost->width(), height = cost->height();
+  const int ndisp = cost->ndisp(), stride = cost->stride();
+  const int ch = left.channels();
+  const float tau_so = static_cast<float>(options.tau_so);
+  const float pi1 = static_cast<float>(options.pi1), pi2 = static_cast<float>(options.pi2);
+  const Penalties pen{{pi1, pi1 / 4, pi1 / 10}, {pi2, pi2 / 4, pi2 / 10}};
+  const float inf = std::numeric_limits<float>::infinity();
+  const RightDiffs hdiff(right, min_disparity, ndisp, false);
+  const RightDiffs vdiff(right, min_disparity, ndisp, true);
+  CostVolume result(width, height, ndisp);
+
+  // Horizontal paths: result = L(left→right) + L(right→left).
+  parallel.For(0, height, [&](int y0, int y1) {
+    Buffer prev(stride + 2, inf), cur(stride + 2, inf);
+    for (int y = y0; y < y1; ++y) {
+      const std::uint8_t* row = left.ptr<std::uint8_t>(y);
+      for (int dir = 0; dir < 2; ++dir) {
+        const int x_start = dir == 0 ? 0 : width - 1, step = dir == 0 ? 1 : -1;
+        float prev_min = 0;
+        for (int i = 0, x = x_start; i < width; ++i, x += step) {
+          const float* a = cost->at(y, x);
+          if (i == 0) {
+            std::copy_n(a, ndisp, &cur[1]);
+            prev_min = *std::min_element(a, a + ndisp);
+          } else {
+            const bool d1_big = ColourDiff(row + ch * x, row + ch * (x - step), ch) >= tau_so;
+            // Right-image pair (x_r, x_r − step): left→right uses hdiff(x_r),
+            // right→left uses hdiff(x_r + 1).
+            const int base_xr = x - min_disparity + (dir == 0 ? 0 : 1);
+            prev_min = PathStep(a, &prev[1], prev_min, d1_big, hdiff.At(y, base_xr), tau_so, pen,
+                                ndisp, &cur[1]);
+          }
+          float* out = result.at(y, x);
+          if (dir == 0) {
+            std::copy_n(&cur[1], ndisp, out);
+          } else {
+            for (int k = 0; k < ndisp; ++k) out[k] += cur[1 + k];
+          }
+          std::swap(prev, cur);
+        }
+      }
+    }
+  });
+
+  // Vertical paths over bands of columns, one row of state per column.
+  const int bands = (width + kColumnBand - 1) / kColumnBand;
+  parallel.For(0, bands, [&](int b0, int b1) {
+    const std::size_t lane = stride + 2;
+    Buffer prev(kColumnBand * lane, inf), cur(kColumnBand * lane, inf);
+    std::vector<float> prev_min(kColumnBand);
+    for (int b = b0; b < b1; ++b) {
+      const int x0 = b * kColumnBand, x1 = std::min(width, x0 + kColumnBand);
+      for (int dir = 0; dir < 2; ++dir) {
+        const int y_start = dir == 0 ? 0 : height - 1, step = dir == 0 ? 1 : -1;
+        for (int i = 0, y = y_start; i < height; ++i, y += step) {
+          const std::uint8_t* row = left.ptr<std::uint8_t>(y);
+          const std::uint8_t* prow = i == 0 ? row : left.ptr<std::uint8_t>(y - step);
+          for (int x = x0; x < x1; ++x) {
+            const int c = x - x0;
+            const float* a = cost->at(y, x);
+            float* cl = &cur[c * lane + 1];
+            if (i == 0) {
+              std::copy_n(a, ndisp, cl);
+              prev_min[c] = *std::min_element(a, a + ndisp);
+            } else {
+              const bool d1_big = ColourDiff(row + ch * x, prow + ch * x, ch) >= tau_so;
+              // Top→bottom pairs (y, y−1): vdiff row y; bottom→top: vdiff row y+1.
+              const int vy = dir == 0 ? y : y + 1;
+              prev_min[c] = PathStep(a, &prev[c * lane + 1], prev_min[c], d1_big,
+                                     vdiff.At(vy, x - min_disparity), tau_so, pen, ndisp, cl);
+            }
+            float* out = result.at(y, x);
+            if (dir == 0) {
+              for (int k = 0; k < ndisp; ++k) out[k] += cl[k];
+            } else {
+              for (int k = 0; k < ndisp; ++k) out[k] = (out[k] + cl[k]) * 0.25f;
+              for (int k = ndisp; k < stride; ++k) out[k] = CostVolume::kPadCost;
+            }
+          }
+          std::swap(prev, cur);
+        }
+      }
+    }
+  });
+  *cost = std::move(result);
+}
+
+void WinnerTakeAll(const CostVolume& cost, int min_disparity, const Parallel& parallel,
+                   cv::Mat* left_index, cv::Mat* right_index) {
+  const int width = cost.width(), height = cost.height(), ndisp = cost.ndisp();
+  left_index->create(height, width, CV_32FC1);
+  right_index->create(height, width, CV_32FC1);
+  parallel.For(0, height, [&](int y0, int y1) {
+    for (int y = y0; y < y1; ++y) {
+      float* l = left_index->ptr<float>(y);
+      for (int x = 0; x < width; ++x) {
+        const float* c = cost.at(y, x);
+        l[x] = static_cast<float>(std::min_element(c, c + ndisp) - c);
+      }
+      // Right view: the left pixel matching (y, x_r) at index k is x_r + d_min + k.
+      float* r = right_index->ptr<float>(y);
+      for (int xr = 0; xr < width; ++xr) {
+        const int k_lo = std::max(0, -xr - min_disparity);
+        const int k_hi = std::min(ndisp, width - xr - min_disparity);
+        float best = std::numeric_limits<float>::infinity();
+        int best_k = -1;
+        for (int k = k_lo; k < k_hi; ++k) {
+          const float v = cost.at(y, xr + min_disparity + k)[k];
+          if (v < best) {
+            best = v;
+            best_k = k;
+          }
+        }
+        r[xr] = best_k < 0 ? std::numeric_limits<float>::quiet_NaN() : static_cast<float>(best_k);
+      }
+    }
+  });
+}
+
+}  // namespace craftscan::adcensus

@@ -9,6 +9,8 @@
 #include <cstring>
 #include <limits>
 
+#include <hwy/highway.h>
+
 #include "adcensus_internal.h"
 
 namespace craftscan::adcensus {
@@ -18,7 +20,7 @@ using Buffer = std::vector<float>;
 
 // Columns per vertical-pass work item: small enough to balance two threads,
 // large enough that each row access is a long contiguous run.
-constexpr int kColumnBand = 32;
+constexpr int kColumnBand = 8;
 
 // out[k] = (hi[k] − lo[k]) · scale over the padded disparity axis.
 inline void WindowSum(const float* __restrict hi, const float* __restrict lo, float scale,
@@ -136,60 +138,71 @@ inline int ColourDiff(const std::uint8_t* a, const std::uint8_t* b, int channels
   return d;
 }
 
-// Colour differences of the right image between each pixel and its
-// predecessor along x (horizontal) or y (vertical), stored per row reversed
+// Whether the colour difference of the right image between each pixel and its
+// predecessor along x (horizontal) or y (vertical) reaches tau_so (1 or 0), stored per row reversed
 // and padded so that for a left pixel x the values at x_r = x − d_min − k are
 // contiguous and increasing in k.
 class RightDiffs {
  public:
-  RightDiffs(const cv::Mat& right, int min_disparity, int ndisp, bool vertical)
+  RightDiffs(const cv::Mat& right, int min_disparity, int ndisp, bool vertical, int tau_so)
       : width_(right.cols), xr_hi_(right.cols + std::abs(min_disparity) + 2) {
-    const int xr_lo = -std::abs(min_disparity) - ndisp - 2;
+    const int xr_lo = -std::abs(min_disparity) - ndisp - 2;  // ndisp: the padded stride
     len_ = xr_hi_ - xr_lo + 1;
-    data_.assign(static_cast<std::size_t>(right.rows + 1) * len_, 0);
+    data_.assign(static_cast<std::size_t>(right.rows + 1) * len_, 0.f);
     const int ch = right.channels();
     for (int y = 0; y < right.rows; ++y) {
       if (vertical && y == 0) continue;
       const std::uint8_t* r = right.ptr<std::uint8_t>(y);
       const std::uint8_t* prev = vertical ? right.ptr<std::uint8_t>(y - 1) : r;
-      std::uint8_t* out = &data_[static_cast<std::size_t>(y) * len_];
+      float* out = &data_[static_cast<std::size_t>(y) * len_];
       for (int xr = vertical ? 0 : 1; xr < width_; ++xr)
         out[xr_hi_ - xr] =
-            static_cast<std::uint8_t>(ColourDiff(r + ch * xr, prev + ch * (vertical ? xr : xr - 1), ch));
+            ColourDiff(r + ch * xr, prev + ch * (vertical ? xr : xr - 1), ch) >= tau_so ? 1.f : 0.f;
     }
   }
   // Row y (0 … rows; row `rows` is all zero), values for x_r = base − k.
-  const std::uint8_t* At(int y, int base_xr) const {
+  const float* At(int y, int base_xr) const {
     return &data_[static_cast<std::size_t>(y) * len_ + (xr_hi_ - base_xr)];
   }
 
  private:
   int width_, xr_hi_, len_;
-  std::vector<std::uint8_t> data_;
+  std::vector<float> data_;  // 32-bit like the costs, so PathStep vectorizes at full width
 };
 
 struct Penalties {
   float p1[3], p2[3];  // index: number of colour differences at or above tau_so
 };
 
-// One step of a path: out = a + min(prev, prev(k±1) + P1, prev_min + P2) − prev_min.
-// prev has one +inf sentinel before and after (prev[-1], prev[ndisp]).
+// One step of a path: out = a + min(prev, prev(k±1) + P1, prev_min + P2) − prev_min,
+// over the whole padded disparity axis [0, n) (n a multiple of the vector
+// width). prev has one sentinel before and after (prev[-1], prev[n]). Padding
+// lanes carry costs ≥ kPadCost, so they never win the minimum.
 // Returns min over k of out.
 inline float PathStep(const float* __restrict a, const float* __restrict prev, float prev_min,
-                      bool d1_big, const std::uint8_t* __restrict d2, float tau_so,
-                      const Penalties& pen, int ndisp, float* __restrict out) {
-  const int base = d1_big ? 1 : 0;
-  float out_min = std::numeric_limits<float>::infinity();
-  for (int k = 0; k < ndisp; ++k) {
-    const int n = base + (d2[k] >= tau_so ? 1 : 0);
-    const float p1 = pen.p1[n], p2 = pen.p2[n];
-    float best = std::min(prev[k], prev_min + p2);
-    best = std::min(best, std::min(prev[k - 1], prev[k + 1]) + p1);
-    const float v = a[k] + best - prev_min;
-    out[k] = v;
-    out_min = std::min(out_min, v);
+                      bool d1_big, const float* __restrict d2_big, const Penalties& pen, int n,
+                      float* __restrict out) {
+  namespace hn = hwy::HWY_NAMESPACE;
+  const hn::ScalableTag<float> d;
+  const int lanes = static_cast<int>(hn::Lanes(d));
+  // Penalties when the right image's difference is below / at or above tau_so.
+  const float p1_small = pen.p1[d1_big ? 1 : 0], p1_big = pen.p1[d1_big ? 2 : 1];
+  const float p2_small = pen.p2[d1_big ? 1 : 0], p2_big = pen.p2[d1_big ? 2 : 1];
+  const auto p1_lo = hn::Set(d, p1_small), p1_step = hn::Set(d, p1_big - p1_small);
+  const auto p2_lo = hn::Set(d, p2_small), p2_step = hn::Set(d, p2_big - p2_small);
+  const auto vprev_min = hn::Set(d, prev_min);
+  auto vmin = hn::Set(d, std::numeric_limits<float>::infinity());
+  for (int k = 0; k < n; k += lanes) {
+    const auto big = hn::LoadU(d, d2_big + k);
+    const auto p1 = hn::MulAdd(big, p1_step, p1_lo);
+    const auto p2 = hn::MulAdd(big, p2_step, p2_lo);
+    auto best = hn::Min(hn::LoadU(d, prev + k), hn::Add(vprev_min, p2));
+    best = hn::Min(best, hn::Add(hn::Min(hn::LoadU(d, prev + k - 1), hn::LoadU(d, prev + k + 1)), p1));
+    const auto v = hn::Sub(hn::Add(hn::LoadU(d, a + k), best), vprev_min);
+    hn::StoreU(v, d, out + k);
+    vmin = hn::Min(vmin, v);
   }
-  return out_min;
+  return hn::GetLane(hn::MinOfLanes(d, vmin));
 }
 
 }  // namespace
@@ -200,12 +213,12 @@ void ScanlineOptimize(const cv::Mat& left, const cv::Mat& right, int min_dispari
   const int width = cost->width(), height = cost->height();
   const int ndisp = cost->ndisp(), stride = cost->stride();
   const int ch = left.channels();
-  const float tau_so = static_cast<float>(options.tau_so);
+  const int tau_so = static_cast<int>(std::ceil(options.tau_so));  // integer differences
   const float pi1 = static_cast<float>(options.pi1), pi2 = static_cast<float>(options.pi2);
   const Penalties pen{{pi1, pi1 / 4, pi1 / 10}, {pi2, pi2 / 4, pi2 / 10}};
   const float inf = std::numeric_limits<float>::infinity();
-  const RightDiffs hdiff(right, min_disparity, ndisp, false);
-  const RightDiffs vdiff(right, min_disparity, ndisp, true);
+  const RightDiffs hdiff(right, min_disparity, stride, false, tau_so);
+  const RightDiffs vdiff(right, min_disparity, stride, true, tau_so);
   CostVolume result(width, height, ndisp);
 
   // Horizontal paths: result = L(left→right) + L(right→left).
@@ -226,8 +239,8 @@ void ScanlineOptimize(const cv::Mat& left, const cv::Mat& right, int min_dispari
             // Right-image pair (x_r, x_r − step): left→right uses hdiff(x_r),
             // right→left uses hdiff(x_r + 1).
             const int base_xr = x - min_disparity + (dir == 0 ? 0 : 1);
-            prev_min = PathStep(a, &prev[1], prev_min, d1_big, hdiff.At(y, base_xr), tau_so, pen,
-                                ndisp, &cur[1]);
+            prev_min = PathStep(a, &prev[1], prev_min, d1_big, hdiff.At(y, base_xr), pen,
+                                stride, &cur[1]);
           }
           float* out = result.at(y, x);
           if (dir == 0) {
@@ -266,7 +279,7 @@ void ScanlineOptimize(const cv::Mat& left, const cv::Mat& right, int min_dispari
               // Top→bottom pairs (y, y−1): vdiff row y; bottom→top: vdiff row y+1.
               const int vy = dir == 0 ? y : y + 1;
               prev_min[c] = PathStep(a, &prev[c * lane + 1], prev_min[c], d1_big,
-                                     vdiff.At(vy, x - min_disparity), tau_so, pen, ndisp, cl);
+                                     vdiff.At(vy, x - min_disparity), pen, stride, cl);
             }
             float* out = result.at(y, x);
             if (dir == 0) {
@@ -290,28 +303,36 @@ void WinnerTakeAll(const CostVolume& cost, int min_disparity, const Parallel& pa
   left_index->create(height, width, CV_32FC1);
   right_index->create(height, width, CV_32FC1);
   parallel.For(0, height, [&](int y0, int y1) {
+    std::vector<float> best(width);
+    std::vector<int> best_k(width);
     for (int y = y0; y < y1; ++y) {
       float* l = left_index->ptr<float>(y);
       for (int x = 0; x < width; ++x) {
         const float* c = cost.at(y, x);
         l[x] = static_cast<float>(std::min_element(c, c + ndisp) - c);
       }
-      // Right view: the left pixel matching (y, x_r) at index k is x_r + d_min + k.
+      // Right view in the same pass over the row (no second, diagonal walk
+      // through the volume): the left pixel x at index k matches
+      // x_r = x − d_min − k. Visiting x in increasing order visits each x_r's
+      // candidates in increasing k, so ties keep the lowest k as for the left.
       float* r = right_index->ptr<float>(y);
-      for (int xr = 0; xr < width; ++xr) {
-        const int k_lo = std::max(0, -xr - min_disparity);
-        const int k_hi = std::min(ndisp, width - xr - min_disparity);
-        float best = std::numeric_limits<float>::infinity();
-        int best_k = -1;
+      std::fill(best.begin(), best.end(), std::numeric_limits<float>::infinity());
+      std::fill(best_k.begin(), best_k.end(), -1);
+      for (int x = 0; x < width; ++x) {
+        const float* c = cost.at(y, x);
+        const int k_lo = std::max(0, x - min_disparity - (width - 1));
+        const int k_hi = std::min(ndisp, x - min_disparity + 1);
         for (int k = k_lo; k < k_hi; ++k) {
-          const float v = cost.at(y, xr + min_disparity + k)[k];
-          if (v < best) {
-            best = v;
-            best_k = k;
+          const int xr = x - min_disparity - k;
+          if (c[k] < best[xr]) {
+            best[xr] = c[k];
+            best_k[xr] = k;
           }
         }
-        r[xr] = best_k < 0 ? std::numeric_limits<float>::quiet_NaN() : static_cast<float>(best_k);
       }
+      for (int xr = 0; xr < width; ++xr)
+        r[xr] = best_k[xr] < 0 ? std::numeric_limits<float>::quiet_NaN()
+                               : static_cast<float>(best_k[xr]);
     }
   });
 }

@@ -60,36 +60,47 @@ void ComputeCost(const cv::Mat& left, const cv::Mat& right,
   for (int h = 0; h <= 64; ++h) lut_census[h] = static_cast<float>(1.0 - std::exp(-h / lambda_census));
 
   parallel.For(0, height, [&](int y0, int y1) {
+    // The right row reversed (j = width − 1 − x_r), so that for a left pixel
+    // the candidates x_r = x − d_min − k are contiguous and increasing in k.
+    std::vector<std::uint64_t> rev_census(width);
+    std::vector<std::int16_t> rev_colour(static_cast<std::size_t>(channels) * width);
     for (int y = y0; y < y1; ++y) {
       const std::uint8_t* pl = left.ptr<std::uint8_t>(y);
       const std::uint8_t* pr = right.ptr<std::uint8_t>(y);
       const std::uint64_t* cl = census_left.data() + static_cast<std::size_t>(y) * width;
       const std::uint64_t* cr = census_right.data() + static_cast<std::size_t>(y) * width;
+      for (int j = 0; j < width; ++j) {
+        const int xr = width - 1 - j;
+        rev_census[j] = cr[xr];
+        for (int c = 0; c < channels; ++c)
+          rev_colour[static_cast<std::size_t>(c) * width + j] = pr[channels * xr + c];
+      }
       for (int x = 0; x < width; ++x) {
-        float* c = cost->at(y, x);
+        float* out = cost->at(y, x);
         // Valid k: 0 ≤ x − (min_disparity + k) < width.
         const int k_lo = std::clamp(x - width + 1 - min_disparity, 0, ndisp);
-        const int k_hi = std::clamp(x - min_disparity + 1, 0, ndisp);
-        for (int k = 0; k < k_lo; ++k) c[k] = kOutOfImageCost;
-        const std::uint64_t census_anchor = cl[x];
+        const int k_hi = std::max(k_lo, std::clamp(x - min_disparity + 1, 0, ndisp));
+        for (int k = 0; k < k_lo; ++k) out[k] = kOutOfImageCost;
+        const std::uint64_t anchor = cl[x];
+        const int j0 = width - 1 - x + min_disparity;  // j of k = 0
+        const std::uint64_t* rc = rev_census.data() + j0;
         if (channels == 1) {
-          const int a = pl[x];
-          for (int k = k_lo; k < k_hi; ++k) {
-            const int xr = x - min_disparity - k;
-            c[k] = lut_ad[std::abs(a - pr[xr])] +
-                   lut_census[std::popcount(census_anchor ^ cr[xr])];
-          }
+          const std::int16_t a = pl[x];
+          const std::int16_t* r0 = rev_colour.data() + j0;
+          for (int k = k_lo; k < k_hi; ++k)
+            out[k] = lut_ad[std::abs(a - r0[k])] + lut_census[std::popcount(anchor ^ rc[k])];
         } else {
-          const std::uint8_t* a = pl + 3 * x;
+          const std::int16_t a0 = pl[3 * x], a1 = pl[3 * x + 1], a2 = pl[3 * x + 2];
+          const std::int16_t* r0 = rev_colour.data() + j0;
+          const std::int16_t* r1 = r0 + width;
+          const std::int16_t* r2 = r1 + width;
           for (int k = k_lo; k < k_hi; ++k) {
-            const int xr = x - min_disparity - k;
-            const std::uint8_t* b = pr + 3 * xr;
-            const int sad = std::abs(a[0] - b[0]) + std::abs(a[1] - b[1]) + std::abs(a[2] - b[2]);
-            c[k] = lut_ad[sad] + lut_census[std::popcount(census_anchor ^ cr[xr])];
+            const int sad = std::abs(a0 - r0[k]) + std::abs(a1 - r1[k]) + std::abs(a2 - r2[k]);
+            out[k] = lut_ad[sad] + lut_census[std::popcount(anchor ^ rc[k])];
           }
         }
-        for (int k = std::max(k_hi, k_lo); k < ndisp; ++k) c[k] = kOutOfImageCost;
-        for (int k = ndisp; k < stride; ++k) c[k] = CostVolume::kPadCost;
+        for (int k = k_hi; k < ndisp; ++k) out[k] = kOutOfImageCost;
+        for (int k = ndisp; k < stride; ++k) out[k] = CostVolume::kPadCost;
       }
     }
   });
@@ -97,42 +108,55 @@ void ComputeCost(const cv::Mat& left, const cv::Mat& right,
 
 namespace {
 
-// Largest absolute channel difference (Mei's D_c).
-inline int ColourDiff(const std::uint8_t* a, const std::uint8_t* b, int channels) {
-  int d = std::abs(a[0] - b[0]);
-  for (int c = 1; c < channels; ++c) d = std::max(d, std::abs(a[c] - b[c]));
-  return d;
-}
-
 struct ArmLimits {
   int max_len;        // arm length must stay below this (D_s < L)
   double l2;          // beyond this length the tighter colour limit applies
   double tau;         // colour limit to the anchor and to the previous pixel
   double tau2;        // colour limit to the anchor beyond l2
-  double beta1;       // gradient difference limit; < 0 disables
 };
 
-// Length of the arm from (y, x) in direction (dx, dy).
-int ArmLength(const cv::Mat& image, const cv::Mat& gradient, int y, int x, int dx, int dy,
-              const ArmLimits& lim) {
-  const int channels = image.channels();
-  const std::uint8_t* anchor = image.ptr<std::uint8_t>(y) + channels * x;
-  const float g_anchor = lim.beta1 >= 0 ? gradient.at<float>(y, x) : 0.f;
-  int len = 1;
-  for (; len < lim.max_len; ++len) {
-    const int qx = x + len * dx, qy = y + len * dy;
-    if (qx < 0 || qy < 0 || qx >= image.cols || qy >= image.rows) break;
-    const std::uint8_t* q = image.ptr<std::uint8_t>(qy) + channels * qx;
-    const std::uint8_t* prev =
-        image.ptr<std::uint8_t>(qy - dy) + channels * (qx - dx);
-    const int to_anchor = ColourDiff(q, anchor, channels);
-    if (to_anchor >= lim.tau) break;
-    if (ColourDiff(q, prev, channels) >= lim.tau) break;
-    if (len > lim.l2 && to_anchor >= lim.tau2) break;
-    if (lim.beta1 >= 0 && std::abs(gradient.at<float>(qy, qx) - g_anchor) >= lim.beta1) break;
-  }
-  return len - 1;
+// The image as planes (one per channel) so that loops over x vectorize.
+struct Planes {
+  int channels = 0, width = 0, height = 0;
+  std::vector<cv::Mat> plane;  // CV_8UC1 each
+  const std::uint8_t* row(int c, int y) const { return plane[c].ptr<std::uint8_t>(y); }
+};
+
+Planes Split(const cv::Mat& image) {
+  Planes p;
+  p.channels = image.channels();
+  p.width = image.cols;
+  p.height = image.rows;
+  cv::split(image, p.plane);
+  return p;
 }
+
+inline std::uint8_t AbsDiff(std::uint8_t a, std::uint8_t b) {
+  return static_cast<std::uint8_t>(a > b ? a - b : b - a);
+}
+
+// Per-pixel limits of one row: for the classic rule all pixels share one set.
+struct RowLimits {
+  std::vector<std::uint8_t> max_len, l2, tau, tau2;  // integer forms of the limits
+};
+
+// d = max over channels |a − b| for whole rows: out[x] = D_c(a[x + da], b[x + db]).
+void RowColourDiff(const Planes& p, int ya, int da, int yb, int db, int n, std::uint8_t* out) {
+  for (int c = 0; c < p.channels; ++c) {
+    const std::uint8_t* a = p.row(c, ya) + da;
+    const std::uint8_t* b = p.row(c, yb) + db;
+    if (c == 0) {
+      for (int x = 0; x < n; ++x) out[x] = AbsDiff(a[x], b[x]);
+    } else {
+      for (int x = 0; x < n; ++x) out[x] = std::max(out[x], AbsDiff(a[x], b[x]));
+    }
+  }
+}
+
+// Integer thresholds: with integer colour differences, "d < tau" equals
+// "d < ceil(tau)"; lengths compare as integers too ("len > l2" ⇔ len > floor(l2)).
+std::uint8_t CeilU8(double v) { return static_cast<std::uint8_t>(std::clamp(std::ceil(v), 0.0, 255.0)); }
+std::uint8_t FloorU8(double v) { return static_cast<std::uint8_t>(std::clamp(std::floor(v), 0.0, 255.0)); }
 
 }  // namespace
 
@@ -145,36 +169,104 @@ bool IsEdgePixel(const cv::Mat& gradient, const cv::Mat& edges, int y, int x,
 Arms BuildArms(const cv::Mat& image, const cv::Mat& gradient, const cv::Mat& edges,
                const ADCensusOptions& options, const Parallel& parallel) {
   Arms arms;
-  arms.width = image.cols;
-  arms.height = image.rows;
+  const int width = image.cols, height = image.rows;
+  arms.width = width;
+  arms.height = height;
   const std::size_t n = image.total();
-  arms.left.resize(n);
-  arms.right.resize(n);
-  arms.up.resize(n);
-  arms.down.resize(n);
+  arms.left.assign(n, 0);
+  arms.right.assign(n, 0);
+  arms.up.assign(n, 0);
+  arms.down.assign(n, 0);
 
   const bool improved = options.arm_rule == ArmRule::kImproved;
   ArmLimits weak{}, edge{};
+  float beta1 = 0;
   if (improved) {
     const ImprovedArmOptions& o = options.improved;
-    weak = {o.l_max_px, static_cast<double>(o.l2_px), o.tau_max, o.tau2, o.beta1};
+    weak = {o.l_max_px, static_cast<double>(o.l2_px), o.tau_max, o.tau2};
     edge = {static_cast<int>(std::lround(o.l_max_px * o.edge_length_scale)),
-            o.l2_px * o.edge_length_scale, o.tau_max * o.edge_tau_scale, o.tau2, o.beta1};
+            o.l2_px * o.edge_length_scale, o.tau_max * o.edge_tau_scale, o.tau2};
+    beta1 = static_cast<float>(o.beta1);
   } else {
     const ClassicArmOptions& o = options.classic;
-    weak = edge = {o.l1_px, static_cast<double>(o.l2_px), o.tau1, o.tau2, -1.0};
+    weak = edge = {o.l1_px, static_cast<double>(o.l2_px), o.tau1, o.tau2};
   }
+  const int longest = std::max(weak.max_len, edge.max_len);
+  const Planes planes = Split(image);
 
-  parallel.For(0, image.rows, [&](int y0, int y1) {
+  // Each direction is one loop over arm length L with an inner, branch-free
+  // loop over x: a pixel's arm grows while it is still "active".
+  parallel.For(0, height, [&](int y0, int y1) {
+    RowLimits lim;
+    lim.max_len.resize(width);
+    lim.l2.resize(width);
+    lim.tau.resize(width);
+    lim.tau2.resize(width);
+    std::vector<std::uint8_t> active(width), d_anchor(width), d_prev(width);
+    std::vector<std::uint8_t> prev_diff_h(width), grad_ok(width, 1);
     for (int y = y0; y < y1; ++y) {
-      for (int x = 0; x < image.cols; ++x) {
-        const ArmLimits& lim =
+      const float* g = improved ? gradient.ptr<float>(y) : nullptr;
+      for (int x = 0; x < width; ++x) {
+        const ArmLimits& l =
             improved && IsEdgePixel(gradient, edges, y, x, options.improved) ? edge : weak;
-        const std::size_t i = arms.index(y, x);
-        arms.left[i] = static_cast<std::uint8_t>(ArmLength(image, gradient, y, x, -1, 0, lim));
-        arms.right[i] = static_cast<std::uint8_t>(ArmLength(image, gradient, y, x, 1, 0, lim));
-        arms.up[i] = static_cast<std::uint8_t>(ArmLength(image, gradient, y, x, 0, -1, lim));
-        arms.down[i] = static_cast<std::uint8_t>(ArmLength(image, gradient, y, x, 0, 1, lim));
+        lim.max_len[x] = static_cast<std::uint8_t>(std::min(l.max_len, 255));
+        lim.l2[x] = FloorU8(l.l2);
+        lim.tau[x] = CeilU8(l.tau);
+        lim.tau2[x] = CeilU8(l.tau2);
+      }
+      // prev_diff_h[x] = D_c(I(x), I(x − 1)), x ≥ 1.
+      if (width > 1) RowColourDiff(planes, y, 1, y, 0, width - 1, prev_diff_h.data() + 1);
+
+      const std::size_t base = static_cast<std::size_t>(y) * width;
+      for (int dir = 0; dir < 4; ++dir) {
+        // dir 0: right, 1: left, 2: down, 3: up.
+        std::uint8_t* out = (dir == 0 ? arms.right : dir == 1 ? arms.left
+                             : dir == 2 ? arms.down : arms.up).data() + base;
+        std::fill(active.begin(), active.end(), 1);
+        for (int len = 1; len < longest; ++len) {
+          // Anchors x whose arm pixel q is inside the image: [x_lo, x_hi).
+          int x_lo = 0, x_hi = width, qy = y, dx = 0;
+          if (dir == 0) {
+            x_hi = width - len;
+            dx = len;
+          } else if (dir == 1) {
+            x_lo = len;
+            dx = -len;
+          } else {
+            qy = dir == 2 ? y + len : y - len;
+            if (qy < 0 || qy >= height) break;
+          }
+          if (x_hi <= x_lo) break;
+          // Anchors outside [x_lo, x_hi) stop here.
+          for (int x = 0; x < x_lo; ++x) active[x] = 0;
+          for (int x = x_hi; x < width; ++x) active[x] = 0;
+          const int m = x_hi - x_lo;
+          RowColourDiff(planes, qy, x_lo + dx, y, x_lo, m, d_anchor.data() + x_lo);
+          if (dir == 0) {
+            std::copy_n(prev_diff_h.data() + x_lo + dx, m, d_prev.data() + x_lo);
+          } else if (dir == 1) {  // D_c(q, q + 1) = prev_diff_h[q + 1]
+            std::copy_n(prev_diff_h.data() + x_lo + dx + 1, m, d_prev.data() + x_lo);
+          } else {
+            RowColourDiff(planes, qy, 0, dir == 2 ? qy - 1 : qy + 1, 0, width, d_prev.data());
+          }
+          if (improved) {
+            const float* gq = gradient.ptr<float>(qy) + dx;
+            for (int x = x_lo; x < x_hi; ++x)
+              grad_ok[x] = static_cast<std::uint8_t>(std::abs(gq[x] - g[x]) < beta1 ? 1 : 0);
+          }
+          const std::uint8_t ulen = static_cast<std::uint8_t>(len);
+          std::uint8_t any = 0;
+          // Bitwise, branch-free: this loop vectorizes.
+          for (int x = x_lo; x < x_hi; ++x) {
+            const std::uint8_t ok = static_cast<std::uint8_t>(
+                (ulen < lim.max_len[x]) & (d_anchor[x] < lim.tau[x]) & (d_prev[x] < lim.tau[x]) &
+                ((ulen <= lim.l2[x]) | (d_anchor[x] < lim.tau2[x])) & grad_ok[x]);
+            active[x] &= ok;
+            out[x] = static_cast<std::uint8_t>(out[x] + active[x]);
+            any |= active[x];
+          }
+          if (!any) break;
+        }
       }
     }
   });

@@ -8,13 +8,17 @@
 
 namespace craftscan {
 
-// Reads a PFM file into CV_32FC1 or CV_32FC3, top row first. Returns false and
-// sets *error (naming the file and what is wrong) on a missing, truncated or
-// malformed file. Thread-safe.
+// Reads a PFM file into CV_32FC1 or CV_32FC3 (BGR, like cv::imread), top row
+// first; values are returned as stored (the header's scale only gives the byte
+// order). Returns false and sets *error (naming the file and what is wrong; may
+// be null) on a missing, truncated or malformed file, including a side ≤ 0 or
+// > 32768 px. Never throws. Thread-safe.
 bool ReadPfm(const std::string& path, cv::Mat* image, std::string* error);
 
-// Writes CV_32FC1/CV_32FC3 as little-endian PFM. Returns false with *error on
-// failure. Thread-safe.
+// Writes CV_32FC1/CV_32FC3 (BGR) as little-endian PFM (scale -1, rows
+// bottom-to-top, RGB). Returns false with *error (may be null) for an empty
+// image, another type, a side > 32768 px or an I/O failure. Never throws.
+// Thread-safe (for distinct paths).
 bool WritePfm(const std::string& path, const cv::Mat& image, std::string* error);
 
 }  // namespace craftscan

@@ -21,10 +21,15 @@ struct ReprojectOptions {
 };
 
 // Reprojects every valid disparity (see IsValidDisparity) of `disparity`
-// (CV_32FC1) with `Q` (4×4, CV_64F, from cv::stereoRectify) into points in
-// the units of Q (mm for craftscan calibrations). `color` is the rectified
-// left image (CV_8UC1 or CV_8UC3 BGR, same size) or empty (grey 255).
-// Throws std::invalid_argument on mismatched inputs. Thread-safe.
+// (CV_32FC1) with `Q` (4×4, CV_64F or CV_32F, from cv::stereoRectify) into
+// points in the units of Q (mm for craftscan calibrations):
+// [X Y Z W]ᵀ = Q·[x y d 1]ᵀ, point = (X/W, Y/W, Z/W), as cv::reprojectImageTo3D.
+// Skipped: invalid or infinite disparities, W ≈ 0 (points at infinity) and
+// z outside [min_depth_mm, max_depth_mm]. Points come in row-major pixel order.
+// `color` is the rectified left image (CV_8UC1 grey or CV_8UC3 BGR, same size)
+// or empty (grey 255).
+// Throws std::invalid_argument on mismatched inputs or invalid options.
+// Thread-safe.
 std::vector<ColoredPoint> ReprojectToPoints(const cv::Mat& disparity, const cv::Mat& Q,
                                             const cv::Mat& color,
                                             const ReprojectOptions& options = {});

@@ -1,0 +1,41 @@
+// craftscan-bench: benchmarks on shared data. Thin: parse, dispatch, exit.
+#include <exception>
+#include <iostream>
+#include <memory>
+#include <utility>
+#include <vector>
+
+#include <CLI/CLI.hpp>
+
+#include "command.h"
+
+int main(int argc, char** argv) {
+  using namespace craftscan::bench;
+  CLI::App app{"craftscan benchmarks on shared data (Middlebury stereo, ...)",
+               "craftscan-bench"};
+  app.require_subcommand(1);
+
+  std::vector<std::unique_ptr<BenchCommand>> commands;
+  commands.push_back(MakeStereoCommand());
+
+  std::vector<std::pair<CLI::App*, BenchCommand*>> registered;
+  for (auto& command : commands) registered.emplace_back(command->Register(&app), command.get());
+
+  try {
+    app.parse(argc, argv);
+  } catch (const CLI::ParseError& e) {
+    // Help/version exit 0 (printed by exit()); every other parse error is usage.
+    return app.exit(e) == 0 ? kExitOk : kExitUsage;
+  }
+  for (auto& [sub, command] : registered) {
+    if (!sub->parsed()) continue;
+    try {
+      return command->Run();
+    } catch (const std::exception& e) {  // Run() should not throw; never crash if it does
+      std::cerr << "craftscan-bench: " << sub->get_name() << ": unexpected error: " << e.what()
+                << "\n";
+      return kExitDataError;
+    }
+  }
+  return kExitUsage;  // unreachable: require_subcommand(1)
+}

@@ -1,0 +1,361 @@
+// The AD-Census matcher: each stage against a brute-force reading of
+// method.md, then whole-matcher accuracy on synthetic pairs with known
+// disparity and on Middlebury scenes with ground truth.
+#include <gtest/gtest.h>
+
+#include <bit>
+#include <cstring>
+
+#include <opencv2/imgcodecs.hpp>
+
+#include "adcensus_internal.h"
+#include "craftscan/pipeline/adcensus.h"
+#include "test_util.h"
+
+namespace craftscan {
+namespace {
+
+using adcensus::Arms;
+using testing::RandomTexture;
+using testing::RenderRightView;
+
+cv::Mat Grey(const cv::Mat& bgr) {
+  cv::Mat g;
+  cv::cvtColor(bgr, g, cv::COLOR_BGR2GRAY);
+  return g;
+}
+
+// --- census and cost --------------------------------------------------------
+
+TEST(Census, MatchesBruteForceWithReplicatedBorders) {
+  const cv::Mat grey = Grey(RandomTexture(37, 23, 1));
+  const Parallel parallel(2);
+  const auto census = adcensus::CensusTransform(grey, 9, 7, parallel);
+  for (int y = 0; y < grey.rows; ++y) {
+    for (int x = 0; x < grey.cols; ++x) {
+      std::uint64_t expected = 0;
+      const int centre = grey.at<std::uint8_t>(y, x);
+      for (int dy = -3; dy <= 3; ++dy)
+        for (int dx = -4; dx <= 4; ++dx) {
+          if (dx == 0 && dy == 0) continue;
+          const int v = grey.at<std::uint8_t>(std::clamp(y + dy, 0, grey.rows - 1),
+                                              std::clamp(x + dx, 0, grey.cols - 1));
+          expected = (expected << 1) | (v < centre ? 1u : 0u);
+        }
+      ASSERT_EQ(census[y * grey.cols + x], expected) << "at " << x << "," << y;
+    }
+  }
+}
+
+TEST(Cost, MatchesMeiFormulaIncludingOutOfImageDisparities) {
+  const cv::Mat left = RandomTexture(41, 19, 2), right = RandomTexture(41, 19, 3);
+  const Parallel parallel(1);
+  const auto cl = adcensus::CensusTransform(Grey(left), 9, 7, parallel);
+  const auto cr = adcensus::CensusTransform(Grey(right), 9, 7, parallel);
+  const int min_disparity = -3, ndisp = 12;
+  adcensus::CostVolume cost(left.cols, left.rows, ndisp);
+  adcensus::ComputeCost(left, right, cl, cr, min_disparity, 10, 30, parallel, &cost);
+  int checked_out_of_image = 0;
+  for (int y = 0; y < left.rows; ++y) {
+    for (int x = 0; x < left.cols; ++x) {
+      for (int k = 0; k < ndisp; ++k) {
+        const int xr = x - (min_disparity + k);
+        const float got = cost.at(y, x)[k];
+        if (xr < 0 || xr >= left.cols) {
+          EXPECT_EQ(got, adcensus::kOutOfImageCost);
+          ++checked_out_of_image;
+          continue;
+        }
+        const cv::Vec3b a = left.at<cv::Vec3b>(y, x), b = right.at<cv::Vec3b>(y, xr);
+        const double ad = (std::abs(a[0] - b[0]) + std::abs(a[1] - b[1]) + std::abs(a[2] - b[2])) / 3.0;
+        const int hamming = std::popcount(cl[y * left.cols + x] ^ cr[y * left.cols + xr]);
+        const double expected = (1 - std::exp(-ad / 10)) + (1 - std::exp(-hamming / 30.0));
+        ASSERT_NEAR(got, expected, 1e-6) << "at " << x << "," << y << " k " << k;
+      }
+    }
+  }
+  EXPECT_GT(checked_out_of_image, 0);
+}
+
+// --- cross arms -------------------------------------------------------------
+
+// method.md §5 read literally, one pixel and one direction at a time.
+int ReferenceArm(const cv::Mat& img, const cv::Mat& gradient, const cv::Mat& edges, int y, int x,
+                 int dx, int dy, const ADCensusOptions& o) {
+  auto colour_diff = [&](int y1, int x1, int y2, int x2) {
+    const cv::Vec3b a = img.at<cv::Vec3b>(y1, x1), b = img.at<cv::Vec3b>(y2, x2);
+    return std::max({std::abs(a[0] - b[0]), std::abs(a[1] - b[1]), std::abs(a[2] - b[2])});
+  };
+  double l_max, l2, tau, tau2;
+  bool use_gradient = false;
+  if (o.arm_rule == ArmRule::kClassic) {
+    l_max = o.classic.l1_px, l2 = o.classic.l2_px, tau = o.classic.tau1, tau2 = o.classic.tau2;
+  } else {
+    const auto& im = o.improved;
+    const bool edge = gradient.at<float>(y, x) >= im.beta_max || edges.at<std::uint8_t>(y, x) != 0;
+    l_max = edge ? std::lround(im.l_max_px * im.edge_length_scale) : im.l_max_px;
+    l2 = edge ? im.l2_px * im.edge_length_scale : im.l2_px;
+    tau = edge ? im.tau_max * im.edge_tau_scale : im.tau_max;
+    tau2 = im.tau2;
+    use_gradient = true;
+  }
+  int len = 0;
+  for (int s = 1;; ++s) {
+    const int qx = x + s * dx, qy = y + s * dy;
+    if (qx < 0 || qy < 0 || qx >= img.cols || qy >= img.rows) break;
+    const int to_anchor = colour_diff(qy, qx, y, x);
+    const int to_prev = colour_diff(qy, qx, qy - dy, qx - dx);
+    if (!(s < l_max) || !(to_anchor < tau) || !(to_prev < tau)) break;
+    if (s > l2 && !(to_anchor < tau2)) break;
+    if (use_gradient &&
+        !(std::abs(gradient.at<float>(qy, qx) - gradient.at<float>(y, x)) < o.improved.beta1))
+      break;
+    len = s;
+  }
+  return len;
+}
+
+void ExpectArmsMatchReference(const cv::Mat& img, ArmRule rule) {
+  ADCensusOptions o;
+  o.arm_rule = rule;
+  const Preprocessed pre = Preprocess(img, o.preprocess);
+  const Arms arms = adcensus::BuildArms(img, pre.gradient, pre.edges, o, Parallel(2));
+  for (int y = 0; y < img.rows; ++y) {
+    for (int x = 0; x < img.cols; ++x) {
+      const std::size_t i = arms.index(y, x);
+      ASSERT_EQ(arms.left[i], ReferenceArm(img, pre.gradient, pre.edges, y, x, -1, 0, o)) << x << "," << y;
+      ASSERT_EQ(arms.right[i], ReferenceArm(img, pre.gradient, pre.edges, y, x, 1, 0, o)) << x << "," << y;
+      ASSERT_EQ(arms.up[i], ReferenceArm(img, pre.gradient, pre.edges, y, x, 0, -1, o)) << x << "," << y;
+      ASSERT_EQ(arms.down[i], ReferenceArm(img, pre.gradient, pre.edges, y, x, 0, 1, o)) << x << "," << y;
+    }
+  }
+}
+
+// Flat patches, gentle ramps, steps and texture: every rule gets exercised.
+cv::Mat CraftedArmImage() {
+  cv::Mat img(90, 120, CV_8UC3, cv::Scalar(100, 100, 100));
+  for (int x = 0; x < 60; ++x)  // a gentle ramp: colour drifts slowly from the anchor
+    img.col(x).setTo(cv::Scalar(60 + x / 2, 80, 90));
+  img(cv::Rect(60, 0, 30, 45)).setTo(cv::Scalar(200, 40, 40));  // a strong step
+  img(cv::Rect(70, 50, 40, 30)) = RandomTexture(40, 30, 7) / 4 + cv::Scalar(90, 90, 90);
+  cv::line(img, {10, 60}, {50, 85}, cv::Scalar(0, 0, 0), 1);  // a thin dark edge
+  return img;
+}
+
+TEST(Arms, ClassicRuleMatchesReference) {
+  ExpectArmsMatchReference(CraftedArmImage(), ArmRule::kClassic);
+  ExpectArmsMatchReference(RandomTexture(64, 48, 11), ArmRule::kClassic);
+}
+
+TEST(Arms, ImprovedRuleMatchesReference) {
+  ExpectArmsMatchReference(CraftedArmImage(), ArmRule::kImproved);
+  ExpectArmsMatchReference(RandomTexture(64, 48, 12), ArmRule::kImproved);
+}
+
+TEST(Arms, EdgePixelsGetShorterArmsThanWeakTexture) {
+  // A flat field with one vertical line: pixels on the (dilated) edge may
+  // reach at most L_max/2 − 1 = 16 along the line; flat pixels reach 33.
+  cv::Mat img(80, 80, CV_8UC3, cv::Scalar(120, 120, 120));
+  img.col(40).setTo(cv::Scalar(20, 20, 20));
+  ADCensusOptions o;
+  const Preprocessed pre = Preprocess(img, o.preprocess);
+  ASSERT_TRUE(adcensus::IsEdgePixel(pre.gradient, pre.edges, 40, 40, o.improved));
+  ASSERT_FALSE(adcensus::IsEdgePixel(pre.gradient, pre.edges, 40, 10, o.improved));
+  const Arms arms = adcensus::BuildArms(img, pre.gradient, pre.edges, o, Parallel(1));
+  const std::size_t on_line = arms.index(40, 40), flat = arms.index(40, 10);
+  EXPECT_EQ(arms.up[on_line], 16);
+  EXPECT_EQ(arms.down[on_line], 16);
+  EXPECT_EQ(arms.up[flat], 33);
+  EXPECT_EQ(arms.down[flat], 33);
+  // The classic rule makes no such distinction.
+  o.arm_rule = ArmRule::kClassic;
+  const Arms classic = adcensus::BuildArms(img, pre.gradient, pre.edges, o, Parallel(1));
+  EXPECT_EQ(classic.up[on_line], 33);
+  // Arms never cross the line: the classic arm stops at the line's colour
+  // step (x = 40), the improved one already where the gradient rises (x = 39).
+  EXPECT_EQ(classic.right[classic.index(40, 30)], 9);
+  EXPECT_EQ(arms.right[arms.index(40, 30)], 8);
+}
+
+TEST(Aggregation, SupportRegionAverageMatchesBruteForce) {
+  const cv::Mat img = CraftedArmImage();
+  ADCensusOptions o;
+  const Preprocessed pre = Preprocess(img, o.preprocess);
+  const Parallel parallel(2);
+  const Arms arms = adcensus::BuildArms(img, pre.gradient, pre.edges, o, parallel);
+  const int ndisp = 3;
+  adcensus::CostVolume cost(img.cols, img.rows, ndisp);
+  std::mt19937 rng(5);
+  std::uniform_real_distribution<float> u(0, 2);
+  for (int y = 0; y < img.rows; ++y)
+    for (int x = 0; x < img.cols; ++x)
+      for (int k = 0; k < cost.stride(); ++k) cost.at(y, x)[k] = k < ndisp ? u(rng) : 0.f;
+  std::vector<float> original(static_cast<std::size_t>(img.total()) * ndisp);
+  for (int y = 0; y < img.rows; ++y)
+    for (int x = 0; x < img.cols; ++x)
+      for (int k = 0; k < ndisp; ++k) original[(y * img.cols + x) * ndisp + k] = cost.at(y, x)[k];
+
+  adcensus::Aggregate(arms, 1, parallel, &cost);  // one horizontal-first iteration
+  for (int y = 0; y < img.rows; y += 3) {
+    for (int x = 0; x < img.cols; x += 3) {
+      const std::size_t i = arms.index(y, x);
+      for (int k = 0; k < ndisp; ++k) {
+        double sum = 0;
+        int n = 0;
+        for (int v = y - arms.up[i]; v <= y + arms.down[i]; ++v) {
+          const std::size_t j = arms.index(v, x);
+          for (int u2 = x - arms.left[j]; u2 <= x + arms.right[j]; ++u2, ++n)
+            sum += original[(v * img.cols + u2) * ndisp + k];
+        }
+        ASSERT_EQ(n, adcensus::SupportSize(arms, y, x, true));
+        ASSERT_NEAR(cost.at(y, x)[k], sum / n, 1e-4) << x << "," << y;
+      }
+    }
+  }
+}
+
+// --- the whole matcher on synthetic pairs -----------------------------------
+
+struct Score {
+  double bad1 = 0, max_abs_err = 0;
+};
+
+// Scores pixels whose match lies inside the right image, away from the
+// image border (where no method has support).
+Score ScoreAgainst(const cv::Mat& disparity, const cv::Mat& gt, int margin) {
+  Score s;
+  int n = 0, bad = 0;
+  for (int y = margin; y < gt.rows - margin; ++y) {
+    for (int x = margin; x < gt.cols - margin; ++x) {
+      const float g = gt.at<float>(y, x);
+      if (x - g < margin || x - g >= gt.cols - margin) continue;
+      ++n;
+      const float d = disparity.at<float>(y, x);
+      const double e = IsValidDisparity(d) ? std::abs(d - g) : 1e9;
+      if (e > 1) ++bad;
+      if (IsValidDisparity(d)) s.max_abs_err = std::max(s.max_abs_err, e);
+    }
+  }
+  s.bad1 = 100.0 * bad / std::max(n, 1);
+  return s;
+}
+
+TEST(Matcher, RecoversConstantDisparityWithOffsetRange) {
+  const cv::Mat left = RandomTexture(200, 120, 21);
+  cv::Mat gt;
+  const cv::Mat right = RenderRightView(left, 37, 0, 0, &gt);
+  for (ArmRule rule : {ArmRule::kImproved, ArmRule::kClassic}) {
+    ADCensusOptions o;
+    o.arm_rule = rule;
+    o.min_disparity = 25;  // the true 37 lies inside [25, 57)
+    o.num_disparities = 32;
+    o.num_threads = 2;
+    const DisparityResult r = ComputeDisparity(left, right, o);
+    ASSERT_TRUE(r.IsUsable()) << r.message;
+    const Score s = ScoreAgainst(r.disparity, gt, 5);
+    EXPECT_LT(s.bad1, 1.0) << ToString(rule);
+    EXPECT_GT(r.valid_pct, 95.0);
+  }
+}
+
+TEST(Matcher, RecoversSlantedPlane) {
+  const cv::Mat left = RandomTexture(240, 160, 22);
+  cv::Mat gt;
+  // d from 30 to ~48 across the image, plus a vertical tilt.
+  const cv::Mat right = RenderRightView(left, 30, 0.06, 0.03, &gt);
+  ADCensusOptions o;
+  o.min_disparity = 20;
+  o.num_disparities = 40;
+  o.num_threads = 2;
+  const DisparityResult r = ComputeDisparity(left, right, o);
+  ASSERT_TRUE(r.IsUsable()) << r.message;
+  const Score s = ScoreAgainst(r.disparity, gt, 5);
+  EXPECT_LT(s.bad1, 1.0);
+}
+
+TEST(Matcher, GreyImagesWork) {
+  const cv::Mat left = Grey(RandomTexture(160, 100, 23));
+  cv::Mat gt;
+  const cv::Mat right = RenderRightView(left, 12, 0, 0, &gt);
+  ADCensusOptions o;
+  o.num_disparities = 24;
+  const DisparityResult r = ComputeDisparity(left, right, o);
+  ASSERT_TRUE(r.IsUsable()) << r.message;
+  EXPECT_LT(ScoreAgainst(r.disparity, gt, 5).bad1, 1.0);
+}
+
+TEST(Matcher, SerialAndThreadedResultsAreIdentical) {
+  const cv::Mat left = RandomTexture(180, 140, 24);
+  cv::Mat gt;
+  const cv::Mat right = RenderRightView(left, 15, 0.05, 0, &gt);
+  ADCensusOptions o;
+  o.num_disparities = 40;
+  o.num_threads = 1;
+  const DisparityResult serial = ComputeDisparity(left, right, o);
+  o.num_threads = 2;
+  const DisparityResult two = ComputeDisparity(left, right, o);
+  o.num_threads = 3;
+  const DisparityResult three = ComputeDisparity(left, right, o);
+  ASSERT_TRUE(serial.IsUsable() && two.IsUsable() && three.IsUsable());
+  const std::size_t bytes = serial.disparity.total() * sizeof(float);
+  EXPECT_EQ(0, std::memcmp(serial.disparity.data, two.disparity.data, bytes));
+  EXPECT_EQ(0, std::memcmp(serial.disparity.data, three.disparity.data, bytes));
+}
+
+TEST(Matcher, WithoutInterpolationOutliersAreMarkedInvalid) {
+  const cv::Mat left = RandomTexture(160, 100, 25);
+  cv::Mat gt;
+  const cv::Mat right = RenderRightView(left, 20, 0, 0, &gt);
+  ADCensusOptions o;
+  o.num_disparities = 32;
+  o.refinement.interpolate = false;
+  const DisparityResult r = ComputeDisparity(left, right, o);
+  ASSERT_TRUE(r.IsUsable());
+  // The left 20 columns see nothing in the right image: they must be invalid.
+  int invalid_border = 0;
+  for (int y = 10; y < 90; ++y)
+    for (int x = 0; x < 15; ++x) invalid_border += IsValidDisparity(r.disparity.at<float>(y, x)) ? 0 : 1;
+  EXPECT_GT(invalid_border, 80 * 15 * 9 / 10);
+  EXPECT_LT(r.valid_pct, 95.0);
+  EXPECT_LT(ScoreAgainst(r.disparity, gt, 5).max_abs_err, 1.0);
+}
+
+TEST(Matcher, RejectsBadInputWithAClearMessage) {
+  const cv::Mat a = RandomTexture(50, 40, 1), b = RandomTexture(51, 40, 2);
+  ADCensusOptions o;
+  DisparityResult r = ComputeDisparity(a, b, o);
+  EXPECT_FALSE(r.IsUsable());
+  EXPECT_NE(r.message.find("sizes differ"), std::string::npos) << r.message;
+  r = ComputeDisparity(a, cv::Mat(), o);
+  EXPECT_NE(r.message.find("empty"), std::string::npos) << r.message;
+  cv::Mat f;
+  a.convertTo(f, CV_32FC3);
+  r = ComputeDisparity(f, f, o);
+  EXPECT_NE(r.message.find("CV_8UC1"), std::string::npos) << r.message;
+  r = ComputeDisparity(a, Grey(a), o);
+  EXPECT_FALSE(r.IsUsable());
+  o.num_disparities = 0;
+  r = ComputeDisparity(a, a, o);
+  EXPECT_NE(r.message.find("num_disparities"), std::string::npos) << r.message;
+  o = {};
+  o.census_width = 8;
+  r = ComputeDisparity(a, a, o);
+  EXPECT_NE(r.message.find("census"), std::string::npos) << r.message;
+  o = {};
+  o.num_threads = 0;
+  r = ComputeDisparity(a, a, o);
+  EXPECT_NE(r.message.find("num_threads"), std::string::npos) << r.message;
+}
+
+TEST(ArmRule, StringRoundTrip) {
+  for (ArmRule rule : {ArmRule::kClassic, ArmRule::kImproved}) {
+    ArmRule parsed;
+    ASSERT_TRUE(ArmRuleFromString(ToString(rule), &parsed));
+    EXPECT_EQ(parsed, rule);
+  }
+  ArmRule parsed;
+  EXPECT_FALSE(ArmRuleFromString("fancy", &parsed));
+}
+
+}  // namespace
+}  // namespace craftscan

@@ -1,0 +1,68 @@
+// Preprocessing (method.md §2): equalization, adaptive Canny, dilation.
+#include <gtest/gtest.h>
+
+#include <opencv2/imgproc.hpp>
+
+#include "craftscan/pipeline/preprocess.h"
+#include "test_util.h"
+
+namespace craftscan {
+namespace {
+
+TEST(Preprocess, EqualizationSpreadsALowContrastImage) {
+  // Grey levels squeezed into [100, 131]: equalization must spread them.
+  cv::Mat low = testing::RandomTexture(120, 90, 3, 1) / 8 + 100;
+  const Preprocessed p = Preprocess(low, {});
+  double lo, hi;
+  cv::minMaxLoc(p.grey, &lo, &hi);
+  EXPECT_LE(lo, 20);
+  EXPECT_GE(hi, 235);
+  // Colour images keep their hue: equalizing Y leaves a grey image grey.
+  cv::Mat bgr;
+  cv::cvtColor(low, bgr, cv::COLOR_GRAY2BGR);
+  const Preprocessed c = Preprocess(bgr, {});
+  std::vector<cv::Mat> ch;
+  cv::split(c.image, ch);
+  EXPECT_LE(cv::norm(ch[0], ch[2], cv::NORM_INF), 2);
+}
+
+TEST(Preprocess, CannyThresholdsFollowTheMedian) {
+  cv::Mat img = testing::RandomTexture(100, 80, 4, 1);
+  PreprocessOptions o;
+  o.equalize = false;
+  std::vector<std::uint8_t> v(img.begin<std::uint8_t>(), img.end<std::uint8_t>());
+  std::nth_element(v.begin(), v.begin() + (v.size() - 1) / 2, v.end());
+  const double median = v[(v.size() - 1) / 2];
+  const Preprocessed p = Preprocess(img, o);
+  EXPECT_NEAR(p.canny_low, std::max(o.canny_min_threshold, 0.67 * median), 1.0);
+  EXPECT_NEAR(p.canny_high, std::min(255.0, 1.33 * median), 1.0);
+}
+
+TEST(Preprocess, DilationWidensTheEdgeMap) {
+  cv::Mat img(60, 60, CV_8UC1, cv::Scalar(50));
+  img(cv::Rect(30, 0, 30, 60)).setTo(200);
+  PreprocessOptions o;
+  o.dilate_radius_px = 0;
+  const int thin = cv::countNonZero(Preprocess(img, o).edges);
+  o.dilate_radius_px = 2;
+  const Preprocessed p = Preprocess(img, o);
+  const int wide = cv::countNonZero(p.edges);
+  ASSERT_GT(thin, 0);
+  EXPECT_GE(wide, thin * 4);  // a 1–2 px line grows to 5–6 px
+  // The gradient is the Sobel magnitude: flat areas zero, the step large.
+  EXPECT_EQ(p.gradient.at<float>(30, 5), 0.f);
+  EXPECT_GT(p.gradient.at<float>(30, 30), 120.f);
+}
+
+TEST(Preprocess, BadInputThrowsWithTheReason) {
+  PreprocessOptions o;
+  EXPECT_THROW(Preprocess(cv::Mat(), o), std::invalid_argument);
+  EXPECT_THROW(Preprocess(cv::Mat(10, 10, CV_32F), o), std::invalid_argument);
+  o.canny_aperture = 4;
+  std::string why;
+  EXPECT_FALSE(o.IsValid(&why));
+  EXPECT_NE(why.find("canny_aperture"), std::string::npos);
+}
+
+}  // namespace
+}  // namespace craftscan

@@ -1,0 +1,182 @@
+#include "craftscan/pipeline/reproject.h"
+
+#include <cmath>
+#include <limits>
+#include <stdexcept>
+#include <vector>
+
+#include <gtest/gtest.h>
+#include <opencv2/calib3d.hpp>
+#include <opencv2/core.hpp>
+
+#include "craftscan/pipeline/adcensus.h"
+
+namespace craftscan {
+namespace {
+
+constexpr float kNan = std::numeric_limits<float>::quiet_NaN();
+
+// A plane n·p = offset_mm in the rig (rectified left camera) frame.
+struct Plane {
+  cv::Vec3d n;
+  double offset_mm;
+  double Residual(const ColoredPoint& p) const {
+    return n[0] * p.x + n[1] * p.y + n[2] * p.z - offset_mm;
+  }
+};
+
+// Rectified pinhole pair: focal f_px, principal point (cx, cy) in both views,
+// baseline_mm along +x.
+struct RectifiedRig {
+  double f_px, cx, cy, baseline_mm;
+};
+
+// Disparity of the plane seen by `rig`: the ray through pixel (x, y) is
+// z·((x − cx)/f, (y − cy)/f, 1); d = f·B/z.
+cv::Mat PlaneDisparity(const RectifiedRig& rig, const Plane& plane, cv::Size size) {
+  cv::Mat disparity(size, CV_32FC1);
+  for (int y = 0; y < size.height; ++y) {
+    for (int x = 0; x < size.width; ++x) {
+      const cv::Vec3d ray((x - rig.cx) / rig.f_px, (y - rig.cy) / rig.f_px, 1.0);
+      const double z = plane.offset_mm / plane.n.dot(ray);
+      disparity.at<float>(y, x) = static_cast<float>(rig.f_px * rig.baseline_mm / z);
+    }
+  }
+  return disparity;
+}
+
+// Q as documented for cv::stereoRectify with CALIB_ZERO_DISPARITY
+// (Tx = −baseline: the right camera sits at +x).
+cv::Mat HandQ(const RectifiedRig& rig) {
+  return (cv::Mat_<double>(4, 4) << 1, 0, 0, -rig.cx,  //
+          0, 1, 0, -rig.cy,                            //
+          0, 0, 0, rig.f_px,                           //
+          0, 0, 1.0 / rig.baseline_mm, 0);
+}
+
+const Plane kTiltedPlane{cv::normalize(cv::Vec3d(0.2, -0.1, 1.0)), 850.0};
+
+void ExpectOnPlane(const std::vector<ColoredPoint>& points, const Plane& plane, double tol_mm) {
+  double worst = 0;
+  for (const ColoredPoint& p : points) worst = std::max(worst, std::abs(plane.Residual(p)));
+  EXPECT_LT(worst, tol_mm);
+}
+
+TEST(ReprojectTest, PlaneWithHandBuiltQ) {
+  const RectifiedRig rig{700.0, 319.5, 239.5, 120.0};
+  const cv::Size size(640, 480);
+  const cv::Mat disparity = PlaneDisparity(rig, kTiltedPlane, size);
+  const std::vector<ColoredPoint> points = ReprojectToPoints(disparity, HandQ(rig), cv::Mat());
+  ASSERT_EQ(points.size(), static_cast<std::size_t>(size.area()));
+  ExpectOnPlane(points, kTiltedPlane, 1e-3);
+  // Row-major order: the first point is pixel (0, 0), on its ray.
+  EXPECT_NEAR(points[0].x / points[0].z, (0 - rig.cx) / rig.f_px, 1e-6);
+  EXPECT_NEAR(points[0].y / points[0].z, (0 - rig.cy) / rig.f_px, 1e-6);
+  EXPECT_EQ(points[0].r, 255);
+}
+
+TEST(ReprojectTest, PlaneWithStereoRectifyQ) {
+  const cv::Size size(640, 480);
+  const cv::Matx33d k(690.0, 0, 322.0, 0, 690.0, 241.0, 0, 0, 1);
+  const cv::Mat no_distortion = cv::Mat::zeros(1, 5, CV_64F);
+  const cv::Matx33d r = cv::Matx33d::eye();
+  const cv::Vec3d t(-95.0, 0, 0);  // right camera 95 mm to the right: p_right = p_left + t
+  cv::Mat r1, r2, p1, p2, q;
+  cv::stereoRectify(k, no_distortion, k, no_distortion, size, r, t, r1, r2, p1, p2, q,
+                    cv::CALIB_ZERO_DISPARITY);
+  ASSERT_LT(cv::norm(r1, cv::Mat::eye(3, 3, CV_64F)), 1e-12);  // rig frame = rectified left
+  const RectifiedRig rig{p1.at<double>(0, 0), p1.at<double>(0, 2), p1.at<double>(1, 2),
+                         -p2.at<double>(0, 3) / p2.at<double>(0, 0)};
+  ASSERT_NEAR(rig.baseline_mm, 95.0, 1e-9);
+
+  const cv::Mat disparity = PlaneDisparity(rig, kTiltedPlane, size);
+  const std::vector<ColoredPoint> points = ReprojectToPoints(disparity, q, cv::Mat());
+  ASSERT_EQ(points.size(), static_cast<std::size_t>(size.area()));
+  ExpectOnPlane(points, kTiltedPlane, 1e-3);
+
+  // Agrees with OpenCV's own reprojection.
+  cv::Mat xyz;
+  cv::reprojectImageTo3D(disparity, xyz, q);
+  const cv::Vec3f ref = xyz.at<cv::Vec3f>(100, 200);
+  const ColoredPoint& p = points[100 * size.width + 200];
+  EXPECT_NEAR(p.x, ref[0], 1e-3);
+  EXPECT_NEAR(p.y, ref[1], 1e-3);
+  EXPECT_NEAR(p.z, ref[2], 1e-3);
+}
+
+TEST(ReprojectTest, SkipsInvalidDisparitiesAndPointsAtInfinity) {
+  const RectifiedRig rig{500.0, 2.0, 1.0, 100.0};
+  cv::Mat disparity(3, 4, CV_32FC1, cv::Scalar(50.0f));
+  disparity.at<float>(0, 0) = kInvalidDisparity;
+  disparity.at<float>(1, 1) = kNan;
+  disparity.at<float>(2, 2) = std::numeric_limits<float>::infinity();
+  disparity.at<float>(2, 3) = 0.0f;  // W = 0 with this Q
+  const std::vector<ColoredPoint> points = ReprojectToPoints(disparity, HandQ(rig), cv::Mat());
+  EXPECT_EQ(points.size(), 12u - 4u);
+  for (const ColoredPoint& p : points) {
+    EXPECT_TRUE(std::isfinite(p.x) && std::isfinite(p.y) && std::isfinite(p.z));
+    EXPECT_NEAR(p.z, 500.0 * 100.0 / 50.0, 1e-3);
+  }
+}
+
+TEST(ReprojectTest, DepthFilter) {
+  const RectifiedRig rig{500.0, 1.0, 0.0, 100.0};
+  // z = f·B/d = 50000/d: 1000, 500, 250 mm.
+  const cv::Mat disparity = (cv::Mat_<float>(1, 3) << 50, 100, 200);
+  ReprojectOptions options;
+  options.min_depth_mm = 300;
+  options.max_depth_mm = 600;
+  const std::vector<ColoredPoint> points =
+      ReprojectToPoints(disparity, HandQ(rig), cv::Mat(), options);
+  ASSERT_EQ(points.size(), 1u);
+  EXPECT_NEAR(points[0].z, 500.0, 1e-3);
+}
+
+TEST(ReprojectTest, CarriesColour) {
+  const RectifiedRig rig{500.0, 1.0, 1.0, 100.0};
+  cv::Mat disparity(2, 3, CV_32FC1, cv::Scalar(40.0f));
+  disparity.at<float>(0, 1) = kNan;
+  cv::Mat bgr(2, 3, CV_8UC3);
+  for (int i = 0; i < 6; ++i) {
+    bgr.at<cv::Vec3b>(i / 3, i % 3) = cv::Vec3b(10 * i + 1, 10 * i + 2, 10 * i + 3);
+  }
+  std::vector<ColoredPoint> points = ReprojectToPoints(disparity, HandQ(rig), bgr);
+  ASSERT_EQ(points.size(), 5u);
+  // Pixel 0 → point 0; pixel 1 skipped; pixel 2 → point 1.
+  EXPECT_EQ(points[0].b, 1);
+  EXPECT_EQ(points[0].g, 2);
+  EXPECT_EQ(points[0].r, 3);
+  EXPECT_EQ(points[1].b, 21);
+  EXPECT_EQ(points[1].g, 22);
+  EXPECT_EQ(points[1].r, 23);
+
+  cv::Mat grey(2, 3, CV_8UC1);
+  for (int i = 0; i < 6; ++i) grey.at<std::uint8_t>(i / 3, i % 3) = static_cast<std::uint8_t>(7 * i);
+  points = ReprojectToPoints(disparity, HandQ(rig), grey);
+  ASSERT_EQ(points.size(), 5u);
+  EXPECT_EQ(points[4].r, 35);
+  EXPECT_EQ(points[4].g, 35);
+  EXPECT_EQ(points[4].b, 35);
+}
+
+TEST(ReprojectTest, RejectsMismatchedInputs) {
+  const RectifiedRig rig{500.0, 1.0, 1.0, 100.0};
+  const cv::Mat q = HandQ(rig);
+  const cv::Mat disparity(4, 4, CV_32FC1, cv::Scalar(10.0f));
+  EXPECT_THROW(ReprojectToPoints(cv::Mat(), q, cv::Mat()), std::invalid_argument);
+  EXPECT_THROW(ReprojectToPoints(cv::Mat(4, 4, CV_16SC1), q, cv::Mat()), std::invalid_argument);
+  EXPECT_THROW(ReprojectToPoints(disparity, cv::Mat::eye(3, 3, CV_64F), cv::Mat()),
+               std::invalid_argument);
+  EXPECT_THROW(ReprojectToPoints(disparity, q, cv::Mat(3, 4, CV_8UC3)), std::invalid_argument);
+  EXPECT_THROW(ReprojectToPoints(disparity, q, cv::Mat(4, 4, CV_16UC1)), std::invalid_argument);
+  ReprojectOptions bad;
+  bad.min_depth_mm = 10;
+  bad.max_depth_mm = 5;
+  std::string why;
+  EXPECT_FALSE(bad.IsValid(&why));
+  EXPECT_FALSE(why.empty());
+  EXPECT_THROW(ReprojectToPoints(disparity, q, cv::Mat(), bad), std::invalid_argument);
+}
+
+}  // namespace
+}  // namespace craftscan

@@ -11,8 +11,7 @@
 
 int main(int argc, char** argv) {
   using namespace craftscan::bench;
-  CLI::App app{"craftscan benchmarks on shared data (Middlebury stereo, ...)",
-               "craftscan-bench"};
+  CLI::App app{"craftscan benchmarks on shared data (Middlebury stereo, ...)", "craftscan-bench"};
   app.require_subcommand(1);
 
   std::vector<std::unique_ptr<BenchCommand>> commands;

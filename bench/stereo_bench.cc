@@ -19,8 +19,6 @@
 #include <functional>
 #include <iostream>
 #include <limits>
-#include <map>
-#include <optional>
 #include <string>
 #include <utility>
 #include <vector>
@@ -186,8 +184,7 @@ class StereoCommand : public BenchCommand {
     CLI::Option* scenes =
         sub->add_option("--scenes", scenes_dir_,
                         "Folder whose subfolders with a scene.json are the scenes (by name)");
-    CLI::Option* scene =
-        sub->add_option("--scene", scene_dirs_, "One scene folder (repeatable)");
+    CLI::Option* scene = sub->add_option("--scene", scene_dirs_, "One scene folder (repeatable)");
     scenes->excludes(scene);
     sub->add_option("--matcher", matcher_names_,
                     "Comma-separated matchers: adcensus, adcensus-classic, sgbm")
@@ -257,7 +254,8 @@ class StereoCommand : public BenchCommand {
   int SelectMatchers(std::vector<Matcher>* selected) const {
     const std::vector<Matcher> all = AllMatchers();
     for (const std::string& name : matcher_names_) {
-      auto it = std::find_if(all.begin(), all.end(), [&](const Matcher& m) { return m.name == name; });
+      auto it =
+          std::find_if(all.begin(), all.end(), [&](const Matcher& m) { return m.name == name; });
       if (it == all.end()) {
         return UsageError("unknown matcher '" + name +
                           "' (known: adcensus, adcensus-classic, sgbm)");
@@ -329,8 +327,8 @@ class StereoCommand : public BenchCommand {
           const auto stop = std::chrono::steady_clock::now();
           if (!output.ok || output.disparity.type() != CV_32FC1 ||
               output.disparity.size() != scene.gt.size()) {
-            return DataError(matcher.name + " failed on scene '" + scene.name + "': " +
-                             (output.ok ? "wrong output size or type" : output.message));
+            return DataError(matcher.name + " failed on scene '" + scene.name +
+                             "': " + (output.ok ? "wrong output size or type" : output.message));
           }
           times_ms.push_back(std::chrono::duration<double, std::milli>(stop - start).count());
         }
@@ -344,11 +342,10 @@ class StereoCommand : public BenchCommand {
           r.all = EvaluateDisparity(output.disparity, scene.gt, scene.mask_all);
           r.disc = EvaluateDisparity(output.disparity, scene.gt, scene.mask_disc);
         }
-        std::printf("%-*s  %-16s %12s %12s %14s %8s %10s %9s %10s\n",
-                    static_cast<int>(name_width), scene.name.c_str(), matcher.name.c_str(),
-                    Format(r.nonocc.bad1, 2).c_str(), Format(r.nonocc.bad2, 2).c_str(),
-                    Format(r.nonocc.avgerr, 3).c_str(), Format(r.nonocc.density, 1).c_str(),
-                    Format(r.time_ms, 1).c_str(),
+        std::printf("%-*s  %-16s %12s %12s %14s %8s %10s %9s %10s\n", static_cast<int>(name_width),
+                    scene.name.c_str(), matcher.name.c_str(), Format(r.nonocc.bad1, 2).c_str(),
+                    Format(r.nonocc.bad2, 2).c_str(), Format(r.nonocc.avgerr, 3).c_str(),
+                    Format(r.nonocc.density, 1).c_str(), Format(r.time_ms, 1).c_str(),
                     r.has_all_disc ? Format(r.all.bad1, 2).c_str() : "-",
                     r.has_all_disc ? Format(r.disc.bad1, 2).c_str() : "-");
         std::fflush(stdout);
@@ -419,7 +416,12 @@ class StereoCommand : public BenchCommand {
           if (a == nullptr || s == nullptr || !(s->time_ms > 0)) continue;
           const double ratio = a->time_ms / s->time_ms;
           max_ratio = std::max(max_ratio, ratio);
-          line += " " + scene.name + " " + Format(ratio, 2);
+          const std::string item = " " + scene.name + " " + Format(ratio, 2);
+          const std::size_t last_break = line.rfind('\n');
+          const std::size_t width =
+              line.size() - (last_break == std::string::npos ? 0 : last_break);
+          if (width + item.size() > 80) line += "\n" + std::string(21, ' ');
+          line += item;
         }
         std::printf("  %-16s time %s/sgbm:%s; max %s\n", "", matcher.name.c_str(), line.c_str(),
                     Format(max_ratio, 2).c_str());

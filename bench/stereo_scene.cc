@@ -1,11 +1,11 @@
 #include "stereo_scene.h"
 
+#include <cctype>
 #include <cmath>
 #include <exception>
 #include <filesystem>
 #include <fstream>
 #include <limits>
-#include <optional>
 #include <stdexcept>
 #include <utility>
 
@@ -72,7 +72,9 @@ class SceneReader {
     return path;
   }
 
-  [[noreturn]] void Fail(const std::string& what) const { throw SceneError(json_path_ + ": " + what); }
+  [[noreturn]] void Fail(const std::string& what) const {
+    throw SceneError(json_path_ + ": " + what);
+  }
 
  private:
   fs::path dir_;
@@ -191,12 +193,14 @@ StereoScene LoadOrThrow(const std::string& dir_text) {
     scene.name = reader.String("name");
   } else {
     const fs::path normal = dir.lexically_normal();
-    scene.name = (normal.has_filename() ? normal.filename() : normal.parent_path().filename())
-                     .string();
+    scene.name =
+        (normal.has_filename() ? normal.filename() : normal.parent_path().filename()).string();
   }
 
   const long long ndisp = reader.Integer("ndisp");
-  if (ndisp <= 0 || ndisp > 100000) reader.Fail("key \"ndisp\" must be > 0 (is " + std::to_string(ndisp) + ")");
+  if (ndisp <= 0 || ndisp > 100000) {
+    reader.Fail("key \"ndisp\" must be in 1..100000 (is " + std::to_string(ndisp) + ")");
+  }
   scene.ndisp = static_cast<int>(ndisp);
 
   const fs::path left_path = reader.File("left");

@@ -32,7 +32,7 @@ struct StereoScene {
 //   "gt": PNG (any 8/16-bit single-channel format OpenCV reads; divided by
 //     "gt_scale", required) or ".pfm" (via ReadPfm, divided by the optional
 //     "gt_scale", default 1). Zero or non-finite values become NaN.
-//   "ndisp": integer > 0 (required).
+//   "ndisp": integer in 1..100000 (required).
 //   "mask_nonocc", "mask_all", "mask_disc": optional mask images.
 //   "name": optional string.
 // File names are relative to `dir`. Returns false and sets *error (naming the
@@ -45,10 +45,10 @@ bool LoadStereoScene(const std::string& dir, StereoScene* scene, std::string* er
 // Disparity error statistics over the evaluated pixels E = {mask == 255 and gt
 // valid}. A disparity estimate is valid when finite (NaN = no estimate).
 struct DisparityMetrics {
-  double bad1 = 0;     // %, of E: no estimate or |d − gt| > 1 px
-  double bad2 = 0;     // %, of E: no estimate or |d − gt| > 2 px
-  double avgerr = 0;   // px, mean |d − gt| over the pixels of E with an estimate
-  double density = 0;  // %, of E with an estimate
+  double bad1 = 0;         // %, of E: no estimate or |d − gt| > 1 px
+  double bad2 = 0;         // %, of E: no estimate or |d − gt| > 2 px
+  double avgerr = 0;       // px, mean |d − gt| over the pixels of E with an estimate
+  double density = 0;      // %, of E with an estimate
   std::int64_t count = 0;  // |E|, pixels evaluated
 
   // With count == 0 every metric is NaN; avgerr is NaN when density is 0.

@@ -46,6 +46,8 @@ bool ADCensusOptions::IsValid(std::string* why) const {
   if (census_width * census_height > 65)
     return fail("census window has more than 64 neighbours (census_width·census_height > 65)");
   if (!(lambda_ad > 0) || !(lambda_census > 0)) return fail("lambda_ad and lambda_census must be > 0");
+  if (!(out_of_image_cost >= 0 && out_of_image_cost <= 2))
+    return fail("out_of_image_cost must be in [0, 2]");
   if (classic.l1_px < 1 || classic.l1_px > 255 || classic.l2_px < 0 || classic.l2_px > classic.l1_px)
     return fail("classic arms: need 1 ≤ l1_px ≤ 255 and 0 ≤ l2_px ≤ l1_px");
   if (!(classic.tau1 > 0) || !(classic.tau2 > 0)) return fail("classic arms: tau1, tau2 must be > 0");
@@ -127,7 +129,8 @@ DisparityResult ComputeDisparity(const cv::Mat& left, const cv::Mat& right,
         adcensus::CensusTransform(pr.grey, options.census_width, options.census_height, parallel);
     adcensus::CostVolume cost(left.cols, left.rows, ndisp);
     adcensus::ComputeCost(img_l, img_r, census_l, census_r, dmin, options.lambda_ad,
-                          options.lambda_census, parallel, &cost);
+                          options.lambda_census, static_cast<float>(options.out_of_image_cost),
+                          parallel, &cost);
     result.time_ms.cost = MsSince(t);
 
     t = Clock::now();

@@ -47,8 +47,8 @@ std::vector<std::uint64_t> CensusTransform(const cv::Mat& grey, int win_w, int w
 void ComputeCost(const cv::Mat& left, const cv::Mat& right,
                  const std::vector<std::uint64_t>& census_left,
                  const std::vector<std::uint64_t>& census_right, int min_disparity,
-                 double lambda_ad, double lambda_census, const Parallel& parallel,
-                 CostVolume* cost) {
+                 double lambda_ad, double lambda_census, float out_of_image_cost,
+                 const Parallel& parallel, CostVolume* cost) {
   const int width = left.cols, height = left.rows, channels = left.channels();
   const int ndisp = cost->ndisp(), stride = cost->stride();
   // ρ as tables: AD indexed by the channel sum of absolute differences,
@@ -80,7 +80,7 @@ void ComputeCost(const cv::Mat& left, const cv::Mat& right,
         // Valid k: 0 ≤ x − (min_disparity + k) < width.
         const int k_lo = std::clamp(x - width + 1 - min_disparity, 0, ndisp);
         const int k_hi = std::max(k_lo, std::clamp(x - min_disparity + 1, 0, ndisp));
-        for (int k = 0; k < k_lo; ++k) out[k] = kOutOfImageCost;
+        for (int k = 0; k < k_lo; ++k) out[k] = out_of_image_cost;
         const std::uint64_t anchor = cl[x];
         const int j0 = width - 1 - x + min_disparity;  // j of k = 0
         const std::uint64_t* rc = rev_census.data() + j0;
@@ -99,7 +99,7 @@ void ComputeCost(const cv::Mat& left, const cv::Mat& right,
             out[k] = lut_ad[sad] + lut_census[std::popcount(anchor ^ rc[k])];
           }
         }
-        for (int k = k_hi; k < ndisp; ++k) out[k] = kOutOfImageCost;
+        for (int k = k_hi; k < ndisp; ++k) out[k] = out_of_image_cost;
         for (int k = ndisp; k < stride; ++k) out[k] = CostVolume::kPadCost;
       }
     }

@@ -48,13 +48,12 @@ std::vector<std::uint64_t> CensusTransform(const cv::Mat& grey, int win_w, int w
 
 // Matching cost ρ(C_AD, λ_AD) + ρ(C_census, λ_census), ρ(c, λ) = 1 − exp(−c/λ),
 // with C_AD the mean absolute difference over the channels. Disparities whose
-// right pixel falls outside the image get kOutOfImageCost.
-inline constexpr float kOutOfImageCost = 2.0f;
+// right pixel falls outside the image get `out_of_image_cost`.
 void ComputeCost(const cv::Mat& left, const cv::Mat& right,
                  const std::vector<std::uint64_t>& census_left,
                  const std::vector<std::uint64_t>& census_right, int min_disparity,
-                 double lambda_ad, double lambda_census, const Parallel& parallel,
-                 CostVolume* cost);
+                 double lambda_ad, double lambda_census, float out_of_image_cost,
+                 const Parallel& parallel, CostVolume* cost);
 
 // Cross arms of every pixel: the number of pixels the arm extends beyond the
 // anchor in each direction (0 … max length).

@@ -135,8 +135,12 @@ bool WritePfmImpl(const std::string& path, const cv::Mat& image, std::string* er
   if (image.cols > kMaxPfmSide || image.rows > kMaxPfmSide) {
     return SetError(error, where + "image too large for PFM I/O");
   }
-  cv::Mat rgb = image;
-  if (image.channels() == 3) cv::cvtColor(image, rgb, cv::COLOR_BGR2RGB);
+  cv::Mat rgb;  // must not share the caller's buffer: cvtColor would write into it
+  if (image.channels() == 3) {
+    cv::cvtColor(image, rgb, cv::COLOR_BGR2RGB);
+  } else {
+    rgb = image;
+  }
 
   std::ofstream out(path, std::ios::binary | std::ios::trunc);
   if (!out) return SetError(error, where + "cannot open file for writing");

@@ -21,8 +21,7 @@ bool ReprojectOptions::IsValid(std::string* why) const {
 }
 
 std::vector<ColoredPoint> ReprojectToPoints(const cv::Mat& disparity, const cv::Mat& Q,
-                                            const cv::Mat& color,
-                                            const ReprojectOptions& options) {
+                                            const cv::Mat& color, const ReprojectOptions& options) {
   std::string why;
   if (!options.IsValid(&why)) throw std::invalid_argument("ReprojectToPoints: " + why);
   if (disparity.empty() || disparity.type() != CV_32FC1) {
@@ -52,8 +51,8 @@ std::vector<ColoredPoint> ReprojectToPoints(const cv::Mat& disparity, const cv::
       const cv::Vec4d h = q * cv::Vec4d(x, y, d, 1.0);
       // W ≈ 0 is a point at infinity (zero disparity with equal principal
       // points); "≈" relative to the terms that make up W.
-      const double w_scale = std::abs(q(3, 0) * x) + std::abs(q(3, 1) * y) +
-                             std::abs(q(3, 2) * d) + std::abs(q(3, 3));
+      const double w_scale =
+          std::abs(q(3, 0) * x) + std::abs(q(3, 1) * y) + std::abs(q(3, 2) * d) + std::abs(q(3, 3));
       if (std::abs(h[3]) <= 1e-12 * w_scale || h[3] == 0) continue;
       const double px = h[0] / h[3], py = h[1] / h[3], pz = h[2] / h[3];
       if (!std::isfinite(px) || !std::isfinite(py) || !std::isfinite(pz)) continue;

@@ -54,7 +54,7 @@ TEST(Cost, MatchesMeiFormulaIncludingOutOfImageDisparities) {
   const auto cr = adcensus::CensusTransform(Grey(right), 9, 7, parallel);
   const int min_disparity = -3, ndisp = 12;
   adcensus::CostVolume cost(left.cols, left.rows, ndisp);
-  adcensus::ComputeCost(left, right, cl, cr, min_disparity, 10, 30, parallel, &cost);
+  adcensus::ComputeCost(left, right, cl, cr, min_disparity, 10, 30, 1.5f, parallel, &cost);
   int checked_out_of_image = 0;
   for (int y = 0; y < left.rows; ++y) {
     for (int x = 0; x < left.cols; ++x) {
@@ -62,7 +62,7 @@ TEST(Cost, MatchesMeiFormulaIncludingOutOfImageDisparities) {
         const int xr = x - (min_disparity + k);
         const float got = cost.at(y, x)[k];
         if (xr < 0 || xr >= left.cols) {
-          EXPECT_EQ(got, adcensus::kOutOfImageCost);
+          EXPECT_EQ(got, 1.5f);
           ++checked_out_of_image;
           continue;
         }

@@ -151,7 +151,9 @@ TEST(ReprojectTest, CarriesColour) {
   EXPECT_EQ(points[1].r, 23);
 
   cv::Mat grey(2, 3, CV_8UC1);
-  for (int i = 0; i < 6; ++i) grey.at<std::uint8_t>(i / 3, i % 3) = static_cast<std::uint8_t>(7 * i);
+  for (int i = 0; i < 6; ++i) {
+    grey.at<std::uint8_t>(i / 3, i % 3) = static_cast<std::uint8_t>(7 * i);
+  }
   points = ReprojectToPoints(disparity, HandQ(rig), grey);
   ASSERT_EQ(points.size(), 5u);
   EXPECT_EQ(points[4].r, 35);

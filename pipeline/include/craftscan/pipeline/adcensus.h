@@ -66,13 +66,21 @@ struct ADCensusOptions {
   int min_disparity = 0;     // px, may be negative
   int num_disparities = 64;  // px, ≥ 1: the range [min, min + num)
 
+  // Equalization and Canny feed the arms (gradient, edge pixels). Matching
+  // itself uses the raw images by default: equalizing each view on its own
+  // maps the same surface to different grey levels in the two views, which
+  // costs accuracy on every Middlebury scene we measured (see bench/README).
   PreprocessOptions preprocess;
-  bool match_equalized = true;  // match on the equalized images (else on the raw ones)
+  bool match_equalized = false;  // match on the equalized images instead of the raw ones
 
   int census_width = 9;   // odd, census window (width × height ≤ 64 + 1 bits)
   int census_height = 7;  // odd
   double lambda_ad = 10;      // robust scale of the AD cost
   double lambda_census = 30;  // robust scale of the census cost
+  // Cost of a disparity whose right pixel lies outside the image, on the
+  // [0, 2] cost scale. Neutral (1) rather than maximal: a maximal cost drags
+  // scanline paths towards small disparities along the left border.
+  double out_of_image_cost = 1.0;
 
   ArmRule arm_rule = ArmRule::kImproved;
   ClassicArmOptions classic;

@@ -9,6 +9,10 @@
 // Threads: ADCensus gets N through its options. OpenCV's thread pool is a
 // process-wide global: cv::setNumThreads(N) is set for the whole run (so SGBM
 // and any OpenCV call inside ADCensus use N) and restored afterwards.
+//
+// time_ms is the median of K calls on one matcher object per scene (buffers
+// reused across calls, for both craftscan and SGBM); with K ≥ 3 the first
+// call's allocation does not count.
 #include <algorithm>
 #include <chrono>
 #include <cmath>
@@ -19,6 +23,7 @@
 #include <functional>
 #include <iostream>
 #include <limits>
+#include <memory>
 #include <string>
 #include <utility>
 #include <vector>
@@ -47,29 +52,36 @@ struct MatchOutput {
   cv::Mat disparity;    // CV_32FC1, NaN = no estimate
 };
 
-// A matcher under test: one call computes the left disparity of a scene.
+// A matcher under test. prepare() builds it for one scene (outside the
+// timing); each call of the returned function computes the left disparity.
+// The repeats reuse one matcher object, as a station matching view after view
+// does, so buffers are allocated once for both craftscan and SGBM.
+using SceneRun = std::function<MatchOutput()>;
 struct Matcher {
   std::string name;
-  std::function<MatchOutput(const StereoScene&, int num_threads)> run;
+  std::function<SceneRun(const StereoScene&, int num_threads)> prepare;
 };
 
-MatchOutput RunADCensus(const StereoScene& scene, int num_threads, ArmRule arm_rule) {
+SceneRun PrepareADCensus(const StereoScene& scene, int num_threads, ArmRule arm_rule) {
   ADCensusOptions options;
   options.min_disparity = 0;
   options.num_disparities = scene.ndisp;
   options.num_threads = num_threads;
   options.arm_rule = arm_rule;
-  DisparityResult result = ComputeDisparity(scene.left, scene.right, options);
-  MatchOutput out;
-  out.ok = result.IsUsable();
-  out.message = result.message;
-  out.disparity = std::move(result.disparity);
-  return out;
+  auto matcher = std::make_shared<StereoMatcher>(options);
+  return [matcher, &scene] {
+    DisparityResult result = matcher->Compute(scene.left, scene.right);
+    MatchOutput out;
+    out.ok = result.IsUsable();
+    out.message = result.message;
+    out.disparity = std::move(result.disparity);
+    return out;
+  };
 }
 
 // OpenCV's SGBM with the usual Middlebury settings (P1, P2 for 3 channels and
 // 5×5 blocks, as in OpenCV's stereo_match sample).
-MatchOutput RunSgbm(const StereoScene& scene, int num_threads) {
+SceneRun PrepareSgbm(const StereoScene& scene, int num_threads) {
   constexpr int kMinDisparity = 0;
   constexpr int kBlockSize = 5;
   const int num_disparities = (scene.ndisp + 15) / 16 * 16;
@@ -79,28 +91,31 @@ MatchOutput RunSgbm(const StereoScene& scene, int num_threads) {
       /*P2=*/32 * 3 * kBlockSize * kBlockSize, /*disp12MaxDiff=*/1, /*preFilterCap=*/0,
       /*uniquenessRatio=*/10, /*speckleWindowSize=*/100, /*speckleRange=*/2,
       cv::StereoSGBM::MODE_SGBM);
-  cv::Mat fixed;  // CV_16S, disparity × 16; (minDisparity − 1) × 16 = invalid
-  sgbm->compute(scene.left, scene.right, fixed);
-  MatchOutput out;
-  out.disparity.create(fixed.size(), CV_32FC1);
-  for (int y = 0; y < fixed.rows; ++y) {
-    const short* src = fixed.ptr<short>(y);
-    float* dst = out.disparity.ptr<float>(y);
-    for (int x = 0; x < fixed.cols; ++x) {
-      dst[x] = src[x] < kMinDisparity * 16 ? kInvalidDisparity : static_cast<float>(src[x]) / 16.f;
+  return [sgbm, &scene] {
+    cv::Mat fixed;  // CV_16S, disparity × 16; (minDisparity − 1) × 16 = invalid
+    sgbm->compute(scene.left, scene.right, fixed);
+    MatchOutput out;
+    out.disparity.create(fixed.size(), CV_32FC1);
+    for (int y = 0; y < fixed.rows; ++y) {
+      const short* src = fixed.ptr<short>(y);
+      float* dst = out.disparity.ptr<float>(y);
+      for (int x = 0; x < fixed.cols; ++x) {
+        dst[x] =
+            src[x] < kMinDisparity * 16 ? kInvalidDisparity : static_cast<float>(src[x]) / 16.f;
+      }
     }
-  }
-  out.ok = true;
-  return out;
+    out.ok = true;
+    return out;
+  };
 }
 
 std::vector<Matcher> AllMatchers() {
   return {
       {"adcensus",
-       [](const StereoScene& s, int n) { return RunADCensus(s, n, ArmRule::kImproved); }},
+       [](const StereoScene& s, int n) { return PrepareADCensus(s, n, ArmRule::kImproved); }},
       {"adcensus-classic",
-       [](const StereoScene& s, int n) { return RunADCensus(s, n, ArmRule::kClassic); }},
-      {"sgbm", RunSgbm},
+       [](const StereoScene& s, int n) { return PrepareADCensus(s, n, ArmRule::kClassic); }},
+      {"sgbm", PrepareSgbm},
   };
 }
 
@@ -317,10 +332,17 @@ class StereoCommand : public BenchCommand {
       for (const Matcher& matcher : matchers) {
         MatchOutput output;
         std::vector<double> times_ms;
+        SceneRun run;
+        try {
+          run = matcher.prepare(scene, threads_);
+        } catch (const std::exception& e) {
+          return DataError(matcher.name + " cannot be set up for scene '" + scene.name +
+                           "': " + e.what());
+        }
         for (int k = 0; k < repeat_; ++k) {
           const auto start = std::chrono::steady_clock::now();
           try {
-            output = matcher.run(scene, threads_);
+            output = run();
           } catch (const std::exception& e) {  // e.g. cv::Exception from SGBM
             output = MatchOutput{false, e.what(), {}};
           }

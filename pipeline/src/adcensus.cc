@@ -92,8 +92,24 @@ DisparityResult Fail(std::string message) {
 
 }  // namespace
 
+struct StereoMatcher::Workspace {
+  adcensus::CostVolume cost, scratch;
+};
+
+StereoMatcher::StereoMatcher(ADCensusOptions options)
+    : options_(std::move(options)), workspace_(std::make_unique<Workspace>()) {}
+StereoMatcher::~StereoMatcher() = default;
+StereoMatcher::StereoMatcher(StereoMatcher&&) noexcept = default;
+StereoMatcher& StereoMatcher::operator=(StereoMatcher&&) noexcept = default;
+
 DisparityResult ComputeDisparity(const cv::Mat& left, const cv::Mat& right,
                                  const ADCensusOptions& options) {
+  StereoMatcher matcher(options);
+  return matcher.Compute(left, right);
+}
+
+DisparityResult StereoMatcher::Compute(const cv::Mat& left, const cv::Mat& right) {
+  const ADCensusOptions& options = options_;
   std::string why;
   if (!options.IsValid(&why)) return Fail("invalid options: " + why);
   if (left.empty() || right.empty()) return Fail("left or right image is empty");
@@ -127,7 +143,8 @@ DisparityResult ComputeDisparity(const cv::Mat& left, const cv::Mat& right,
         adcensus::CensusTransform(pl.grey, options.census_width, options.census_height, parallel);
     const auto census_r =
         adcensus::CensusTransform(pr.grey, options.census_width, options.census_height, parallel);
-    adcensus::CostVolume cost(left.cols, left.rows, ndisp);
+    adcensus::CostVolume& cost = workspace_->cost;
+    cost.Reshape(left.cols, left.rows, ndisp);
     adcensus::ComputeCost(img_l, img_r, census_l, census_r, dmin, options.lambda_ad,
                           options.lambda_census, static_cast<float>(options.out_of_image_cost),
                           parallel, &cost);
@@ -144,7 +161,8 @@ DisparityResult ComputeDisparity(const cv::Mat& left, const cv::Mat& right,
 
     t = Clock::now();
     if (options.scanline_optimization)
-      adcensus::ScanlineOptimize(img_l, img_r, dmin, options, parallel, &cost);
+      adcensus::ScanlineOptimize(img_l, img_r, dmin, options, parallel, &cost,
+                                 &workspace_->scratch);
     result.time_ms.scanline = MsSince(t);
 
     t = Clock::now();

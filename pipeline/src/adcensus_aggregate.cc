@@ -209,7 +209,7 @@ inline float PathStep(const float* __restrict a, const float* __restrict prev, f
 
 void ScanlineOptimize(const cv::Mat& left, const cv::Mat& right, int min_disparity,
                       const ADCensusOptions& options, const Parallel& parallel,
-                      CostVolume* cost) {
+                      CostVolume* cost, CostVolume* scratch) {
   const int width = cost->width(), height = cost->height();
   const int ndisp = cost->ndisp(), stride = cost->stride();
   const int ch = left.channels();
@@ -219,7 +219,8 @@ void ScanlineOptimize(const cv::Mat& left, const cv::Mat& right, int min_dispari
   const float inf = std::numeric_limits<float>::infinity();
   const RightDiffs hdiff(right, min_disparity, stride, false, tau_so);
   const RightDiffs vdiff(right, min_disparity, stride, true, tau_so);
-  CostVolume result(width, height, ndisp);
+  scratch->Reshape(width, height, ndisp);
+  CostVolume& result = *scratch;
 
   // Horizontal paths: result = L(left→right) + L(right→left).
   parallel.For(0, height, [&](int y0, int y1) {
@@ -294,7 +295,7 @@ void ScanlineOptimize(const cv::Mat& left, const cv::Mat& right, int min_dispari
       }
     }
   });
-  *cost = std::move(result);
+  cost->swap(result);
 }
 
 void WinnerTakeAll(const CostVolume& cost, int min_disparity, const Parallel& parallel,
@@ -324,10 +325,9 @@ void WinnerTakeAll(const CostVolume& cost, int min_disparity, const Parallel& pa
         const int k_hi = std::min(ndisp, x - min_disparity + 1);
         for (int k = k_lo; k < k_hi; ++k) {
           const int xr = x - min_disparity - k;
-          if (c[k] < best[xr]) {
-            best[xr] = c[k];
-            best_k[xr] = k;
-          }
+          const bool better = c[k] < best[xr];
+          best[xr] = better ? c[k] : best[xr];
+          best_k[xr] = better ? k : best_k[xr];
         }
       }
       for (int xr = 0; xr < width; ++xr)

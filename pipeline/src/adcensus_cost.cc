@@ -2,7 +2,11 @@
 #include <algorithm>
 #include <bit>
 #include <cmath>
+#include <cstdlib>
 #include <cstring>
+#include <new>
+
+#include <sys/mman.h>
 
 #include <opencv2/core.hpp>
 
@@ -10,10 +14,25 @@
 
 namespace craftscan::adcensus {
 
-CostVolume::CostVolume(int width, int height, int ndisp)
-    : width_(width), height_(height), ndisp_(ndisp), stride_((ndisp + 15) / 16 * 16) {
-  const std::size_t n = static_cast<std::size_t>(width) * height * stride_;
-  data_.reset(static_cast<float*>(::operator new[](n * sizeof(float), std::align_val_t(64))));
+void CostVolume::Reshape(int width, int height, int ndisp) {
+  width_ = width;
+  height_ = height;
+  ndisp_ = ndisp;
+  stride_ = (ndisp + 15) / 16 * 16;
+  const std::size_t floats = static_cast<std::size_t>(width) * height * stride_;
+  if (floats <= capacity_) return;
+  data_.reset();
+  capacity_ = 0;
+  // Volumes are tens to hundreds of MB: ask for transparent huge pages so the
+  // first touch costs one fault per 2 MB instead of one per 4 kB.
+  constexpr std::size_t kHugePage = std::size_t{2} << 20;
+  const std::size_t bytes = floats * sizeof(float);
+  const std::size_t rounded = (bytes + kHugePage - 1) / kHugePage * kHugePage;
+  void* p = std::aligned_alloc(kHugePage, rounded);
+  if (!p) throw std::bad_alloc();
+  ::madvise(p, rounded, MADV_HUGEPAGE);  // advisory; ignore failure
+  data_.reset(static_cast<float*>(p));
+  capacity_ = floats;
 }
 
 std::vector<std::uint64_t> CensusTransform(const cv::Mat& grey, int win_w, int win_h,

@@ -3,8 +3,10 @@
 #pragma once
 
 #include <cstdint>
+#include <cstdlib>
 #include <memory>
 #include <new>
+#include <utility>
 #include <vector>
 
 #include <opencv2/core/mat.hpp>
@@ -21,7 +23,18 @@ class CostVolume {
  public:
   static constexpr float kPadCost = 1e4f;
   CostVolume() = default;
-  CostVolume(int width, int height, int ndisp);
+  CostVolume(int width, int height, int ndisp) { Reshape(width, height, ndisp); }
+  // Sets the dimensions; reallocates only when the capacity is too small.
+  // Contents are unspecified afterwards.
+  void Reshape(int width, int height, int ndisp);
+  void swap(CostVolume& other) noexcept {
+    std::swap(width_, other.width_);
+    std::swap(height_, other.height_);
+    std::swap(ndisp_, other.ndisp_);
+    std::swap(stride_, other.stride_);
+    std::swap(capacity_, other.capacity_);
+    data_.swap(other.data_);
+  }
   int width() const { return width_; }
   int height() const { return height_; }
   int ndisp() const { return ndisp_; }
@@ -34,9 +47,10 @@ class CostVolume {
 
  private:
   struct Free {
-    void operator()(float* p) const { ::operator delete[](p, std::align_val_t(64)); }
+    void operator()(float* p) const { std::free(p); }
   };
   int width_ = 0, height_ = 0, ndisp_ = 0, stride_ = 0;
+  std::size_t capacity_ = 0;  // floats
   std::unique_ptr<float[], Free> data_;
 };
 
@@ -83,10 +97,11 @@ void Aggregate(const Arms& arms, int iterations, const Parallel& parallel, CostV
 int SupportSize(const Arms& arms, int y, int x, bool horizontal_first);
 
 // Four-direction scanline optimization (Mei et al.), result = mean of the
-// four path costs. Penalties depend on colour differences in both images.
+// four path costs, left in *cost. Penalties depend on colour differences in
+// both images. `scratch` is working memory (reshaped as needed).
 void ScanlineOptimize(const cv::Mat& left, const cv::Mat& right, int min_disparity,
                       const ADCensusOptions& options, const Parallel& parallel,
-                      CostVolume* cost);
+                      CostVolume* cost, CostVolume* scratch);
 
 // Winner-take-all: integer disparity index (0 … ndisp−1) per pixel of the
 // left view, and of the right view through cost(y, x_r + d, d) (NaN where no

@@ -9,6 +9,7 @@
 
 #include <cstdint>
 #include <limits>
+#include <memory>
 #include <string>
 #include <string_view>
 
@@ -116,9 +117,31 @@ struct DisparityResult {
   bool IsUsable() const { return status == Status::kOk; }
 };
 
-// Computes the left disparity map. Never throws for bad input: returns a
-// result with status kInvalidInput and a message naming what is wrong.
-// Thread-safe; uses options.num_threads threads for this call only.
+// A matcher that keeps its working memory (two cost volumes of
+// width·height·num_disparities floats, rounded up) between calls, so a
+// station matching view after view pays for allocation and first-touch page
+// faults once. Not thread-safe: use one matcher per thread.
+class StereoMatcher {
+ public:
+  explicit StereoMatcher(ADCensusOptions options);
+  ~StereoMatcher();
+  StereoMatcher(StereoMatcher&&) noexcept;
+  StereoMatcher& operator=(StereoMatcher&&) noexcept;
+
+  const ADCensusOptions& options() const { return options_; }
+
+  // Computes the left disparity map. Never throws for bad input: returns a
+  // result with status kInvalidInput and a message naming what is wrong
+  // (including invalid options). Uses options().num_threads threads.
+  DisparityResult Compute(const cv::Mat& left, const cv::Mat& right);
+
+ private:
+  struct Workspace;
+  ADCensusOptions options_;
+  std::unique_ptr<Workspace> workspace_;
+};
+
+// One-shot form of StereoMatcher::Compute. Thread-safe.
 DisparityResult ComputeDisparity(const cv::Mat& left, const cv::Mat& right,
                                  const ADCensusOptions& options);
 

@@ -298,41 +298,89 @@ void ScanlineOptimize(const cv::Mat& left, const cv::Mat& right, int min_dispari
   cost->swap(result);
 }
 
+namespace {
+
+// Index of the first minimum of c[0 … n) (n a multiple of the vector width;
+// lanes past the real disparities hold kPadCost and never win).
+inline int ArgMin(const float* __restrict c, int n) {
+  namespace hn = hwy::HWY_NAMESPACE;
+  const hn::ScalableTag<float> df;
+  const hn::RebindToSigned<decltype(df)> di;
+  const int lanes = static_cast<int>(hn::Lanes(df));
+  auto best = hn::Set(df, std::numeric_limits<float>::infinity());
+  auto best_k = hn::Zero(di);
+  auto k_vec = hn::Iota(di, 0);
+  const auto step = hn::Set(di, lanes);
+  for (int k = 0; k < n; k += lanes) {
+    const auto v = hn::LoadU(df, c + k);
+    const auto better = hn::Lt(v, best);  // strict: each lane keeps its first minimum
+    best = hn::IfThenElse(better, v, best);
+    best_k = hn::IfThenElse(hn::RebindMask(di, better), k_vec, best_k);
+    k_vec = hn::Add(k_vec, step);
+  }
+  // Among lanes holding the minimum, the smallest index: the first minimum.
+  const auto min_all = hn::MinOfLanes(df, best);
+  const auto at_min = hn::RebindMask(di, hn::Eq(best, min_all));
+  const auto candidates = hn::IfThenElse(at_min, best_k, hn::Set(di, std::numeric_limits<int>::max()));
+  return hn::GetLane(hn::MinOfLanes(di, candidates));
+}
+
+// For the right view: best[j0 + k] = min(best[j0 + k], c[k]) over a padded
+// run, with the index of the winner. Strict "<" keeps the first (lowest k)
+// winner because callers visit candidates of each entry in increasing k.
+inline void RightMinUpdate(const float* __restrict c, int n, float* __restrict best,
+                           std::int32_t* __restrict best_k) {
+  namespace hn = hwy::HWY_NAMESPACE;
+  const hn::ScalableTag<float> df;
+  const hn::RebindToSigned<decltype(df)> di;
+  const int lanes = static_cast<int>(hn::Lanes(df));
+  auto k_vec = hn::Iota(di, 0);
+  const auto step = hn::Set(di, lanes);
+  for (int k = 0; k < n; k += lanes) {
+    const auto v = hn::LoadU(df, c + k);
+    const auto b = hn::LoadU(df, best + k);
+    const auto better = hn::Lt(v, b);
+    hn::StoreU(hn::IfThenElse(better, v, b), df, best + k);
+    hn::StoreU(hn::IfThenElse(hn::RebindMask(di, better), k_vec, hn::LoadU(di, best_k + k)), di,
+               best_k + k);
+    k_vec = hn::Add(k_vec, step);
+  }
+}
+
+}  // namespace
+
 void WinnerTakeAll(const CostVolume& cost, int min_disparity, const Parallel& parallel,
                    cv::Mat* left_index, cv::Mat* right_index) {
   const int width = cost.width(), height = cost.height(), ndisp = cost.ndisp();
+  const int stride = cost.stride();
   left_index->create(height, width, CV_32FC1);
   right_index->create(height, width, CV_32FC1);
+  // Right view, in the same pass over each row (no diagonal walk through the
+  // volume): left pixel x at index k matches x_r = x − d_min − k. Entries are
+  // kept reversed, j = width − 1 − x_r + margin, so that each pixel's
+  // candidates form one contiguous run j0 + k. Runs also touch entries outside
+  // the image (ignored) and padding lanes (cost kPadCost: never a real winner).
+  const int margin = stride + std::abs(min_disparity) + 1;
+  const int entries = width + 2 * margin;
   parallel.For(0, height, [&](int y0, int y1) {
-    std::vector<float> best(width);
-    std::vector<int> best_k(width);
+    std::vector<float> best(entries);
+    std::vector<std::int32_t> best_k(entries);
     for (int y = y0; y < y1; ++y) {
       float* l = left_index->ptr<float>(y);
-      for (int x = 0; x < width; ++x) {
-        const float* c = cost.at(y, x);
-        l[x] = static_cast<float>(std::min_element(c, c + ndisp) - c);
-      }
-      // Right view in the same pass over the row (no second, diagonal walk
-      // through the volume): the left pixel x at index k matches
-      // x_r = x − d_min − k. Visiting x in increasing order visits each x_r's
-      // candidates in increasing k, so ties keep the lowest k as for the left.
       float* r = right_index->ptr<float>(y);
       std::fill(best.begin(), best.end(), std::numeric_limits<float>::infinity());
       std::fill(best_k.begin(), best_k.end(), -1);
       for (int x = 0; x < width; ++x) {
         const float* c = cost.at(y, x);
-        const int k_lo = std::max(0, x - min_disparity - (width - 1));
-        const int k_hi = std::min(ndisp, x - min_disparity + 1);
-        for (int k = k_lo; k < k_hi; ++k) {
-          const int xr = x - min_disparity - k;
-          const bool better = c[k] < best[xr];
-          best[xr] = better ? c[k] : best[xr];
-          best_k[xr] = better ? k : best_k[xr];
-        }
+        l[x] = static_cast<float>(ArgMin(c, stride));
+        const int j0 = width - 1 - x + min_disparity + margin;
+        RightMinUpdate(c, stride, &best[j0], &best_k[j0]);
       }
-      for (int xr = 0; xr < width; ++xr)
-        r[xr] = best_k[xr] < 0 ? std::numeric_limits<float>::quiet_NaN()
-                               : static_cast<float>(best_k[xr]);
+      for (int xr = 0; xr < width; ++xr) {
+        const int j = width - 1 - xr + margin;
+        const int k = best_k[j];
+        r[xr] = k < 0 || k >= ndisp ? std::numeric_limits<float>::quiet_NaN() : static_cast<float>(k);
+      }
     }
   });
 }

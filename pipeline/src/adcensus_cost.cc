@@ -8,6 +8,7 @@
 
 #include <sys/mman.h>
 
+#include <hwy/highway.h>
 #include <opencv2/core.hpp>
 
 #include "adcensus_internal.h"
@@ -63,6 +64,34 @@ std::vector<std::uint64_t> CensusTransform(const cv::Mat& grey, int win_w, int w
   return census;
 }
 
+namespace {
+
+// out[k] = lut_ad[Σ_c |a_c − r_c[k]|] + lut_census[hamming[k]] for k in [k0, k1).
+void CostRun(const std::int32_t* a, const std::int32_t* const* r, int channels,
+             const std::int32_t* hamming, const float* lut_ad, const float* lut_census, int k0,
+             int k1, float* out) {
+  namespace hn = hwy::HWY_NAMESPACE;
+  const hn::ScalableTag<float> df;
+  const hn::RebindToSigned<decltype(df)> di;
+  const int lanes = static_cast<int>(hn::Lanes(df));
+  int k = k0;
+  for (; k + lanes <= k1; k += lanes) {
+    auto sad = hn::Abs(hn::Sub(hn::Set(di, a[0]), hn::LoadU(di, r[0] + k)));
+    for (int c = 1; c < channels; ++c)
+      sad = hn::Add(sad, hn::Abs(hn::Sub(hn::Set(di, a[c]), hn::LoadU(di, r[c] + k))));
+    const auto v = hn::Add(hn::GatherIndex(df, lut_ad, sad),
+                           hn::GatherIndex(df, lut_census, hn::LoadU(di, hamming + k)));
+    hn::StoreU(v, df, out + k);
+  }
+  for (; k < k1; ++k) {
+    int sad = 0;
+    for (int c = 0; c < channels; ++c) sad += std::abs(a[c] - r[c][k]);
+    out[k] = lut_ad[sad] + lut_census[hamming[k]];
+  }
+}
+
+}  // namespace
+
 void ComputeCost(const cv::Mat& left, const cv::Mat& right,
                  const std::vector<std::uint64_t>& census_left,
                  const std::vector<std::uint64_t>& census_right, int min_disparity,
@@ -82,7 +111,8 @@ void ComputeCost(const cv::Mat& left, const cv::Mat& right,
     // The right row reversed (j = width − 1 − x_r), so that for a left pixel
     // the candidates x_r = x − d_min − k are contiguous and increasing in k.
     std::vector<std::uint64_t> rev_census(width);
-    std::vector<std::int16_t> rev_colour(static_cast<std::size_t>(channels) * width);
+    std::vector<std::int32_t> rev_colour(static_cast<std::size_t>(channels) * width);
+    std::vector<std::int32_t> hamming(ndisp + 16);
     for (int y = y0; y < y1; ++y) {
       const std::uint8_t* pl = left.ptr<std::uint8_t>(y);
       const std::uint8_t* pr = right.ptr<std::uint8_t>(y);
@@ -100,24 +130,20 @@ void ComputeCost(const cv::Mat& left, const cv::Mat& right,
         const int k_lo = std::clamp(x - width + 1 - min_disparity, 0, ndisp);
         const int k_hi = std::max(k_lo, std::clamp(x - min_disparity + 1, 0, ndisp));
         for (int k = 0; k < k_lo; ++k) out[k] = out_of_image_cost;
-        const std::uint64_t anchor = cl[x];
         const int j0 = width - 1 - x + min_disparity;  // j of k = 0
+        // Hamming distances first (scalar popcount, independent iterations),
+        // then the table look-ups and sums as vectors.
+        const std::uint64_t anchor = cl[x];
         const std::uint64_t* rc = rev_census.data() + j0;
-        if (channels == 1) {
-          const std::int16_t a = pl[x];
-          const std::int16_t* r0 = rev_colour.data() + j0;
-          for (int k = k_lo; k < k_hi; ++k)
-            out[k] = lut_ad[std::abs(a - r0[k])] + lut_census[std::popcount(anchor ^ rc[k])];
-        } else {
-          const std::int16_t a0 = pl[3 * x], a1 = pl[3 * x + 1], a2 = pl[3 * x + 2];
-          const std::int16_t* r0 = rev_colour.data() + j0;
-          const std::int16_t* r1 = r0 + width;
-          const std::int16_t* r2 = r1 + width;
-          for (int k = k_lo; k < k_hi; ++k) {
-            const int sad = std::abs(a0 - r0[k]) + std::abs(a1 - r1[k]) + std::abs(a2 - r2[k]);
-            out[k] = lut_ad[sad] + lut_census[std::popcount(anchor ^ rc[k])];
-          }
+        for (int k = k_lo; k < k_hi; ++k)
+          hamming[k] = static_cast<std::int32_t>(std::popcount(anchor ^ rc[k]));
+        std::int32_t a[3] = {};
+        const std::int32_t* r[3] = {};
+        for (int c = 0; c < channels; ++c) {
+          a[c] = pl[channels * x + c];
+          r[c] = rev_colour.data() + static_cast<std::size_t>(c) * width + j0;
         }
+        CostRun(a, r, channels, hamming.data(), lut_ad.data(), lut_census, k_lo, k_hi, out);
         for (int k = k_hi; k < ndisp; ++k) out[k] = out_of_image_cost;
         for (int k = ndisp; k < stride; ++k) out[k] = CostVolume::kPadCost;
       }
@@ -176,6 +202,25 @@ void RowColourDiff(const Planes& p, int ya, int da, int yb, int db, int n, std::
 // "d < ceil(tau)"; lengths compare as integers too ("len > l2" ⇔ len > floor(l2)).
 std::uint8_t CeilU8(double v) { return static_cast<std::uint8_t>(std::clamp(std::ceil(v), 0.0, 255.0)); }
 std::uint8_t FloorU8(double v) { return static_cast<std::uint8_t>(std::clamp(std::floor(v), 0.0, 255.0)); }
+
+// ok[x] = |a[x] − b[x]| < limit for x in [x0, x1). Explicit SIMD: GCC does
+// not vectorize this float-to-byte loop on its own.
+void GradientWithin(const float* a, const float* b, float limit, int x0, int x1,
+                    std::uint8_t* ok) {
+  namespace hn = hwy::HWY_NAMESPACE;
+  const hn::ScalableTag<float> df;
+  const hn::RebindToSigned<decltype(df)> di;
+  const hn::Rebind<std::uint8_t, decltype(df)> du8;
+  const int lanes = static_cast<int>(hn::Lanes(df));
+  const auto vlimit = hn::Set(df, limit);
+  const auto one = hn::Set(di, 1);
+  int x = x0;
+  for (; x + lanes <= x1; x += lanes) {
+    const auto within = hn::Lt(hn::Abs(hn::Sub(hn::LoadU(df, a + x), hn::LoadU(df, b + x))), vlimit);
+    hn::StoreU(hn::DemoteTo(du8, hn::IfThenElseZero(hn::RebindMask(di, within), one)), du8, ok + x);
+  }
+  for (; x < x1; ++x) ok[x] = std::abs(a[x] - b[x]) < limit ? 1 : 0;
+}
 
 }  // namespace
 
@@ -268,11 +313,7 @@ Arms BuildArms(const cv::Mat& image, const cv::Mat& gradient, const cv::Mat& edg
           } else {
             RowColourDiff(planes, qy, 0, dir == 2 ? qy - 1 : qy + 1, 0, width, d_prev.data());
           }
-          if (improved) {
-            const float* gq = gradient.ptr<float>(qy) + dx;
-            for (int x = x_lo; x < x_hi; ++x)
-              grad_ok[x] = static_cast<std::uint8_t>(std::abs(gq[x] - g[x]) < beta1 ? 1 : 0);
-          }
+          if (improved) GradientWithin(gradient.ptr<float>(qy) + dx, g, beta1, x_lo, x_hi, grad_ok.data());
           const std::uint8_t ulen = static_cast<std::uint8_t>(len);
           std::uint8_t any = 0;
           // Bitwise, branch-free: this loop vectorizes.

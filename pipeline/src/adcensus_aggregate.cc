@@ -7,6 +7,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstring>
+#include <initializer_list>
 #include <limits>
 
 #include <hwy/highway.h>
@@ -20,7 +21,9 @@ using Buffer = std::vector<float>;
 
 // Columns per vertical-pass work item: small enough to balance two threads,
 // large enough that each row access is a long contiguous run.
-constexpr int kColumnBand = 8;
+constexpr int kColumnBand = 4;
+// How far ahead (rows) vertical passes prefetch the volume.
+constexpr int kPrefetchRows = 4;
 
 // out[k] = (hi[k] − lo[k]) · scale over the padded disparity axis.
 inline void WindowSum(const float* __restrict hi, const float* __restrict lo, float scale,
@@ -33,62 +36,91 @@ inline void Accumulate(const float* __restrict prev, const float* __restrict add
   for (int k = 0; k < n; ++k) out[k] = prev[k] + add[k];
 }
 
-// Sums the cost along each pixel's horizontal arm; scales by inv_count when
-// given (end of an iteration) — otherwise leaves raw sums.
-void HorizontalPass(const Arms& arms, const std::vector<float>* inv_count,
-                    const Parallel& parallel, CostVolume* cost) {
+// One pass of cross aggregation along one axis: each pixel's value becomes
+// the sum along its arm, scaled by the pixel's 1 / support size when the pass
+// ends an iteration (scale given) or left as a raw sum (nullptr).
+using PassScale = const std::vector<float>*;
+
+// Runs consecutive horizontal passes on each row while the row is in cache:
+// one read and one write of the volume however many passes there are.
+void HorizontalPasses(const Arms& arms, std::initializer_list<PassScale> passes,
+                      const Parallel& parallel, CostVolume* cost) {
   const int width = cost->width(), stride = cost->stride();
   parallel.For(0, cost->height(), [&](int y0, int y1) {
     Buffer prefix(static_cast<std::size_t>(width + 1) * stride);
     for (int y = y0; y < y1; ++y) {
-      std::fill_n(prefix.data(), stride, 0.f);
-      for (int x = 0; x < width; ++x)
-        Accumulate(&prefix[static_cast<std::size_t>(x) * stride], cost->at(y, x), stride,
-                   &prefix[static_cast<std::size_t>(x + 1) * stride]);
-      for (int x = 0; x < width; ++x) {
-        const std::size_t i = arms.index(y, x);
-        const float scale = inv_count ? (*inv_count)[i] : 1.f;
-        WindowSum(&prefix[static_cast<std::size_t>(x + arms.right[i] + 1) * stride],
-                  &prefix[static_cast<std::size_t>(x - arms.left[i]) * stride], scale, stride,
-                  cost->at(y, x));
-      }
-    }
-  });
-}
-
-// The vertical counterpart; prefix sums run down a band of columns.
-void VerticalPass(const Arms& arms, const std::vector<float>* inv_count, const Parallel& parallel,
-                  CostVolume* cost) {
-  const int width = cost->width(), height = cost->height(), stride = cost->stride();
-  const int bands = (width + kColumnBand - 1) / kColumnBand;
-  parallel.For(0, bands, [&](int b0, int b1) {
-    Buffer prefix;
-    for (int b = b0; b < b1; ++b) {
-      const int x0 = b * kColumnBand, x1 = std::min(width, x0 + kColumnBand);
-      const std::size_t band = static_cast<std::size_t>(x1 - x0) * stride;
-      prefix.assign((height + 1) * band, 0.f);
-      for (int y = 0; y < height; ++y)
-        Accumulate(&prefix[y * band], cost->at(y, x0), static_cast<int>(band),
-                   &prefix[(y + 1) * band]);
-      for (int y = 0; y < height; ++y) {
-        for (int x = x0; x < x1; ++x) {
+      for (PassScale inv_count : passes) {
+        std::fill_n(prefix.data(), stride, 0.f);
+        for (int x = 0; x < width; ++x)
+          Accumulate(&prefix[static_cast<std::size_t>(x) * stride], cost->at(y, x), stride,
+                     &prefix[static_cast<std::size_t>(x + 1) * stride]);
+        for (int x = 0; x < width; ++x) {
           const std::size_t i = arms.index(y, x);
           const float scale = inv_count ? (*inv_count)[i] : 1.f;
-          const std::size_t off = static_cast<std::size_t>(x - x0) * stride;
-          WindowSum(&prefix[(y + arms.down[i] + 1) * band + off],
-                    &prefix[(y - arms.up[i]) * band + off], scale, stride, cost->at(y, x));
+          WindowSum(&prefix[static_cast<std::size_t>(x + arms.right[i] + 1) * stride],
+                    &prefix[static_cast<std::size_t>(x - arms.left[i]) * stride], scale, stride,
+                    cost->at(y, x));
         }
       }
     }
   });
 }
 
+// The vertical counterpart on bands of columns: the band is copied out once,
+// every pass runs on the copy (prefix sums down the band), and it is written
+// back once.
+void VerticalPasses(const Arms& arms, std::initializer_list<PassScale> passes,
+                    const Parallel& parallel, CostVolume* cost) {
+  const int width = cost->width(), height = cost->height(), stride = cost->stride();
+  const int bands = (width + kColumnBand - 1) / kColumnBand;
+  parallel.For(0, bands, [&](int b0, int b1) {
+    Buffer prefix, data;
+    for (int b = b0; b < b1; ++b) {
+      const int x0 = b * kColumnBand, x1 = std::min(width, x0 + kColumnBand);
+      const std::size_t band = static_cast<std::size_t>(x1 - x0) * stride;
+      prefix.resize((height + 1) * band);
+      data.resize(height * band);
+      for (int y = 0; y < height; ++y) {
+        // Rows of a band lie one volume row apart: the hardware prefetcher
+        // does not follow, so fetch a few rows ahead by hand.
+        if (y + kPrefetchRows < height) {
+          const char* ahead = reinterpret_cast<const char*>(cost->at(y + kPrefetchRows, x0));
+          for (std::size_t off = 0; off < band * sizeof(float); off += 64)
+            __builtin_prefetch(ahead + off);
+        }
+        std::copy_n(cost->at(y, x0), band, &data[y * band]);
+      }
+      for (PassScale inv_count : passes) {
+        std::fill_n(prefix.data(), band, 0.f);
+        for (int y = 0; y < height; ++y)
+          Accumulate(&prefix[y * band], &data[y * band], static_cast<int>(band),
+                     &prefix[(y + 1) * band]);
+        for (int y = 0; y < height; ++y) {
+          for (int x = x0; x < x1; ++x) {
+            const std::size_t i = arms.index(y, x);
+            const float scale = inv_count ? (*inv_count)[i] : 1.f;
+            const std::size_t off = static_cast<std::size_t>(x - x0) * stride;
+            WindowSum(&prefix[(y + arms.down[i] + 1) * band + off],
+                      &prefix[(y - arms.up[i]) * band + off], scale, stride,
+                      &data[y * band + off]);
+          }
+        }
+      }
+      for (int y = 0; y < height; ++y) std::copy_n(&data[y * band], band, cost->at(y, x0));
+    }
+  });
+}
+
 // 1 / support size for each pixel.
-std::vector<float> InverseSupportSizes(const Arms& arms, bool horizontal_first) {
+std::vector<float> InverseSupportSizes(const Arms& arms, bool horizontal_first,
+                                       const Parallel& parallel) {
   std::vector<float> inv(static_cast<std::size_t>(arms.width) * arms.height);
-  for (int y = 0; y < arms.height; ++y)
-    for (int x = 0; x < arms.width; ++x)
-      inv[arms.index(y, x)] = 1.f / static_cast<float>(SupportSize(arms, y, x, horizontal_first));
+  parallel.For(0, arms.height, [&](int y0, int y1) {
+    for (int y = y0; y < y1; ++y)
+      for (int x = 0; x < arms.width; ++x)
+        inv[arms.index(y, x)] =
+            1.f / static_cast<float>(SupportSize(arms, y, x, horizontal_first));
+  });
   return inv;
 }
 
@@ -113,16 +145,27 @@ int SupportSize(const Arms& arms, int y, int x, bool horizontal_first) {
 
 void Aggregate(const Arms& arms, int iterations, const Parallel& parallel, CostVolume* cost) {
   if (iterations <= 0) return;
-  const std::vector<float> inv_h = InverseSupportSizes(arms, true);
-  const std::vector<float> inv_v = iterations > 1 ? InverseSupportSizes(arms, false)
-                                                  : std::vector<float>();
+  const std::vector<float> inv_h = InverseSupportSizes(arms, true, parallel);
+  const std::vector<float> inv_v =
+      iterations > 1 ? InverseSupportSizes(arms, false, parallel) : std::vector<float>();
+  // Iteration i is horizontal-first (H, then V scaled by inv_h) for even i and
+  // vertical-first (V, then H scaled by inv_v) for odd i. Consecutive passes
+  // along the same axis run fused: H | V V | H H | V V | H for 4 iterations.
+  HorizontalPasses(arms, {nullptr}, parallel, cost);
   for (int it = 0; it < iterations; ++it) {
-    if (it % 2 == 0) {  // horizontal-first: union of horizontal segments along the vertical arm
-      HorizontalPass(arms, nullptr, parallel, cost);
-      VerticalPass(arms, &inv_h, parallel, cost);
+    const bool last = it + 1 == iterations;
+    if (it % 2 == 0) {
+      if (last) {
+        VerticalPasses(arms, {&inv_h}, parallel, cost);
+      } else {
+        VerticalPasses(arms, {&inv_h, nullptr}, parallel, cost);
+      }
     } else {
-      VerticalPass(arms, nullptr, parallel, cost);
-      HorizontalPass(arms, &inv_v, parallel, cost);
+      if (last) {
+        HorizontalPasses(arms, {&inv_v}, parallel, cost);
+      } else {
+        HorizontalPasses(arms, {&inv_v, nullptr}, parallel, cost);
+      }
     }
   }
 }

@@ -122,8 +122,15 @@ DisparityResult StereoMatcher::Compute(const cv::Mat& left, const cv::Mat& right
   if (left.cols < 2 || left.rows < 2) return Fail("images must be at least 2x2 pixels");
   const double voxels =
       static_cast<double>(left.cols) * left.rows * ((options.num_disparities + 15) / 16 * 16);
-  if (voxels > 2.0e9)  // two float volumes live at once; keep well below memory
-    return Fail("cost volume too large (width·height·num_disparities > 2e9)");
+  if (voxels > 1.0e9)  // two float volumes live at once: 8 GB at this limit
+    return Fail("cost volume too large: width·height·num_disparities = " +
+                std::to_string(static_cast<long long>(voxels)) +
+                " exceeds 1e9; narrow the disparity range or match at lower resolution");
+  if (options.min_disparity >= left.cols ||
+      options.min_disparity + options.num_disparities - 1 <= -left.cols)
+    return Fail("disparity range [" + std::to_string(options.min_disparity) + ", " +
+                std::to_string(options.min_disparity + options.num_disparities) +
+                ") lies entirely outside the image width " + std::to_string(left.cols));
 
   try {
     const auto t_start = Clock::now();

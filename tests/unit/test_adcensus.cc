@@ -342,6 +342,15 @@ TEST(Matcher, RejectsBadInputWithAClearMessage) {
   r = ComputeDisparity(a, a, o);
   EXPECT_NE(r.message.find("census"), std::string::npos) << r.message;
   o = {};
+  o.min_disparity = 60;  // the images are 50 px wide
+  r = ComputeDisparity(a, a, o);
+  EXPECT_NE(r.message.find("outside the image"), std::string::npos) << r.message;
+  o = {};
+  o.num_disparities = 4096;
+  r = ComputeDisparity(cv::Mat(1000, 1000, CV_8UC1, cv::Scalar(0)),
+                       cv::Mat(1000, 1000, CV_8UC1, cv::Scalar(0)), o);
+  EXPECT_NE(r.message.find("too large"), std::string::npos) << r.message;
+  o = {};
   o.num_threads = 0;
   r = ComputeDisparity(a, a, o);
   EXPECT_NE(r.message.find("num_threads"), std::string::npos) << r.message;

@@ -2,7 +2,6 @@
 
 #include <chrono>
 #include <exception>
-
 #include <opencv2/core.hpp>
 
 #include "adcensus_internal.h"
@@ -45,12 +44,15 @@ bool ADCensusOptions::IsValid(std::string* why) const {
     return fail("census_width and census_height must be odd and positive");
   if (census_width * census_height > 65)
     return fail("census window has more than 64 neighbours (census_width·census_height > 65)");
-  if (!(lambda_ad > 0) || !(lambda_census > 0)) return fail("lambda_ad and lambda_census must be > 0");
+  if (!(lambda_ad > 0) || !(lambda_census > 0))
+    return fail("lambda_ad and lambda_census must be > 0");
   if (!(out_of_image_cost >= 0 && out_of_image_cost <= 2))
     return fail("out_of_image_cost must be in [0, 2]");
-  if (classic.l1_px < 1 || classic.l1_px > 255 || classic.l2_px < 0 || classic.l2_px > classic.l1_px)
+  if (classic.l1_px < 1 || classic.l1_px > 255 || classic.l2_px < 0 ||
+      classic.l2_px > classic.l1_px)
     return fail("classic arms: need 1 ≤ l1_px ≤ 255 and 0 ≤ l2_px ≤ l1_px");
-  if (!(classic.tau1 > 0) || !(classic.tau2 > 0)) return fail("classic arms: tau1, tau2 must be > 0");
+  if (!(classic.tau1 > 0) || !(classic.tau2 > 0))
+    return fail("classic arms: tau1, tau2 must be > 0");
   const ImprovedArmOptions& im = improved;
   if (im.l_max_px < 1 || im.l_max_px > 255 || im.l2_px < 0 || im.l2_px > im.l_max_px)
     return fail("improved arms: need 1 ≤ l_max_px ≤ 255 and 0 ≤ l2_px ≤ l_max_px");
@@ -178,8 +180,8 @@ DisparityResult StereoMatcher::Compute(const cv::Mat& left, const cv::Mat& right
     cv::Mat index;
     if (options.refinement.enabled) {
       adcensus::RefineStats stats;
-      index = adcensus::Refine(left_index, right_index, cost, dmin, img_l, arms,
-                               options.refinement, parallel, &stats);
+      index = adcensus::Refine(left_index, right_index, cost, dmin, img_l, arms, options.refinement,
+                               parallel, &stats);
       result.occluded_pct = stats.occluded_pct;
       result.mismatch_pct = stats.mismatch_pct;
     } else {

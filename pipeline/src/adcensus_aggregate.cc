@@ -4,13 +4,13 @@
 // so every inner loop is a contiguous, vectorizable loop over d. Horizontal
 // passes are row-local (one row of the volume fits in L2); vertical passes
 // walk rows top to bottom over a band of columns, keeping one row of state.
+#include <hwy/highway.h>
+
 #include <algorithm>
 #include <cmath>
 #include <cstring>
 #include <initializer_list>
 #include <limits>
-
-#include <hwy/highway.h>
 
 #include "adcensus_internal.h"
 
@@ -26,8 +26,8 @@ constexpr int kColumnBand = 4;
 constexpr int kPrefetchRows = 4;
 
 // out[k] = (hi[k] − lo[k]) · scale over the padded disparity axis.
-inline void WindowSum(const float* __restrict hi, const float* __restrict lo, float scale,
-                      int n, float* __restrict out) {
+inline void WindowSum(const float* __restrict hi, const float* __restrict lo, float scale, int n,
+                      float* __restrict out) {
   for (int k = 0; k < n; ++k) out[k] = (hi[k] - lo[k]) * scale;
 }
 
@@ -101,8 +101,7 @@ void VerticalPasses(const Arms& arms, std::initializer_list<PassScale> passes,
             const float scale = inv_count ? (*inv_count)[i] : 1.f;
             const std::size_t off = static_cast<std::size_t>(x - x0) * stride;
             WindowSum(&prefix[(y + arms.down[i] + 1) * band + off],
-                      &prefix[(y - arms.up[i]) * band + off], scale, stride,
-                      &data[y * band + off]);
+                      &prefix[(y - arms.up[i]) * band + off], scale, stride, &data[y * band + off]);
           }
         }
       }
@@ -118,8 +117,7 @@ std::vector<float> InverseSupportSizes(const Arms& arms, bool horizontal_first,
   parallel.For(0, arms.height, [&](int y0, int y1) {
     for (int y = y0; y < y1; ++y)
       for (int x = 0; x < arms.width; ++x)
-        inv[arms.index(y, x)] =
-            1.f / static_cast<float>(SupportSize(arms, y, x, horizontal_first));
+        inv[arms.index(y, x)] = 1.f / static_cast<float>(SupportSize(arms, y, x, horizontal_first));
   });
   return inv;
 }
@@ -240,7 +238,8 @@ inline float PathStep(const float* __restrict a, const float* __restrict prev, f
     const auto p1 = hn::MulAdd(big, p1_step, p1_lo);
     const auto p2 = hn::MulAdd(big, p2_step, p2_lo);
     auto best = hn::Min(hn::LoadU(d, prev + k), hn::Add(vprev_min, p2));
-    best = hn::Min(best, hn::Add(hn::Min(hn::LoadU(d, prev + k - 1), hn::LoadU(d, prev + k + 1)), p1));
+    best =
+        hn::Min(best, hn::Add(hn::Min(hn::LoadU(d, prev + k - 1), hn::LoadU(d, prev + k + 1)), p1));
     const auto v = hn::Sub(hn::Add(hn::LoadU(d, a + k), best), vprev_min);
     hn::StoreU(v, d, out + k);
     vmin = hn::Min(vmin, v);
@@ -251,8 +250,8 @@ inline float PathStep(const float* __restrict a, const float* __restrict prev, f
 }  // namespace
 
 void ScanlineOptimize(const cv::Mat& left, const cv::Mat& right, int min_disparity,
-                      const ADCensusOptions& options, const Parallel& parallel,
-                      CostVolume* cost, CostVolume* scratch) {
+                      const ADCensusOptions& options, const Parallel& parallel, CostVolume* cost,
+                      CostVolume* scratch) {
   const int width = cost->width(), height = cost->height();
   const int ndisp = cost->ndisp(), stride = cost->stride();
   const int ch = left.channels();
@@ -283,8 +282,8 @@ void ScanlineOptimize(const cv::Mat& left, const cv::Mat& right, int min_dispari
             // Right-image pair (x_r, x_r − step): left→right uses hdiff(x_r),
             // right→left uses hdiff(x_r + 1).
             const int base_xr = x - min_disparity + (dir == 0 ? 0 : 1);
-            prev_min = PathStep(a, &prev[1], prev_min, d1_big, hdiff.At(y, base_xr), pen,
-                                stride, &cur[1]);
+            prev_min =
+                PathStep(a, &prev[1], prev_min, d1_big, hdiff.At(y, base_xr), pen, stride, &cur[1]);
           }
           float* out = result.at(y, x);
           if (dir == 0) {
@@ -364,7 +363,8 @@ inline int ArgMin(const float* __restrict c, int n) {
   // Among lanes holding the minimum, the smallest index: the first minimum.
   const auto min_all = hn::MinOfLanes(df, best);
   const auto at_min = hn::RebindMask(di, hn::Eq(best, min_all));
-  const auto candidates = hn::IfThenElse(at_min, best_k, hn::Set(di, std::numeric_limits<int>::max()));
+  const auto candidates =
+      hn::IfThenElse(at_min, best_k, hn::Set(di, std::numeric_limits<int>::max()));
   return hn::GetLane(hn::MinOfLanes(di, candidates));
 }
 
@@ -422,7 +422,8 @@ void WinnerTakeAll(const CostVolume& cost, int min_disparity, const Parallel& pa
       for (int xr = 0; xr < width; ++xr) {
         const int j = width - 1 - xr + margin;
         const int k = best_k[j];
-        r[xr] = k < 0 || k >= ndisp ? std::numeric_limits<float>::quiet_NaN() : static_cast<float>(k);
+        r[xr] =
+            k < 0 || k >= ndisp ? std::numeric_limits<float>::quiet_NaN() : static_cast<float>(k);
       }
     }
   });

@@ -1,14 +1,13 @@
 // Census transform, matching cost and cross arms.
+#include <hwy/highway.h>
+#include <sys/mman.h>
+
 #include <algorithm>
 #include <bit>
 #include <cmath>
 #include <cstdlib>
 #include <cstring>
 #include <new>
-
-#include <sys/mman.h>
-
-#include <hwy/highway.h>
 #include <opencv2/core.hpp>
 
 #include "adcensus_internal.h"
@@ -103,9 +102,11 @@ void ComputeCost(const cv::Mat& left, const cv::Mat& right,
   // census by the Hamming distance.
   std::vector<float> lut_ad(255 * channels + 1);
   for (std::size_t s = 0; s < lut_ad.size(); ++s)
-    lut_ad[s] = static_cast<float>(1.0 - std::exp(-(static_cast<double>(s) / channels) / lambda_ad));
+    lut_ad[s] =
+        static_cast<float>(1.0 - std::exp(-(static_cast<double>(s) / channels) / lambda_ad));
   float lut_census[65];
-  for (int h = 0; h <= 64; ++h) lut_census[h] = static_cast<float>(1.0 - std::exp(-h / lambda_census));
+  for (int h = 0; h <= 64; ++h)
+    lut_census[h] = static_cast<float>(1.0 - std::exp(-h / lambda_census));
 
   parallel.For(0, height, [&](int y0, int y1) {
     // The right row reversed (j = width − 1 − x_r), so that for a left pixel
@@ -154,10 +155,10 @@ void ComputeCost(const cv::Mat& left, const cv::Mat& right,
 namespace {
 
 struct ArmLimits {
-  int max_len;        // arm length must stay below this (D_s < L)
-  double l2;          // beyond this length the tighter colour limit applies
-  double tau;         // colour limit to the anchor and to the previous pixel
-  double tau2;        // colour limit to the anchor beyond l2
+  int max_len;  // arm length must stay below this (D_s < L)
+  double l2;    // beyond this length the tighter colour limit applies
+  double tau;   // colour limit to the anchor and to the previous pixel
+  double tau2;  // colour limit to the anchor beyond l2
 };
 
 // The image as planes (one per channel) so that loops over x vectorize.
@@ -200,13 +201,16 @@ void RowColourDiff(const Planes& p, int ya, int da, int yb, int db, int n, std::
 
 // Integer thresholds: with integer colour differences, "d < tau" equals
 // "d < ceil(tau)"; lengths compare as integers too ("len > l2" ⇔ len > floor(l2)).
-std::uint8_t CeilU8(double v) { return static_cast<std::uint8_t>(std::clamp(std::ceil(v), 0.0, 255.0)); }
-std::uint8_t FloorU8(double v) { return static_cast<std::uint8_t>(std::clamp(std::floor(v), 0.0, 255.0)); }
+std::uint8_t CeilU8(double v) {
+  return static_cast<std::uint8_t>(std::clamp(std::ceil(v), 0.0, 255.0));
+}
+std::uint8_t FloorU8(double v) {
+  return static_cast<std::uint8_t>(std::clamp(std::floor(v), 0.0, 255.0));
+}
 
 // ok[x] = |a[x] − b[x]| < limit for x in [x0, x1). Explicit SIMD: GCC does
 // not vectorize this float-to-byte loop on its own.
-void GradientWithin(const float* a, const float* b, float limit, int x0, int x1,
-                    std::uint8_t* ok) {
+void GradientWithin(const float* a, const float* b, float limit, int x0, int x1, std::uint8_t* ok) {
   namespace hn = hwy::HWY_NAMESPACE;
   const hn::ScalableTag<float> df;
   const hn::RebindToSigned<decltype(df)> di;
@@ -216,7 +220,8 @@ void GradientWithin(const float* a, const float* b, float limit, int x0, int x1,
   const auto one = hn::Set(di, 1);
   int x = x0;
   for (; x + lanes <= x1; x += lanes) {
-    const auto within = hn::Lt(hn::Abs(hn::Sub(hn::LoadU(df, a + x), hn::LoadU(df, b + x))), vlimit);
+    const auto within =
+        hn::Lt(hn::Abs(hn::Sub(hn::LoadU(df, a + x), hn::LoadU(df, b + x))), vlimit);
     hn::StoreU(hn::DemoteTo(du8, hn::IfThenElseZero(hn::RebindMask(di, within), one)), du8, ok + x);
   }
   for (; x < x1; ++x) ok[x] = std::abs(a[x] - b[x]) < limit ? 1 : 0;
@@ -284,8 +289,12 @@ Arms BuildArms(const cv::Mat& image, const cv::Mat& gradient, const cv::Mat& edg
       const std::size_t base = static_cast<std::size_t>(y) * width;
       for (int dir = 0; dir < 4; ++dir) {
         // dir 0: right, 1: left, 2: down, 3: up.
-        std::uint8_t* out = (dir == 0 ? arms.right : dir == 1 ? arms.left
-                             : dir == 2 ? arms.down : arms.up).data() + base;
+        std::uint8_t* out = (dir == 0   ? arms.right
+                             : dir == 1 ? arms.left
+                             : dir == 2 ? arms.down
+                                        : arms.up)
+                                .data() +
+                            base;
         std::fill(active.begin(), active.end(), 1);
         for (int len = 1; len < longest; ++len) {
           // Anchors x whose arm pixel q is inside the image: [x_lo, x_hi).
@@ -313,7 +322,8 @@ Arms BuildArms(const cv::Mat& image, const cv::Mat& gradient, const cv::Mat& edg
           } else {
             RowColourDiff(planes, qy, 0, dir == 2 ? qy - 1 : qy + 1, 0, width, d_prev.data());
           }
-          if (improved) GradientWithin(gradient.ptr<float>(qy) + dx, g, beta1, x_lo, x_hi, grad_ok.data());
+          if (improved)
+            GradientWithin(gradient.ptr<float>(qy) + dx, g, beta1, x_lo, x_hi, grad_ok.data());
           const std::uint8_t ulen = static_cast<std::uint8_t>(len);
           std::uint8_t any = 0;
           // Bitwise, branch-free: this loop vectorizes.

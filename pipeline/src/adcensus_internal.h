@@ -6,10 +6,9 @@
 #include <cstdlib>
 #include <memory>
 #include <new>
+#include <opencv2/core/mat.hpp>
 #include <utility>
 #include <vector>
-
-#include <opencv2/core/mat.hpp>
 
 #include "craftscan/pipeline/adcensus.h"
 #include "parallel.h"
@@ -39,7 +38,9 @@ class CostVolume {
   int height() const { return height_; }
   int ndisp() const { return ndisp_; }
   int stride() const { return stride_; }  // floats between consecutive pixels
-  float* at(int y, int x) { return data_.get() + (static_cast<std::size_t>(y) * width_ + x) * stride_; }
+  float* at(int y, int x) {
+    return data_.get() + (static_cast<std::size_t>(y) * width_ + x) * stride_;
+  }
   const float* at(int y, int x) const {
     return data_.get() + (static_cast<std::size_t>(y) * width_ + x) * stride_;
   }
@@ -100,8 +101,8 @@ int SupportSize(const Arms& arms, int y, int x, bool horizontal_first);
 // four path costs, left in *cost. Penalties depend on colour differences in
 // both images. `scratch` is working memory (reshaped as needed).
 void ScanlineOptimize(const cv::Mat& left, const cv::Mat& right, int min_disparity,
-                      const ADCensusOptions& options, const Parallel& parallel,
-                      CostVolume* cost, CostVolume* scratch);
+                      const ADCensusOptions& options, const Parallel& parallel, CostVolume* cost,
+                      CostVolume* scratch);
 
 // Winner-take-all: integer disparity index (0 … ndisp−1) per pixel of the
 // left view, and of the right view through cost(y, x_r + d, d) (NaN where no
@@ -116,7 +117,7 @@ struct RefineStats {
 // Mei's refinement on disparity indices (CV_32FC1, values 0 … ndisp−1); the
 // result is a disparity index map with sub-pixel values and NaN where none.
 cv::Mat Refine(const cv::Mat& left_index, const cv::Mat& right_index, const CostVolume& cost,
-               int min_disparity, const cv::Mat& left_image, const Arms& arms, const RefinementOptions& options,
-               const Parallel& parallel, RefineStats* stats);
+               int min_disparity, const cv::Mat& left_image, const Arms& arms,
+               const RefinementOptions& options, const Parallel& parallel, RefineStats* stats);
 
 }  // namespace craftscan::adcensus

@@ -8,7 +8,6 @@
 #include <cmath>
 #include <limits>
 #include <numbers>
-
 #include <opencv2/core.hpp>
 #include <opencv2/imgproc.hpp>
 
@@ -39,7 +38,8 @@ void DetectOutliers(const cv::Mat& left_index, const cv::Mat& right_index, int m
       for (int x = 0; x < width; ++x) {
         const int k = static_cast<int>(l[x]);
         const int xr = x - min_disparity - k;
-        if (xr >= 0 && xr < width && IsValidDisparity(r[xr]) && std::abs(r[xr] - l[x]) <= tolerance) {
+        if (xr >= 0 && xr < width && IsValidDisparity(r[xr]) &&
+            std::abs(r[xr] - l[x]) <= tolerance) {
           out[x] = kReliable;
           continue;
         }

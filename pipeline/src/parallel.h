@@ -2,11 +2,11 @@
 // never a hidden global. With one thread the loop runs inline (serial path).
 #pragma once
 
-#include <memory>
-
 #include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>
 #include <tbb/task_arena.h>
+
+#include <memory>
 
 namespace craftscan {
 

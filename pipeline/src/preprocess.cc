@@ -1,9 +1,8 @@
 #include "craftscan/pipeline/preprocess.h"
 
 #include <algorithm>
-#include <stdexcept>
-
 #include <opencv2/imgproc.hpp>
+#include <stdexcept>
 
 namespace craftscan {
 
@@ -12,7 +11,8 @@ bool PreprocessOptions::IsValid(std::string* why) const {
     if (why) *why = msg;
     return false;
   };
-  if (!(canny_sigma > 0 && canny_sigma <= 1)) return fail("preprocess.canny_sigma must be in (0, 1]");
+  if (!(canny_sigma > 0 && canny_sigma <= 1))
+    return fail("preprocess.canny_sigma must be in (0, 1]");
   if (!(canny_min_threshold >= 0 && canny_min_threshold < 255))
     return fail("preprocess.canny_min_threshold must be in [0, 255)");
   if (canny_aperture != 3 && canny_aperture != 5 && canny_aperture != 7)

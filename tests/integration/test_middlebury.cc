@@ -29,9 +29,9 @@ DisparityMetrics MatchScene(const std::string& scene_name, ArmRule rule) {
   return EvaluateDisparity(result.disparity, scene.gt, scene.mask_nonocc);
 }
 
-#define SKIP_WITHOUT_SCENE(name)                                                      \
-  if (!fs::exists(kStereo / (name) / "scene.json"))                                   \
-  GTEST_SKIP() << "shared data not found at " << (kStereo / (name)).string()          \
+#define SKIP_WITHOUT_SCENE(name)                                             \
+  if (!fs::exists(kStereo / (name) / "scene.json"))                          \
+  GTEST_SKIP() << "shared data not found at " << (kStereo / (name)).string() \
                << " (configure with -DCRAFTSCAN_SHARED_DATA=...)"
 
 TEST(Middlebury, TeddyBad2NonOccluded) {

@@ -5,7 +5,6 @@
 
 #include <bit>
 #include <cstring>
-
 #include <opencv2/imgcodecs.hpp>
 
 #include "adcensus_internal.h"
@@ -67,7 +66,8 @@ TEST(Cost, MatchesMeiFormulaIncludingOutOfImageDisparities) {
           continue;
         }
         const cv::Vec3b a = left.at<cv::Vec3b>(y, x), b = right.at<cv::Vec3b>(y, xr);
-        const double ad = (std::abs(a[0] - b[0]) + std::abs(a[1] - b[1]) + std::abs(a[2] - b[2])) / 3.0;
+        const double ad =
+            (std::abs(a[0] - b[0]) + std::abs(a[1] - b[1]) + std::abs(a[2] - b[2])) / 3.0;
         const int hamming = std::popcount(cl[y * left.cols + x] ^ cr[y * left.cols + xr]);
         const double expected = (1 - std::exp(-ad / 10)) + (1 - std::exp(-hamming / 30.0));
         ASSERT_NEAR(got, expected, 1e-6) << "at " << x << "," << y << " k " << k;
@@ -123,10 +123,14 @@ void ExpectArmsMatchReference(const cv::Mat& img, ArmRule rule) {
   for (int y = 0; y < img.rows; ++y) {
     for (int x = 0; x < img.cols; ++x) {
       const std::size_t i = arms.index(y, x);
-      ASSERT_EQ(arms.left[i], ReferenceArm(img, pre.gradient, pre.edges, y, x, -1, 0, o)) << x << "," << y;
-      ASSERT_EQ(arms.right[i], ReferenceArm(img, pre.gradient, pre.edges, y, x, 1, 0, o)) << x << "," << y;
-      ASSERT_EQ(arms.up[i], ReferenceArm(img, pre.gradient, pre.edges, y, x, 0, -1, o)) << x << "," << y;
-      ASSERT_EQ(arms.down[i], ReferenceArm(img, pre.gradient, pre.edges, y, x, 0, 1, o)) << x << "," << y;
+      ASSERT_EQ(arms.left[i], ReferenceArm(img, pre.gradient, pre.edges, y, x, -1, 0, o))
+          << x << "," << y;
+      ASSERT_EQ(arms.right[i], ReferenceArm(img, pre.gradient, pre.edges, y, x, 1, 0, o))
+          << x << "," << y;
+      ASSERT_EQ(arms.up[i], ReferenceArm(img, pre.gradient, pre.edges, y, x, 0, -1, o))
+          << x << "," << y;
+      ASSERT_EQ(arms.down[i], ReferenceArm(img, pre.gradient, pre.edges, y, x, 0, 1, o))
+          << x << "," << y;
     }
   }
 }
@@ -314,7 +318,8 @@ TEST(Matcher, WithoutInterpolationOutliersAreMarkedInvalid) {
   // The left 20 columns see nothing in the right image: they must be invalid.
   int invalid_border = 0;
   for (int y = 10; y < 90; ++y)
-    for (int x = 0; x < 15; ++x) invalid_border += IsValidDisparity(r.disparity.at<float>(y, x)) ? 0 : 1;
+    for (int x = 0; x < 15; ++x)
+      invalid_border += IsValidDisparity(r.disparity.at<float>(y, x)) ? 0 : 1;
   EXPECT_GT(invalid_border, 80 * 15 * 9 / 10);
   EXPECT_LT(r.valid_pct, 95.0);
   EXPECT_LT(ScoreAgainst(r.disparity, gt, 5).max_abs_err, 1.0);

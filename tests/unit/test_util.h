@@ -4,11 +4,10 @@
 
 #include <cmath>
 #include <filesystem>
-#include <random>
-#include <string>
-
 #include <opencv2/core.hpp>
 #include <opencv2/imgproc.hpp>
+#include <random>
+#include <string>
 
 namespace craftscan::testing {
 

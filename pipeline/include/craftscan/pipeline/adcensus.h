@@ -10,10 +10,9 @@
 #include <cstdint>
 #include <limits>
 #include <memory>
+#include <opencv2/core/mat.hpp>
 #include <string>
 #include <string_view>
-
-#include <opencv2/core/mat.hpp>
 
 #include "craftscan/pipeline/preprocess.h"
 
@@ -33,19 +32,19 @@ std::string_view ToString(ArmRule rule);
 bool ArmRuleFromString(std::string_view text, ArmRule* rule);
 
 struct ClassicArmOptions {  // Mei's published values
-  int l1_px = 34;       // maximum arm length
-  int l2_px = 17;       // beyond this length the colour limit tightens to tau2
-  double tau1 = 20;     // colour limit (max channel abs difference, grey levels)
-  double tau2 = 6;      // colour limit beyond l2_px
+  int l1_px = 34;           // maximum arm length
+  int l2_px = 17;           // beyond this length the colour limit tightens to tau2
+  double tau1 = 20;         // colour limit (max channel abs difference, grey levels)
+  double tau2 = 6;          // colour limit beyond l2_px
 };
 
-struct ImprovedArmOptions {  // the paper's values
-  double beta_max = 120;     // gradient magnitude at and above which a pixel is an edge pixel
-  double beta1 = 40;         // gradient magnitude difference limit along an arm
-  double tau_max = 20;       // colour limit (to the anchor and to the next pixel)
-  double tau2 = 10;          // colour limit to the anchor beyond l2_px
-  int l_max_px = 34;         // maximum arm length
-  int l2_px = 17;            // length beyond which tau2 applies
+struct ImprovedArmOptions {        // the paper's values
+  double beta_max = 120;           // gradient magnitude at and above which a pixel is an edge pixel
+  double beta1 = 40;               // gradient magnitude difference limit along an arm
+  double tau_max = 20;             // colour limit (to the anchor and to the next pixel)
+  double tau2 = 10;                // colour limit to the anchor beyond l2_px
+  int l_max_px = 34;               // maximum arm length
+  int l2_px = 17;                  // length beyond which tau2 applies
   double edge_length_scale = 0.5;  // edge pixels: l_max, l2 multiplied by this
   double edge_tau_scale = 0.75;    // edge pixels: tau_max multiplied by this
   bool canny_edges_are_edges = true;  // pixels on the dilated Canny map are edge pixels
@@ -53,14 +52,14 @@ struct ImprovedArmOptions {  // the paper's values
 
 struct RefinementOptions {
   bool enabled = true;
-  double lr_tolerance_px = 1.0;   // left-right check: |dL − dR| above this is an outlier
-  int voting_iterations = 5;      // iterative region voting
-  int tau_s = 20;                 // minimum reliable votes in the support region
-  double tau_h = 0.4;             // minimum share of the winning disparity
-  bool interpolate = true;        // proper interpolation of the remaining outliers
+  double lr_tolerance_px = 1.0;  // left-right check: |dL − dR| above this is an outlier
+  int voting_iterations = 5;     // iterative region voting
+  int tau_s = 20;                // minimum reliable votes in the support region
+  double tau_h = 0.4;            // minimum share of the winning disparity
+  bool interpolate = true;       // proper interpolation of the remaining outliers
   bool adjust_discontinuities = true;
-  bool subpixel = true;           // parabola fit on the final cost
-  int median_size = 3;            // 0 (off), 3 or 5
+  bool subpixel = true;  // parabola fit on the final cost
+  int median_size = 3;   // 0 (off), 3 or 5
 };
 
 struct ADCensusOptions {
@@ -74,8 +73,8 @@ struct ADCensusOptions {
   PreprocessOptions preprocess;
   bool match_equalized = false;  // match on the equalized images instead of the raw ones
 
-  int census_width = 9;   // odd, census window (width × height ≤ 64 + 1 bits)
-  int census_height = 7;  // odd
+  int census_width = 9;       // odd, census window (width × height ≤ 64 + 1 bits)
+  int census_height = 7;      // odd
   double lambda_ad = 10;      // robust scale of the AD cost
   double lambda_census = 30;  // robust scale of the census cost
   // Cost of a disparity whose right pixel lies outside the image, on the
@@ -89,7 +88,7 @@ struct ADCensusOptions {
   int aggregation_iterations = 4;  // alternating horizontal-first / vertical-first
 
   bool scanline_optimization = true;
-  double pi1 = 1.0;    // scanline penalties (on the normalized cost scale)
+  double pi1 = 1.0;  // scanline penalties (on the normalized cost scale)
   double pi2 = 3.0;
   double tau_so = 15;  // colour difference that lowers the penalties
 

@@ -2,9 +2,8 @@
 // edges with thresholds derived from image statistics, dilated to close gaps.
 #pragma once
 
-#include <string>
-
 #include <opencv2/core/mat.hpp>
+#include <string>
 
 namespace craftscan {
 
@@ -23,11 +22,11 @@ struct PreprocessOptions {
 };
 
 struct Preprocessed {
-  cv::Mat image;     // equalized image, same type as the input (CV_8UC1 or CV_8UC3)
-  cv::Mat grey;      // equalized grey, CV_8UC1
-  cv::Mat gradient;  // Sobel (3×3) gradient magnitude of `grey`, CV_32FC1
-  cv::Mat edges;     // dilated Canny edge map, CV_8UC1, 255 = edge
-  double canny_low = 0;   // thresholds actually used
+  cv::Mat image;         // equalized image, same type as the input (CV_8UC1 or CV_8UC3)
+  cv::Mat grey;          // equalized grey, CV_8UC1
+  cv::Mat gradient;      // Sobel (3×3) gradient magnitude of `grey`, CV_32FC1
+  cv::Mat edges;         // dilated Canny edge map, CV_8UC1, 255 = edge
+  double canny_low = 0;  // thresholds actually used
   double canny_high = 0;
 };
 

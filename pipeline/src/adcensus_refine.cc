@@ -60,31 +60,38 @@ void DetectOutliers(const cv::Mat& left_index, const cv::Mat& right_index, int m
 
 void RegionVoting(const Arms& arms, int ndisp, const RefinementOptions& options,
                   const Parallel& parallel, cv::Mat* disparity, cv::Mat* labels) {
+  // bins: the disparity index of reliable pixels, ndisp for the others, so the
+  // histogram loop needs no branch (bin ndisp collects the unreliable ones).
+  cv::Mat bins(disparity->size(), CV_16SC1);
   for (int it = 0; it < options.voting_iterations; ++it) {
+    for (int y = 0; y < bins.rows; ++y) {
+      const float* d = disparity->ptr<float>(y);
+      const std::uint8_t* lab = labels->ptr<std::uint8_t>(y);
+      std::int16_t* b = bins.ptr<std::int16_t>(y);
+      for (int x = 0; x < bins.cols; ++x)
+        b[x] = static_cast<std::int16_t>(lab[x] == kReliable ? static_cast<int>(d[x]) : ndisp);
+    }
     cv::Mat new_disp = disparity->clone(), new_labels = labels->clone();
-    int changed = 0;
     std::vector<int> changed_rows(disparity->rows, 0);
     parallel.For(0, disparity->rows, [&](int y0, int y1) {
-      std::vector<int> histogram(ndisp);
+      std::vector<int> histogram(ndisp + 1);
       for (int y = y0; y < y1; ++y) {
         const std::uint8_t* lab = labels->ptr<std::uint8_t>(y);
         for (int x = 0; x < disparity->cols; ++x) {
           if (lab[x] == kReliable) continue;
           std::fill(histogram.begin(), histogram.end(), 0);
-          int votes = 0;
+          int region = 0;
           const std::size_t i = arms.index(y, x);
           for (int v = y - arms.up[i]; v <= y + arms.down[i]; ++v) {
             const std::size_t j = arms.index(v, x);
-            const std::uint8_t* vlab = labels->ptr<std::uint8_t>(v);
-            const float* vd = disparity->ptr<float>(v);
-            for (int u = x - arms.left[j]; u <= x + arms.right[j]; ++u) {
-              if (vlab[u] != kReliable) continue;
-              ++histogram[static_cast<int>(vd[u])];
-              ++votes;
-            }
+            const std::int16_t* b = bins.ptr<std::int16_t>(v);
+            const int u0 = x - arms.left[j], u1 = x + arms.right[j];
+            for (int u = u0; u <= u1; ++u) ++histogram[b[u]];
+            region += u1 - u0 + 1;
           }
+          const int votes = region - histogram[ndisp];
           if (votes <= options.tau_s) continue;
-          const auto best = std::max_element(histogram.begin(), histogram.end());
+          const auto best = std::max_element(histogram.begin(), histogram.end() - 1);
           if (*best <= options.tau_h * votes) continue;
           new_disp.at<float>(y, x) = static_cast<float>(best - histogram.begin());
           new_labels.at<std::uint8_t>(y, x) = kReliable;
@@ -92,6 +99,7 @@ void RegionVoting(const Arms& arms, int ndisp, const RefinementOptions& options,
         }
       }
     });
+    int changed = 0;
     for (int c : changed_rows) changed += c;
     *disparity = new_disp;
     *labels = new_labels;

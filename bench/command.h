@@ -32,5 +32,7 @@ class BenchCommand {
 
 // One factory per subcommand.
 std::unique_ptr<BenchCommand> MakeStereoCommand();
+std::unique_ptr<BenchCommand> MakeCalibCommand();
+std::unique_ptr<BenchCommand> MakeSimDepthCommand();
 
 }  // namespace craftscan::bench

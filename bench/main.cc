@@ -11,11 +11,14 @@
 
 int main(int argc, char** argv) {
   using namespace craftscan::bench;
-  CLI::App app{"craftscan benchmarks on shared data (Middlebury stereo, ...)", "craftscan-bench"};
+  CLI::App app{"craftscan benchmarks on shared data (Middlebury stereo, calibration, ...)",
+               "craftscan-bench"};
   app.require_subcommand(1);
 
   std::vector<std::unique_ptr<BenchCommand>> commands;
   commands.push_back(MakeStereoCommand());
+  commands.push_back(MakeCalibCommand());
+  commands.push_back(MakeSimDepthCommand());
 
   std::vector<std::pair<CLI::App*, BenchCommand*>> registered;
   for (auto& command : commands) registered.emplace_back(command->Register(&app), command.get());

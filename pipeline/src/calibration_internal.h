@@ -2,10 +2,9 @@
 #pragma once
 
 #include <cmath>
+#include <opencv2/core.hpp>
 #include <string>
 #include <vector>
-
-#include <opencv2/core.hpp>
 
 #include "craftscan/pipeline/calibration.h"
 
@@ -44,6 +43,10 @@ int LensFlags(const LensModelOptions& lens);
 // Camera matrix to start cv::calibrateCamera from (identity: only the
 // aspect ratio 1 matters when FIX_ASPECT_RATIO is set without a guess).
 cv::Mat InitialCameraMatrix();
+
+// cv::Exception::what() without OpenCV's version/source-file prefix and the
+// trailing newline, e.g. "(-212:Parsing error) ... Missing ':'".
+std::string CvErrorText(const cv::Exception& e);
 
 // RMS of the distances between two equally long point lists.
 double RmsDistance(const std::vector<cv::Point2f>& a, const std::vector<cv::Point2f>& b);

@@ -1,10 +1,9 @@
 // Rectification of raw stereo pairs with cached maps (method.md §4).
 #pragma once
 
+#include <opencv2/core/mat.hpp>
 #include <string>
 #include <vector>
-
-#include <opencv2/core/mat.hpp>
 
 #include "craftscan/pipeline/calibration.h"
 

@@ -1,0 +1,231 @@
+#include <algorithm>
+#include <cmath>
+#include <limits>
+#include <string>
+
+#include <opencv2/calib3d.hpp>
+
+#include "craftscan/sim/ply.h"
+#include "scene_impl.h"
+#include "shapes.h"
+#include "texture.h"
+
+namespace craftscan::sim {
+namespace {
+
+Rigid Translation(const V3& t) {
+  Rigid r;
+  r.t = t;
+  return r;
+}
+
+Rigid Rotation(const M3& R) {
+  Rigid r;
+  r.R = R;
+  return r;
+}
+
+// Scales, rotates and seats the mesh: bounding box centred on the z axis,
+// bottom at z = 0 (object frame, mm).
+bool PlaceMesh(const MeshOptions& o, TriangleMesh* mesh, std::string* error) {
+  if (mesh->vertices.empty() || mesh->triangles.empty()) {
+    *error = "object.mesh: '" + o.path + "' has no triangles";
+    return false;
+  }
+  const M3 R = M3::Rodrigues(o.rotation_rad);
+  V3 lo(1e300, 1e300, 1e300), hi(-1e300, -1e300, -1e300);
+  for (cv::Vec3d& v : mesh->vertices) {
+    const V3 p = R * FromCv(v);
+    v = ToCv(p);
+    lo = V3(std::min(lo.x, p.x), std::min(lo.y, p.y), std::min(lo.z, p.z));
+    hi = V3(std::max(hi.x, p.x), std::max(hi.y, p.y), std::max(hi.z, p.z));
+  }
+  const V3 extent = hi - lo;
+  const double largest = std::max({extent.x, extent.y, extent.z});
+  if (!(largest > 0)) {
+    *error = "object.mesh: '" + o.path + "' is degenerate (zero extent)";
+    return false;
+  }
+  const double scale = o.size_mm > 0 ? o.size_mm / largest : o.scale;
+  const V3 offset(-(lo.x + hi.x) / 2, -(lo.y + hi.y) / 2, -lo.z);
+  for (cv::Vec3d& v : mesh->vertices) v = ToCv((FromCv(v) + offset) * scale);
+  return true;
+}
+
+}  // namespace
+
+void Scene::Impl::SetAngle(double angle) {
+  angle_rad = angle;
+  const Rigid world_from_turntable = Rotation(M3::RotZ(angle));
+  for (auto& p : primitives) {
+    p->world_from_local =
+        p->on_turntable ? world_from_turntable * p->parent_from_local : p->parent_from_local;
+    p->local_from_world = p->world_from_local.Inverse();
+  }
+}
+
+Rigid Scene::Impl::WorldFromObject() const {
+  if (object == nullptr) return Rigid{};
+  return object->world_from_local * object_from_local.Inverse();
+}
+
+Rigid Scene::Impl::WorldFromBoard() const {
+  if (board == nullptr) return Rigid{};
+  return board->world_from_local;
+}
+
+bool Scene::Impl::Intersect(const V3& o, const V3& d, double t_min, double t_max,
+                            Hit* hit) const {
+  bool found = false;
+  for (const auto& p : primitives) {
+    const V3 lo = p->local_from_world.Apply(o), ld = p->local_from_world.Rotate(d);
+    LocalHit local;
+    if (p->Intersect(lo, ld, t_min, t_max, &local)) {
+      t_max = local.t;
+      hit->primitive = p.get();
+      hit->local = local;
+      found = true;
+    }
+  }
+  return found;
+}
+
+bool Scene::Impl::Occluded(const V3& o, const V3& d, double t_min, double t_max) const {
+  for (const auto& p : primitives) {
+    if (p->label() == SurfaceLabel::kBackground) continue;  // nothing lies behind them
+    const V3 lo = p->local_from_world.Apply(o), ld = p->local_from_world.Rotate(d);
+    LocalHit local;
+    if (p->Intersect(lo, ld, t_min, t_max, &local)) return true;
+  }
+  return false;
+}
+
+V3 Scene::Impl::Shade(const V3& d, const Hit& hit) const {
+  V3 normal_local, albedo;
+  hit.primitive->Surface(hit.local, &normal_local, &albedo);
+  V3 n = hit.primitive->world_from_local.Rotate(normal_local);
+  if (Dot(n, d) > 0) n = -n;  // two-sided
+  const LightingOptions& light = options.lighting;
+  double irradiance = light.ambient;
+  const double cosine = Dot(n, to_light);
+  if (cosine > 0 && light.directional > 0) {
+    bool lit = true;
+    if (light.shadows) {
+      const V3 p = hit.primitive->world_from_local.Apply(hit.local.p);
+      lit = !Occluded(p + n * 2e-3, to_light, 0, std::numeric_limits<double>::infinity());
+    }
+    if (lit) irradiance += light.directional * cosine;
+  }
+  return albedo * irradiance;
+}
+
+Scene::Scene() : impl_(std::make_unique<Impl>()) {}
+Scene::~Scene() = default;
+
+std::unique_ptr<Scene> Scene::Create(const SceneOptions& options, std::string* error) {
+  std::string why;
+  if (!options.IsValid(&why)) {
+    if (error) *error = "invalid scene options: " + why;
+    return nullptr;
+  }
+  std::unique_ptr<Scene> scene(new Scene());
+  Impl& s = *scene->impl_;
+  s.options = options;
+  s.to_light = Normalized(FromCv(options.lighting.direction_to_light));
+  const std::uint64_t seed = options.seed;
+
+  s.primitives.push_back(MakeTable(-options.platter_thickness_mm, options.background,
+                                   SubSeed(seed, 1)));
+  s.primitives.push_back(MakeBackdrop(options.backdrop_distance_mm, options.background,
+                                      SubSeed(seed, 2)));
+  s.primitives.push_back(MakePlatter(options.platter_radius_mm, options.platter_thickness_mm,
+                                     options.platter_texture, SubSeed(seed, 3)));
+
+  const ObjectOptions& o = options.object;
+  std::unique_ptr<Primitive> object;
+  const std::uint64_t object_seed = SubSeed(seed, 4);
+  switch (o.type) {
+    case ObjectType::kNone:
+      break;
+    case ObjectType::kCarvedBox:
+      object = MakeCarvedBox(o.carved_box, object_seed);
+      break;
+    case ObjectType::kEgg:
+      object = MakeEgg(o.egg, object_seed);
+      break;
+    case ObjectType::kEmbroidery:
+      object = MakeEmbroidery(o.embroidery, object_seed, &s.object_from_local);
+      break;
+    case ObjectType::kMesh: {
+      TriangleMesh mesh;
+      std::string load_error;
+      if (!LoadPly(o.mesh.path, &mesh, &load_error)) {
+        if (error) *error = "object.mesh: " + load_error;
+        return nullptr;
+      }
+      if (!PlaceMesh(o.mesh, &mesh, &load_error)) {
+        if (error) *error = load_error;
+        return nullptr;
+      }
+      s.mesh_triangles = mesh.triangles.size();
+      object = MakeMesh(std::move(mesh), object_seed);
+      break;
+    }
+  }
+  if (object) {
+    object->on_turntable = true;
+    object->parent_from_local = Translation(V3(o.position_mm.x, o.position_mm.y, 0)) *
+                                Rotation(M3::RotZ(o.yaw_rad)) * s.object_from_local;
+    s.object = object.get();
+    s.primitives.push_back(std::move(object));
+  }
+
+  const BoardOptions& b = options.board;
+  if (b.enabled) {
+    std::string board_error;
+    std::unique_ptr<Primitive> board = MakeBoard(b, &board_error);
+    if (!board) {
+      if (error) *error = board_error;
+      return nullptr;
+    }
+    if (b.placement == BoardPlacement::kOnPlatter) {
+      board->on_turntable = true;
+      // Printed face up: the board's z (into the board) points down.
+      M3 face_up;
+      face_up.m[4] = -1;
+      face_up.m[8] = -1;
+      board->parent_from_local =
+          Translation(V3(b.platter_position_mm.x, b.platter_position_mm.y, b.thickness_mm)) *
+          Rotation(M3::RotZ(b.platter_yaw_rad) * face_up);
+    } else {
+      board->on_turntable = false;
+      board->parent_from_local.R = M3::Rodrigues(b.rotation_rad);
+      board->parent_from_local.t = FromCv(b.translation_mm);
+    }
+    s.board = board.get();
+    s.primitives.push_back(std::move(board));
+  }
+  s.SetAngle(options.turntable_angle_rad);
+  return scene;
+}
+
+const SceneOptions& Scene::options() const { return impl_->options; }
+void Scene::SetTurntableAngle(double angle_rad) { impl_->SetAngle(angle_rad); }
+double Scene::turntable_angle_rad() const { return impl_->angle_rad; }
+cv::Matx44d Scene::world_from_object() const { return impl_->WorldFromObject().ToCv(); }
+cv::Matx44d Scene::world_from_board() const { return impl_->WorldFromBoard().ToCv(); }
+std::size_t Scene::mesh_triangle_count() const { return impl_->mesh_triangles; }
+
+bool Scene::Intersect(const cv::Vec3d& origin_in_world, const cv::Vec3d& direction_in_world,
+                      double* t, SurfaceLabel* label) const {
+  Impl::Hit hit;
+  if (!impl_->Intersect(FromCv(origin_in_world), FromCv(direction_in_world), 0,
+                        std::numeric_limits<double>::infinity(), &hit)) {
+    return false;
+  }
+  if (t) *t = hit.local.t;
+  if (label) *label = hit.primitive->label();
+  return true;
+}
+
+}  // namespace craftscan::sim

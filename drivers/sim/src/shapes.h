@@ -1,0 +1,62 @@
+// Scene primitives: analytic or marched ray intersection in a local frame,
+// plus the surface normal and procedural albedo at a hit.
+#pragma once
+
+#include <cstdint>
+#include <memory>
+#include <string>
+
+#include "craftscan/sim/ply.h"
+#include "craftscan/sim/station.h"
+#include "math.h"
+
+namespace craftscan::sim {
+
+struct LocalHit {
+  double t = 0;  // ray parameter (same in every rigid frame)
+  V3 p;          // hit point, local frame
+  int part = 0;  // primitive-specific (face, triangle, ...)
+  double u = 0, v = 0;  // primitive-specific (barycentric coordinates for meshes)
+};
+
+class Primitive {
+ public:
+  explicit Primitive(SurfaceLabel label) : label_(label) {}
+  virtual ~Primitive() = default;
+
+  // Nearest hit with t in (t_min, t_max) of the local ray o + t·d.
+  virtual bool Intersect(const V3& o, const V3& d, double t_min, double t_max,
+                         LocalHit* hit) const = 0;
+  // Outward unit normal (local frame) and albedo (BGR, [0, 1]) at a hit.
+  virtual void Surface(const LocalHit& hit, V3* normal, V3* albedo) const = 0;
+
+  SurfaceLabel label() const { return label_; }
+
+  // Placement: parent_from_local, where the parent is the turntable frame
+  // (turns with the platter) or the world frame.
+  bool on_turntable = false;
+  Rigid parent_from_local;
+  // Current transforms, set by the scene for the turntable angle.
+  Rigid world_from_local, local_from_world;
+
+ private:
+  SurfaceLabel label_;
+};
+
+std::unique_ptr<Primitive> MakeTable(double z_mm, Background background, std::uint64_t seed);
+std::unique_ptr<Primitive> MakeBackdrop(double y_mm, Background background, std::uint64_t seed);
+std::unique_ptr<Primitive> MakePlatter(double radius_mm, double thickness_mm,
+                                       PlatterTexture texture, std::uint64_t seed);
+// Local frame = object frame.
+std::unique_ptr<Primitive> MakeEgg(const EggOptions& options, std::uint64_t seed);
+std::unique_ptr<Primitive> MakeCarvedBox(const CarvedBoxOptions& options, std::uint64_t seed);
+// Local frame = the disc's frame (base at z = 0, axis +z); *object_from_disc
+// receives the tilt and lift that rest it on the platter.
+std::unique_ptr<Primitive> MakeEmbroidery(const EmbroideryOptions& options, std::uint64_t seed,
+                                          Rigid* object_from_disc);
+// `mesh` in object-frame millimetres.
+std::unique_ptr<Primitive> MakeMesh(TriangleMesh mesh, std::uint64_t seed);
+// Local frame = board frame. Null with *error on failure (e.g. OpenCV).
+std::unique_ptr<Primitive> MakeBoard(const BoardOptions& options, std::string* error);
+
+}  // namespace craftscan::sim

@@ -1,0 +1,406 @@
+// Versioned OpenCV YAML calibration files, written atomically.
+#include <fcntl.h>
+#include <sys/stat.h>
+#include <unistd.h>
+
+#include <cerrno>
+#include <cmath>
+#include <cstring>
+#include <filesystem>
+#include <opencv2/core.hpp>
+#include <string>
+#include <vector>
+
+#include "calibration_internal.h"
+#include "craftscan/pipeline/calibration.h"
+
+namespace craftscan {
+
+using calib_internal::Fail;
+
+namespace {
+
+constexpr const char* kFormatName = "craftscan-stereo-calibration";
+
+// --- Writing ------------------------------------------------------------------
+
+void WriteIntrinsics(cv::FileStorage& fs, const char* name, const CameraIntrinsics& camera) {
+  fs << name << "{";
+  fs << "camera_matrix" << cv::Mat(camera.camera_matrix);
+  fs << "distortion" << camera.DistortionCoeffs();
+  fs << "}";
+}
+
+void WriteReport(cv::FileStorage& fs, const CalibrationReport& r) {
+  fs << "report"
+     << "{";
+  fs << "rms_left_px" << r.rms_left_px << "rms_right_px" << r.rms_right_px;
+  fs << "rms_stereo_px" << r.rms_stereo_px;
+  fs << "epipolar_mean_px" << r.epipolar_mean_px << "epipolar_max_px" << r.epipolar_max_px;
+  fs << "coverage_grid" << r.coverage_grid;
+  fs << "coverage_left" << r.coverage_left << "coverage_right" << r.coverage_right;
+  fs << "views_used" << r.views_used;
+  fs << "verdict" << std::string(ToString(r.verdict));
+  fs << "verdict_reason" << r.verdict_reason;
+  fs << "turntable_steps" << r.turntable_steps;
+  fs << "turntable_residual_mm" << r.turntable_residual_mm;
+  fs << "turntable_max_angle_error_deg" << r.turntable_max_angle_error_deg;
+  fs << "views"
+     << "[";
+  for (const ViewReport& v : r.views) {
+    fs << "{";
+    fs << "name" << v.name << "used" << static_cast<int>(v.used) << "message" << v.message;
+    fs << "num_points" << v.num_points;
+    fs << "rms_left_px" << v.rms_left_px << "rms_right_px" << v.rms_right_px;
+    fs << "rms_stereo_px" << v.rms_stereo_px;
+    fs << "}";
+  }
+  fs << "]";
+  fs << "}";
+}
+
+std::string ToYaml(const StereoCalibration& c) {
+  cv::FileStorage fs(
+      ".yaml", cv::FileStorage::WRITE | cv::FileStorage::MEMORY | cv::FileStorage::FORMAT_YAML);
+  fs << "format" << kFormatName;
+  fs << "format_version" << StereoCalibration::kFormatVersion;
+  fs << "image_width" << c.image_size.width << "image_height" << c.image_size.height;
+  fs << "board"
+     << "{";
+  fs << "type" << std::string(ToString(c.board.type));
+  fs << "cols" << c.board.cols << "rows" << c.board.rows;
+  fs << "square_mm" << c.board.square_mm << "marker_mm" << c.board.marker_mm;
+  fs << "aruco_dictionary" << c.board.aruco_dictionary;
+  fs << "}";
+  WriteIntrinsics(fs, "left", c.left);
+  WriteIntrinsics(fs, "right", c.right);
+  fs << "R" << cv::Mat(c.R) << "T" << cv::Mat(c.T);
+  fs << "R1" << cv::Mat(c.R1) << "R2" << cv::Mat(c.R2);
+  fs << "P1" << cv::Mat(c.P1) << "P2" << cv::Mat(c.P2) << "Q" << cv::Mat(c.Q);
+  fs << "turntable"
+     << "{";
+  fs << "valid" << static_cast<int>(c.turntable.valid);
+  fs << "direction_in_rig" << cv::Mat(c.turntable.direction_in_rig);
+  fs << "point_in_rig_mm" << cv::Mat(c.turntable.point_in_rig_mm);
+  fs << "}";
+  WriteReport(fs, c.report);
+  return fs.releaseAndGetString();
+}
+
+std::string ErrnoText(const std::string& what, const std::string& path) {
+  return "'" + path + "': " + what + ": " + std::strerror(errno);
+}
+
+bool WriteAll(int fd, const std::string& text) {
+  const char* p = text.data();
+  std::size_t left = text.size();
+  while (left > 0) {
+    const ssize_t n = ::write(fd, p, left);
+    if (n < 0) {
+      if (errno == EINTR) continue;
+      return false;
+    }
+    p += n;
+    left -= static_cast<std::size_t>(n);
+  }
+  return true;
+}
+
+// --- Reading ------------------------------------------------------------------
+
+// Reads keys from one file, turning every problem into a message that names
+// the file and the key.
+class Reader {
+ public:
+  Reader(std::string path, std::string* error) : path_(std::move(path)), error_(error) {}
+
+  bool Fail(const std::string& what) {
+    return calib_internal::Fail(error_, "'" + path_ + "': " + what);
+  }
+
+  bool Node(const cv::FileNode& parent, const std::string& key, const std::string& name,
+            cv::FileNode* out) {
+    *out = parent[key];
+    if (out->empty() || out->isNone()) return Fail("missing key '" + name + "'");
+    return true;
+  }
+
+  bool Int(const cv::FileNode& parent, const std::string& key, const std::string& name, int* out) {
+    cv::FileNode n;
+    if (!Node(parent, key, name, &n)) return false;
+    if (!n.isInt()) return Fail("key '" + name + "': expected an integer");
+    *out = static_cast<int>(n);
+    return true;
+  }
+
+  bool Real(const cv::FileNode& parent, const std::string& key, const std::string& name,
+            double* out) {
+    cv::FileNode n;
+    if (!Node(parent, key, name, &n)) return false;
+    if (!n.isReal() && !n.isInt()) return Fail("key '" + name + "': expected a number");
+    *out = static_cast<double>(n);
+    if (!std::isfinite(*out)) return Fail("key '" + name + "': not finite");
+    return true;
+  }
+
+  bool String(const cv::FileNode& parent, const std::string& key, const std::string& name,
+              std::string* out) {
+    cv::FileNode n;
+    if (!Node(parent, key, name, &n)) return false;
+    if (!n.isString()) return Fail("key '" + name + "': expected a string");
+    *out = static_cast<std::string>(n);
+    return true;
+  }
+
+  // A matrix of exactly rows × cols (a 3-vector may also be stored 1×3).
+  bool Matrix(const cv::FileNode& parent, const std::string& key, const std::string& name, int rows,
+              int cols, cv::Mat* out) {
+    cv::FileNode n;
+    if (!Node(parent, key, name, &n)) return false;
+    cv::Mat m;
+    if (n.isMap()) n >> m;
+    if (m.empty() || m.channels() != 1) {
+      return Fail("key '" + name + "': expected an opencv-matrix");
+    }
+    const bool vector_transposed = cols == 1 && m.rows == 1 && m.cols == rows;
+    if ((m.rows != rows || m.cols != cols) && !vector_transposed) {
+      return Fail("key '" + name + "': expected a " + std::to_string(rows) + "x" +
+                  std::to_string(cols) + " matrix, got " + std::to_string(m.rows) + "x" +
+                  std::to_string(m.cols));
+    }
+    m.reshape(1, rows).convertTo(*out, CV_64F);
+    if (!cv::checkRange(*out)) return Fail("key '" + name + "': contains non-finite values");
+    return true;
+  }
+
+  template <int M, int N>
+  bool Matx(const cv::FileNode& parent, const std::string& key, const std::string& name,
+            cv::Matx<double, M, N>* out) {
+    cv::Mat m;
+    if (!Matrix(parent, key, name, M, N, &m)) return false;
+    m.copyTo(cv::Mat(*out, false));
+    return true;
+  }
+
+  bool Intrinsics(const cv::FileNode& root, const std::string& key, CameraIntrinsics* out) {
+    cv::FileNode n;
+    if (!Node(root, key, key, &n)) return false;
+    if (!n.isMap()) return Fail("key '" + key + "': expected a map");
+    if (!Matx(n, "camera_matrix", key + ".camera_matrix", &out->camera_matrix)) return false;
+    cv::FileNode d;
+    if (!Node(n, "distortion", key + ".distortion", &d)) return false;
+    cv::Mat coeffs;
+    if (d.isMap()) d >> coeffs;
+    const int count = static_cast<int>(coeffs.total());
+    if (coeffs.empty() || (coeffs.rows != 1 && coeffs.cols != 1) || (count != 5 && count != 8)) {
+      return Fail("key '" + key + ".distortion': expected a 1x5 or 1x8 matrix, got " +
+                  std::to_string(coeffs.rows) + "x" + std::to_string(coeffs.cols));
+    }
+    if (!cv::checkRange(coeffs)) return Fail("key '" + key + ".distortion': not finite");
+    if (!out->SetDistortionCoeffs(coeffs)) return Fail("key '" + key + ".distortion': invalid");
+    return true;
+  }
+
+  // Optional report: missing or odd values keep their defaults.
+  static void Report(const cv::FileNode& n, CalibrationReport* r) {
+    if (!n.isMap()) return;
+    auto real = [](const cv::FileNode& node, double* out) {
+      if (node.isReal() || node.isInt()) *out = static_cast<double>(node);
+    };
+    auto integer = [](const cv::FileNode& node, int* out) {
+      if (node.isInt()) *out = static_cast<int>(node);
+    };
+    auto text = [](const cv::FileNode& node, std::string* out) {
+      if (node.isString()) *out = static_cast<std::string>(node);
+    };
+    real(n["rms_left_px"], &r->rms_left_px);
+    real(n["rms_right_px"], &r->rms_right_px);
+    real(n["rms_stereo_px"], &r->rms_stereo_px);
+    real(n["epipolar_mean_px"], &r->epipolar_mean_px);
+    real(n["epipolar_max_px"], &r->epipolar_max_px);
+    integer(n["coverage_grid"], &r->coverage_grid);
+    real(n["coverage_left"], &r->coverage_left);
+    real(n["coverage_right"], &r->coverage_right);
+    integer(n["views_used"], &r->views_used);
+    std::string verdict;
+    text(n["verdict"], &verdict);
+    CalibrationVerdictFromString(verdict, &r->verdict);
+    text(n["verdict_reason"], &r->verdict_reason);
+    integer(n["turntable_steps"], &r->turntable_steps);
+    real(n["turntable_residual_mm"], &r->turntable_residual_mm);
+    real(n["turntable_max_angle_error_deg"], &r->turntable_max_angle_error_deg);
+    const cv::FileNode views = n["views"];
+    if (!views.isSeq()) return;
+    for (cv::FileNodeIterator it = views.begin(); it != views.end(); ++it) {
+      const cv::FileNode v = *it;
+      if (!v.isMap()) continue;
+      ViewReport view;
+      text(v["name"], &view.name);
+      int used = 0;
+      integer(v["used"], &used);
+      view.used = used != 0;
+      text(v["message"], &view.message);
+      integer(v["num_points"], &view.num_points);
+      real(v["rms_left_px"], &view.rms_left_px);
+      real(v["rms_right_px"], &view.rms_right_px);
+      real(v["rms_stereo_px"], &view.rms_stereo_px);
+      r->views.push_back(std::move(view));
+    }
+  }
+
+ private:
+  std::string path_;
+  std::string* error_;
+};
+
+bool ReadCalibration(const cv::FileStorage& fs, Reader& in, StereoCalibration* c) {
+  const cv::FileNode root = fs.root();
+  if (!root.isMap()) return in.Fail("not a YAML map of keys (empty or not a calibration file)");
+  std::string format;
+  if (!in.String(root, "format", "format", &format)) return false;
+  if (format != kFormatName) {
+    return in.Fail("key 'format' is '" + format + "', expected '" + kFormatName + "'");
+  }
+  int version = 0;
+  if (!in.Int(root, "format_version", "format_version", &version)) return false;
+  if (version != StereoCalibration::kFormatVersion) {
+    return in.Fail("format_version " + std::to_string(version) +
+                   " is not supported (this build reads version " +
+                   std::to_string(StereoCalibration::kFormatVersion) + ")");
+  }
+  if (!in.Int(root, "image_width", "image_width", &c->image_size.width) ||
+      !in.Int(root, "image_height", "image_height", &c->image_size.height)) {
+    return false;
+  }
+
+  cv::FileNode board;
+  if (!in.Node(root, "board", "board", &board)) return false;
+  if (!board.isMap()) return in.Fail("key 'board': expected a map");
+  std::string type;
+  if (!in.String(board, "type", "board.type", &type)) return false;
+  if (!BoardTypeFromString(type, &c->board.type)) {
+    return in.Fail("key 'board.type': unknown board type '" + type + "'");
+  }
+  if (!in.Int(board, "cols", "board.cols", &c->board.cols) ||
+      !in.Int(board, "rows", "board.rows", &c->board.rows) ||
+      !in.Real(board, "square_mm", "board.square_mm", &c->board.square_mm) ||
+      !in.Real(board, "marker_mm", "board.marker_mm", &c->board.marker_mm) ||
+      !in.Int(board, "aruco_dictionary", "board.aruco_dictionary", &c->board.aruco_dictionary)) {
+    return false;
+  }
+
+  if (!in.Intrinsics(root, "left", &c->left) || !in.Intrinsics(root, "right", &c->right)) {
+    return false;
+  }
+  cv::Matx31d t;
+  if (!in.Matx(root, "R", "R", &c->R) || !in.Matx(root, "T", "T", &t) ||
+      !in.Matx(root, "R1", "R1", &c->R1) || !in.Matx(root, "R2", "R2", &c->R2) ||
+      !in.Matx(root, "P1", "P1", &c->P1) || !in.Matx(root, "P2", "P2", &c->P2) ||
+      !in.Matx(root, "Q", "Q", &c->Q)) {
+    return false;
+  }
+  c->T = cv::Vec3d(t(0), t(1), t(2));
+
+  cv::FileNode turntable;
+  if (!in.Node(root, "turntable", "turntable", &turntable)) return false;
+  if (!turntable.isMap()) return in.Fail("key 'turntable': expected a map");
+  int valid = 0;
+  cv::Matx31d direction, point;
+  if (!in.Int(turntable, "valid", "turntable.valid", &valid) ||
+      !in.Matx(turntable, "direction_in_rig", "turntable.direction_in_rig", &direction) ||
+      !in.Matx(turntable, "point_in_rig_mm", "turntable.point_in_rig_mm", &point)) {
+    return false;
+  }
+  c->turntable.valid = valid != 0;
+  c->turntable.direction_in_rig = cv::Vec3d(direction(0), direction(1), direction(2));
+  c->turntable.point_in_rig_mm = cv::Vec3d(point(0), point(1), point(2));
+
+  Reader::Report(root["report"], &c->report);
+
+  std::string why;
+  if (!c->IsValid(&why)) return in.Fail("invalid calibration: " + why);
+  return true;
+}
+
+}  // namespace
+
+bool SaveCalibration(const std::string& path, const StereoCalibration& calibration,
+                     std::string* error) {
+  namespace fs = std::filesystem;
+  std::string why;
+  if (path.empty()) return Fail(error, "SaveCalibration: empty path");
+  if (!calibration.IsValid(&why)) {
+    return Fail(error, "'" + path + "': refusing to save an invalid calibration: " + why);
+  }
+  std::string text;
+  try {
+    text = ToYaml(calibration);
+  } catch (const cv::Exception& e) {
+    return Fail(error,
+                "'" + path + "': cannot format the calibration: " + calib_internal::CvErrorText(e));
+  }
+
+  const fs::path target(path);
+  const fs::path folder = target.has_parent_path() ? target.parent_path() : fs::path(".");
+  // Hidden temporary beside the target (same file system, so rename is atomic).
+  std::string tmp_name = target.filename().string();
+  tmp_name.insert(tmp_name.begin(), '.');
+  tmp_name.append(".tmp-XXXXXX");
+  std::string tmp = (folder / tmp_name).string();
+  const int fd = ::mkstemp(tmp.data());
+  if (fd < 0) return Fail(error, ErrnoText("cannot create a temporary file", tmp));
+  bool ok = WriteAll(fd, text);
+  if (!ok) why = ErrnoText("cannot write", tmp);
+  if (ok && ::fchmod(fd, 0644) != 0) {  // mkstemp creates 0600
+    ok = false;
+    why = ErrnoText("cannot set permissions", tmp);
+  }
+  if (ok && ::fsync(fd) != 0) {
+    ok = false;
+    why = ErrnoText("cannot fsync", tmp);
+  }
+  if (::close(fd) != 0 && ok) {
+    ok = false;
+    why = ErrnoText("cannot close", tmp);
+  }
+  if (ok && ::rename(tmp.c_str(), path.c_str()) != 0) {
+    ok = false;
+    why = ErrnoText("cannot rename the temporary file to it", path);
+  }
+  if (!ok) {
+    ::unlink(tmp.c_str());
+    return Fail(error, why);
+  }
+  // Make the rename durable.
+  const int dir_fd = ::open(folder.c_str(), O_RDONLY | O_DIRECTORY);
+  if (dir_fd >= 0) {
+    const int rc = ::fsync(dir_fd);
+    ::close(dir_fd);
+    if (rc != 0) return Fail(error, ErrnoText("cannot fsync the folder of", path));
+  }
+  return true;
+}
+
+bool LoadCalibration(const std::string& path, StereoCalibration* calibration, std::string* error) {
+  namespace fs = std::filesystem;
+  if (calibration == nullptr) return Fail(error, "LoadCalibration: no output");
+  std::error_code ec;
+  if (!fs::exists(path, ec)) return Fail(error, "'" + path + "': no such file");
+  if (!fs::is_regular_file(path, ec)) return Fail(error, "'" + path + "': not a regular file");
+  if (fs::file_size(path, ec) == 0 && !ec) return Fail(error, "'" + path + "': empty file");
+
+  Reader in(path, error);
+  StereoCalibration loaded;
+  try {
+    // Always parse as YAML, whatever the extension.
+    cv::FileStorage storage(path, cv::FileStorage::READ | cv::FileStorage::FORMAT_YAML);
+    if (!storage.isOpened()) return in.Fail("cannot open or parse as OpenCV YAML");
+    if (!ReadCalibration(storage, in, &loaded)) return false;
+  } catch (const cv::Exception& e) {
+    return in.Fail(std::string("malformed YAML: ") + calib_internal::CvErrorText(e));
+  }
+  *calibration = std::move(loaded);
+  return true;
+}
+
+}  // namespace craftscan

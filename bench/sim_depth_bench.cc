@@ -88,6 +88,9 @@ class SimDepthCommand : public BenchCommand {
         ->check(CLI::Range(1, 256))
         ->capture_default_str();
     sub->add_option("--json", json_path_, "Write the results as JSON to this file");
+    sub->add_flag("--fill", fill_,
+                  "Fill refinement outliers by interpolation (a dense map, as on Middlebury); "
+                  "by default they stay invalid, as the reconstruction uses them");
     return sub;
   }
 
@@ -189,6 +192,9 @@ class SimDepthCommand : public BenchCommand {
     options.min_disparity = result->min_disparity;
     options.num_disparities = result->num_disparities;
     options.num_threads = threads_;
+    // A point cloud wants no invented surface: occluded and mismatched pixels
+    // stay invalid unless --fill asks for the dense map.
+    options.refinement.interpolate = fill_;
     StereoMatcher matcher(options);
     const auto start = std::chrono::steady_clock::now();
     DisparityResult match = matcher.Compute(left, right);
@@ -221,9 +227,10 @@ class SimDepthCommand : public BenchCommand {
   }
 
   void Print(const SimDepthResult& r) const {
-    std::printf("sim-depth: %s, seed %llu, %d thread(s), %dx%d, turntable %.0f deg\n",
+    std::printf("sim-depth: %s, seed %llu, %d thread(s), %dx%d, turntable %.0f deg, %s\n",
                 r.object.c_str(), static_cast<unsigned long long>(seed_), threads_, r.width,
-                r.height, kTurntableAngleRad * 180 / std::numbers::pi);
+                r.height, kTurntableAngleRad * 180 / std::numbers::pi,
+                fill_ ? "outliers filled" : "outliers invalid");
     std::printf("  object pixels %ld, true disparity %.1f … %.1f px, searched [%d, %d)\n",
                 r.object_pixels, r.gt_disparity_min, r.gt_disparity_max, r.min_disparity,
                 r.min_disparity + r.num_disparities);
@@ -238,6 +245,7 @@ class SimDepthCommand : public BenchCommand {
     nlohmann::ordered_json root;
     root["object"] = r.object;
     root["seed"] = seed_;
+    root["fill"] = fill_;
     root["threads"] = threads_;
     root["width"] = r.width;
     root["height"] = r.height;
@@ -263,6 +271,7 @@ class SimDepthCommand : public BenchCommand {
   std::string object_ = "carved_box";
   std::uint64_t seed_ = 1;
   int threads_ = 2;
+  bool fill_ = false;
   std::string json_path_;
 };
 

@@ -843,6 +843,12 @@ TEST(SimRender, DefaultRigCarvedBoxAtFullSize) {
   cv::minMaxLoc(r.left_depth_mm, &zlo, &zhi, nullptr, nullptr, r.left_object_mask);
   EXPECT_GT(zlo, 330);
   EXPECT_LT(zhi, 470);
+  // Where the optical axes meet (the target on the turntable axis) the
+  // rectified disparity is near 0 (f·B/Z alone would be ~600 px).
+  const cv::Vec3d target = Apply(r.rig_from_world, {0, 0, rig.target_height_mm});
+  const cv::Matx44d& Q = r.calibration.Q;
+  const double d_target = (Q(2, 3) / target[2] - Q(3, 3)) / Q(3, 2);
+  EXPECT_LT(std::abs(d_target), 30) << "px";
   std::printf("1280x1024 stereo render on 2 threads: %.0f ms\n", r.render_ms);
 }
 

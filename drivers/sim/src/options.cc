@@ -18,8 +18,8 @@ bool Finite(double v) { return std::isfinite(v); }
 }  // namespace
 
 RigOptions::RigOptions() {
-  // A mild 12 mm lens: barrel distortion, ~8 px at the corners; the two
-  // cameras differ slightly, as real ones do.
+  // A mild 16 mm lens: barrel distortion, ~6 px at the image corners; the
+  // two cameras differ slightly, as real ones do.
   left.distortion = {-0.08, 0.12, 0.0006, -0.0004, 0.0};
   left.principal_offset_px = {4.0, -3.0};
   right.distortion = {-0.075, 0.11, -0.0005, 0.0003, 0.0};

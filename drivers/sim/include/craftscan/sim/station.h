@@ -30,7 +30,10 @@
 // ambient + one directional light (optional cast shadows); exposure gain;
 // Gaussian sensor noise seeded per pixel; 8-bit rounding and clamping.
 // Textures are procedural and seeded: the same options, seed and frame index
-// give bit-identical images for any thread count.
+// give bit-identical images for any thread count. Ground truth is traced
+// along the ray through each pixel centre with the same intersection code as
+// the images (relief surfaces to 1e-7 mm). A default 1280×1024 pair with
+// ground truth takes ~2.5 s on 2 cores (carved box, 2×2 samples, shadows).
 #pragma once
 
 #include <cstdint>
@@ -58,7 +61,10 @@ struct SimCameraOptions {
 };
 
 struct RigOptions {
-  RigOptions();  // sets the default per-camera distortion (a mild 12 mm lens)
+  // Sets the defaults below and, per camera, a mild barrel distortion
+  // (~6 px at the corners), a few px of principal point offset and (right)
+  // a 0.3 % longer focal length: two slightly different real cameras.
+  RigOptions();
 
   cv::Size image_size{1280, 1024};  // px, both cameras and the rectified images
   SimCameraOptions left, right;
@@ -232,7 +238,8 @@ enum class SurfaceLabel : std::uint8_t {
 // threads; SetTurntableAngle must not run concurrently with a render.
 class Scene {
  public:
-  // Builds the scene (loads and indexes the mesh, draws the ChArUco texture).
+  // Builds the scene (loads the mesh and builds its BVH, lays out the
+  // ChArUco markers).
   // Returns null and sets *error (naming the option or the file) on failure.
   static std::unique_ptr<Scene> Create(const SceneOptions& options, std::string* error);
   ~Scene();
@@ -257,10 +264,10 @@ class Scene {
   bool Intersect(const cv::Vec3d& origin_in_world, const cv::Vec3d& direction_in_world,
                  double* t, SurfaceLabel* label) const;
 
-  struct Impl;
 
  private:
   friend class SimStation;
+  struct Impl;
   Scene();
   std::unique_ptr<Impl> impl_;
 };
@@ -309,9 +316,12 @@ class SimStation {
  public:
   // Validates the options, computes the calibration (cv::stereoRectify with
   // flags 0 and alpha 0: each rectified image keeps its own principal point,
-  // so a point where the optical axes meet has disparity ≈ 0, nearer points
-  // positive and farther ones negative; Q accounts for the offset; the
-  // rectified images are cropped to valid pixels) and the ray caches.
+  // so the point where the optical axes meet has a disparity near 0 (within
+  // ~20 px with the default rig, where f·B/Z is ~600 px), nearer points
+  // positive, farther ones negative: an object at the target needs a search
+  // band of about ±(f·B·Δz/z²) around 0 (the default carved box: −61…+69 px);
+  // Q accounts for the offset. alpha 0 crops the rectified images to valid
+  // pixels.) Then the per-pixel ray caches.
   // Returns null and sets *error on invalid options.
   static std::unique_ptr<SimStation> Create(const RigOptions& options, std::string* error);
   ~SimStation();

@@ -173,12 +173,6 @@ void Aggregate(const Arms& arms, int iterations, const Parallel& parallel, CostV
 
 namespace {
 
-inline int ColourDiff(const std::uint8_t* a, const std::uint8_t* b, int channels) {
-  int d = std::abs(a[0] - b[0]);
-  for (int c = 1; c < channels; ++c) d = std::max(d, std::abs(a[c] - b[c]));
-  return d;
-}
-
 // Whether the colour difference of the right image between each pixel and its
 // predecessor along x (horizontal) or y (vertical) reaches tau_so (1 or 0), stored per row reversed
 // and padded so that for a left pixel x the values at x_r = x − d_min − k are

@@ -2,6 +2,7 @@
 // checks) and for the orchestration in adcensus.cc. Not a public API.
 #pragma once
 
+#include <algorithm>
 #include <cstdint>
 #include <cstdlib>
 #include <memory>
@@ -14,6 +15,13 @@
 #include "parallel.h"
 
 namespace craftscan::adcensus {
+
+// Mei's colour difference D_c: the largest absolute channel difference.
+inline int ColourDiff(const std::uint8_t* a, const std::uint8_t* b, int channels) {
+  int d = std::abs(a[0] - b[0]);
+  for (int c = 1; c < channels; ++c) d = std::max(d, std::abs(a[c] - b[c]));
+  return d;
+}
 
 // Cost volume laid out [y][x][d] with the disparity axis padded to a
 // multiple of 16 floats (64 B) so that inner loops over d vectorize and rows

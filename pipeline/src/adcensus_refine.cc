@@ -20,12 +20,6 @@ enum Label : std::uint8_t { kReliable = 0, kOccluded = 1, kMismatch = 2 };
 
 constexpr float kNaN = std::numeric_limits<float>::quiet_NaN();
 
-inline int ColourDiff(const std::uint8_t* a, const std::uint8_t* b, int channels) {
-  int d = std::abs(a[0] - b[0]);
-  for (int c = 1; c < channels; ++c) d = std::max(d, std::abs(a[c] - b[c]));
-  return d;
-}
-
 void DetectOutliers(const cv::Mat& left_index, const cv::Mat& right_index, int min_disparity,
                     int ndisp, double tolerance, const Parallel& parallel, cv::Mat* labels) {
   const int width = left_index.cols;

@@ -39,50 +39,40 @@ V3 BackgroundAlbedo(Background background, std::uint64_t seed, double u, double 
   return colour * (0.7 + 0.45 * speckle);
 }
 
-class Table : public Primitive {
+// The table (horizontal, z = const) and the backdrop (vertical, y = const):
+// one plane perpendicular to a world axis, facing the rig.
+class AxisPlane : public Primitive {
  public:
-  Table(double z, Background background, std::uint64_t seed)
-      : Primitive(SurfaceLabel::kBackground), z_(z), background_(background), seed_(seed) {}
+  enum class Axis { kZ, kY };
+  AxisPlane(Axis axis, double offset, Background background, std::uint64_t seed)
+      : Primitive(SurfaceLabel::kBackground),
+        axis_(axis),
+        offset_(offset),
+        background_(background),
+        seed_(seed) {}
   bool Intersect(const V3& o, const V3& d, double t_min, double t_max,
                  LocalHit* hit) const override {
-    if (d.z == 0) return false;
-    const double t = (z_ - o.z) / d.z;
+    const double dir = axis_ == Axis::kZ ? d.z : d.y;
+    if (dir == 0) return false;
+    const double t = (offset_ - (axis_ == Axis::kZ ? o.z : o.y)) / dir;
     if (!(t > t_min && t < t_max)) return false;
     hit->t = t;
     hit->p = o + d * t;
     return true;
   }
   void Surface(const LocalHit& hit, V3* normal, V3* albedo) const override {
-    *normal = V3(0, 0, 1);
-    *albedo = BackgroundAlbedo(background_, seed_, hit.p.x, hit.p.y);
+    if (axis_ == Axis::kZ) {
+      *normal = V3(0, 0, 1);
+      *albedo = BackgroundAlbedo(background_, seed_, hit.p.x, hit.p.y);
+    } else {
+      *normal = V3(0, -1, 0);
+      *albedo = BackgroundAlbedo(background_, SubSeed(seed_, 99), hit.p.x, hit.p.z);
+    }
   }
 
  private:
-  double z_;
-  Background background_;
-  std::uint64_t seed_;
-};
-
-class Backdrop : public Primitive {
- public:
-  Backdrop(double y, Background background, std::uint64_t seed)
-      : Primitive(SurfaceLabel::kBackground), y_(y), background_(background), seed_(seed) {}
-  bool Intersect(const V3& o, const V3& d, double t_min, double t_max,
-                 LocalHit* hit) const override {
-    if (d.y == 0) return false;
-    const double t = (y_ - o.y) / d.y;
-    if (!(t > t_min && t < t_max)) return false;
-    hit->t = t;
-    hit->p = o + d * t;
-    return true;
-  }
-  void Surface(const LocalHit& hit, V3* normal, V3* albedo) const override {
-    *normal = V3(0, -1, 0);
-    *albedo = BackgroundAlbedo(background_, SubSeed(seed_, 99), hit.p.x, hit.p.z);
-  }
-
- private:
-  double y_;
+  Axis axis_;
+  double offset_;
   Background background_;
   std::uint64_t seed_;
 };
@@ -428,10 +418,10 @@ class Board : public Primitive {
 }  // namespace
 
 std::unique_ptr<Primitive> MakeTable(double z_mm, Background background, std::uint64_t seed) {
-  return std::make_unique<Table>(z_mm, background, seed);
+  return std::make_unique<AxisPlane>(AxisPlane::Axis::kZ, z_mm, background, seed);
 }
 std::unique_ptr<Primitive> MakeBackdrop(double y_mm, Background background, std::uint64_t seed) {
-  return std::make_unique<Backdrop>(y_mm, background, seed);
+  return std::make_unique<AxisPlane>(AxisPlane::Axis::kY, y_mm, background, seed);
 }
 std::unique_ptr<Primitive> MakePlatter(double radius_mm, double thickness_mm,
                                        PlatterTexture texture, std::uint64_t seed) {

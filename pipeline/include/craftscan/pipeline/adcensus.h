@@ -108,9 +108,10 @@ struct DisparityResult {
   double occluded_pct = 0;  // of all pixels, outliers classified as occlusion
   double mismatch_pct = 0;  // of all pixels, outliers classified as mismatch
   double valid_pct = 0;     // of all pixels with a disparity in the output
-  struct Timings {          // wall-clock milliseconds per stage
-    double preprocess = 0, cost = 0, arms = 0, aggregation = 0, scanline = 0, refinement = 0,
-           total = 0;
+  struct Timings {  // wall-clock milliseconds per stage
+    double preprocess = 0, cost = 0, arms = 0, aggregation = 0, scanline = 0;
+    double refinement = 0;  // winner-take-all of both views and the refinement
+    double total = 0;
   } time_ms;
 
   bool IsUsable() const { return status == Status::kOk; }

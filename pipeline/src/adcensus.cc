@@ -1,5 +1,6 @@
 #include "craftscan/pipeline/adcensus.h"
 
+#include <algorithm>
 #include <chrono>
 #include <exception>
 #include <opencv2/core.hpp>
@@ -95,11 +96,14 @@ DisparityResult Fail(std::string message) {
 }  // namespace
 
 struct StereoMatcher::Workspace {
+  explicit Workspace(int num_threads) : parallel(num_threads) {}
+  Parallel parallel;  // the arena lives as long as the matcher
   adcensus::CostVolume cost, scratch;
 };
 
 StereoMatcher::StereoMatcher(ADCensusOptions options)
-    : options_(std::move(options)), workspace_(std::make_unique<Workspace>()) {}
+    : options_(std::move(options)),
+      workspace_(std::make_unique<Workspace>(std::clamp(options_.num_threads, 1, 256))) {}
 StereoMatcher::~StereoMatcher() = default;
 StereoMatcher::StereoMatcher(StereoMatcher&&) noexcept = default;
 StereoMatcher& StereoMatcher::operator=(StereoMatcher&&) noexcept = default;
@@ -137,7 +141,7 @@ DisparityResult StereoMatcher::Compute(const cv::Mat& left, const cv::Mat& right
   try {
     const auto t_start = Clock::now();
     DisparityResult result;
-    const Parallel parallel(options.num_threads);
+    const Parallel& parallel = workspace_->parallel;
     const int ndisp = options.num_disparities, dmin = options.min_disparity;
 
     auto t = Clock::now();

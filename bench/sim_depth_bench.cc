@@ -66,9 +66,10 @@ struct SimDepthResult {
 // q-quantile (0…1) by nearest rank.
 double Quantile(std::vector<double>* values, double q) {
   if (values->empty()) return NAN;
-  const std::size_t k = std::min(values->size() - 1,
-                                 static_cast<std::size_t>(std::floor(q * (values->size() - 1) + 0.5)));
-  std::nth_element(values->begin(), values->begin() + static_cast<std::ptrdiff_t>(k), values->end());
+  const std::size_t k = std::min(
+      values->size() - 1, static_cast<std::size_t>(std::floor(q * (values->size() - 1) + 0.5)));
+  std::nth_element(values->begin(), values->begin() + static_cast<std::ptrdiff_t>(k),
+                   values->end());
   return (*values)[k];
 }
 
@@ -171,8 +172,8 @@ class SimDepthCommand : public BenchCommand {
     cv::Mat map_lx, map_ly, map_rx, map_ry, left, right;
     cv::initUndistortRectifyMap(c.left.camera_matrix, c.left.distortion, c.R1, c.P1, c.image_size,
                                 CV_32FC1, map_lx, map_ly);
-    cv::initUndistortRectifyMap(c.right.camera_matrix, c.right.distortion, c.R2, c.P2,
-                                c.image_size, CV_32FC1, map_rx, map_ry);
+    cv::initUndistortRectifyMap(c.right.camera_matrix, c.right.distortion, c.R2, c.P2, c.image_size,
+                                CV_32FC1, map_rx, map_ry);
     cv::remap(render.left, left, map_lx, map_ly, cv::INTER_LINEAR, cv::BORDER_CONSTANT);
     cv::remap(render.right, right, map_rx, map_ry, cv::INTER_LINEAR, cv::BORDER_CONSTANT);
 
@@ -180,8 +181,8 @@ class SimDepthCommand : public BenchCommand {
     const cv::Mat& mask = render.rectified_object_mask;
     result->object_pixels = cv::countNonZero(mask);
     if (result->object_pixels == 0) return DataError("the object is not in view");
-    cv::minMaxLoc(render.rectified_disparity, &result->gt_disparity_min,
-                  &result->gt_disparity_max, nullptr, nullptr, mask);
+    cv::minMaxLoc(render.rectified_disparity, &result->gt_disparity_min, &result->gt_disparity_max,
+                  nullptr, nullptr, mask);
     result->min_disparity =
         static_cast<int>(std::floor(result->gt_disparity_min)) - kDisparityMarginPx;
     const int max_disparity =
@@ -234,9 +235,10 @@ class SimDepthCommand : public BenchCommand {
     std::printf("  object pixels %ld, true disparity %.1f … %.1f px, searched [%d, %d)\n",
                 r.object_pixels, r.gt_disparity_min, r.gt_disparity_max, r.min_disparity,
                 r.min_disparity + r.num_disparities);
-    std::printf("  depth_err_median_mm %.3f  depth_err_p90_mm %.3f  valid_pct %.1f  "
-                "disp_err_median_px %.3f\n",
-                r.depth_err_median_mm, r.depth_err_p90_mm, r.valid_pct, r.disp_err_median_px);
+    std::printf(
+        "  depth_err_median_mm %.3f  depth_err_p90_mm %.3f  valid_pct %.1f  "
+        "disp_err_median_px %.3f\n",
+        r.depth_err_median_mm, r.depth_err_p90_mm, r.valid_pct, r.disp_err_median_px);
     std::printf("  render_ms %.0f  match_ms %.0f\n", r.render_ms, r.match_ms);
     std::fflush(stdout);
   }

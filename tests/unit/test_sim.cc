@@ -82,9 +82,9 @@ cv::Vec3d Apply(const cv::Matx44d& T, const cv::Vec3d& p) {
 // iterative solver run to convergence).
 cv::Point2d Normalize(const CameraIntrinsics& camera, cv::Point2d pixel) {
   std::vector<cv::Point2d> in{pixel}, out;
-  cv::undistortPoints(in, out, camera.camera_matrix, camera.distortion, cv::noArray(),
-                      cv::noArray(),
-                      cv::TermCriteria(cv::TermCriteria::COUNT + cv::TermCriteria::EPS, 200, 1e-14));
+  cv::undistortPoints(
+      in, out, camera.camera_matrix, camera.distortion, cv::noArray(), cv::noArray(),
+      cv::TermCriteria(cv::TermCriteria::COUNT + cv::TermCriteria::EPS, 200, 1e-14));
   return out[0];
 }
 
@@ -109,8 +109,8 @@ double Median(std::vector<double> v) {
 // Object pixels at least `margin` px inside the object mask.
 std::vector<cv::Point> InteriorPixels(const cv::Mat& mask, int margin, int stride) {
   cv::Mat inner;
-  cv::erode(mask, inner, cv::getStructuringElement(cv::MORPH_RECT,
-                                                   cv::Size(2 * margin + 1, 2 * margin + 1)));
+  cv::erode(mask, inner,
+            cv::getStructuringElement(cv::MORPH_RECT, cv::Size(2 * margin + 1, 2 * margin + 1)));
   std::vector<cv::Point> out;
   for (int y = margin; y < mask.rows - margin; y += stride)
     for (int x = margin; x < mask.cols - margin; x += stride)
@@ -141,9 +141,12 @@ TEST(SimOptions, ValidationNamesTheBadField) {
             std::string::npos);
   EXPECT_NE(rig_error([](RigOptions& r) { r.left.focal_px = 0; }).find("left.focal_px"),
             std::string::npos);
-  EXPECT_NE(rig_error([](RigOptions& r) { r.right.distortion[4] = NAN; }).find("right.distortion[4]"),
-            std::string::npos);
-  EXPECT_NE(rig_error([](RigOptions& r) { r.image_size = {8, 8}; }).find("image_size"),
+  EXPECT_NE(
+      rig_error([](RigOptions& r) { r.right.distortion[4] = NAN; }).find("right.distortion[4]"),
+      std::string::npos);
+  EXPECT_NE(rig_error([](RigOptions& r) {
+              r.image_size = {8, 8};
+            }).find("image_size"),
             std::string::npos);
   EXPECT_NE(rig_error([](RigOptions& r) { r.supersampling = 0; }).find("supersampling"),
             std::string::npos);
@@ -169,11 +172,13 @@ TEST(SimOptions, ValidationNamesTheBadField) {
               s.object.egg.diameter_mm = 0;
             }).find("object.egg"),
             std::string::npos);
-  EXPECT_NE(scene_error([](SceneOptions& s) { s.object.carved_box.relief_depth_mm = 30; })
-                .find("object.carved_box.relief_depth_mm"),
+  EXPECT_NE(scene_error([](SceneOptions& s) {
+              s.object.carved_box.relief_depth_mm = 30;
+            }).find("object.carved_box.relief_depth_mm"),
             std::string::npos);
-  EXPECT_NE(scene_error([](SceneOptions& s) { s.object.type = ObjectType::kMesh; })
-                .find("object.mesh.path"),
+  EXPECT_NE(scene_error([](SceneOptions& s) {
+              s.object.type = ObjectType::kMesh;
+            }).find("object.mesh.path"),
             std::string::npos);
   EXPECT_NE(scene_error([](SceneOptions& s) {
               s.board.enabled = true;
@@ -181,8 +186,9 @@ TEST(SimOptions, ValidationNamesTheBadField) {
               s.board.spec.marker_mm = 40;
             }).find("board.spec.marker_mm"),
             std::string::npos);
-  EXPECT_NE(scene_error([](SceneOptions& s) { s.lighting.direction_to_light = {0, 0, 0}; })
-                .find("lighting.direction_to_light"),
+  EXPECT_NE(scene_error([](SceneOptions& s) {
+              s.lighting.direction_to_light = {0, 0, 0};
+            }).find("lighting.direction_to_light"),
             std::string::npos);
   EXPECT_NE(scene_error([](SceneOptions& s) { s.platter_radius_mm = 1; }).find("platter_radius_mm"),
             std::string::npos);
@@ -273,7 +279,8 @@ TEST(SimGroundTruth, PlatterDepthMatchesTheCalibratedCameraModel) {
   double worst = 0;
   for (int y = 0; y < r.left.rows; y += 3)
     for (int x = 0; x < r.left.cols; x += 3) {
-      if (r.left_labels.at<std::uint8_t>(y, x) != static_cast<int>(SurfaceLabel::kPlatter)) continue;
+      if (r.left_labels.at<std::uint8_t>(y, x) != static_cast<int>(SurfaceLabel::kPlatter))
+        continue;
       const cv::Point2d n = Normalize(r.calibration.left, cv::Point2d(x, y));
       const cv::Vec3d ray = Apply(world_from_left, {n.x, n.y, 1}) - centre;  // camera z = 1
       const double z = -centre[2] / ray[2];  // hits world z = 0 at camera depth z
@@ -331,8 +338,8 @@ TEST(SimGroundTruth, LeftDepthProjectsIntoTheRightImageOntoTheSameSurface) {
   const double at_projection = median_difference(0, 0);
   EXPECT_LT(at_projection, 3.5) << "grey levels";
   // Half a pixel off in any direction is worse; two pixels off much worse.
-  for (const cv::Point2d off : {cv::Point2d(0.5, 0), cv::Point2d(-0.5, 0), cv::Point2d(0, 0.5),
-                                cv::Point2d(0, -0.5)}) {
+  for (const cv::Point2d off :
+       {cv::Point2d(0.5, 0), cv::Point2d(-0.5, 0), cv::Point2d(0, 0.5), cv::Point2d(0, -0.5)}) {
     EXPECT_GT(median_difference(off.x, off.y), at_projection) << off;
   }
   EXPECT_GT(median_difference(2, 0), 2 * at_projection);
@@ -468,10 +475,12 @@ TEST(SimGroundTruth, TurningTheTurntableRotatesObjectPointsAboutTheAxis) {
     if (cv::countNonZero(window) != 81) continue;
     // Depth of the ray through the projected point: bilinear in the GT map.
     const double fx = image[0].x - std::floor(image[0].x), fy = image[0].y - std::floor(image[0].y);
-    const int x0 = static_cast<int>(std::floor(image[0].x)), y0 = static_cast<int>(std::floor(image[0].y));
+    const int x0 = static_cast<int>(std::floor(image[0].x)),
+              y0 = static_cast<int>(std::floor(image[0].y));
     const cv::Mat& D = r1.left_depth_mm;
-    const double depth = (D.at<float>(y0, x0) * (1 - fx) + D.at<float>(y0, x0 + 1) * fx) * (1 - fy) +
-                         (D.at<float>(y0 + 1, x0) * (1 - fx) + D.at<float>(y0 + 1, x0 + 1) * fx) * fy;
+    const double depth =
+        (D.at<float>(y0, x0) * (1 - fx) + D.at<float>(y0, x0 + 1) * fx) * (1 - fy) +
+        (D.at<float>(y0 + 1, x0) * (1 - fx) + D.at<float>(y0 + 1, x0 + 1) * fx) * fy;
     // The point may have turned away from the camera: then the GT depth is
     // nearer (another part of the egg), never farther.
     if (depth < p_left[2] - 0.05) continue;
@@ -568,17 +577,18 @@ TEST(SimBoard, CharucoMarkersAndCornersAreDetectedWhereTheBoardFrameSays) {
   spec.marker_mm = 12;
   spec.aruco_dictionary = cv::aruco::DICT_4X4_50;
   const StereoRender r = station->Render(*MakeScene(BoardFacingLeftCamera(*station, spec)));
-  cv::Ptr<cv::aruco::Dictionary> dictionary = cv::aruco::getPredefinedDictionary(spec.aruco_dictionary);
-  cv::Ptr<cv::aruco::CharucoBoard> board = cv::aruco::CharucoBoard::create(
-      spec.cols, spec.rows, static_cast<float>(spec.square_mm), static_cast<float>(spec.marker_mm),
-      dictionary);
+  cv::Ptr<cv::aruco::Dictionary> dictionary =
+      cv::aruco::getPredefinedDictionary(spec.aruco_dictionary);
+  cv::Ptr<cv::aruco::CharucoBoard> board =
+      cv::aruco::CharucoBoard::create(spec.cols, spec.rows, static_cast<float>(spec.square_mm),
+                                      static_cast<float>(spec.marker_mm), dictionary);
   std::vector<std::vector<cv::Point2f>> marker_corners;
   std::vector<int> marker_ids;
   cv::aruco::detectMarkers(r.left, dictionary, marker_corners, marker_ids);
   EXPECT_EQ(marker_ids.size(), board->ids.size());
   cv::Mat corners, ids;
-  const int n = cv::aruco::interpolateCornersCharuco(marker_corners, marker_ids, r.left, board,
-                                                     corners, ids);
+  const int n =
+      cv::aruco::interpolateCornersCharuco(marker_corners, marker_ids, r.left, board, corners, ids);
   ASSERT_EQ(n, (spec.cols - 1) * (spec.rows - 1));
   // interpolateCornersCharuco's own refinement is coarse; refine as a
   // calibration would.
@@ -586,7 +596,8 @@ TEST(SimBoard, CharucoMarkersAndCornersAreDetectedWhereTheBoardFrameSays) {
   cv::cvtColor(r.left, grey, cv::COLOR_BGR2GRAY);
   cv::cornerSubPix(grey, corners, cv::Size(5, 5), cv::Size(-1, -1),
                    cv::TermCriteria(cv::TermCriteria::COUNT + cv::TermCriteria::EPS, 50, 1e-3));
-  const std::vector<cv::Point2d> expected = ProjectBoardPoints(*station, r, board->chessboardCorners);
+  const std::vector<cv::Point2d> expected =
+      ProjectBoardPoints(*station, r, board->chessboardCorners);
   std::vector<double> errors;
   for (int i = 0; i < n; ++i) {
     const int id = ids.at<int>(i);
@@ -620,9 +631,10 @@ TEST(SimBoard, BoardOnThePlatterTurnsWithIt) {
 class TempDir {
  public:
   TempDir() {
-    path_ = fs::temp_directory_path() /
-            ("craftscan_test_sim_" + std::to_string(::testing::UnitTest::GetInstance()->random_seed()) +
-             "_" + ::testing::UnitTest::GetInstance()->current_test_info()->name());
+    path_ =
+        fs::temp_directory_path() /
+        ("craftscan_test_sim_" + std::to_string(::testing::UnitTest::GetInstance()->random_seed()) +
+         "_" + ::testing::UnitTest::GetInstance()->current_test_info()->name());
     fs::create_directories(path_);
   }
   ~TempDir() {
@@ -706,7 +718,8 @@ TEST(SimMesh, PlacementScalesRotatesAndSeatsTheMesh) {
   TempDir dir;
   // A unit cube from (0,0,0) to (1,2,3) in file units, +Y up in the file.
   TriangleMesh cube;
-  for (int i = 0; i < 8; ++i) cube.vertices.emplace_back(i & 1, 2 * ((i >> 1) & 1), 3 * ((i >> 2) & 1));
+  for (int i = 0; i < 8; ++i)
+    cube.vertices.emplace_back(i & 1, 2 * ((i >> 1) & 1), 3 * ((i >> 2) & 1));
   const int quads[6][4] = {{0, 2, 3, 1}, {4, 5, 7, 6}, {0, 1, 5, 4},
                            {2, 6, 7, 3}, {0, 4, 6, 2}, {1, 3, 7, 5}};
   for (const auto& q : quads) {
@@ -718,8 +731,8 @@ TEST(SimMesh, PlacementScalesRotatesAndSeatsTheMesh) {
   SceneOptions options;
   options.object.type = ObjectType::kMesh;
   options.object.mesh.path = dir.File("cube.ply");
-  options.object.mesh.size_mm = 60;                        // largest extent (3) → 60 mm
-  options.object.mesh.rotation_rad = {kPi / 2, 0, 0};      // file +Y → +Z
+  options.object.mesh.size_mm = 60;                    // largest extent (3) → 60 mm
+  options.object.mesh.rotation_rad = {kPi / 2, 0, 0};  // file +Y → +Z
   const auto scene = MakeScene(options);
   // The seated box spans x ∈ [−10, 10], z ∈ [0, 40] (file y: 2 → 40 mm),
   // y ∈ [−30, 30]: a ray straight down the axis hits its top at z = 40.
@@ -777,7 +790,8 @@ TEST(SimPly, ErrorsNameTheFileAndTheProblem) {
   expect_error(dir.File("missing.ply"), "cannot open file");
   WriteText(dir.File("garbage.ply"), "hello world\nthis is not a mesh\n");
   expect_error(dir.File("garbage.ply"), "not a PLY file");
-  WriteText(dir.File("big.ply"), "ply\nformat binary_big_endian 1.0\nelement vertex 0\nend_header\n");
+  WriteText(dir.File("big.ply"),
+            "ply\nformat binary_big_endian 1.0\nelement vertex 0\nend_header\n");
   expect_error(dir.File("big.ply"), "unsupported format 'binary_big_endian'");
   WriteText(dir.File("noend.ply"), "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\n");
   expect_error(dir.File("noend.ply"), "no 'end_header'");

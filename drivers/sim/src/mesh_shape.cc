@@ -112,19 +112,21 @@ class MeshShape : public Primitive {
 
   void Surface(const LocalHit& hit, V3* normal, V3* albedo) const override {
     const auto& t = triangles_[static_cast<std::size_t>(hit.part)];
-    const V3 n = normals_[t[0]] * (1 - hit.u - hit.v) + normals_[t[1]] * hit.u +
-                 normals_[t[2]] * hit.v;
+    const V3 n =
+        normals_[t[0]] * (1 - hit.u - hit.v) + normals_[t[1]] * hit.u + normals_[t[2]] * hit.v;
     const double len = Norm(n);
     if (len > 1e-12) {
       *normal = n / len;
     } else {
-      *normal = Normalized(Cross(vertices_[t[1]] - vertices_[t[0]], vertices_[t[2]] - vertices_[t[0]]));
+      *normal =
+          Normalized(Cross(vertices_[t[1]] - vertices_[t[0]], vertices_[t[2]] - vertices_[t[0]]));
     }
     const V3& p = hit.p;
     const double cloud = Fbm3(SubSeed(seed_, 301), p.x / 9, p.y / 9, p.z / 9, 4);
-    const double grain = ToUnit(Hash(SubSeed(seed_, 302), static_cast<std::int64_t>(std::floor(p.x / 0.4)),
-                                     static_cast<std::int64_t>(std::floor(p.y / 0.4)),
-                                     static_cast<std::int64_t>(std::floor(p.z / 0.4))));
+    const double grain =
+        ToUnit(Hash(SubSeed(seed_, 302), static_cast<std::int64_t>(std::floor(p.x / 0.4)),
+                    static_cast<std::int64_t>(std::floor(p.y / 0.4)),
+                    static_cast<std::int64_t>(std::floor(p.z / 0.4))));
     *albedo = base_colour_ * (0.6 + 0.6 * cloud) * (0.85 + 0.3 * grain);
   }
 
@@ -196,7 +198,8 @@ class MeshShape : public Primitive {
     }
     nodes_[static_cast<std::size_t>(node_index)].box = box;
     const V3 extent = centre_box.hi - centre_box.lo;
-    const int axis = extent.x >= extent.y && extent.x >= extent.z ? 0 : (extent.y >= extent.z ? 1 : 2);
+    const int axis =
+        extent.x >= extent.y && extent.x >= extent.z ? 0 : (extent.y >= extent.z ? 1 : 2);
     if (end - begin <= kLeafSize || extent[axis] <= 0 || depth >= 60) {
       nodes_[static_cast<std::size_t>(node_index)].first = begin;
       nodes_[static_cast<std::size_t>(node_index)].count = end - begin;

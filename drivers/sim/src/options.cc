@@ -105,7 +105,8 @@ bool BoardOptions::IsValid(std::string* why) const {
       return Fail(why, "spec.marker_mm must be in (0, square_mm) for a ChArUco board");
     }
     if (spec.aruco_dictionary < 0 || spec.aruco_dictionary > 20) {
-      return Fail(why, "spec.aruco_dictionary must be a cv::aruco::PREDEFINED_DICTIONARY_NAME (0…20)");
+      return Fail(why,
+                  "spec.aruco_dictionary must be a cv::aruco::PREDEFINED_DICTIONARY_NAME (0…20)");
     }
   }
   if (!(margin_mm >= 0 && margin_mm <= 1000)) return Fail(why, "margin_mm must be in [0, 1000]");

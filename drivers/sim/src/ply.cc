@@ -20,11 +20,11 @@ bool ParseScalar(std::string_view name, Scalar* type) {
     Scalar type;
   };
   static constexpr Entry kTypes[] = {
-      {"char", Scalar::kInt8},     {"int8", Scalar::kInt8},       {"uchar", Scalar::kUint8},
-      {"uint8", Scalar::kUint8},   {"short", Scalar::kInt16},     {"int16", Scalar::kInt16},
-      {"ushort", Scalar::kUint16}, {"uint16", Scalar::kUint16},   {"int", Scalar::kInt32},
-      {"int32", Scalar::kInt32},   {"uint", Scalar::kUint32},     {"uint32", Scalar::kUint32},
-      {"float", Scalar::kFloat32}, {"float32", Scalar::kFloat32}, {"double", Scalar::kFloat64},
+      {"char", Scalar::kInt8},       {"int8", Scalar::kInt8},       {"uchar", Scalar::kUint8},
+      {"uint8", Scalar::kUint8},     {"short", Scalar::kInt16},     {"int16", Scalar::kInt16},
+      {"ushort", Scalar::kUint16},   {"uint16", Scalar::kUint16},   {"int", Scalar::kInt32},
+      {"int32", Scalar::kInt32},     {"uint", Scalar::kUint32},     {"uint32", Scalar::kUint32},
+      {"float", Scalar::kFloat32},   {"float32", Scalar::kFloat32}, {"double", Scalar::kFloat64},
       {"float64", Scalar::kFloat64},
   };
   for (const Entry& e : kTypes) {
@@ -387,7 +387,8 @@ bool SavePly(const std::string& path, const TriangleMesh& mesh, bool binary, std
   } else {
     out.precision(9);
     for (const cv::Vec3d& v : mesh.vertices) out << v[0] << ' ' << v[1] << ' ' << v[2] << '\n';
-    for (const cv::Vec3i& t : mesh.triangles) out << "3 " << t[0] << ' ' << t[1] << ' ' << t[2] << '\n';
+    for (const cv::Vec3i& t : mesh.triangles)
+      out << "3 " << t[0] << ' ' << t[1] << ' ' << t[2] << '\n';
   }
   out.close();
   if (!out) {

@@ -171,7 +171,7 @@ struct Rosette {
 // Everything about one face's carving; H(a, b) ∈ [0, 1] is the cut depth as
 // a fraction of the relief depth at face coordinates (a, b) from the centre.
 struct CarvedFace {
-  V3 n, u, v, centre;  // outward normal, in-plane axes, centre (box frame)
+  V3 n, u, v, centre;     // outward normal, in-plane axes, centre (box frame)
   double hu = 0, hv = 0;  // half extents along u, v
   double depth = 0;       // relief depth; 0 = not carved
   double inset = 5;       // border groove inset from the edges
@@ -259,11 +259,12 @@ class CarvedBox : public MarchedSolid {
     const double ring = Norm(radial) / 2.4 + 3.0 * wobble;
     const double late = SmoothStep(0.55, 0.9, ring - std::floor(ring));
     const V3 across = Cross(log_axis_, V3(0, 1, 0));
-    const double fibre = ValueNoise3(SubSeed(seed_, 31), along / 4, Dot(rel, across) / 0.25,
-                                     p.y / 0.25);
-    const std::uint64_t cell = Hash(SubSeed(seed_, 32), static_cast<std::int64_t>(std::floor(p.x / 0.3)),
-                                    static_cast<std::int64_t>(std::floor(p.y / 0.3)),
-                                    static_cast<std::int64_t>(std::floor(p.z / 0.3)));
+    const double fibre =
+        ValueNoise3(SubSeed(seed_, 31), along / 4, Dot(rel, across) / 0.25, p.y / 0.25);
+    const std::uint64_t cell =
+        Hash(SubSeed(seed_, 32), static_cast<std::int64_t>(std::floor(p.x / 0.3)),
+             static_cast<std::int64_t>(std::floor(p.y / 0.3)),
+             static_cast<std::int64_t>(std::floor(p.z / 0.3)));
     const double pore = ToUnit(cell) > 0.9 ? 0.65 : 1.0;
     const V3 early(0.30, 0.47, 0.66), late_wood(0.13, 0.24, 0.40), fresh(0.42, 0.62, 0.80);
     V3 colour = Lerp(early, late_wood, 0.85 * late) * ((0.85 + 0.25 * fibre) * pore);
@@ -300,7 +301,7 @@ class CarvedBox : public MarchedSolid {
 
  private:
   std::array<CarvedFace, 6> faces_;
-  double slope_;  // the largest CarveSlope of the faces
+  double slope_;             // the largest CarveSlope of the faces
   V3 log_axis_, log_point_;  // the tree's axis (wood texture)
   std::uint64_t seed_;
 };
@@ -422,9 +423,9 @@ class Embroidery : public MarchedSolid {
   }
 
  private:
-  static constexpr double kThreadW = 0.7;  // satin thread spacing (mm)
-  static constexpr double kEdge = 0.35;    // stitches rise to full height over this (mm)
-  static constexpr double kKnotR = 0.45;   // French knot radius (mm)
+  static constexpr double kThreadW = 0.7;   // satin thread spacing (mm)
+  static constexpr double kEdge = 0.35;     // stitches rise to full height over this (mm)
+  static constexpr double kKnotR = 0.45;    // French knot radius (mm)
   static constexpr double kFabricH = 0.12;  // weave relief as a fraction of relief_mm
 
   // Satin: threads along `along`, side by side across; `across` in mm.
@@ -452,8 +453,8 @@ class Embroidery : public MarchedSolid {
     out.height = kFabricH * (0.5 + 0.5 * weave);
     if (want_colour) {
       const V3 cloth = dark_fabric_ ? V3(0.05, 0.04, 0.16) : V3(0.68, 0.80, 0.85);
-      out.colour = cloth * (0.8 + 0.2 * weave) *
-                   (0.93 + 0.14 * Fbm2(SubSeed(seed_, 210), x / 6, y / 6, 2));
+      out.colour =
+          cloth * (0.8 + 0.2 * weave) * (0.93 + 0.14 * Fbm2(SubSeed(seed_, 210), x / 6, y / 6, 2));
     }
     const double rho = Hypot(x, y);
     auto take = [&](double h, const V3& colour) {

@@ -74,8 +74,7 @@ Rigid Scene::Impl::WorldFromBoard() const {
   return board->world_from_local;
 }
 
-bool Scene::Impl::Intersect(const V3& o, const V3& d, double t_min, double t_max,
-                            Hit* hit) const {
+bool Scene::Impl::Intersect(const V3& o, const V3& d, double t_min, double t_max, Hit* hit) const {
   bool found = false;
   for (const auto& p : primitives) {
     const V3 lo = p->local_from_world.Apply(o), ld = p->local_from_world.Rotate(d);
@@ -134,10 +133,10 @@ std::unique_ptr<Scene> Scene::Create(const SceneOptions& options, std::string* e
   s.to_light = Normalized(FromCv(options.lighting.direction_to_light));
   const std::uint64_t seed = options.seed;
 
-  s.primitives.push_back(MakeTable(-options.platter_thickness_mm, options.background,
-                                   SubSeed(seed, 1)));
-  s.primitives.push_back(MakeBackdrop(options.backdrop_distance_mm, options.background,
-                                      SubSeed(seed, 2)));
+  s.primitives.push_back(
+      MakeTable(-options.platter_thickness_mm, options.background, SubSeed(seed, 1)));
+  s.primitives.push_back(
+      MakeBackdrop(options.backdrop_distance_mm, options.background, SubSeed(seed, 2)));
   s.primitives.push_back(MakePlatter(options.platter_radius_mm, options.platter_thickness_mm,
                                      options.platter_texture, SubSeed(seed, 3)));
 

@@ -196,8 +196,7 @@ class Egg : public Primitive {
     };
     const int bg = pick(0, -1);
     const int line = (bg == 1) ? 3 : 1;  // black lines, white on black
-    palette_ = {kDyes[bg], kDyes[line], kDyes[pick(1, bg)], kDyes[pick(2, bg)],
-                kDyes[pick(3, bg)]};
+    palette_ = {kDyes[bg], kDyes[line], kDyes[pick(1, bg)], kDyes[pick(2, bg)], kDyes[pick(3, bg)]};
     meridians_ = 4 + 2 * static_cast<int>(ToUnit(Hash(seed, 110)) * 3);  // 4, 6, 8
     zigzag_teeth_ = 2 * meridians_;
     petals_ = 6 + 2 * static_cast<int>(ToUnit(Hash(seed, 111)) * 2);  // 6 or 8
@@ -442,9 +441,9 @@ std::unique_ptr<Primitive> MakeBoard(const BoardOptions& options, std::string* e
   try {
     cv::Ptr<cv::aruco::Dictionary> dictionary =
         cv::aruco::getPredefinedDictionary(s.aruco_dictionary);
-    cv::Ptr<cv::aruco::CharucoBoard> board = cv::aruco::CharucoBoard::create(
-        s.cols, s.rows, static_cast<float>(s.square_mm), static_cast<float>(s.marker_mm),
-        dictionary);
+    cv::Ptr<cv::aruco::CharucoBoard> board =
+        cv::aruco::CharucoBoard::create(s.cols, s.rows, static_cast<float>(s.square_mm),
+                                        static_cast<float>(s.marker_mm), dictionary);
     for (std::size_t m = 0; m < board->objPoints.size(); ++m) {
       const std::vector<cv::Point3f>& c = board->objPoints[m];
       const int id = board->ids[m];

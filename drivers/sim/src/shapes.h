@@ -13,9 +13,9 @@
 namespace craftscan::sim {
 
 struct LocalHit {
-  double t = 0;  // ray parameter (same in every rigid frame)
-  V3 p;          // hit point, local frame
-  int part = 0;  // primitive-specific (face, triangle, ...)
+  double t = 0;         // ray parameter (same in every rigid frame)
+  V3 p;                 // hit point, local frame
+  int part = 0;         // primitive-specific (face, triangle, ...)
   double u = 0, v = 0;  // primitive-specific (barycentric coordinates for meshes)
 };
 

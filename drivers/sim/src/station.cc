@@ -8,10 +8,10 @@
 #include <string>
 #include <vector>
 
-#include <opencv2/calib3d.hpp>
 #include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>
 #include <tbb/task_arena.h>
+#include <opencv2/calib3d.hpp>
 
 #include "craftscan/sim/station.h"
 #include "math.h"
@@ -141,7 +141,7 @@ struct SimStation::Impl {
   Camera left, right;
   Rigid rig_from_world, world_from_rig;
   cv::Matx34d P1, P2;
-  int samples = 1;                    // per pixel (s²)
+  int samples = 1;                           // per pixel (s²)
   std::vector<float> left_rays, right_rays;  // (x, y) per supersample, normalized
   std::vector<double> left_centre_rays;      // (x, y) per pixel centre, normalized
   std::unique_ptr<tbb::task_arena> arena;    // null for one thread
@@ -296,7 +296,8 @@ StereoRender SimStation::Render(const Scene& scene, std::uint64_t frame_index) c
   const int samples = s.samples;
   const double gain = 255.0 * s.options.exposure / samples;
   const double sigma = s.options.noise_sigma;
-  const std::uint64_t noise_seed = Hash(Mix64(s.options.seed), static_cast<std::int64_t>(frame_index));
+  const std::uint64_t noise_seed =
+      Hash(Mix64(s.options.seed), static_cast<std::int64_t>(frame_index));
 
   StereoRender out;
   out.left.create(h, w, CV_8UC3);
@@ -322,8 +323,8 @@ StereoRender SimStation::Render(const Scene& scene, std::uint64_t frame_index) c
     V3 sum(0, 0, 0);
     const std::size_t base = (static_cast<std::size_t>(y) * w + x) * samples * 2;
     for (int k = 0; k < samples; ++k) {
-      const V3 d = camera.world_from_cam.Rotate(
-          V3(rays[base + 2 * k], rays[base + 2 * k + 1], 1.0));
+      const V3 d =
+          camera.world_from_cam.Rotate(V3(rays[base + 2 * k], rays[base + 2 * k + 1], 1.0));
       Scene::Impl::Hit hit;
       if (world.Intersect(origin, d, 0, kInf, &hit)) sum += world.Shade(d, hit);
     }
@@ -380,8 +381,9 @@ StereoRender SimStation::Render(const Scene& scene, std::uint64_t frame_index) c
         if (world.Intersect(centre_left, d, 0, kInf, &hit)) {
           const double t = hit.local.t;
           const V3 p_rig = d_rig * t;
-          const double xr = (P2(0, 0) * p_rig.x + P2(0, 1) * p_rig.y + P2(0, 2) * p_rig.z + P2(0, 3)) /
-                            (P2(2, 0) * p_rig.x + P2(2, 1) * p_rig.y + P2(2, 2) * p_rig.z + P2(2, 3));
+          const double xr =
+              (P2(0, 0) * p_rig.x + P2(0, 1) * p_rig.y + P2(0, 2) * p_rig.z + P2(0, 3)) /
+              (P2(2, 0) * p_rig.x + P2(2, 1) * p_rig.y + P2(2, 2) * p_rig.z + P2(2, 3));
           disp_row[x] = static_cast<float>(x - xr);
           rdepth_row[x] = static_cast<float>(t);
           rlabel_row[x] = static_cast<std::uint8_t>(hit.primitive->label());
@@ -392,8 +394,7 @@ StereoRender SimStation::Render(const Scene& scene, std::uint64_t frame_index) c
               v < h - 0.5) {
             const V3 to_point = p_world - centre_right;
             const double length = Norm(to_point);
-            const bool blocked =
-                world.Occluded(centre_right, to_point, 0, 1 - 0.05 / length);
+            const bool blocked = world.Occluded(centre_right, to_point, 0, 1 - 0.05 / length);
             visible_row[x] = blocked ? 0 : 255;
           }
         } else {

@@ -41,8 +41,8 @@ double ValueNoise3(std::uint64_t seed, double x, double y, double z) {
 double Fbm2(std::uint64_t seed, double x, double y, int octaves) {
   double sum = 0, amplitude = 1, total = 0, scale = 1;
   for (int i = 0; i < octaves; ++i) {
-    sum += amplitude * ValueNoise2(Mix64(seed + static_cast<std::uint64_t>(i)), x * scale,
-                                   y * scale);
+    sum +=
+        amplitude * ValueNoise2(Mix64(seed + static_cast<std::uint64_t>(i)), x * scale, y * scale);
     total += amplitude;
     amplitude *= 0.5;
     scale *= 2;

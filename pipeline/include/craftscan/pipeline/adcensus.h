@@ -108,7 +108,7 @@ struct DisparityResult {
   double occluded_pct = 0;  // of all pixels, outliers classified as occlusion
   double mismatch_pct = 0;  // of all pixels, outliers classified as mismatch
   double valid_pct = 0;     // of all pixels with a disparity in the output
-  struct Timings {  // wall-clock milliseconds per stage
+  struct Timings {          // wall-clock milliseconds per stage
     double preprocess = 0, cost = 0, arms = 0, aggregation = 0, scanline = 0;
     double refinement = 0;  // winner-take-all of both views and the refinement
     double total = 0;

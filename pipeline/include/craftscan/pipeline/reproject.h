@@ -10,12 +10,12 @@
 namespace craftscan {
 
 struct ColoredPoint {
-  float x, y, z;        // mm, in the rig frame (rectified left camera)
+  float x, y, z;  // mm, in the rig frame (rectified left camera)
   std::uint8_t r, g, b;
 };
 
 struct ReprojectOptions {
-  double min_depth_mm = 0;         // points with z outside [min, max] are dropped
+  double min_depth_mm = 0;  // points with z outside [min, max] are dropped
   double max_depth_mm = 1e9;
   bool IsValid(std::string* why) const;
 };

@@ -68,15 +68,15 @@ struct RigOptions {
 
   cv::Size image_size{1280, 1024};  // px, both cameras and the rectified images
   SimCameraOptions left, right;
-  double baseline_mm = 100;    // distance between the two optical centres
+  double baseline_mm = 100;     // distance between the two optical centres
   double vergence_deg = 14.25;  // angle between the optical axes; each camera toed in by half
                                 // (14.25° = 2·atan(50/400): axes meet at the target)
   // Extra rotation of the right camera about its own axes (Rodrigues vector,
   // rad): the small misalignment every real rig has.
   cv::Vec3d right_misalignment_rad{0.0015, -0.001, 0.002};
-  double distance_mm = 400;       // from the midpoint of the optical centres to the target
-  double elevation_deg = 30;      // the rig looks down by this angle (0 = horizontal, < 90)
-  double target_height_mm = 30;   // the target: on the turntable axis, above the platter
+  double distance_mm = 400;      // from the midpoint of the optical centres to the target
+  double elevation_deg = 30;     // the rig looks down by this angle (0 = horizontal, < 90)
+  double target_height_mm = 30;  // the target: on the turntable axis, above the platter
 
   double exposure = 1.0;     // linear gain: radiance 1 (white, fully lit) → grey 255·exposure
   double noise_sigma = 1.0;  // Gaussian sensor noise, grey levels (0 = none)
@@ -102,15 +102,15 @@ bool ObjectTypeFromString(std::string_view text, ObjectType* type);
 // Object frames: the object's base rests on the platter (z = 0 in the object
 // frame) centred on the object frame's z axis.
 struct CarvedBoxOptions {
-  double width_mm = 80;  // along object x
-  double depth_mm = 60;  // along object y
+  double width_mm = 80;   // along object x
+  double depth_mm = 60;   // along object y
   double height_mm = 50;  // along object z; the base sits at z = 0
   // Depth of the deepest cuts below each face (top and four sides; the base
   // is flat). Cuts keep ≥ 4 mm away from the edges.
   double relief_depth_mm = 2.0;
 };
 
-struct EggOptions {  // ellipsoid, touching the platter at its lowest point
+struct EggOptions {         // ellipsoid, touching the platter at its lowest point
   double diameter_mm = 45;  // along object x and y
   double height_mm = 60;    // along object z
 };
@@ -125,7 +125,7 @@ struct EmbroideryOptions {
 };
 
 struct MeshOptions {
-  std::string path;  // PLY file (see ply.h)
+  std::string path;    // PLY file (see ply.h)
   double scale = 1.0;  // mm per file unit (ignored when size_mm > 0)
   double size_mm = 0;  // > 0: scale so the largest bounding-box extent is this
   // Rotation applied to the file's coordinates before scaling (Rodrigues, rad);
@@ -168,8 +168,8 @@ bool BoardPlacementFromString(std::string_view text, BoardPlacement* placement);
 
 struct BoardOptions {
   bool enabled = false;
-  BoardSpec spec;          // type, cols, rows, square_mm, marker_mm, aruco_dictionary
-  double margin_mm = 10;   // white border around the square grid
+  BoardSpec spec;         // type, cols, rows, square_mm, marker_mm, aruco_dictionary
+  double margin_mm = 10;  // white border around the square grid
   BoardPlacement placement = BoardPlacement::kOnPlatter;
   double thickness_mm = 3;  // slab from the printed face (z = 0) back to z = thickness_mm
   // kOnPlatter: board frame origin at world (x, y) at turntable angle 0 (mm),
@@ -261,9 +261,8 @@ class Scene {
   // First surface along the ray origin + t·direction, t > 0 (world frame,
   // any non-zero direction length; t in units of that length). Returns false
   // when nothing is hit. Thread-safe.
-  bool Intersect(const cv::Vec3d& origin_in_world, const cv::Vec3d& direction_in_world,
-                 double* t, SurfaceLabel* label) const;
-
+  bool Intersect(const cv::Vec3d& origin_in_world, const cv::Vec3d& direction_in_world, double* t,
+                 SurfaceLabel* label) const;
 
  private:
   friend class SimStation;
@@ -283,18 +282,18 @@ struct StereoRender {
   cv::Mat left, right;
 
   // Ground truth at the raw left pixel centres (image_size):
-  cv::Mat left_depth_mm;     // CV_32FC1, z of the surface in the left camera frame; NaN = no surface
-  cv::Mat left_labels;       // CV_8UC1, SurfaceLabel
+  cv::Mat left_depth_mm;  // CV_32FC1, z of the surface in the left camera frame; NaN = no surface
+  cv::Mat left_labels;    // CV_8UC1, SurfaceLabel
   cv::Mat left_object_mask;  // CV_8UC1, 255 where the object is seen
 
   // Ground truth on the rectified left grid (calibration R1/P1, image_size):
   // for each rectified left pixel, the surface point on its ray, projected
   // into the rectified right image with P2: d = x_left − x_right (px). It
   // agrees with Q: Q·(x, y, d, 1) gives that point in the rig frame.
-  cv::Mat rectified_disparity;     // CV_32FC1; NaN = no surface
-  cv::Mat rectified_depth_mm;      // CV_32FC1, z of that point in the rig frame
-  cv::Mat rectified_labels;        // CV_8UC1, SurfaceLabel
-  cv::Mat rectified_object_mask;   // CV_8UC1, 255 where the object is seen
+  cv::Mat rectified_disparity;    // CV_32FC1; NaN = no surface
+  cv::Mat rectified_depth_mm;     // CV_32FC1, z of that point in the rig frame
+  cv::Mat rectified_labels;       // CV_8UC1, SurfaceLabel
+  cv::Mat rectified_object_mask;  // CV_8UC1, 255 where the object is seen
   // 255 where the point is also seen by the right camera (inside its raw
   // image and not occluded): Middlebury's "non-occluded".
   cv::Mat rectified_visible_right;

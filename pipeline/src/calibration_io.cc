@@ -12,6 +12,7 @@
 #include <vector>
 
 #include "calibration_internal.h"
+#include "craftscan/pipeline/atomic_file.h"
 #include "craftscan/pipeline/calibration.h"
 
 namespace craftscan {
@@ -85,25 +86,6 @@ std::string ToYaml(const StereoCalibration& c) {
   fs << "}";
   WriteReport(fs, c.report);
   return fs.releaseAndGetString();
-}
-
-std::string ErrnoText(const std::string& what, const std::string& path) {
-  return "'" + path + "': " + what + ": " + std::strerror(errno);
-}
-
-bool WriteAll(int fd, const std::string& text) {
-  const char* p = text.data();
-  std::size_t left = text.size();
-  while (left > 0) {
-    const ssize_t n = ::write(fd, p, left);
-    if (n < 0) {
-      if (errno == EINTR) continue;
-      return false;
-    }
-    p += n;
-    left -= static_cast<std::size_t>(n);
-  }
-  return true;
 }
 
 // --- Reading ------------------------------------------------------------------
@@ -340,44 +322,7 @@ bool SaveCalibration(const std::string& path, const StereoCalibration& calibrati
                 "'" + path + "': cannot format the calibration: " + calib_internal::CvErrorText(e));
   }
 
-  const fs::path target(path);
-  const fs::path folder = target.has_parent_path() ? target.parent_path() : fs::path(".");
-  // Hidden temporary beside the target (same file system, so rename is atomic).
-  std::string tmp_name = target.filename().string();
-  tmp_name.insert(tmp_name.begin(), '.');
-  tmp_name.append(".tmp-XXXXXX");
-  std::string tmp = (folder / tmp_name).string();
-  const int fd = ::mkstemp(tmp.data());
-  if (fd < 0) return Fail(error, ErrnoText("cannot create a temporary file", tmp));
-  bool ok = WriteAll(fd, text);
-  if (!ok) why = ErrnoText("cannot write", tmp);
-  if (ok && ::fchmod(fd, 0644) != 0) {  // mkstemp creates 0600
-    ok = false;
-    why = ErrnoText("cannot set permissions", tmp);
-  }
-  if (ok && ::fsync(fd) != 0) {
-    ok = false;
-    why = ErrnoText("cannot fsync", tmp);
-  }
-  if (::close(fd) != 0 && ok) {
-    ok = false;
-    why = ErrnoText("cannot close", tmp);
-  }
-  if (ok && ::rename(tmp.c_str(), path.c_str()) != 0) {
-    ok = false;
-    why = ErrnoText("cannot rename the temporary file to it", path);
-  }
-  if (!ok) {
-    ::unlink(tmp.c_str());
-    return Fail(error, why);
-  }
-  // Make the rename durable.
-  const int dir_fd = ::open(folder.c_str(), O_RDONLY | O_DIRECTORY);
-  if (dir_fd >= 0) {
-    const int rc = ::fsync(dir_fd);
-    ::close(dir_fd);
-    if (rc != 0) return Fail(error, ErrnoText("cannot fsync the folder of", path));
-  }
+  if (!WriteFileAtomically(path, text, &why)) return Fail(error, why);
   return true;
 }
 

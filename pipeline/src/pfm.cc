@@ -1,5 +1,7 @@
 #include "craftscan/pipeline/pfm.h"
 
+#include "craftscan/pipeline/atomic_file.h"
+
 #include <bit>
 #include <cctype>
 #include <cerrno>
@@ -9,6 +11,7 @@
 #include <cstring>
 #include <exception>
 #include <fstream>
+#include <sstream>
 #include <utility>
 #include <vector>
 
@@ -142,8 +145,7 @@ bool WritePfmImpl(const std::string& path, const cv::Mat& image, std::string* er
     rgb = image;
   }
 
-  std::ofstream out(path, std::ios::binary | std::ios::trunc);
-  if (!out) return SetError(error, where + "cannot open file for writing");
+  std::ostringstream out(std::ios::binary);
   out << (rgb.channels() == 3 ? "PF" : "Pf") << '\n'
       << rgb.cols << ' ' << rgb.rows << '\n'
       << "-1.0\n";  // negative scale = little endian
@@ -156,8 +158,8 @@ bool WritePfmImpl(const std::string& path, const cv::Mat& image, std::string* er
     out.write(reinterpret_cast<const char*>(row.data()),
               static_cast<std::streamsize>(row_floats * sizeof(float)));
   }
-  out.close();
-  if (!out) return SetError(error, where + "write failed");
+  std::string why;
+  if (!WriteFileAtomically(path, out.view(), &why)) return SetError(error, "PFM " + why);
   return true;
 }
 

@@ -1,5 +1,7 @@
 #include "craftscan/pipeline/point_cloud.h"
 
+#include "craftscan/pipeline/atomic_file.h"
+
 #include <fcntl.h>
 #include <sys/stat.h>
 #include <unistd.h>
@@ -498,25 +500,6 @@ bool ReadPlyImpl(const std::string& path, PointCloud* cloud, std::string* error,
   return true;
 }
 
-std::string ErrnoText(const std::string& what, const std::string& path) {
-  return "PLY '" + path + "': " + what + ": " + std::strerror(errno);
-}
-
-bool WriteAll(int fd, const std::string& text) {
-  const char* p = text.data();
-  std::size_t left = text.size();
-  while (left > 0) {
-    const ssize_t n = ::write(fd, p, left);
-    if (n < 0) {
-      if (errno == EINTR) continue;
-      return false;
-    }
-    p += n;
-    left -= static_cast<std::size_t>(n);
-  }
-  return true;
-}
-
 void AppendFloatText(float v, std::string* out) {
   char buffer[64];
   const auto r = std::to_chars(buffer, buffer + sizeof(buffer), v);
@@ -585,44 +568,7 @@ bool WritePlyImpl(const std::string& path, const PointCloud& cloud, bool binary,
   if (!cloud.IsValid(&why)) return Fail(error, "PLY '" + path + "': invalid cloud: " + why);
   const std::string text = FormatPly(cloud, binary);
 
-  const fs::path target(path);
-  const fs::path folder = target.has_parent_path() ? target.parent_path() : fs::path(".");
-  // Hidden temporary beside the target (same file system, so rename is atomic).
-  std::string tmp_name = target.filename().string();
-  tmp_name.insert(tmp_name.begin(), '.');
-  tmp_name.append(".tmp-XXXXXX");
-  std::string tmp = (folder / tmp_name).string();
-  const int fd = ::mkstemp(tmp.data());
-  if (fd < 0) return Fail(error, ErrnoText("cannot create a temporary file", tmp));
-  bool ok = WriteAll(fd, text);
-  if (!ok) why = ErrnoText("cannot write", tmp);
-  if (ok && ::fchmod(fd, 0644) != 0) {  // mkstemp creates 0600
-    ok = false;
-    why = ErrnoText("cannot set permissions", tmp);
-  }
-  if (ok && ::fsync(fd) != 0) {
-    ok = false;
-    why = ErrnoText("cannot fsync", tmp);
-  }
-  if (::close(fd) != 0 && ok) {
-    ok = false;
-    why = ErrnoText("cannot close", tmp);
-  }
-  if (ok && ::rename(tmp.c_str(), path.c_str()) != 0) {
-    ok = false;
-    why = ErrnoText("cannot rename the temporary file to it", path);
-  }
-  if (!ok) {
-    ::unlink(tmp.c_str());
-    return Fail(error, why);
-  }
-  // Make the rename durable.
-  const int dir_fd = ::open(folder.c_str(), O_RDONLY | O_DIRECTORY);
-  if (dir_fd >= 0) {
-    const int rc = ::fsync(dir_fd);
-    ::close(dir_fd);
-    if (rc != 0) return Fail(error, ErrnoText("cannot fsync the folder of", path));
-  }
+  if (!WriteFileAtomically(path, text, &why)) return Fail(error, "PLY " + why);
   return true;
 }
 

@@ -1,5 +1,7 @@
 #include "craftscan/sim/ply.h"
 
+#include "craftscan/pipeline/atomic_file.h"
+
 #include <charconv>
 #include <cmath>
 #include <cstdint>
@@ -361,11 +363,7 @@ bool LoadPly(const std::string& path, TriangleMesh* mesh, std::string* error) {
 }
 
 bool SavePly(const std::string& path, const TriangleMesh& mesh, bool binary, std::string* error) {
-  std::ofstream out(path, std::ios::binary | std::ios::trunc);
-  if (!out) {
-    if (error) *error = "'" + path + "': cannot create file";
-    return false;
-  }
+  std::ostringstream out(std::ios::binary);
   out << "ply\nformat " << (binary ? "binary_little_endian" : "ascii") << " 1.0\n"
       << "comment craftscan sim\n"
       << "element vertex " << mesh.vertices.size() << "\n"
@@ -390,12 +388,7 @@ bool SavePly(const std::string& path, const TriangleMesh& mesh, bool binary, std
     for (const cv::Vec3i& t : mesh.triangles)
       out << "3 " << t[0] << ' ' << t[1] << ' ' << t[2] << '\n';
   }
-  out.close();
-  if (!out) {
-    if (error) *error = "'" + path + "': write error";
-    return false;
-  }
-  return true;
+  return WriteFileAtomically(path, out.view(), error);
 }
 
 }  // namespace craftscan::sim

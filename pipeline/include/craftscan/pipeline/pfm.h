@@ -17,8 +17,9 @@ bool ReadPfm(const std::string& path, cv::Mat* image, std::string* error);
 
 // Writes CV_32FC1/CV_32FC3 (BGR) as little-endian PFM (scale -1, rows
 // bottom-to-top, RGB). Returns false with *error (may be null) for an empty
-// image, another type, a side > 32768 px or an I/O failure. Never throws.
-// Thread-safe (for distinct paths).
+// image, another type, a side > 32768 px or an I/O failure. The write is
+// atomic (WriteFileAtomically): a crash never leaves a half-written file.
+// Never throws. Thread-safe (for distinct paths).
 bool WritePfm(const std::string& path, const cv::Mat& image, std::string* error);
 
 }  // namespace craftscan

@@ -24,7 +24,8 @@ struct TriangleMesh {
 bool LoadPly(const std::string& path, TriangleMesh* mesh, std::string* error);
 
 // Writes vertices and triangles as PLY (binary little-endian or ASCII).
-// Returns false with *error if the file cannot be written.
+// Atomic (WriteFileAtomically). Returns false with *error if the file cannot
+// be written.
 bool SavePly(const std::string& path, const TriangleMesh& mesh, bool binary, std::string* error);
 
 }  // namespace craftscan::sim

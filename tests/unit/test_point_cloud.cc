@@ -25,23 +25,8 @@ namespace fs = std::filesystem;
   EXPECT_NE(std::string(text).find(part), std::string::npos) \
       << "message: " << (text) << "\nexpected to contain: " << (part)
 
-class PlyTest : public ::testing::Test {
+class PlyTest : public testing::TempDirTest {
  protected:
-  void SetUp() override {
-    const auto* info = ::testing::UnitTest::GetInstance()->current_test_info();
-    dir_ = fs::temp_directory_path() / ("craftscan_test_ply_" + std::string(info->name()) + "_" +
-                                        std::to_string(std::random_device{}()));
-    fs::create_directories(dir_);
-  }
-  void TearDown() override { fs::remove_all(dir_); }
-
-  std::string Path(const std::string& name) const { return (dir_ / name).string(); }
-
-  std::string WriteBytes(const std::string& name, const std::string& bytes) const {
-    std::ofstream out(Path(name), std::ios::binary);
-    out.write(bytes.data(), static_cast<std::streamsize>(bytes.size()));
-    return Path(name);
-  }
 
   // Expects ReadPly to fail with a message naming the file and containing
   // `what`, leaving the cloud empty.
@@ -55,7 +40,6 @@ class PlyTest : public ::testing::Test {
     EXPECT_TRUE(cloud.empty());
   }
 
-  fs::path dir_;
 };
 
 // Binary encoder for hand-written PLY data in either byte order.

@@ -4,6 +4,8 @@
 
 #include <cmath>
 #include <filesystem>
+#include <fstream>
+#include <gtest/gtest.h>
 #include <opencv2/core.hpp>
 #include <opencv2/imgproc.hpp>
 #include <random>
@@ -12,6 +14,30 @@
 namespace craftscan::testing {
 
 inline std::filesystem::path SharedData() { return CRAFTSCAN_SHARED_DATA; }
+
+// A fixture with a fresh temporary folder per test, removed afterwards.
+class TempDirTest : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    const auto* info = ::testing::UnitTest::GetInstance()->current_test_info();
+    dir_ = std::filesystem::temp_directory_path() /
+           ("craftscan_test_" + std::string(info->test_suite_name()) + "_" + info->name() + "_" +
+            std::to_string(std::random_device{}()));
+    std::filesystem::create_directories(dir_);
+  }
+  void TearDown() override { std::filesystem::remove_all(dir_); }
+
+  std::string Path(const std::string& name) const { return (dir_ / name).string(); }
+
+  // Writes `bytes` to the file `name` in the folder; returns its path.
+  std::string WriteBytes(const std::string& name, const std::string& bytes) const {
+    std::ofstream out(Path(name), std::ios::binary);
+    out.write(bytes.data(), static_cast<std::streamsize>(bytes.size()));
+    return Path(name);
+  }
+
+  std::filesystem::path dir_;
+};
 
 // A smooth random colour texture (band-limited so bilinear resampling is
 // accurate), width × height, CV_8UC3, reproducible from `seed`.

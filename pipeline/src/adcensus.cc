@@ -146,7 +146,8 @@ DisparityResult StereoMatcher::Compute(const cv::Mat& left, const cv::Mat& right
 
     auto t = Clock::now();
     const Preprocessed pl = Preprocess(left, options.preprocess);
-    const Preprocessed pr = Preprocess(right, options.preprocess);
+    // The right view feeds only the census and the colour costs.
+    const Preprocessed pr = Preprocess(right, options.preprocess, PreprocessParts::kEqualizedOnly);
     const cv::Mat& img_l = options.match_equalized ? pl.image : left;
     const cv::Mat& img_r = options.match_equalized ? pr.image : right;
     result.time_ms.preprocess = MsSince(t);

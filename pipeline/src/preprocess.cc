@@ -41,7 +41,8 @@ double Median8U(const cv::Mat& grey) {
 
 }  // namespace
 
-Preprocessed Preprocess(const cv::Mat& image, const PreprocessOptions& options) {
+Preprocessed Preprocess(const cv::Mat& image, const PreprocessOptions& options,
+                        PreprocessParts parts) {
   std::string why;
   if (!options.IsValid(&why)) throw std::invalid_argument(why);
   if (image.empty()) throw std::invalid_argument("Preprocess: empty image");
@@ -71,6 +72,8 @@ Preprocessed Preprocess(const cv::Mat& image, const PreprocessOptions& options) 
       cv::cvtColor(image, out.grey, cv::COLOR_BGR2GRAY);
     }
   }
+
+  if (parts == PreprocessParts::kEqualizedOnly) return out;
 
   cv::Mat gx, gy;
   cv::Sobel(out.grey, gx, CV_32F, 1, 0, 3, 1, 0, cv::BORDER_REPLICATE);

@@ -54,6 +54,17 @@ TEST(Preprocess, DilationWidensTheEdgeMap) {
   EXPECT_GT(p.gradient.at<float>(30, 30), 120.f);
 }
 
+TEST(Preprocess, EqualizedOnlySkipsGradientAndEdges) {
+  const cv::Mat img = testing::RandomTexture(64, 48, 5);
+  const Preprocessed all = Preprocess(img, {});
+  const Preprocessed part = Preprocess(img, {}, PreprocessParts::kEqualizedOnly);
+  EXPECT_EQ(cv::norm(all.image, part.image, cv::NORM_INF), 0);
+  EXPECT_EQ(cv::norm(all.grey, part.grey, cv::NORM_INF), 0);
+  EXPECT_TRUE(part.gradient.empty());
+  EXPECT_TRUE(part.edges.empty());
+  EXPECT_FALSE(all.edges.empty());
+}
+
 TEST(Preprocess, BadInputThrowsWithTheReason) {
   PreprocessOptions o;
   EXPECT_THROW(Preprocess(cv::Mat(), o), std::invalid_argument);

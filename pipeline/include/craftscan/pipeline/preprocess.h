@@ -30,9 +30,15 @@ struct Preprocessed {
   double canny_high = 0;
 };
 
-// Preprocesses one 8-bit grey (CV_8UC1) or BGR (CV_8UC3) image. Throws
-// std::invalid_argument for an empty image, another type, or invalid options.
-// Thread-safe (no shared state).
-Preprocessed Preprocess(const cv::Mat& image, const PreprocessOptions& options);
+// What to compute: everything, or only the equalized images (the right view
+// of a stereo pair needs no gradient or edge map).
+enum class PreprocessParts { kAll, kEqualizedOnly };
+
+// Preprocesses one 8-bit grey (CV_8UC1) or BGR (CV_8UC3) image. With
+// kEqualizedOnly, `gradient` and `edges` stay empty and the thresholds 0.
+// Throws std::invalid_argument for an empty image, another type, or invalid
+// options. Thread-safe (no shared state).
+Preprocessed Preprocess(const cv::Mat& image, const PreprocessOptions& options,
+                        PreprocessParts parts = PreprocessParts::kAll);
 
 }  // namespace craftscan

@@ -1,0 +1,380 @@
+// Fusion (voxel averaging) and meshing (Poisson, trimming, PLY/OBJ writers)
+// against synthetic surfaces with known geometry.
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <fstream>
+#include <limits>
+#include <numbers>
+#include <opencv2/core.hpp>
+#include <random>
+#include <sstream>
+#include <string>
+#include <vector>
+
+#include "craftscan/pipeline/fusion.h"
+#include "craftscan/pipeline/mesh.h"
+#include "craftscan/pipeline/point_cloud.h"
+#include "test_util.h"
+
+namespace craftscan {
+namespace {
+
+#define EXPECT_CONTAINS(text, part)                          \
+  EXPECT_NE(std::string(text).find(part), std::string::npos) \
+      << "message: " << (text) << "\nexpected to contain: " << (part)
+
+constexpr float kNaN = std::numeric_limits<float>::quiet_NaN();
+
+// The tilted plane z = 0.2·x + 0.1·y + 5 (mm) and its unit normal.
+const cv::Vec3d kPlaneNormal = cv::normalize(cv::Vec3d(-0.2, -0.1, 1));
+double PlaneDistance(const cv::Vec3f& p) {
+  return (p[2] - (0.2 * p[0] + 0.1 * p[1] + 5)) * kPlaneNormal[2];
+}
+
+// A 40 × 40 mm patch of the plane sampled every `spacing` mm from `offset`,
+// with Gaussian noise σ along the normal, the given normal sign and colour.
+PointCloud NoisyPlane(double spacing, double offset, double sigma, double normal_sign,
+                      cv::Vec3b colour, unsigned seed) {
+  std::mt19937 rng(seed);
+  std::normal_distribution<double> noise(0, sigma);
+  PointCloud cloud;
+  for (double x = offset; x < 40; x += spacing)
+    for (double y = offset; y < 40; y += spacing) {
+      const cv::Vec3d p = cv::Vec3d(x, y, 0.2 * x + 0.1 * y + 5) + kPlaneNormal * noise(rng);
+      cloud.points_mm.emplace_back(p);
+      cloud.normals.emplace_back(kPlaneNormal * normal_sign);
+      cloud.colors_rgb.push_back(colour);
+    }
+  return cloud;
+}
+
+double RmsPlaneDistance(const PointCloud& cloud) {
+  double sum = 0;
+  for (const cv::Vec3f& p : cloud.points_mm) sum += PlaneDistance(p) * PlaneDistance(p);
+  return std::sqrt(sum / static_cast<double>(cloud.size()));
+}
+
+// ------------------------------------------------------------------ fusion ----
+
+TEST(FusionTest, TwoNoisyCopiesReduceNoise) {
+  // Two views of one surface, sampled at interleaved positions, σ = 0.2 mm,
+  // with opposite normal orientation and different colours.
+  const PointCloud a = NoisyPlane(0.25, 0.0, 0.2, +1, {100, 50, 0}, 1);
+  const PointCloud b = NoisyPlane(0.25, 0.125, 0.2, -1, {200, 150, 10}, 2);
+  FusionOptions options;
+  options.voxel_mm = 1.0;
+  std::string error;
+  FusionStats stats;
+  const PointCloud fused = FuseClouds({a, b}, options, &error, &stats);
+  ASSERT_TRUE(error.empty()) << error;
+  ASSERT_TRUE(fused.IsValid(nullptr));
+  ASSERT_TRUE(fused.HasNormals());
+  ASSERT_TRUE(fused.HasColors());
+  const double rms_in = RmsPlaneDistance(a), rms_out = RmsPlaneDistance(fused);
+  std::printf("fusion: %zu + %zu points -> %zu (%.1f per voxel); RMS to plane %.4f -> %.4f mm\n",
+              a.size(), b.size(), fused.size(), stats.mean_points_per_voxel, rms_in, rms_out);
+  EXPECT_EQ(stats.input_points, a.size() + b.size());
+  EXPECT_EQ(stats.output_points, fused.size());
+  // ~1 mm voxels over a 40 × 40 mm patch tilted by ≈13°: 2000–3200 occupied
+  // voxels (noise spills into neighbours); the refinement along the normal
+  // averages a 3×3×3 block (~150 points), so the noise shrinks ~10×.
+  EXPECT_GT(fused.size(), 1500u);
+  EXPECT_LT(fused.size(), 3600u);
+  EXPECT_NEAR(rms_in, 0.2, 0.01);
+  EXPECT_LT(rms_out, 0.05);
+  for (const cv::Vec3f& p : fused.points_mm) ASSERT_LT(std::abs(PlaneDistance(p)), 0.2);
+  // Plain voxel means (no refinement) keep much of the noise along the normal.
+  FusionOptions plain = options;
+  plain.refine_along_normal = false;
+  const PointCloud unrefined = FuseClouds({a, b}, plain, &error);
+  ASSERT_EQ(unrefined.size(), fused.size());
+  std::printf("fusion without refinement along the normal: RMS to plane %.4f mm\n",
+              RmsPlaneDistance(unrefined));
+  EXPECT_GT(RmsPlaneDistance(unrefined), 2 * rms_out);
+  for (std::size_t i = 0; i < fused.size(); ++i) {
+    const cv::Vec3f& n = fused.normals[i];
+    ASSERT_NEAR(cv::norm(n), 1.0, 1e-5);
+    ASSERT_GT(std::abs(cv::Vec3d(n).dot(kPlaneNormal)), 0.999);
+  }
+  // Colours: the mean of both views' colours (equal point counts per voxel
+  // to within one or two, so close to the midpoint).
+  double red = 0;
+  for (const cv::Vec3b& c : fused.colors_rgb) red += c[0];
+  EXPECT_NEAR(red / static_cast<double>(fused.size()), 150, 5);
+}
+
+TEST(FusionTest, SparseVoxelsAndNonFinitePointsAreDropped) {
+  PointCloud cloud = NoisyPlane(0.25, 0.0, 0.05, +1, {10, 20, 30}, 3);
+  const std::size_t plane_points = cloud.size();
+  // Isolated outliers far from the plane, one per voxel, and NaNs.
+  for (int i = 0; i < 10; ++i) {
+    cloud.points_mm.emplace_back(10.f * i, 0.f, 100.f);
+    cloud.normals.emplace_back(0, 0, 1);
+    cloud.colors_rgb.emplace_back(0, 0, 0);
+  }
+  cloud.points_mm.emplace_back(kNaN, 0.f, 0.f);
+  cloud.normals.emplace_back(0, 0, 1);
+  cloud.colors_rgb.emplace_back(0, 0, 0);
+  FusionOptions options;
+  options.voxel_mm = 1.0;
+  options.min_points_per_voxel = 3;
+  std::string error;
+  FusionStats stats;
+  const PointCloud fused = FuseClouds({cloud}, options, &error, &stats);
+  ASSERT_TRUE(error.empty()) << error;
+  EXPECT_EQ(stats.nonfinite_points, 1u);
+  EXPECT_GE(stats.sparse_voxel_points, 10u);
+  for (const cv::Vec3f& p : fused.points_mm) ASSERT_LT(std::abs(PlaneDistance(p)), 0.2);
+  EXPECT_GT(fused.size(), plane_points / 20);
+  // Colours pass through unchanged when every point has the same one.
+  for (const cv::Vec3b& c : fused.colors_rgb) ASSERT_EQ(c, cv::Vec3b(10, 20, 30));
+}
+
+TEST(FusionTest, AttributesOnlyWhenEveryInputHasThem) {
+  PointCloud a = NoisyPlane(0.5, 0.0, 0.0, +1, {1, 2, 3}, 4);
+  PointCloud b = NoisyPlane(0.5, 0.25, 0.0, +1, {1, 2, 3}, 5);
+  b.normals.clear();
+  a.colors_rgb.clear();
+  std::string error;
+  const PointCloud fused = FuseClouds({a, b, PointCloud{}}, FusionOptions{}, &error);
+  ASSERT_TRUE(error.empty()) << error;
+  EXPECT_FALSE(fused.empty());
+  EXPECT_FALSE(fused.HasNormals());
+  EXPECT_FALSE(fused.HasColors());
+  // Deterministic: the same input gives the same output.
+  const PointCloud again = FuseClouds({a, b, PointCloud{}}, FusionOptions{}, &error);
+  ASSERT_EQ(again.size(), fused.size());
+  for (std::size_t i = 0; i < fused.size(); ++i) ASSERT_EQ(again.points_mm[i], fused.points_mm[i]);
+}
+
+TEST(FusionTest, DegenerateInputsFail) {
+  std::string error;
+  PointCloud out = FuseClouds({}, FusionOptions{}, &error);
+  EXPECT_TRUE(out.empty());
+  EXPECT_CONTAINS(error, "no input points");
+
+  out = FuseClouds({PointCloud{}, PointCloud{}}, FusionOptions{}, &error);
+  EXPECT_TRUE(out.empty());
+  EXPECT_CONTAINS(error, "no input points");
+
+  PointCloud nans;
+  nans.points_mm.assign(20, cv::Vec3f(kNaN, 1, 2));
+  out = FuseClouds({nans}, FusionOptions{}, &error);
+  EXPECT_TRUE(out.empty());
+  EXPECT_CONTAINS(error, "20 non-finite");
+
+  PointCloud far;
+  far.points_mm.assign(5, cv::Vec3f(1e9f, 0, 0));
+  out = FuseClouds({far}, FusionOptions{}, &error);
+  EXPECT_TRUE(out.empty());
+  EXPECT_CONTAINS(error, "out of range");
+
+  PointCloud bad;
+  bad.points_mm.assign(5, cv::Vec3f(0, 0, 0));
+  bad.normals.assign(2, cv::Vec3f(0, 0, 1));
+  out = FuseClouds({bad}, FusionOptions{}, &error);
+  EXPECT_TRUE(out.empty());
+  EXPECT_CONTAINS(error, "cloud 0 is invalid");
+
+  FusionOptions options;
+  options.voxel_mm = 0;
+  EXPECT_FALSE(options.IsValid(nullptr));
+  out = FuseClouds({NoisyPlane(1, 0, 0, 1, {}, 1)}, options, &error);
+  EXPECT_TRUE(out.empty());
+  EXPECT_CONTAINS(error, "voxel_mm");
+  options = FusionOptions{};
+  options.min_points_per_voxel = 0;
+  EXPECT_FALSE(options.IsValid(&error));
+  EXPECT_CONTAINS(error, "min_points_per_voxel");
+
+  // Nothing dense enough.
+  options = FusionOptions{};
+  options.min_points_per_voxel = 1000;
+  out = FuseClouds({NoisyPlane(1, 0, 0, 1, {}, 1)}, options, &error);
+  EXPECT_TRUE(out.empty());
+  EXPECT_CONTAINS(error, "min_points_per_voxel");
+}
+
+// ------------------------------------------------------------------ meshing ----
+
+constexpr double kRadius = 30;
+
+// Fibonacci sphere of radius 30 mm about `centre`, outward normals, colour by
+// height; only points with z ≥ min_z (relative to the centre) are kept.
+PointCloud Sphere(int count, const cv::Vec3d& centre, double min_z = -1e9) {
+  PointCloud cloud;
+  const double golden = std::numbers::pi * (3 - std::sqrt(5.0));
+  for (int i = 0; i < count; ++i) {
+    const double z = 1 - 2 * (i + 0.5) / count;
+    const double r = std::sqrt(1 - z * z);
+    const cv::Vec3d n(r * std::cos(golden * i), r * std::sin(golden * i), z);
+    if (kRadius * z < min_z) continue;
+    cloud.points_mm.emplace_back(centre + kRadius * n);
+    cloud.normals.emplace_back(n);
+    cloud.colors_rgb.emplace_back(static_cast<std::uint8_t>(127 + 127 * z), 40, 200);
+  }
+  return cloud;
+}
+
+class MeshTest : public testing::TempDirTest {};
+
+TEST_F(MeshTest, PoissonSphere) {
+  const cv::Vec3d centre(10, -20, 150);
+  const PointCloud cloud = Sphere(12000, centre);  // ≈ 1 mm spacing
+  const MeshResult r = PoissonMesh(cloud, PoissonOptions{});
+  ASSERT_TRUE(r.IsUsable()) << r.message;
+  const TriangleMesh& mesh = r.mesh;
+  std::string why;
+  ASSERT_TRUE(mesh.IsValid(&why)) << why;
+  ASSERT_EQ(mesh.normals.size(), mesh.vertices_mm.size());
+  ASSERT_EQ(mesh.colors_rgb.size(), mesh.vertices_mm.size());
+  double max_error = 0, sum_error = 0;
+  for (const cv::Vec3f& v : mesh.vertices_mm) {
+    const double e = std::abs(cv::norm(cv::Vec3d(v) - centre) - kRadius);
+    max_error = std::max(max_error, e);
+    sum_error += e;
+  }
+  const double mean_error = sum_error / static_cast<double>(mesh.vertices_mm.size());
+  std::printf("Poisson sphere: %zu vertices, %zu faces (raw %zu/%zu), %.2f s; "
+              "|r − 30| mean %.4f max %.4f mm\n",
+              mesh.vertices_mm.size(), mesh.faces.size(), r.raw_vertices, r.raw_faces, r.seconds,
+              mean_error, max_error);
+  EXPECT_GT(mesh.faces.size(), 10000u);
+  EXPECT_LT(max_error, 0.3);
+  EXPECT_LT(mean_error, 0.1);
+  // A closed, fully supported surface loses nothing to trimming.
+  EXPECT_EQ(r.trimmed_vertices, 0u);
+  // Faces and vertex normals point outwards.
+  std::size_t outward = 0;
+  for (const cv::Vec3i& f : mesh.faces) {
+    const cv::Vec3d a(mesh.vertices_mm[static_cast<std::size_t>(f[0])]);
+    const cv::Vec3d b(mesh.vertices_mm[static_cast<std::size_t>(f[1])]);
+    const cv::Vec3d c(mesh.vertices_mm[static_cast<std::size_t>(f[2])]);
+    outward += (b - a).cross(c - a).dot((a + b + c) / 3 - centre) > 0 ? 1 : 0;
+  }
+  EXPECT_EQ(outward, mesh.faces.size());
+  for (std::size_t v = 0; v < mesh.vertices_mm.size(); ++v) {
+    const cv::Vec3d radial = cv::normalize(cv::Vec3d(mesh.vertices_mm[v]) - centre);
+    ASSERT_GT(radial.dot(cv::Vec3d(mesh.normals[v])), 0.95) << v;
+  }
+}
+
+TEST_F(MeshTest, OpenSurfaceIsTrimmed) {
+  // The upper half of the sphere only: Poisson closes it below; trimming
+  // must remove what no input point supports.
+  const cv::Vec3d centre(0, 0, 0);
+  const PointCloud cloud = Sphere(12000, centre, /*min_z=*/0.0);
+  PoissonOptions options;
+  options.depth = 7;
+  const MeshResult r = PoissonMesh(cloud, options);
+  ASSERT_TRUE(r.IsUsable()) << r.message;
+  EXPECT_GT(r.trimmed_vertices, 0u);
+  double min_z = 1e9;
+  for (const cv::Vec3f& v : r.mesh.vertices_mm) min_z = std::min<double>(min_z, v[2]);
+  std::printf("open hemisphere: support radius %.2f mm, trimmed %zu of %zu vertices, min z %.2f\n",
+              r.support_radius_mm, r.trimmed_vertices, r.raw_vertices, min_z);
+  EXPECT_GT(min_z, -r.support_radius_mm - 0.5);
+  // The quantile trims a little more.
+  options.trim_density_quantile = 0.2;
+  const MeshResult q = PoissonMesh(cloud, options);
+  ASSERT_TRUE(q.IsUsable()) << q.message;
+  EXPECT_GT(q.trimmed_vertices, r.trimmed_vertices);
+}
+
+TEST_F(MeshTest, PlyAndObjRoundTrip) {
+  PoissonOptions options;
+  options.depth = 6;
+  const MeshResult r = PoissonMesh(Sphere(3000, {0, 0, 0}), options);
+  ASSERT_TRUE(r.IsUsable()) << r.message;
+  const TriangleMesh& mesh = r.mesh;
+  std::string error;
+  for (bool binary : {true, false}) {
+    const std::string path = Path(binary ? "mesh_bin.ply" : "mesh_ascii.ply");
+    ASSERT_TRUE(WriteMeshPly(path, mesh, binary, &error)) << error;
+    PointCloud back;
+    ASSERT_TRUE(ReadPly(path, &back, &error)) << error;  // reads the vertex element, skips faces
+    ASSERT_EQ(back.size(), mesh.vertices_mm.size());
+    ASSERT_TRUE(back.HasNormals());
+    ASSERT_TRUE(back.HasColors());
+    for (std::size_t i = 0; i < back.size(); ++i) {
+      ASSERT_EQ(back.points_mm[i], mesh.vertices_mm[i]) << i;  // bit-exact both ways
+      ASSERT_EQ(back.colors_rgb[i], mesh.colors_rgb[i]) << i;
+    }
+    // The face element: count and the first face, read back by hand.
+    std::ifstream in(path, std::ios::binary);
+    std::string line;
+    bool face_element = false;
+    while (std::getline(in, line) && line != "end_header")
+      if (line == "element face " + std::to_string(mesh.faces.size())) face_element = true;
+    EXPECT_TRUE(face_element);
+  }
+  const std::string obj = Path("mesh.obj");
+  ASSERT_TRUE(WriteMeshObj(obj, mesh, &error)) << error;
+  std::ifstream in(obj);
+  std::string line;
+  std::size_t v = 0, vn = 0, f = 0;
+  int max_index = 0;
+  while (std::getline(in, line)) {
+    if (line.rfind("v ", 0) == 0) ++v;
+    if (line.rfind("vn ", 0) == 0) ++vn;
+    if (line.rfind("f ", 0) == 0) {
+      ++f;
+      std::istringstream s(line.substr(2));
+      std::string token;
+      while (s >> token) max_index = std::max(max_index, std::stoi(token));
+    }
+  }
+  EXPECT_EQ(v, mesh.vertices_mm.size());
+  EXPECT_EQ(vn, mesh.vertices_mm.size());
+  EXPECT_EQ(f, mesh.faces.size());
+  EXPECT_EQ(static_cast<std::size_t>(max_index), mesh.vertices_mm.size());  // 1-based
+}
+
+TEST_F(MeshTest, DegenerateInputsFail) {
+  MeshResult r = PoissonMesh(PointCloud{}, PoissonOptions{});
+  EXPECT_FALSE(r.IsUsable());
+  EXPECT_CONTAINS(r.message, "no normals");
+
+  PointCloud few = Sphere(50, {0, 0, 0});
+  r = PoissonMesh(few, PoissonOptions{});
+  EXPECT_FALSE(r.IsUsable());
+  EXPECT_CONTAINS(r.message, "at least 100");
+  EXPECT_TRUE(r.mesh.faces.empty());
+
+  PointCloud nan_normals = Sphere(500, {0, 0, 0});
+  for (cv::Vec3f& n : nan_normals.normals) n = cv::Vec3f(kNaN, 0, 0);
+  r = PoissonMesh(nan_normals, PoissonOptions{});
+  EXPECT_FALSE(r.IsUsable());
+  EXPECT_CONTAINS(r.message, "got 0 (of 500)");
+
+  PointCloud no_normals = Sphere(500, {0, 0, 0});
+  no_normals.normals.clear();
+  r = PoissonMesh(no_normals, PoissonOptions{});
+  EXPECT_FALSE(r.IsUsable());
+  EXPECT_CONTAINS(r.message, "no normals");
+
+  PoissonOptions bad;
+  bad.depth = 20;
+  r = PoissonMesh(Sphere(500, {0, 0, 0}), bad);
+  EXPECT_FALSE(r.IsUsable());
+  EXPECT_CONTAINS(r.message, "depth");
+
+  // Writers refuse invalid meshes.
+  TriangleMesh broken;
+  broken.vertices_mm = {{0, 0, 0}, {1, 0, 0}, {0, 1, 0}};
+  broken.faces = {{0, 1, 3}};
+  std::string error;
+  EXPECT_FALSE(WriteMeshPly(Path("broken.ply"), broken, true, &error));
+  EXPECT_CONTAINS(error, "references vertex 3");
+  EXPECT_FALSE(WriteMeshObj(Path("broken.obj"), broken, &error));
+  EXPECT_CONTAINS(error, "references vertex 3");
+  EXPECT_FALSE(std::filesystem::exists(Path("broken.ply")));
+  // An empty but valid mesh writes fine.
+  EXPECT_TRUE(WriteMeshPly(Path("empty.ply"), TriangleMesh{}, false, &error)) << error;
+}
+
+}  // namespace
+}  // namespace craftscan

@@ -336,6 +336,8 @@ bool RegistrationOptions::IsValid(std::string* why) const {
   if (!coarse.IsValid(why) || !fine.IsValid(why)) return false;
   if (!(min_fitness >= 0 && min_fitness <= 1)) return Fail(why, "min_fitness must be in [0, 1]");
   if (min_points < 3) return Fail(why, "min_points must be ≥ 3");
+  if (!(fitness_distance_mm > 0)) return Fail(why, "fitness_distance_mm must be > 0");
+  if (!(max_rmse_ratio > 0)) return Fail(why, "max_rmse_ratio must be > 0");
   if (num_threads < 1) return Fail(why, "num_threads must be ≥ 1");
   return true;
 }
@@ -581,7 +583,6 @@ RegistrationResult RegisterCoarse(const ViewCloud& source, const ViewCloud& targ
   const int threads = std::max(1, num_threads);
   const std::vector<Fpfh> fs = ComputeFpfh(s, options.feature_radius_mm, threads);
   const std::vector<Fpfh> ft = ComputeFpfh(t, options.feature_radius_mm, threads);
-  if (getenv("CS_DEBUG")) fprintf(stderr, "fpfh %.1f ms\n", MsSince(start));
   const Eigen::MatrixXf ms = FeatureMatrix(fs), mt = FeatureMatrix(ft);
   const std::vector<int> s_to_t = NearestFeatures(ms, mt, threads);
   std::vector<std::pair<int, int>> pairs;
@@ -598,7 +599,6 @@ RegistrationResult RegisterCoarse(const ViewCloud& source, const ViewCloud& targ
       if (s_to_t[i] >= 0) pairs.emplace_back(static_cast<int>(i), s_to_t[i]);
   }
   result.correspondences = pairs.size();
-  if (getenv("CS_DEBUG")) fprintf(stderr, "match %.1f ms\n", MsSince(start));
   std::vector<Eigen::Vector3d> src(pairs.size()), dst(pairs.size());
   std::vector<Eigen::Vector3d> src_n(pairs.size()), dst_n(pairs.size());
   for (std::size_t i = 0; i < pairs.size(); ++i) {
@@ -683,7 +683,6 @@ RegistrationResult RegisterCoarse(const ViewCloud& source, const ViewCloud& targ
     }
   }
   result.iterations = static_cast<int>(done);
-  if (getenv("CS_DEBUG")) fprintf(stderr, "ransac done %.1f ms\n", MsSince(start));
   result.converged = done < options.max_iterations;
   if (!std::isfinite(best.score)) {
     result.message = "RANSAC found no consistent hypothesis among " + std::to_string(n) +
@@ -774,6 +773,34 @@ RegistrationResult RegisterFine(const ViewCloud& source, const ViewCloud& target
   bool converged = false;
   double last_mean = std::numeric_limits<double>::quiet_NaN();
   std::size_t last_count = 0;
+  // Anderson acceleration (type II, as in AA-ICP / Fast and Robust ICP) of
+  // the fixed-point map T → ICP step(T), on x = (radius·rotation vector,
+  // translation). Weighted point-to-point ICP creeps along weakly
+  // constrained directions (hundreds of iterations on smooth surfaces);
+  // accelerated, it needs tens. A step that raises the mean distance is
+  // undone and the history cleared.
+  using Vec6 = Eigen::Matrix<double, 6, 1>;
+  const double rscale = std::max(1.0, radius);
+  auto log6 = [&](const Eigen::Matrix4d& M) {
+    const Eigen::AngleAxisd aa(Eigen::Matrix3d(M.topLeftCorner<3, 3>()));
+    Vec6 x;
+    x.head<3>() = aa.axis() * aa.angle() * rscale;
+    x.tail<3>() = M.topRightCorner<3, 1>();
+    return x;
+  };
+  auto exp6 = [&](const Vec6& x) {
+    Eigen::Matrix4d M = Eigen::Matrix4d::Identity();
+    const Eigen::Vector3d w = x.head<3>() / rscale;
+    const double angle = w.norm();
+    if (angle > 0) M.topLeftCorner<3, 3>() = Eigen::AngleAxisd(angle, w / angle).toRotationMatrix();
+    M.topRightCorner<3, 1>() = x.tail<3>();
+    return M;
+  };
+  constexpr std::size_t kHistory = 5;
+  std::vector<Vec6> hist_g, hist_f;  // G(x_i) and f_i = G(x_i) − x_i, newest last
+  bool accelerated = false;
+  Eigen::Matrix4d plain_step = T;
+  double accepted_mean = std::numeric_limits<double>::infinity();
   for (; iteration < options.max_iterations; ++iteration) {
     const Eigen::Matrix3f R = T.topLeftCorner<3, 3>().cast<float>();
     const Eigen::Vector3f tt = T.topRightCorner<3, 1>().cast<float>();
@@ -814,6 +841,14 @@ RegistrationResult RegisterFine(const ViewCloud& source, const ViewCloud& target
     }
     last_count = z;
     last_mean = sum_d / static_cast<double>(z);
+    if (accelerated && last_mean > accepted_mean) {
+      T = plain_step;  // the accelerated step made things worse: undo it
+      hist_g.clear();
+      hist_f.clear();
+      accelerated = false;
+      continue;
+    }
+    accepted_mean = last_mean;
     if (last_mean < options.stop_mean_distance_mm) {
       converged = true;
       break;
@@ -870,17 +905,44 @@ RegistrationResult RegisterFine(const ViewCloud& source, const ViewCloud& target
       if (angle > 0) delta.topLeftCorner<3, 3>() = Eigen::AngleAxisd(angle, w / angle).toRotationMatrix();
       delta.topRightCorner<3, 1>() = x.tail<3>();
     }
-    T = delta * T;
-    // How far the update moved the source: rotation at the cloud's radius
-    // plus the translation of its centroid.
+    const Eigen::Matrix4d G = delta * T;
+    {
+      const Vec6 x = log6(T), g = log6(G);
+      hist_g.push_back(g);
+      hist_f.push_back(g - x);
+      if (hist_g.size() > kHistory + 1) {
+        hist_g.erase(hist_g.begin());
+        hist_f.erase(hist_f.begin());
+      }
+      plain_step = G;
+      accelerated = false;
+      T = G;
+      const std::size_t m = hist_g.size() - 1;
+      if (m >= 1) {
+        Eigen::MatrixXd dF(6, m), dG(6, m);
+        for (std::size_t j = 0; j < m; ++j) {
+          dF.col(j) = hist_f[j + 1] - hist_f[j];
+          dG.col(j) = hist_g[j + 1] - hist_g[j];
+        }
+        const Eigen::VectorXd gamma = dF.colPivHouseholderQr().solve(hist_f.back());
+        const Vec6 next = hist_g.back() - dG * gamma;
+        if (gamma.allFinite() && next.allFinite()) {
+          T = exp6(next);
+          accelerated = true;
+        }
+      }
+    }
+    // How far the plain update moved the source: rotation at the cloud's
+    // radius plus the translation of its centroid.
     const Eigen::Matrix3d dR = delta.topLeftCorner<3, 3>();
     const double angle = Eigen::AngleAxisd(dR).angle();
-    const Eigen::Vector3d c = T.topLeftCorner<3, 3>() * centroid + T.topRightCorner<3, 1>();
+    const Eigen::Vector3d c = G.topLeftCorner<3, 3>() * centroid + G.topRightCorner<3, 1>();
     const double moved = angle * radius + (dR * c + delta.topRightCorner<3, 1>() - c).norm();
     // Shrink the gate towards the residual level (robust to the start).
     const double rms = std::sqrt(sum_d2 / static_cast<double>(z));
     gate = std::clamp(3.0 * rms, options.min_correspondence_mm, gate);
     if (moved < options.min_update_mm) {
+      T = G;  // converged: the plain step, not an extrapolation
       converged = true;
       ++iteration;
       break;
@@ -990,12 +1052,29 @@ RegistrationResult RegisterPair(const ViewCloud& source, const ViewCloud& target
     return fine;
   }
   fine.prior_kept = coarse.prior_kept;
+  fine.coarse_ms = coarse.time_ms;
+  fine.fine_ms = fine.time_ms;
   fine.correspondences = coarse.correspondences;
   std::string notes = fine.message;
   if (constrained < kMinConstrainedness)
     notes += std::string(notes.empty() ? "" : "; ") +
              "surface of revolution or similar: the unconstrained motion is kept from the prior";
-  if (fine.fitness < options.min_fitness) {
+  {
+    // Fitness and RMSE of the final pose at the (tighter) fitness gate.
+    PointIndex target_index(target.fine);
+    const Overlap o = MeasureOverlap(source.fine, target_index, ToEigen(fine.target_from_source),
+                                     options.fitness_distance_mm, options.num_threads);
+    fine.fitness = o.fitness;
+    fine.rmse_mm = o.rmse;
+    fine.inliers = o.inliers;
+  }
+  if (fine.fitness >= options.min_fitness &&
+      fine.rmse_mm > options.max_rmse_ratio * options.fitness_distance_mm) {
+    fine.status = RegistrationResult::Status::kFailed;
+    fine.message = "no overlap: the residuals (RMSE " + std::to_string(fine.rmse_mm) +
+                   " mm within " + std::to_string(options.fitness_distance_mm) +
+                   " mm) are spread like those of unrelated surfaces";
+  } else if (fine.fitness < options.min_fitness) {
     fine.status = RegistrationResult::Status::kFailed;
     fine.message = "no overlap: only " + std::to_string(static_cast<int>(fine.fitness * 100 + 0.5)) +
                    " % of the source lies on the target after registration (need " +

@@ -145,8 +145,15 @@ struct RegistrationOptions {
   CoarseOptions coarse;
   FineOptions fine;
   // Fails the result as "no overlap" when the final fitness (see
-  // RegistrationResult) is below this.
+  // RegistrationResult: the fraction of fine source points within
+  // fitness_distance_mm of the target) is below this.
   double min_fitness = 0.1;
+  double fitness_distance_mm = 2.0;
+  // Also "no overlap" when the inlier RMSE exceeds this fraction of
+  // fitness_distance_mm: two unrelated surfaces pushed together cross each
+  // other everywhere, so their distances spread evenly over the gate (RMSE ≈
+  // 0.58 of it), while a true overlap leaves residuals at the noise level.
+  double max_rmse_ratio = 0.5;
   int min_points = 30;  // fewer (coarse) points than this on either side: fails
   int num_threads = 1;  // ≥ 1; results are deterministic for a given count
 
@@ -169,7 +176,9 @@ struct RegistrationResult {
   bool converged = false;  // ICP met its stop criterion (coarse: early-terminated)
   bool prior_kept = false; // coarse: the prior was the winning hypothesis
   std::size_t correspondences = 0;  // coarse: feature matches used by RANSAC
-  double time_ms = 0;
+  double time_ms = 0;    // whole call
+  double coarse_ms = 0;  // RegisterPair: its coarse stage (features, matching, RANSAC)
+  double fine_ms = 0;    // RegisterPair: its fine stage
 
   bool IsUsable() const { return status == Status::kOk; }
 };

@@ -1,0 +1,357 @@
+// Registration and loop closure on synthetic surfaces with exact ground truth.
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <random>
+
+#include <opencv2/calib3d.hpp>
+
+#include "craftscan/pipeline/loop_closure.h"
+#include "craftscan/pipeline/registration.h"
+#include "craftscan/pipeline/scan_dataset.h"
+
+namespace craftscan {
+namespace {
+
+// A bumpy, asymmetric height field z = f(x, y) over [−w/2, w/2]² (mm),
+// sampled every `step_mm`, seen from +z. Bumps are seeded.
+PointCloud BumpySurface(unsigned seed, double width_mm = 100, double step_mm = 0.7,
+                        double x_from = -1e9, double x_to = 1e9, bool rough = false) {
+  std::mt19937 rng(seed);
+  std::uniform_real_distribution<double> pos(-width_mm / 2, width_mm / 2),
+      amp(rough ? -6 : -12, rough ? 6 : 12), size(rough ? 3 : 5, rough ? 7 : 14);
+  struct Bump {
+    double x, y, a, s;
+  };
+  std::vector<Bump> bumps;
+  for (int i = 0; i < (rough ? 120 : 14); ++i) bumps.push_back({pos(rng), pos(rng), amp(rng), size(rng)});
+  PointCloud cloud;
+  for (double y = -width_mm / 2; y <= width_mm / 2; y += step_mm) {
+    for (double x = -width_mm / 2; x <= width_mm / 2; x += step_mm) {
+      if (x < x_from || x > x_to) continue;
+      double z = 0;
+      for (const Bump& b : bumps)
+        z += b.a * std::exp(-((x - b.x) * (x - b.x) + (y - b.y) * (y - b.y)) / (2 * b.s * b.s));
+      cloud.points_mm.emplace_back(x, y, z);
+    }
+  }
+  return cloud;
+}
+
+void AddNoise(PointCloud* cloud, double sigma_mm, unsigned seed) {
+  std::mt19937 rng(seed);
+  std::normal_distribution<float> n(0, static_cast<float>(sigma_mm));
+  for (auto& p : cloud->points_mm) p += cv::Vec3f(n(rng), n(rng), n(rng));
+}
+
+cv::Matx44d Pose(cv::Vec3d rotation_rad, cv::Vec3d translation_mm) {
+  cv::Matx33d R;
+  cv::Rodrigues(rotation_rad, R);
+  cv::Matx44d T = cv::Matx44d::eye();
+  for (int r = 0; r < 3; ++r) {
+    for (int c = 0; c < 3; ++c) T(r, c) = R(r, c);
+    T(r, 3) = translation_mm[r];
+  }
+  return T;
+}
+
+ConditioningOptions Conditioning(cv::Vec3d viewpoint = {0, 0, 1000}) {
+  ConditioningOptions o;
+  o.viewpoint_mm = viewpoint;
+  o.num_threads = 2;
+  return o;
+}
+
+// Source: the surface's part x ≤ 25 seen through `target_from_source`⁻¹
+// (i.e. in its own frame); target: the part x ≥ −25. 50 mm of 100 overlap.
+struct Pair {
+  ViewCloud source, target;
+  cv::Matx44d target_from_source;
+};
+
+Pair MakePair(unsigned seed, const cv::Matx44d& target_from_source, double noise_mm = 0.1) {
+  PointCloud src = BumpySurface(seed, 100, 0.7, -1e9, 25);
+  PointCloud tgt = BumpySurface(seed, 100, 0.7, -25, 1e9);
+  AddNoise(&src, noise_mm, seed + 1);
+  AddNoise(&tgt, noise_mm, seed + 2);
+  const cv::Matx44d source_from_target = InvertRigid(target_from_source);
+  Pair pair;
+  pair.target_from_source = target_from_source;
+  // The source sensor sits where the target's (0, 0, 1000) is seen from it.
+  const cv::Vec4d v = source_from_target * cv::Vec4d(0, 0, 1000, 1);
+  pair.source = ConditionCloud(TransformCloud(source_from_target, src),
+                               Conditioning(cv::Vec3d(v[0], v[1], v[2])));
+  pair.target = ConditionCloud(tgt, Conditioning());
+  return pair;
+}
+
+TEST(RegistrationTest, RecoversALargeRigidMotion) {
+  const cv::Matx44d truth = Pose({0.2, -0.35, 0.5}, {20, -15, 30});
+  Pair pair = MakePair(7, truth);
+  ASSERT_TRUE(pair.source.ok()) << pair.source.error;
+  ASSERT_TRUE(pair.target.ok()) << pair.target.error;
+  RegistrationOptions options;
+  options.num_threads = 2;
+  const RegistrationResult r = RegisterPair(pair.source, pair.target, options);
+  ASSERT_TRUE(r.IsUsable()) << r.message;
+  EXPECT_LT(RotationErrorDeg(r.target_from_source, truth), 0.05);
+  EXPECT_LT(TranslationErrorMm(r.target_from_source, truth), 0.05);
+  // Two thirds of the source lie on the target (50 of its 75 mm), plus a
+  // band within the 2 mm fitness gate along the target's border.
+  EXPECT_GT(r.fitness, 0.6);
+  EXPECT_LT(r.fitness, 0.75);
+  EXPECT_LT(r.rmse_mm, 0.6);
+  EXPECT_TRUE(r.converged);
+  EXPECT_GT(r.correspondences, 20u);
+}
+
+TEST(RegistrationTest, PointToPlaneAgrees) {
+  const cv::Matx44d truth = Pose({0.1, 0.2, -0.3}, {-10, 5, 12});
+  Pair pair = MakePair(11, truth);
+  RegistrationOptions options;
+  options.num_threads = 2;
+  options.fine.method = FineMethod::kPointToPlane;
+  const RegistrationResult r = RegisterPair(pair.source, pair.target, options);
+  ASSERT_TRUE(r.IsUsable()) << r.message;
+  EXPECT_LT(RotationErrorDeg(r.target_from_source, truth), 0.05);
+  EXPECT_LT(TranslationErrorMm(r.target_from_source, truth), 0.05);
+}
+
+TEST(RegistrationTest, DeterministicForAnyThreadCount) {
+  const cv::Matx44d truth = Pose({0.05, 0.3, 0.1}, {8, 3, -6});
+  Pair pair = MakePair(3, truth, 0.2);
+  RegistrationOptions one;
+  one.num_threads = 1;
+  RegistrationOptions three = one;
+  three.num_threads = 3;
+  const RegistrationResult a = RegisterPair(pair.source, pair.target, one);
+  const RegistrationResult b = RegisterPair(pair.source, pair.target, three);
+  ASSERT_TRUE(a.IsUsable() && b.IsUsable());
+  for (int r = 0; r < 4; ++r)
+    for (int c = 0; c < 4; ++c) EXPECT_EQ(a.target_from_source(r, c), b.target_from_source(r, c));
+  EXPECT_EQ(a.iterations, b.iterations);
+}
+
+TEST(RegistrationTest, CorrectPriorIsKeptAndWrongPriorReplaced) {
+  const cv::Matx44d truth = Pose({0, 0, 0.6}, {0, 0, 0});
+  Pair pair = MakePair(5, truth);
+  RegistrationOptions options;
+  options.num_threads = 2;
+  options.coarse.prior_target_from_source = truth;
+  options.coarse.prior_accept_fitness = 0.3;
+  RegistrationResult r = RegisterPair(pair.source, pair.target, options);
+  ASSERT_TRUE(r.IsUsable()) << r.message;
+  EXPECT_TRUE(r.prior_kept);
+  EXPECT_LT(RotationErrorDeg(r.target_from_source, truth), 0.05);
+
+
+  // A prior 35° off (a wrong commanded angle), verified by RANSAC: replaced.
+  options.coarse.prior_accept_fitness = 0;
+  options.coarse.prior_target_from_source = Pose({0, 0, 0.6 + 35 * M_PI / 180}, {0, 0, 0});
+  r = RegisterPair(pair.source, pair.target, options);
+  ASSERT_TRUE(r.IsUsable()) << r.message;
+  EXPECT_FALSE(r.prior_kept);
+  EXPECT_LT(RotationErrorDeg(r.target_from_source, truth), 0.05);
+  EXPECT_LT(TranslationErrorMm(r.target_from_source, truth), 0.05);
+}
+
+TEST(RegistrationTest, EmptyAndTinyInputsFailWithAReason) {
+  const ViewCloud empty = ConditionCloud(PointCloud{}, Conditioning());
+  EXPECT_FALSE(empty.ok());
+  EXPECT_NE(empty.error.find("no points"), std::string::npos) << empty.error;
+
+  PointCloud nan_cloud;
+  nan_cloud.points_mm.assign(100, cv::Vec3f(NAN, 0, 0));
+  const ViewCloud nans = ConditionCloud(nan_cloud, Conditioning());
+  EXPECT_FALSE(nans.ok());
+
+  const ViewCloud good = ConditionCloud(BumpySurface(1), Conditioning());
+  ASSERT_TRUE(good.ok());
+  RegistrationResult r = RegisterPair(empty, good, RegistrationOptions{});
+  EXPECT_FALSE(r.IsUsable());
+  EXPECT_NE(r.message.find("conditioning failed"), std::string::npos) << r.message;
+
+  PointCloud few;
+  for (int i = 0; i < 20; ++i) few.points_mm.emplace_back(i * 5.f, (i % 4) * 5.f, (i % 3) * 4.f);
+  const ViewCloud tiny = ConditionCloud(few, Conditioning());
+  ASSERT_TRUE(tiny.ok()) << tiny.error;
+  r = RegisterPair(tiny, good, RegistrationOptions{});
+  EXPECT_FALSE(r.IsUsable());
+  EXPECT_NE(r.message.find("too few points"), std::string::npos) << r.message;
+}
+
+TEST(RegistrationTest, FlatPlaneFailsInsteadOfAWrongSuccess) {
+  PointCloud plane;
+  for (double y = -50; y <= 50; y += 0.7)
+    for (double x = -50; x <= 50; x += 0.7) plane.points_mm.emplace_back(x, y, 0);
+  AddNoise(&plane, 0.05, 9);
+  const ViewCloud a = ConditionCloud(plane, Conditioning());
+  const ViewCloud b = ConditionCloud(TransformCloud(Pose({0, 0, 0.3}, {5, 0, 0}), plane),
+                                     Conditioning());
+  ASSERT_TRUE(a.ok() && b.ok());
+  const RegistrationResult r = RegisterPair(a, b, RegistrationOptions{});
+  EXPECT_FALSE(r.IsUsable());
+  EXPECT_NE(r.message.find("plane"), std::string::npos) << r.message;
+}
+
+TEST(RegistrationTest, SphereNeedsAPrior) {
+  PointCloud cap;
+  for (double th = 0; th < 1.2; th += 0.012)
+    for (double ph = 0; ph < 2 * M_PI; ph += 0.012 / std::max(0.05, std::sin(th)))
+      cap.points_mm.emplace_back(40 * std::sin(th) * std::cos(ph), 40 * std::sin(th) * std::sin(ph),
+                                 40 * std::cos(th));
+  AddNoise(&cap, 0.05, 4);
+  const ViewCloud a = ConditionCloud(cap, Conditioning());
+  const ViewCloud b = ConditionCloud(cap, Conditioning());
+  ASSERT_TRUE(a.ok() && b.ok());
+  RegistrationOptions options;
+  RegistrationResult r = RegisterPair(a, b, options);
+  EXPECT_FALSE(r.IsUsable());
+  EXPECT_NE(r.message.find("degenerate geometry"), std::string::npos) << r.message;
+
+  options.coarse.prior_target_from_source = cv::Matx44d::eye();
+  r = RegisterPair(a, b, options);
+  ASSERT_TRUE(r.IsUsable()) << r.message;
+  EXPECT_NE(r.message.find("kept from the prior"), std::string::npos) << r.message;
+  EXPECT_LT(TranslationErrorMm(r.target_from_source, cv::Matx44d::eye()), 0.1);
+}
+
+TEST(RegistrationTest, NoOverlapFails) {
+  // Two unrelated rough surfaces: no rigid motion lays one on the other.
+  const ViewCloud a = ConditionCloud(BumpySurface(21, 100, 0.7, -1e9, 1e9, true), Conditioning());
+  const ViewCloud b = ConditionCloud(BumpySurface(22, 100, 0.7, -1e9, 1e9, true), Conditioning());
+  ASSERT_TRUE(a.ok() && b.ok());
+  RegistrationOptions options;
+  options.num_threads = 2;
+  const RegistrationResult r = RegisterPair(a, b, options);
+  EXPECT_FALSE(r.IsUsable()) << "fitness " << r.fitness << " rmse " << r.rmse_mm;
+  EXPECT_NE(r.message.find("no overlap"), std::string::npos) << r.message;
+}
+
+TEST(RegistrationTest, InvalidOptionsAreNamed) {
+  RegistrationOptions options;
+  options.coarse.confidence = 1.5;
+  std::string why;
+  EXPECT_FALSE(options.IsValid(&why));
+  EXPECT_NE(why.find("coarse.confidence"), std::string::npos) << why;
+  ConditioningOptions c;
+  c.coarse_voxel_mm = 0.5;  // finer than the fine voxel
+  EXPECT_FALSE(c.IsValid(&why));
+  EXPECT_NE(why.find("coarse_voxel_mm"), std::string::npos) << why;
+  const ViewCloud v = ConditionCloud(BumpySurface(1), c);
+  EXPECT_FALSE(v.ok());
+  EXPECT_NE(v.error.find("coarse_voxel_mm"), std::string::npos) << v.error;
+}
+
+// --- Loop closure ----------------------------------------------------------------
+
+// The corners of an object's box around (0, 60, 400) in view 0's frame.
+std::vector<cv::Vec3d> Samples() {
+  std::vector<cv::Vec3d> s;
+  for (int m = 0; m < 8; ++m)
+    s.emplace_back(m & 1 ? 40 : -40, 60 + (m & 2 ? 30 : -30), 400 + (m & 4 ? 40 : -40));
+  return s;
+}
+
+// Six views turning about an axis; pairwise edges with small errors that
+// accumulate around the ring.
+struct Ring {
+  std::vector<cv::Matx44d> truth;  // view0_from_view
+  std::vector<PoseEdge> edges;
+  std::vector<cv::Matx44d> chained;
+};
+
+Ring MakeRing(const cv::Vec3d& axis, const cv::Vec3d& point, unsigned seed, double rot_noise_rad,
+              double trans_noise_mm, const cv::Vec3d& drift_mm = {0, 0, 0}) {
+  std::mt19937 rng(seed);
+  std::normal_distribution<double> rn(0, rot_noise_rad), tn(0, trans_noise_mm);
+  Ring ring;
+  const int n = 6;
+  for (int k = 0; k < n; ++k) {
+    cv::Matx44d T = RotationAboutAxis(axis, point, -k * M_PI / 3);
+    for (int i = 0; i < 3; ++i) T(i, 3) += drift_mm[i] * (k % 2);  // object slipping back and forth
+    ring.truth.push_back(T);
+  }
+  // Registration errors: a small rotation about the object's centre and a
+  // small translation.
+  const cv::Vec3d centre(0, 60, 400);
+  auto noisy = [&](const cv::Matx44d& T) {
+    const cv::Matx44d to = Pose({0, 0, 0}, centre), from = Pose({0, 0, 0}, -centre);
+    return to * Pose({rn(rng), rn(rng), rn(rng)}, {tn(rng), tn(rng), tn(rng)}) * from * T;
+  };
+  for (int k = 1; k < n; ++k)
+    ring.edges.push_back({k, k - 1, noisy(InvertRigid(ring.truth[k - 1]) * ring.truth[k]), 1});
+  ring.edges.push_back({0, n - 1, noisy(InvertRigid(ring.truth[n - 1]) * ring.truth[0]), 1});
+  ring.chained.assign(n, cv::Matx44d::eye());
+  for (int k = 1; k < n; ++k) ring.chained[k] = ring.chained[k - 1] * ring.edges[k - 1].target_from_source;
+  return ring;
+}
+
+TEST(LoopClosureTest, TurntableAxisModelRemovesAccumulatedDrift) {
+  const cv::Vec3d axis = cv::normalize(cv::Vec3d(0.05, -0.86, -0.5));
+  const cv::Vec3d point(3, 60, 400);
+  const Ring ring = MakeRing(axis, point, 1, 0.0015, 0.08);
+  double chained_worst = 0, chained_worst_rot = 0;
+  for (int k = 0; k < 6; ++k) {
+    chained_worst = std::max(chained_worst, TranslationErrorMm(ring.chained[k], ring.truth[k]));
+    chained_worst_rot = std::max(chained_worst_rot, RotationErrorDeg(ring.chained[k], ring.truth[k]));
+  }
+  const LoopClosureResult r = CloseLoop(6, ring.edges, ring.chained, Samples(), {});
+  ASSERT_TRUE(r.IsUsable()) << r.message;
+  EXPECT_EQ(r.model, LoopClosureResult::Model::kTurntableAxis) << r.message << " axis rms " << r.axis_rms_mm << " axis " << r.axis_direction << " point " << r.axis_point_mm << " open " << r.open_loop_rms_mm;
+  EXPECT_LT(std::acos(std::min(1.0, std::abs(r.axis_direction.dot(axis)))) * 180 / M_PI, 0.3);
+  double worst_rot = 0, worst_mm = 0;
+  for (int k = 0; k < 6; ++k) {
+    worst_rot = std::max(worst_rot, RotationErrorDeg(r.view0_from_view[k], ring.truth[k]));
+    // Compare where the poses put the sample points (the axis point is far
+    // from the rig origin, so translations alone overstate errors).
+    for (const auto& s : Samples()) {
+      const cv::Vec4d a = r.view0_from_view[k] * cv::Vec4d(s[0], s[1], s[2], 1);
+      const cv::Vec4d b = ring.truth[k] * cv::Vec4d(s[0], s[1], s[2], 1);
+      worst_mm = std::max(worst_mm, cv::norm(a - b));
+    }
+  }
+  std::printf("chained: worst %.3f deg %.3f mm; closed: worst %.3f deg %.3f mm (at the samples)\n",
+              chained_worst_rot, chained_worst, worst_rot, worst_mm);
+  EXPECT_LT(worst_rot, 0.4);
+  EXPECT_LT(worst_mm, 0.6);
+  EXPECT_GT(r.open_loop_rot_deg, 0.1);  // the ring did not close before
+  EXPECT_LT(r.rms_mm, r.open_loop_rms_mm);
+  EXPECT_GT(chained_worst, worst_mm);
+  ASSERT_EQ(r.angles_rad.size(), 6u);
+  EXPECT_NEAR(std::abs(r.angles_rad[3]), M_PI, 0.01);
+}
+
+TEST(LoopClosureTest, PoseGraphWhenTheObjectMoved) {
+  // The object slips 3 mm sideways every other view: no single axis fits.
+  const Ring ring = MakeRing(cv::Vec3d(0, -0.86, -0.5), cv::Vec3d(0, 60, 400), 2, 0.001, 0.05,
+                             cv::Vec3d(3, 0, 0));
+  const LoopClosureResult r = CloseLoop(6, ring.edges, ring.chained, Samples(), {});
+  ASSERT_TRUE(r.IsUsable()) << r.message;
+  EXPECT_EQ(r.model, LoopClosureResult::Model::kPoseGraph);
+  EXPECT_GT(r.axis_rms_mm, 0.5);
+  for (int k = 0; k < 6; ++k) EXPECT_LT(RotationErrorDeg(r.view0_from_view[k], ring.truth[k]), 0.3);
+  EXPECT_LT(r.rms_mm, r.open_loop_rms_mm);
+}
+
+TEST(LoopClosureTest, BadInputIsRejected) {
+  const Ring ring = MakeRing(cv::Vec3d(0, 0, 1), cv::Vec3d(0, 0, 0), 3, 0.001, 0.05);
+  EXPECT_FALSE(CloseLoop(1, ring.edges, ring.chained, Samples(), {}).IsUsable());
+  EXPECT_FALSE(CloseLoop(6, ring.edges, {}, Samples(), {}).IsUsable());
+  std::vector<PoseEdge> bad = ring.edges;
+  bad[0].target = 9;
+  LoopClosureResult r = CloseLoop(6, bad, ring.chained, Samples(), {});
+  EXPECT_FALSE(r.IsUsable());
+  EXPECT_NE(r.message.find("does not join"), std::string::npos) << r.message;
+  // View 5 unreachable.
+  std::vector<PoseEdge> cut(ring.edges.begin(), ring.edges.begin() + 4);
+  r = CloseLoop(6, cut, ring.chained, Samples(), {});
+  EXPECT_FALSE(r.IsUsable());
+  EXPECT_NE(r.message.find("not connected"), std::string::npos) << r.message;
+  r = CloseLoop(6, ring.edges, ring.chained, {{0, 0, 0}, {1, 0, 0}, {2, 0, 0}}, {});
+  EXPECT_FALSE(r.IsUsable());
+  EXPECT_NE(r.message.find("one line"), std::string::npos) << r.message;
+}
+
+}  // namespace
+}  // namespace craftscan

@@ -34,5 +34,6 @@ class BenchCommand {
 std::unique_ptr<BenchCommand> MakeStereoCommand();
 std::unique_ptr<BenchCommand> MakeCalibCommand();
 std::unique_ptr<BenchCommand> MakeSimDepthCommand();
+std::unique_ptr<BenchCommand> MakeRegistrationCommand();
 
 }  // namespace craftscan::bench

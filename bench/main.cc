@@ -11,7 +11,7 @@
 
 int main(int argc, char** argv) {
   using namespace craftscan::bench;
-  CLI::App app{"craftscan benchmarks on shared data (Middlebury stereo, calibration, ...)",
+  CLI::App app{"craftscan benchmarks on shared data (Middlebury stereo, calibration, bunny, ...)",
                "craftscan-bench"};
   app.require_subcommand(1);
 
@@ -19,6 +19,7 @@ int main(int argc, char** argv) {
   commands.push_back(MakeStereoCommand());
   commands.push_back(MakeCalibCommand());
   commands.push_back(MakeSimDepthCommand());
+  commands.push_back(MakeRegistrationCommand());
 
   std::vector<std::pair<CLI::App*, BenchCommand*>> registered;
   for (auto& command : commands) registered.emplace_back(command->Register(&app), command.get());

@@ -5,6 +5,9 @@
 #include <cmath>
 #include <exception>
 
+#include <nlohmann/json.hpp>
+
+#include "craftscan/pipeline/atomic_file.h"
 #include "craftscan/pipeline/scan_dataset.h"
 
 namespace craftscan {
@@ -206,7 +209,115 @@ ScanResult ReconstructImpl(const std::vector<ScanView>& views, const TurntableAx
   return result;
 }
 
+using Json = nlohmann::ordered_json;
+
+Json Num(double v) { return std::isfinite(v) ? Json(v) : Json(nullptr); }
+
+Json PoseJson(const cv::Matx44d& T) {
+  Json rows = Json::array();
+  for (int r = 0; r < 4; ++r) rows.push_back({T(r, 0), T(r, 1), T(r, 2), T(r, 3)});
+  return rows;
+}
+
+Json RegistrationJson(const RegistrationResult& r) {
+  Json j;
+  j["ok"] = r.IsUsable();
+  j["message"] = r.message;
+  j["fitness"] = Num(r.fitness);
+  j["rmse_mm"] = Num(r.rmse_mm);
+  j["inliers"] = r.inliers;
+  j["iterations"] = r.iterations;
+  j["converged"] = r.converged;
+  j["prior_kept"] = r.prior_kept;
+  j["correspondences"] = r.correspondences;
+  j["coarse_ms"] = Num(r.coarse_ms);
+  j["fine_ms"] = Num(r.fine_ms);
+  j["target_from_source"] = PoseJson(r.target_from_source);
+  return j;
+}
+
 }  // namespace
+
+std::string ScanReportJson(const ScanResult& result) {
+  try {
+    Json j;
+    j["ok"] = result.IsUsable();
+    j["message"] = result.message;
+    j["views"] = Json::array();
+    for (std::size_t k = 0; k < result.views.size(); ++k) {
+      const ViewCloud& v = result.views[k];
+      Json view;
+      view["index"] = k;
+      view["input_points"] = v.input_points;
+      view["cropped_points"] = v.cropped_points;
+      view["outlier_points"] = v.outlier_points;
+      view["fine_points"] = v.fine.size();
+      view["coarse_points"] = v.coarse.size();
+      if (!v.ok()) view["error"] = v.error;
+      if (k >= 1 && k < result.pairwise.size()) view["registration_to_previous"] = RegistrationJson(result.pairwise[k]);
+      if (k < result.view0_from_view.size()) view["view0_from_view"] = PoseJson(result.view0_from_view[k]);
+      j["views"].push_back(view);
+    }
+    if (result.closing) j["closing_registration"] = RegistrationJson(*result.closing);
+    if (result.loop) {
+      const LoopClosureResult& l = *result.loop;
+      Json loop;
+      loop["ok"] = l.IsUsable();
+      loop["model"] = ToString(l.model);
+      loop["message"] = l.message;
+      loop["open_loop_rot_deg"] = Num(l.open_loop_rot_deg);
+      loop["open_loop_rms_mm"] = Num(l.open_loop_rms_mm);
+      loop["axis_rms_mm"] = Num(l.axis_rms_mm);
+      loop["rms_mm"] = Num(l.rms_mm);
+      loop["max_mm"] = Num(l.max_mm);
+      if (l.model == LoopClosureResult::Model::kTurntableAxis) {
+        loop["axis_direction"] = {l.axis_direction[0], l.axis_direction[1], l.axis_direction[2]};
+        loop["axis_point_mm"] = {l.axis_point_mm[0], l.axis_point_mm[1], l.axis_point_mm[2]};
+        Json angles = Json::array();
+        for (double a : l.angles_rad) angles.push_back(a * 180 / M_PI);
+        loop["angles_deg"] = angles;
+      }
+      j["loop_closure"] = loop;
+    }
+    j["frame"] = result.turntable_from_view0 ? "turntable" : "view0";
+    if (result.turntable_from_view0) j["turntable_from_view0"] = PoseJson(*result.turntable_from_view0);
+    j["fused_points"] = result.fused.size();
+    Json mesh;
+    mesh["ok"] = result.mesh.IsUsable();
+    mesh["message"] = result.mesh.message;
+    mesh["vertices"] = result.mesh.mesh.vertices_mm.size();
+    mesh["faces"] = result.mesh.mesh.faces.size();
+    j["mesh"] = mesh;
+    Json times;
+    times["condition_ms"] = result.condition_ms;
+    times["register_ms"] = result.register_ms;
+    times["loop_ms"] = result.loop_ms;
+    times["fuse_ms"] = result.fuse_ms;
+    times["mesh_ms"] = result.mesh_ms;
+    times["measure_ms"] = result.measure_ms;
+    j["times"] = times;
+    if (!result.fused.empty()) {
+      const BoxMeasurement* box =
+          result.box_measurement && result.box_measurement->IsUsable() ? &*result.box_measurement : nullptr;
+      j["measurement"] = Json::parse(MeasurementReportJson(result.box, box), nullptr, false);
+      if (result.box_measurement && !result.box_measurement->IsUsable())
+        j["box_measurement_error"] = result.box_measurement->message;
+    }
+    return j.dump(2);
+  } catch (const std::exception& e) {
+    return std::string("{\"ok\": false, \"message\": \"report failed\"}");
+  }
+}
+
+bool WriteScanOutputs(const std::string& dir, const ScanResult& result, std::string* error) {
+  const std::string base = dir.empty() || dir.back() == '/' ? dir : dir + "/";
+  if (!result.fused.empty() && !WritePly(base + "fused.ply", result.fused, true, error)) return false;
+  if (result.mesh.IsUsable()) {
+    if (!WriteMeshPly(base + "mesh.ply", result.mesh.mesh, true, error)) return false;
+    if (!WriteMeshObj(base + "mesh.obj", result.mesh.mesh, error)) return false;
+  }
+  return WriteFileAtomically(base + "report.json", ScanReportJson(result), error);
+}
 
 bool ScanOptions::IsValid(std::string* why) const {
   auto fail = [&](const std::string& m) {

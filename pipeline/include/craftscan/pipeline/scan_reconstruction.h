@@ -87,6 +87,19 @@ struct ScanResult {
 ScanResult ReconstructScan(const std::vector<ScanView>& views, const TurntableAxis& axis,
                            const ScanOptions& options);
 
+// A JSON report (pretty-printed) of the scan: per-view conditioning and
+// registration quality (fitness, RMSE, iterations, converged, prior kept),
+// the loop closure (model, axis, open-loop and closed residuals), stage
+// times, the fused cloud and mesh sizes, and the measurement (the
+// MeasurementReportJson object under "measurement"). Never throws.
+std::string ScanReportJson(const ScanResult& result);
+
+// Writes the scan's products into the existing folder `dir`: fused.ply
+// (binary), mesh.ply (binary) and mesh.obj when a mesh was made, and
+// report.json; each atomically. Returns false with *error naming the file
+// on the first failure. Never throws.
+bool WriteScanOutputs(const std::string& dir, const ScanResult& result, std::string* error);
+
 // turntable_from_rig for a valid axis: origin at axis.point_in_rig_mm, +Z
 // along the axis, +X the rig's x axis made orthogonal to it.
 cv::Matx44d TurntableFromRig(const TurntableAxis& axis);

@@ -489,29 +489,56 @@ std::vector<Fpfh> ComputeFpfh(const PointCloud& cloud, double radius_mm, int num
 
 namespace {
 
-// Nearest feature of each row of `a` among the rows of `b` (squared L2),
-// by blocked matrix products (exact and deterministic; FPFH is 33-D, where
-// k-d trees degrade to brute force anyway).
-std::vector<int> NearestFeatures(const Eigen::MatrixXf& a, const Eigen::MatrixXf& b, int threads) {
-  std::vector<int> nearest(a.rows(), -1);
+// Nearest feature (squared L2) of each row of `a` among the rows of `b`
+// and of each row of `b` among the rows of `a`, from one blocked matrix
+// product (exact and deterministic: ties go to the lowest index; FPFH is
+// 33-D, where k-d trees degrade to brute force anyway).
+struct NearestBothWays {
+  std::vector<int> a_to_b, b_to_a;
+};
+NearestBothWays FindNearestBothWays(const Eigen::MatrixXf& a, const Eigen::MatrixXf& b,
+                                    int threads) {
+  NearestBothWays out;
+  out.a_to_b.assign(a.rows(), -1);
+  out.b_to_a.assign(b.rows(), -1);
+  if (a.rows() == 0 || b.rows() == 0) return out;
+  const Eigen::VectorXf an = a.rowwise().squaredNorm();
   const Eigen::VectorXf bn = b.rowwise().squaredNorm();
-  constexpr Eigen::Index kBlock = 512;
-  const std::size_t blocks = static_cast<std::size_t>((a.rows() + kBlock - 1) / kBlock);
-  ParallelFor(blocks * 512, threads, [&](std::size_t begin, std::size_t end) {
-    for (std::size_t blk = begin / 512; blk < (end + 511) / 512 && blk < blocks; ++blk) {
-      if (blk * 512 < begin) continue;
-      const Eigen::Index r0 = static_cast<Eigen::Index>(blk) * kBlock;
-      const Eigen::Index rows = std::min<Eigen::Index>(kBlock, a.rows() - r0);
-      Eigen::MatrixXf d = -2.f * a.middleRows(r0, rows) * b.transpose();
-      d.rowwise() += bn.transpose();
-      for (Eigen::Index r = 0; r < rows; ++r) {
-        Eigen::Index best;
-        d.row(r).minCoeff(&best);
-        nearest[r0 + r] = static_cast<int>(best);
+  constexpr Eigen::Index kBlock = 256;
+  const long blocks = static_cast<long>((a.rows() + kBlock - 1) / kBlock);
+  // Per block: the best row of the block for every column of b.
+  std::vector<Eigen::VectorXf> col_best(blocks);
+  std::vector<std::vector<int>> col_arg(blocks);
+#pragma omp parallel for num_threads(std::max(1, threads)) schedule(dynamic, 1)
+  for (long blk = 0; blk < blocks; ++blk) {
+    const Eigen::Index r0 = blk * kBlock;
+    const Eigen::Index rows = std::min<Eigen::Index>(kBlock, a.rows() - r0);
+    Eigen::MatrixXf d = -2.f * a.middleRows(r0, rows) * b.transpose();
+    d.rowwise() += bn.transpose();
+    d.colwise() += an.segment(r0, rows);
+    for (Eigen::Index r = 0; r < rows; ++r) {
+      Eigen::Index best;
+      d.row(r).minCoeff(&best);
+      out.a_to_b[r0 + r] = static_cast<int>(best);
+    }
+    col_best[blk].resize(b.rows());
+    col_arg[blk].resize(b.rows());
+    for (Eigen::Index c = 0; c < b.rows(); ++c) {
+      Eigen::Index best;
+      col_best[blk][c] = d.col(c).minCoeff(&best);
+      col_arg[blk][c] = static_cast<int>(r0 + best);
+    }
+  }
+  for (Eigen::Index c = 0; c < b.rows(); ++c) {
+    float best = std::numeric_limits<float>::infinity();
+    for (long blk = 0; blk < blocks; ++blk) {
+      if (col_best[blk][c] < best) {
+        best = col_best[blk][c];
+        out.b_to_a[c] = col_arg[blk][c];
       }
     }
-  });
-  return nearest;
+  }
+  return out;
 }
 
 Eigen::MatrixXf FeatureMatrix(const std::vector<Fpfh>& f) {
@@ -584,10 +611,11 @@ RegistrationResult RegisterCoarse(const ViewCloud& source, const ViewCloud& targ
   const std::vector<Fpfh> fs = ComputeFpfh(s, options.feature_radius_mm, threads);
   const std::vector<Fpfh> ft = ComputeFpfh(t, options.feature_radius_mm, threads);
   const Eigen::MatrixXf ms = FeatureMatrix(fs), mt = FeatureMatrix(ft);
-  const std::vector<int> s_to_t = NearestFeatures(ms, mt, threads);
+  const NearestBothWays nearest = FindNearestBothWays(ms, mt, threads);
+  const std::vector<int>& s_to_t = nearest.a_to_b;
   std::vector<std::pair<int, int>> pairs;
   if (options.mutual_filter) {
-    const std::vector<int> t_to_s = NearestFeatures(mt, ms, threads);
+    const std::vector<int>& t_to_s = nearest.b_to_a;
     for (std::size_t i = 0; i < s_to_t.size(); ++i)
       if (s_to_t[i] >= 0 && t_to_s[s_to_t[i]] == static_cast<int>(i))
         pairs.emplace_back(static_cast<int>(i), s_to_t[i]);

@@ -1,6 +1,8 @@
 #include "craftscan/pipeline/fusion.h"
 
 #include <algorithm>
+#include <bit>
+#include <unordered_map>
 #include <cmath>
 #include <cstdint>
 #include <limits>
@@ -28,6 +30,9 @@ bool FusionOptions::IsValid(std::string* why) const {
   if (!(voxel_mm > 0) || !std::isfinite(voxel_mm))
     return Fail("FusionOptions.voxel_mm must be finite and > 0", why);
   if (min_points_per_voxel < 1) return Fail("FusionOptions.min_points_per_voxel must be >= 1", why);
+  if (min_views < 1) return Fail("FusionOptions.min_views must be >= 1", why);
+  if (!(view_support_mm > 0) || !std::isfinite(view_support_mm))
+    return Fail("FusionOptions.view_support_mm must be > 0", why);
   if (!(min_normal_agreement >= 0 && min_normal_agreement <= 1))
     return Fail("FusionOptions.min_normal_agreement must be within 0..1", why);
   return true;
@@ -112,6 +117,7 @@ PointCloud FuseClouds(const std::vector<PointCloud>& clouds, const FusionOptions
   PointCloud out;
   std::vector<std::uint64_t> out_keys;                 // voxel of each output point (sorted)
   std::vector<std::pair<cv::Vec3d, double>> out_sums;  // Σ points, count per output voxel
+  std::vector<std::uint64_t> out_views;                // bit c: cloud c has points here
   std::size_t kept_points = 0;
   for (std::size_t begin = 0; begin < keyed.size();) {
     std::size_t end = begin + 1;
@@ -126,8 +132,10 @@ PointCloud FuseClouds(const std::vector<PointCloud>& clouds, const FusionOptions
     cv::Vec3d first_n(0, 0, 0);
     bool have_first_n = false;
     std::size_t normals = 0;
+    std::uint64_t views = 0;
     for (std::size_t k = begin; k < end; ++k) {
       const auto [c, i] = where[keyed[k].second];
+      views |= std::uint64_t{1} << std::min<std::uint32_t>(c, 63);
       const PointCloud& cloud = clouds[c];
       sum_p += cv::Vec3d(cloud.points_mm[i]);
       if (all_normals) {
@@ -151,6 +159,7 @@ PointCloud FuseClouds(const std::vector<PointCloud>& clouds, const FusionOptions
                                static_cast<float>(mean[2]));
     out_keys.push_back(keyed[begin].first);
     out_sums.emplace_back(sum_p, static_cast<double>(count));
+    out_views.push_back(views);
     if (all_normals) {
       cv::Vec3d n = have_first_n ? first_n : cv::Vec3d(0, 0, 1);
       const double length = cv::norm(sum_n);
@@ -182,8 +191,59 @@ PointCloud FuseClouds(const std::vector<PointCloud>& clouds, const FusionOptions
     return {};
   }
   s.mean_points_per_voxel = static_cast<double>(kept_points) / static_cast<double>(out.size());
+  constexpr std::uint64_t kMask = (std::uint64_t{1} << 21) - 1;
+  if (options.min_views > 1) {
+    std::unordered_map<std::uint64_t, std::size_t> index;
+    index.reserve(out_keys.size() * 2);
+    for (std::size_t v = 0; v < out_keys.size(); ++v) index.emplace(out_keys[v], v);
+    const std::int64_t r =
+        std::max<std::int64_t>(1, std::llround(std::ceil(options.view_support_mm / options.voxel_mm)));
+    std::vector<char> keep(out_keys.size(), 0);
+    for (std::size_t v = 0; v < out_keys.size(); ++v) {
+      const std::int64_t cx = static_cast<std::int64_t>((out_keys[v] >> 42) & kMask);
+      const std::int64_t cy = static_cast<std::int64_t>((out_keys[v] >> 21) & kMask);
+      const std::int64_t cz = static_cast<std::int64_t>(out_keys[v] & kMask);
+      std::uint64_t views = out_views[v];
+      for (std::int64_t dx = -r; dx <= r && std::popcount(views) < options.min_views; ++dx)
+        for (std::int64_t dy = -r; dy <= r; ++dy)
+          for (std::int64_t dz = -r; dz <= r; ++dz) {
+            const std::int64_t x = cx + dx, y = cy + dy, z = cz + dz;
+            if (x < 0 || y < 0 || z < 0 || x > static_cast<std::int64_t>(kMask) ||
+                y > static_cast<std::int64_t>(kMask) || z > static_cast<std::int64_t>(kMask))
+              continue;
+            const auto it = index.find((static_cast<std::uint64_t>(x) << 42) |
+                                       (static_cast<std::uint64_t>(y) << 21) |
+                                       static_cast<std::uint64_t>(z));
+            if (it != index.end()) views |= out_views[it->second];
+          }
+      keep[v] = std::popcount(views) >= options.min_views;
+    }
+    PointCloud kept;
+    std::vector<std::uint64_t> kept_keys;
+    std::vector<std::pair<cv::Vec3d, double>> kept_sums;
+    for (std::size_t v = 0; v < out_keys.size(); ++v) {
+      if (!keep[v]) {
+        ++s.single_view_voxels;
+        continue;
+      }
+      kept.points_mm.push_back(out.points_mm[v]);
+      if (out.HasNormals()) kept.normals.push_back(out.normals[v]);
+      if (out.HasColors()) kept.colors_rgb.push_back(out.colors_rgb[v]);
+      kept_keys.push_back(out_keys[v]);
+      kept_sums.push_back(out_sums[v]);
+    }
+    out = std::move(kept);
+    out_keys = std::move(kept_keys);
+    out_sums = std::move(kept_sums);
+    s.output_points = out.size();
+    if (out.empty()) {
+      Fail("fusion: no voxel is supported by min_views = " + std::to_string(options.min_views) +
+               " clouds",
+           error);
+      return {};
+    }
+  }
   if (options.refine_along_normal && out.HasNormals()) {
-    constexpr std::uint64_t kMask = (std::uint64_t{1} << 21) - 1;
     std::vector<cv::Vec3f> refined(out.size());
     for (std::size_t v = 0; v < out.size(); ++v) {
       const std::uint64_t key = out_keys[v];

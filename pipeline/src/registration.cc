@@ -3,6 +3,8 @@
 // slowly); PCL does the filters, normals and FPFH, the rest is Eigen + TBB.
 #include "craftscan/pipeline/registration.h"
 
+#include "craftscan/pipeline/scan_dataset.h"
+
 #include <algorithm>
 #include <array>
 #include <atomic>
@@ -273,6 +275,8 @@ bool WorkingVolume::IsValid(std::string* why) const {
   if (!enabled) return true;
   if (!(radius_mm > 0) || !std::isfinite(radius_mm))
     return Fail(why, "volume.radius_mm must be > 0");
+  if (!std::isfinite(platter_band_mm) || !(platter_normal_deg >= 0 && platter_normal_deg <= 90))
+    return Fail(why, "volume.platter_band_mm must be finite and platter_normal_deg in [0, 90]");
   if (!std::isfinite(min_height_mm) || !std::isfinite(max_height_mm) ||
       !(max_height_mm > min_height_mm))
     return Fail(why, "volume.max_height_mm must be finite and > volume.min_height_mm");
@@ -445,6 +449,31 @@ ViewCloud ConditionCloud(const PointCloud& input, const ConditioningOptions& opt
   auto surface = ToPclXyz(fine);
   const int k = std::min<int>(options.normal_neighbors, static_cast<int>(fine.size()));
   EstimateNormals(&fine, surface, k, options.viewpoint_mm, options.num_threads);
+  if (options.volume.enabled && options.volume.platter_band_mm > options.volume.min_height_mm) {
+    // Level surface just above the platter: the platter itself, lifted by
+    // matching errors (a few px of disparity lift it by a millimetre or two).
+    const double cos_level = std::cos(options.volume.platter_normal_deg * M_PI / 180.0);
+    const cv::Matx33d R = T.get_minor<3, 3>(0, 0);
+    PointCloud kept_level;
+    for (std::size_t i = 0; i < fine.size(); ++i) {
+      const cv::Vec3f& p = fine.points_mm[i];
+      const cv::Vec4d q = T * cv::Vec4d(p[0], p[1], p[2], 1);
+      const cv::Vec3d n = R * cv::Vec3d(fine.normals[i]);
+      if (q[2] < options.volume.platter_band_mm && std::abs(n[2]) >= cos_level) {
+        ++view.cropped_points;
+        continue;
+      }
+      kept_level.points_mm.push_back(p);
+      kept_level.normals.push_back(fine.normals[i]);
+      if (fine.HasColors()) kept_level.colors_rgb.push_back(fine.colors_rgb[i]);
+    }
+    fine = std::move(kept_level);
+    if (fine.size() < 3) {
+      view.error = "fewer than 3 points left after removing the platter";
+      return view;
+    }
+    surface = ToPclXyz(fine);
+  }
   PointCloud coarse = VoxelDownsample(PointCloud{fine.points_mm, {}, {}}, options.coarse_voxel_mm);
   EstimateNormals(&coarse, surface, k, options.viewpoint_mm, options.num_threads);
   view.fine = std::move(fine);
@@ -1064,39 +1093,80 @@ RegistrationResult RegisterPair(const ViewCloud& source, const ViewCloud& target
         "revolution) and there is no prior pose";
     return result;
   }
+  // Fitness and RMSE of a fine pose at the (tighter) fitness gate.
+  PointIndex target_index(target.fine);
+  auto evaluate = [&](RegistrationResult* r) {
+    const Overlap o = MeasureOverlap(source.fine, target_index, ToEigen(r->target_from_source),
+                                     options.fitness_distance_mm, options.num_threads);
+    r->fitness = o.fitness;
+    r->rmse_mm = o.rmse;
+    r->inliers = o.inliers;
+  };
+  // With a prior (the turntable), fine registration from the prior is one
+  // candidate; RANSAC's pose replaces it only when it fits clearly better.
+  // On symmetric objects (a box turned by 180°, an egg) RANSAC's best
+  // hypothesis can score as well as the truth; the turntable settles it.
+  // RANSAC must beat the prior's fitness by both margins: a symmetric object
+  // (a box turned by 180°) lets a wrong pose fit nearly as well as the truth,
+  // while a wrong commanded angle or a moved object leaves the prior's
+  // fitness far below the true pose's.
+  constexpr double kReplaceGain = 0.1;   // absolute fitness gain
+  constexpr double kReplaceRatio = 1.5;  // relative fitness gain
+  std::optional<RegistrationResult> from_prior;
+  if (has_prior) {
+    from_prior = RegisterFine(source, target, *options.coarse.prior_target_from_source, options.fine,
+                              options.num_threads);
+    if (from_prior->IsUsable()) evaluate(&*from_prior);
+  }
   const RegistrationResult coarse =
       RegisterCoarse(source, target, options.coarse, options.num_threads);
-  if (!coarse.IsUsable()) {
-    result = coarse;
-    result.message = "coarse registration failed: " + coarse.message;
+  std::optional<RegistrationResult> from_coarse;
+  if (coarse.IsUsable() && !(coarse.prior_kept && from_prior)) {
+    from_coarse = RegisterFine(source, target, coarse.target_from_source, options.fine,
+                               options.num_threads);
+    if (from_coarse->IsUsable()) evaluate(&*from_coarse);
+  }
+  const bool prior_ok = from_prior && from_prior->IsUsable();
+  const bool coarse_ok = from_coarse && from_coarse->IsUsable();
+  if (!prior_ok && !coarse_ok) {
+    result = coarse.IsUsable() ? (from_coarse ? *from_coarse : *from_prior) : coarse;
+    result.status = RegistrationResult::Status::kFailed;
+    result.message = !coarse.IsUsable() ? "coarse registration failed: " + coarse.message
+                                        : "fine registration failed: " + result.message;
     result.time_ms = MsSince(start);
     return result;
   }
-  RegistrationResult fine = RegisterFine(source, target, coarse.target_from_source, options.fine,
-                                         options.num_threads);
-  if (!fine.IsUsable()) {
-    fine.message = "fine registration failed: " + fine.message;
-    fine.time_ms = MsSince(start);
-    return fine;
-  }
-  fine.prior_kept = coarse.prior_kept;
+  const bool use_prior =
+      prior_ok && (!coarse_ok || from_coarse->fitness < from_prior->fitness + kReplaceGain ||
+                   from_coarse->fitness < from_prior->fitness * kReplaceRatio);
+  RegistrationResult fine = use_prior ? *from_prior : *from_coarse;
+  fine.prior_kept = use_prior || coarse.prior_kept;
   fine.coarse_ms = coarse.time_ms;
-  fine.fine_ms = fine.time_ms;
+  fine.fine_ms = (from_prior ? from_prior->time_ms : 0) + (from_coarse ? from_coarse->time_ms : 0);
   fine.correspondences = coarse.correspondences;
   std::string notes = fine.message;
+  if (prior_ok && coarse_ok && !use_prior)
+    notes += std::string(notes.empty() ? "" : "; ") + "the prior was replaced (fitness " +
+             std::to_string(from_prior->fitness) + " → " + std::to_string(from_coarse->fitness) + ")";
   if (constrained < kMinConstrainedness)
     notes += std::string(notes.empty() ? "" : "; ") +
              "surface of revolution or similar: the unconstrained motion is kept from the prior";
-  {
-    // Fitness and RMSE of the final pose at the (tighter) fitness gate.
-    PointIndex target_index(target.fine);
-    const Overlap o = MeasureOverlap(source.fine, target_index, ToEigen(fine.target_from_source),
-                                     options.fitness_distance_mm, options.num_threads);
-    fine.fitness = o.fitness;
-    fine.rmse_mm = o.rmse;
-    fine.inliers = o.inliers;
+  // Does the result agree with the prior (then the turntable vouches for it)?
+  bool near_prior = false;
+  if (has_prior) {
+    Eigen::Vector3d c = Eigen::Vector3d::Zero();
+    for (const auto& p : source.fine.points_mm) c += V(p).cast<double>();
+    c /= static_cast<double>(source.fine.size());
+    const Eigen::Matrix4d A = ToEigen(fine.target_from_source);
+    const Eigen::Matrix4d B = ToEigen(*options.coarse.prior_target_from_source);
+    const double moved = ((A.topLeftCorner<3, 3>() - B.topLeftCorner<3, 3>()) * c +
+                          A.topRightCorner<3, 1>() - B.topRightCorner<3, 1>())
+                             .norm();
+    near_prior = RotationErrorDeg(fine.target_from_source, *options.coarse.prior_target_from_source) <
+                     3.0 &&
+                 moved < 5.0;
   }
-  if (fine.fitness >= options.min_fitness &&
+  if (!near_prior && fine.fitness >= options.min_fitness &&
       fine.rmse_mm > options.max_rmse_ratio * options.fitness_distance_mm) {
     fine.status = RegistrationResult::Status::kFailed;
     fine.message = "no overlap: the residuals (RMSE " + std::to_string(fine.rmse_mm) +

@@ -5,6 +5,7 @@
 #include <stdexcept>
 
 #include <opencv2/core.hpp>
+#include <opencv2/imgproc.hpp>
 
 #include "craftscan/pipeline/adcensus.h"
 
@@ -17,6 +18,8 @@ bool ReprojectOptions::IsValid(std::string* why) const {
   };
   if (std::isnan(min_depth_mm) || std::isnan(max_depth_mm)) return fail("depth limits are NaN");
   if (min_depth_mm > max_depth_mm) return fail("min_depth_mm > max_depth_mm");
+  if (!(min_texture_std >= 0)) return fail("min_texture_std must be >= 0");
+  if (texture_window < 3 || texture_window % 2 == 0) return fail("texture_window must be odd and >= 3");
   return true;
 }
 
@@ -41,6 +44,23 @@ std::vector<ColoredPoint> ReprojectToPoints(const cv::Mat& disparity, const cv::
     if (!std::isfinite(q.val[i])) throw std::invalid_argument("ReprojectToPoints: Q not finite");
   }
 
+  if (options.min_texture_std > 0 && color.empty()) {
+    throw std::invalid_argument("ReprojectToPoints: the texture filter needs the colour image");
+  }
+  cv::Mat texture_ok;  // CV_8U, non-zero where the texture passes
+  if (options.min_texture_std > 0) {
+    cv::Mat grey;
+    if (color.type() == CV_8UC3) cv::cvtColor(color, grey, cv::COLOR_BGR2GRAY);
+    else grey = color;
+    cv::Mat g, mean, mean2;
+    grey.convertTo(g, CV_32F);
+    const cv::Size window(options.texture_window, options.texture_window);
+    cv::boxFilter(g, mean, CV_32F, window);
+    cv::boxFilter(g.mul(g), mean2, CV_32F, window);
+    const double t = options.min_texture_std;
+    texture_ok = (mean2 - mean.mul(mean)) >= t * t;
+  }
+
   std::vector<ColoredPoint> points;
   points.reserve(static_cast<std::size_t>(disparity.total()));
   for (int y = 0; y < disparity.rows; ++y) {
@@ -48,6 +68,7 @@ std::vector<ColoredPoint> ReprojectToPoints(const cv::Mat& disparity, const cv::
     for (int x = 0; x < disparity.cols; ++x) {
       const float d = d_row[x];
       if (!IsValidDisparity(d) || !std::isfinite(d)) continue;
+      if (!texture_ok.empty() && texture_ok.at<std::uint8_t>(y, x) == 0) continue;
       const cv::Vec4d h = q * cv::Vec4d(x, y, d, 1.0);
       // W ≈ 0 is a point at infinity (zero disparity with equal principal
       // points); "≈" relative to the terms that make up W.

@@ -180,5 +180,33 @@ TEST(ReprojectTest, RejectsMismatchedInputs) {
   EXPECT_THROW(ReprojectToPoints(disparity, q, cv::Mat(), bad), std::invalid_argument);
 }
 
+TEST(ReprojectTest, TextureFilterDropsFlatRegions) {
+  const RectifiedRig rig{500.0, 1.0, 1.0, 100.0};
+  const cv::Mat q = HandQ(rig);
+  const cv::Mat disparity(40, 80, CV_32FC1, cv::Scalar(10.0f));
+  // Left half: dark and flat with σ = 1 grey-level noise (a black backdrop);
+  // right half: random texture (σ ≈ 70).
+  cv::Mat color(40, 80, CV_8UC3);
+  cv::RNG rng(3);
+  for (int y = 0; y < 40; ++y)
+    for (int x = 0; x < 80; ++x) {
+      const int v = x < 40 ? cv::saturate_cast<uchar>(12 + rng.gaussian(1.0)) : rng.uniform(0, 256);
+      color.at<cv::Vec3b>(y, x) = cv::Vec3b(v, v, v);
+    }
+  ReprojectOptions options;
+  options.min_texture_std = 2.5;
+  const auto points = ReprojectToPoints(disparity, q, color, options);
+  // The 7×7 window straddles the border 3 px into the flat half.
+  std::size_t left = 0, right = 0;
+  const double f = rig.f_px, cx = rig.cx;
+  for (const auto& p : points) (p.x * f / p.z + cx < 36.5 ? left : right)++;
+  EXPECT_EQ(left, 0u);
+  EXPECT_GE(right, 40u * 40u - 40u * 6u);  // all but the image border rows/cols' edge effects
+  EXPECT_EQ(ReprojectToPoints(disparity, q, color).size(), 80u * 40u);  // off by default
+  EXPECT_THROW(ReprojectToPoints(disparity, q, cv::Mat(), options), std::invalid_argument);
+  options.texture_window = 4;
+  EXPECT_THROW(ReprojectToPoints(disparity, q, color, options), std::invalid_argument);
+}
+
 }  // namespace
 }  // namespace craftscan

@@ -36,6 +36,14 @@ struct FusionOptions {
   // plane through the mean of the input points in its 3×3×3 voxel block
   // (mean of the block ⟂ the normal; a first-order moving-least-squares step).
   bool refine_along_normal = true;
+  // Multi-view consistency: a voxel is kept only when points of at least
+  // `min_views` different input clouds lie within `view_support_mm` of it
+  // (1 = off). Stereo leaves view-specific floaters (mismatches at
+  // silhouettes and occlusions, each at its own place in each view) while
+  // the surface is seen from several views. Clouds beyond the 64th count as
+  // the 64th. ≥ 1; view_support_mm > 0.
+  int min_views = 1;
+  double view_support_mm = 1.0;
 
   // False with a reason naming the field (why may be null).
   bool IsValid(std::string* why) const;
@@ -47,6 +55,7 @@ struct FusionStats {
   std::size_t nonfinite_points = 0;    // dropped: NaN/inf coordinates
   std::size_t out_of_range_points = 0; // dropped: beyond ±2^20 voxels from the origin
   std::size_t sparse_voxel_points = 0; // dropped: in voxels below min_points_per_voxel
+  std::size_t single_view_voxels = 0;  // dropped: supported by fewer than min_views clouds
   std::size_t output_points = 0;       // = occupied voxels kept
   double mean_points_per_voxel = 0;    // over the kept voxels
 };

@@ -34,6 +34,12 @@ struct WorkingVolume {
   double radius_mm = 120;      // distance from the axis
   double min_height_mm = 1.5;  // above the platter surface: removes the platter itself
   double max_height_mm = 200;  // above the platter surface
+  // Platter removal beyond the crop: points below platter_band_mm whose
+  // normal is within platter_normal_deg of the axis (level surface just
+  // above the platter: the platter lifted by matching errors) are dropped.
+  // A band at or below min_height_mm disables it.
+  double platter_band_mm = 6;
+  double platter_normal_deg = 30;
 
   bool IsValid(std::string* why) const;
 };

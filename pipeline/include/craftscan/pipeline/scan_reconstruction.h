@@ -45,7 +45,13 @@ struct ScanOptions {
   // span ≥ 360° − one step, i.e. the last view overlaps the first).
   LoopClosureOptions loop;
   bool close_loop = true;
-  FusionOptions fusion;
+  // Fusion; by default a voxel needs support from 2 views (floaters from
+  // stereo mismatches are view-specific, see FusionOptions::min_views).
+  FusionOptions fusion = [] {
+    FusionOptions f;
+    f.min_views = 2;
+    return f;
+  }();
   bool mesh = true;
   PoissonOptions poisson;
   // Measurement: the oriented box always; the box faces when `measure_box`.

@@ -86,45 +86,41 @@ void ParallelFor(std::size_t n, int threads, Body&& body) {
   }
 }
 
-// Voxel-grid average of points (and colours) with PCL's VoxelGrid.
-PointCloud VoxelDownsample(const PointCloud& cloud, double voxel_mm) {
-  if (voxel_mm <= 0 || cloud.empty()) return cloud;
-  PointCloud out;
-  if (cloud.HasColors()) {
-    pcl::PointCloud<pcl::PointXYZRGB>::Ptr in(new pcl::PointCloud<pcl::PointXYZRGB>);
-    in->resize(cloud.size());
-    for (std::size_t i = 0; i < cloud.size(); ++i) {
-      auto& q = (*in)[i];
-      q.x = cloud.points_mm[i][0];
-      q.y = cloud.points_mm[i][1];
-      q.z = cloud.points_mm[i][2];
-      q.r = cloud.colors_rgb[i][0];
-      q.g = cloud.colors_rgb[i][1];
-      q.b = cloud.colors_rgb[i][2];
-    }
-    pcl::VoxelGrid<pcl::PointXYZRGB> grid;
-    grid.setInputCloud(in);
-    const float leaf = static_cast<float>(voxel_mm);
-    grid.setLeafSize(leaf, leaf, leaf);
-    pcl::PointCloud<pcl::PointXYZRGB> filtered;
-    grid.filter(filtered);
-    out.points_mm.reserve(filtered.size());
-    out.colors_rgb.reserve(filtered.size());
-    for (const auto& q : filtered) {
-      out.points_mm.emplace_back(q.x, q.y, q.z);
-      out.colors_rgb.emplace_back(q.r, q.g, q.b);
-    }
-    return out;
-  }
-  auto in = ToPclXyz(cloud);
-  pcl::VoxelGrid<pcl::PointXYZ> grid;
+// PCL's VoxelGrid (average per voxel) on a cloud of PointT.
+template <typename PointT>
+pcl::PointCloud<PointT> VoxelGridFilter(const typename pcl::PointCloud<PointT>::Ptr& in,
+                                        double voxel_mm) {
+  pcl::VoxelGrid<PointT> grid;
   grid.setInputCloud(in);
   const float leaf = static_cast<float>(voxel_mm);
   grid.setLeafSize(leaf, leaf, leaf);
-  pcl::PointCloud<pcl::PointXYZ> filtered;
+  pcl::PointCloud<PointT> filtered;
   grid.filter(filtered);
-  out.points_mm.reserve(filtered.size());
-  for (const auto& q : filtered) out.points_mm.emplace_back(q.x, q.y, q.z);
+  return filtered;
+}
+
+// Voxel-grid average of points (and colours).
+PointCloud VoxelDownsample(const PointCloud& cloud, double voxel_mm) {
+  if (voxel_mm <= 0 || cloud.empty()) return cloud;
+  PointCloud out;
+  if (!cloud.HasColors()) {
+    for (const auto& q : VoxelGridFilter<pcl::PointXYZ>(ToPclXyz(cloud), voxel_mm))
+      out.points_mm.emplace_back(q.x, q.y, q.z);
+    return out;
+  }
+  pcl::PointCloud<pcl::PointXYZRGB>::Ptr in(new pcl::PointCloud<pcl::PointXYZRGB>);
+  in->resize(cloud.size());
+  for (std::size_t i = 0; i < cloud.size(); ++i) {
+    auto& q = (*in)[i];
+    const cv::Vec3f& p = cloud.points_mm[i];
+    const cv::Vec3b& c = cloud.colors_rgb[i];
+    q.x = p[0], q.y = p[1], q.z = p[2];
+    q.r = c[0], q.g = c[1], q.b = c[2];
+  }
+  for (const auto& q : VoxelGridFilter<pcl::PointXYZRGB>(in, voxel_mm)) {
+    out.points_mm.emplace_back(q.x, q.y, q.z);
+    out.colors_rgb.emplace_back(q.r, q.g, q.b);
+  }
   return out;
 }
 
@@ -490,12 +486,10 @@ std::vector<Fpfh> ComputeFpfh(const PointCloud& cloud, double radius_mm, int num
   in->resize(cloud.size());
   for (std::size_t i = 0; i < cloud.size(); ++i) {
     auto& q = (*in)[i];
-    q.x = cloud.points_mm[i][0];
-    q.y = cloud.points_mm[i][1];
-    q.z = cloud.points_mm[i][2];
-    q.normal_x = cloud.normals[i][0];
-    q.normal_y = cloud.normals[i][1];
-    q.normal_z = cloud.normals[i][2];
+    const cv::Vec3f& p = cloud.points_mm[i];
+    const cv::Vec3f& n = cloud.normals[i];
+    q.x = p[0], q.y = p[1], q.z = p[2];
+    q.normal_x = n[0], q.normal_y = n[1], q.normal_z = n[2];
   }
   pcl::FPFHEstimationOMP<pcl::PointNormal, pcl::PointNormal, pcl::FPFHSignature33> fpfh(
       std::max(1, num_threads));

@@ -106,6 +106,43 @@ TEST(FusionTest, TwoNoisyCopiesReduceNoise) {
   EXPECT_NEAR(red / static_cast<double>(fused.size()), 150, 5);
 }
 
+TEST(FusionTest, MultiViewSupportDropsSingleViewFloaters) {
+  // Two views of the plane; the first also carries a clump of 500 floaters
+  // 10–20 mm above it (a stereo mismatch that only one view makes).
+  PointCloud a = NoisyPlane(0.5, 0.0, 0.1, 1, {200, 100, 50}, 1);
+  const PointCloud b = NoisyPlane(0.5, 0.25, 0.1, 1, {200, 100, 50}, 2);
+  std::mt19937 rng(3);
+  std::uniform_real_distribution<double> u(0, 1);
+  for (int i = 0; i < 500; ++i) {
+    const double x = 10 + 5 * u(rng), y = 10 + 5 * u(rng);
+    const cv::Vec3d p = cv::Vec3d(x, y, 0.2 * x + 0.1 * y + 5) + kPlaneNormal * (10 + 10 * u(rng));
+    a.points_mm.emplace_back(p);
+    a.normals.emplace_back(kPlaneNormal);
+    a.colors_rgb.push_back({0, 0, 0});
+  }
+  FusionOptions options;
+  options.voxel_mm = 0.5;
+  std::string error;
+  FusionStats stats;
+  const PointCloud all = FuseClouds({a, b}, options, &error, &stats);
+  ASSERT_FALSE(all.empty()) << error;
+  auto floaters = [](const PointCloud& c) {
+    return std::count_if(c.points_mm.begin(), c.points_mm.end(),
+                         [](const cv::Vec3f& p) { return std::abs(PlaneDistance(p)) > 2; });
+  };
+  EXPECT_GT(floaters(all), 400);  // one voxel each, mostly
+  options.min_views = 2;
+  const PointCloud filtered = FuseClouds({a, b}, options, &error, &stats);
+  ASSERT_FALSE(filtered.empty()) << error;
+  EXPECT_EQ(floaters(filtered), 0);
+  EXPECT_GT(stats.single_view_voxels, 400u);
+  // The plane seen by both views stays (all but a rim of single-view voxels).
+  EXPECT_GT(static_cast<double>(filtered.size()), 0.95 * static_cast<double>(all.size() - floaters(all)));
+  options.min_views = 0;
+  EXPECT_FALSE(options.IsValid(&error));
+  EXPECT_NE(error.find("min_views"), std::string::npos) << error;
+}
+
 TEST(FusionTest, SparseVoxelsAndNonFinitePointsAreDropped) {
   PointCloud cloud = NoisyPlane(0.25, 0.0, 0.05, +1, {10, 20, 30}, 3);
   const std::size_t plane_points = cloud.size();

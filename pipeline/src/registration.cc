@@ -338,6 +338,8 @@ bool RegistrationOptions::IsValid(std::string* why) const {
   if (min_points < 3) return Fail(why, "min_points must be ≥ 3");
   if (!(fitness_distance_mm > 0)) return Fail(why, "fitness_distance_mm must be > 0");
   if (!(max_rmse_ratio > 0)) return Fail(why, "max_rmse_ratio must be > 0");
+  if (!(prior_slide_deg >= 0)) return Fail(why, "prior_slide_deg must be ≥ 0");
+  if (!(prior_slide_gain >= 0)) return Fail(why, "prior_slide_gain must be ≥ 0");
   if (num_threads < 1) return Fail(why, "num_threads must be ≥ 1");
   return true;
 }
@@ -1135,6 +1137,25 @@ RegistrationResult RegisterPair(const ViewCloud& source, const ViewCloud& target
                    from_coarse->fitness < from_prior->fitness * kReplaceRatio);
   RegistrationResult fine = use_prior ? *from_prior : *from_coarse;
   fine.prior_kept = use_prior || coarse.prior_kept;
+  bool prior_pose_kept = false;
+  if (use_prior && options.prior_slide_deg > 0) {
+    // ICP that moves far from the prior without fitting better slid along
+    // a direction the geometry does not fix (a surface of revolution about
+    // the turntable axis): keep the turntable's own pose.
+    RegistrationResult at_prior = *from_prior;
+    at_prior.target_from_source = *options.coarse.prior_target_from_source;
+    evaluate(&at_prior);
+    const double moved_deg = RotationErrorDeg(from_prior->target_from_source, at_prior.target_from_source);
+    if (moved_deg > options.prior_slide_deg &&
+        from_prior->fitness < at_prior.fitness + options.prior_slide_gain) {
+      fine.target_from_source = at_prior.target_from_source;
+      fine.fitness = at_prior.fitness;
+      fine.rmse_mm = at_prior.rmse_mm;
+      fine.inliers = at_prior.inliers;
+      prior_pose_kept = true;
+    }
+  }
+
   fine.coarse_ms = coarse.time_ms;
   fine.fine_ms = (from_prior ? from_prior->time_ms : 0) + (from_coarse ? from_coarse->time_ms : 0);
   fine.correspondences = coarse.correspondences;
@@ -1142,7 +1163,10 @@ RegistrationResult RegisterPair(const ViewCloud& source, const ViewCloud& target
   if (prior_ok && coarse_ok && !use_prior)
     notes += std::string(notes.empty() ? "" : "; ") + "the prior was replaced (fitness " +
              std::to_string(from_prior->fitness) + " → " + std::to_string(from_coarse->fitness) + ")";
-  if (constrained < kMinConstrainedness)
+  if (prior_pose_kept)
+    notes += std::string(notes.empty() ? "" : "; ") +
+             "fine registration slid away from the prior without fitting better: the prior pose is kept";
+  if (constrained < kMinConstrainedness && !prior_pose_kept)
     notes += std::string(notes.empty() ? "" : "; ") +
              "surface of revolution or similar: the unconstrained motion is kept from the prior";
   // Does the result agree with the prior (then the turntable vouches for it)?

@@ -160,6 +160,13 @@ struct RegistrationOptions {
   // other everywhere, so their distances spread evenly over the gate (RMSE ≈
   // 0.58 of it), while a true overlap leaves residuals at the noise level.
   double max_rmse_ratio = 0.5;
+  // With a prior: when fine registration from it turns the pose by more than
+  // prior_slide_deg but gains less than prior_slide_gain in fitness, it slid
+  // along a direction the geometry does not fix (an egg turning about its own
+  // axis, which is the turntable's): the prior pose itself is kept (0 = off).
+  // On the simulated egg ICP slid 1.1–1.5° per pair at +0.00–0.005 fitness.
+  double prior_slide_deg = 0.3;
+  double prior_slide_gain = 0.02;
   int min_points = 30;  // fewer (coarse) points than this on either side: fails
   int num_threads = 1;  // ≥ 1; results are deterministic for a given count
 

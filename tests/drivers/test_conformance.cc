@@ -3,17 +3,21 @@
 // profile below, each loaded THROUGH the PluginLoader from the build's plugin
 // directory. A driver joins the suite with one DriverProfile. Fault tests
 // need a driver that can simulate the fault; they skip when the profile has
-// no config for it. All waiting goes through a fake clock.
+// no config for it. All waiting goes through a fake clock, except for drivers
+// of real serial devices (serial_turntable), which talk to an in-process
+// emulator on a PTY in real time.
 #include <gtest/gtest.h>
 
 #include <chrono>
 #include <cmath>
 #include <memory>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include "craftscan/drivers/plugin_loader.h"
 #include "fake_host.h"
+#include "turntable_emulator.h"
 
 namespace craftscan::drivers {
 namespace {
@@ -30,6 +34,10 @@ struct DriverProfile {
   int frames_before_loss = 0;
   // Added to `config`: moves take many host sleeps (for Abort). Empty: skip.
   DriverConfig slow_move_config;
+  bool has_camera = true;  // false: the camera tests skip (a turntable-only driver)
+  // A GRBL turntable emulator (tests/tools) is started per test and its PTY
+  // path passed as the `port` config key.
+  bool needs_turntable_emulator = false;
 };
 
 void PrintTo(const DriverProfile& profile, std::ostream* os) { *os << profile.name; }
@@ -42,7 +50,36 @@ std::vector<DriverProfile> Profiles() {
   sim.loss_config = {{"disconnect_after", "2"}, {"reconnect_failures", "1"}};
   sim.frames_before_loss = 2;
   sim.slow_move_config = {{"turntable_speed_deg_s", "30"}};
-  return {sim};
+
+  // The GRBL serial turntable on the PTY emulator: fast feed (600 deg/s) and
+  // short timeouts so every test stays well under 2 s. Its moves block in
+  // real time (no host sleeps), so the Abort-during-a-move test skips.
+  DriverProfile serial;
+  serial.name = "serial_turntable";
+  serial.plugin = "serial_turntable";
+  serial.config = {{"baud", "115200"},
+                   {"feed_deg_min", "36000"},
+                   {"homing", "true"},
+                   {"settle_ms", "0"},
+                   {"position_tolerance_deg", "0.05"},
+                   {"banner_timeout_ms", "300"},
+                   {"command_timeout_ms", "300"},
+                   {"homing_timeout_ms", "1000"},
+                   {"move_timeout_margin_ms", "300"},
+                   {"status_poll_ms", "5"}};
+  serial.has_camera = false;
+  serial.needs_turntable_emulator = true;
+  return {sim, serial};
+}
+
+// Fast emulator: homing takes 20 ms.
+std::unique_ptr<craftscan::testing::TurntableEmulator> StartEmulator() {
+  craftscan::testing::EmulatorOptions options;
+  options.homing_time = milliseconds(20);
+  std::string error;
+  auto emulator = craftscan::testing::TurntableEmulator::Start(options, &error);
+  EXPECT_TRUE(emulator) << error;
+  return emulator;
 }
 
 constexpr milliseconds kTimeout{2000};
@@ -57,6 +94,11 @@ class DriverConformance : public ::testing::TestWithParam<DriverProfile> {
     EXPECT_TRUE(status.ok()) << status.ToString();
     if (!plugin) return nullptr;
     DriverConfig config = GetParam().config;
+    if (GetParam().needs_turntable_emulator) {
+      if (!emulator_) emulator_ = StartEmulator();
+      if (!emulator_) return nullptr;
+      config.insert_or_assign("port", emulator_->slave_path());
+    }
     for (const auto& [key, value] : extra) config.insert_or_assign(key, value);
     std::unique_ptr<DriverInstance> instance;
     status = plugin->CreateInstance(config, fake_.services(), &instance);
@@ -92,7 +134,14 @@ class DriverConformance : public ::testing::TestWithParam<DriverProfile> {
   }
 
   test::FakeHost fake_;
+  std::unique_ptr<craftscan::testing::TurntableEmulator> emulator_;  // outlives the devices
 };
+
+// Camera tests skip for a driver without a camera.
+#define SKIP_WITHOUT_CAMERA()                                                          \
+  do {                                                                                 \
+    if (!GetParam().has_camera) GTEST_SKIP() << GetParam().name << " has no camera"; \
+  } while (0)
 
 // Expects `call` to return `expected`; any error must carry a message.
 #define EXPECT_CODE(call, expected)                                                   \
@@ -107,6 +156,7 @@ class DriverConformance : public ::testing::TestWithParam<DriverProfile> {
 // ------------------------------------------------------------------ camera --
 
 TEST_P(DriverConformance, CameraCallsBeforeOpenAreWrongState) {
+  SKIP_WITHOUT_CAMERA();
   auto camera = MakeCamera();
   ASSERT_TRUE(camera);
   EXPECT_EQ(camera->state(), CameraState::kClosed);
@@ -121,6 +171,7 @@ TEST_P(DriverConformance, CameraCallsBeforeOpenAreWrongState) {
 }
 
 TEST_P(DriverConformance, CameraOpenConfigureCaptureStop) {
+  SKIP_WITHOUT_CAMERA();
   auto camera = MakeCamera();
   ASSERT_TRUE(camera);
   const cv::Size sensor = camera->info().sensor_size;
@@ -164,6 +215,7 @@ TEST_P(DriverConformance, CameraOpenConfigureCaptureStop) {
 }
 
 TEST_P(DriverConformance, CameraUnbalancedStopIsWrongState) {
+  SKIP_WITHOUT_CAMERA();
   auto camera = MakeCamera();
   ASSERT_TRUE(camera);
   ASSERT_TRUE(camera->Open().ok());
@@ -179,6 +231,7 @@ TEST_P(DriverConformance, CameraUnbalancedStopIsWrongState) {
 }
 
 TEST_P(DriverConformance, CameraReconfigureOnlyWhenNotStreaming) {
+  SKIP_WITHOUT_CAMERA();
   auto camera = MakeCamera();
   ASSERT_TRUE(camera);
   ASSERT_NO_FATAL_FAILURE(StartStreaming(camera.get()));
@@ -201,6 +254,7 @@ TEST_P(DriverConformance, CameraReconfigureOnlyWhenNotStreaming) {
 }
 
 TEST_P(DriverConformance, CameraRoiAndInvalidSettings) {
+  SKIP_WITHOUT_CAMERA();
   auto camera = MakeCamera();
   ASSERT_TRUE(camera);
   ASSERT_TRUE(camera->Open().ok());
@@ -226,6 +280,7 @@ TEST_P(DriverConformance, CameraRoiAndInvalidSettings) {
 }
 
 TEST_P(DriverConformance, CameraLossAndRecovery) {
+  SKIP_WITHOUT_CAMERA();
   const DriverProfile& profile = GetParam();
   if (profile.loss_config.empty()) GTEST_SKIP() << profile.name << " cannot simulate a loss";
   auto camera = MakeCamera(profile.loss_config);
@@ -260,6 +315,7 @@ TEST_P(DriverConformance, CameraLossAndRecovery) {
 }
 
 TEST_P(DriverConformance, CameraCloseFromLost) {
+  SKIP_WITHOUT_CAMERA();
   const DriverProfile& profile = GetParam();
   if (profile.loss_config.empty()) GTEST_SKIP() << profile.name << " cannot simulate a loss";
   auto camera = MakeCamera(profile.loss_config);
@@ -360,6 +416,60 @@ TEST_P(DriverConformance, TurntableAbortStopsAMove) {
   EXPECT_LT(status.angle_deg, 90);
   EXPECT_CODE(turntable->MoveTo(90, std::chrono::minutes(10)), StatusCode::kOk);
   EXPECT_NEAR(turntable->Status().angle_deg, 90, 0.01);
+}
+
+// ------------------------------------------------- serial_turntable config --
+
+// The serial turntable plugin without an emulator: config errors and the
+// missing camera.
+class SerialTurntablePlugin : public ::testing::Test {
+ protected:
+  DriverStatus Create(const DriverConfig& config, std::unique_ptr<DriverInstance>* instance) {
+    PluginLoader loader(CRAFTSCAN_PLUGIN_DIR);
+    std::shared_ptr<const Plugin> plugin;
+    DriverStatus status = loader.Load("serial_turntable", &plugin);
+    EXPECT_TRUE(status.ok()) << status.ToString();
+    if (!plugin) return status;
+    EXPECT_EQ(plugin->kinds(), kCraftscanDriverTurntable);
+    return plugin->CreateInstance(config, fake_.services(), instance);
+  }
+
+  test::FakeHost fake_;
+};
+
+TEST_F(SerialTurntablePlugin, MissingPortIsAClearError) {
+  std::unique_ptr<DriverInstance> instance;
+  const DriverStatus status = Create({{"baud", "115200"}}, &instance);
+  EXPECT_EQ(status.code, StatusCode::kInvalidArgument) << status.ToString();
+  EXPECT_NE(status.message.find("missing config key 'port'"), std::string::npos)
+      << status.message;
+  EXPECT_FALSE(instance);
+}
+
+TEST_F(SerialTurntablePlugin, BadConfigValuesNameTheKey) {
+  const std::vector<std::pair<std::string, std::string>> bad = {
+      {"baud", "fast"},         {"feed_deg_min", "-1"}, {"homing", "maybe"},
+      {"settle_ms", "-5"},      {"position_tolerance_deg", "x"},
+      {"command_timeout_ms", "0"}, {"no_such_key", "1"}};
+  for (const auto& [key, value] : bad) {
+    std::unique_ptr<DriverInstance> instance;
+    const DriverStatus status = Create({{"port", "/dev/null"}, {key, value}}, &instance);
+    EXPECT_EQ(status.code, StatusCode::kInvalidArgument) << key << ": " << status.ToString();
+    EXPECT_NE(status.message.find("'" + key + "'"), std::string::npos) << status.message;
+    EXPECT_FALSE(instance) << key;
+  }
+}
+
+TEST_F(SerialTurntablePlugin, ProvidesNoCamera) {
+  std::unique_ptr<DriverInstance> instance;
+  const DriverStatus created = Create({{"port", "/dev/null"}}, &instance);
+  ASSERT_TRUE(created.ok()) << created.ToString();
+  ASSERT_TRUE(instance);
+  DriverStatus status;
+  EXPECT_FALSE(instance->CreateCamera(&status));
+  EXPECT_EQ(status.code, StatusCode::kUnsupported);
+  EXPECT_NE(status.message.find("turntable only"), std::string::npos) << status.message;
+  EXPECT_TRUE(instance->CreateTurntable(&status)) << status.ToString();
 }
 
 INSTANTIATE_TEST_SUITE_P(Drivers, DriverConformance, ::testing::ValuesIn(Profiles()),

@@ -3,6 +3,7 @@
 // a few dozen parameters, so a numeric Jacobian is cheap and exact enough).
 #include "craftscan/pipeline/loop_closure.h"
 
+#include "eigen_cv.h"
 #include <algorithm>
 #include <cmath>
 #include <functional>
@@ -17,20 +18,6 @@ namespace {
 
 using Mat4 = Eigen::Matrix4d;
 using Vec = Eigen::VectorXd;
-
-Mat4 ToEigen(const cv::Matx44d& m) {
-  Mat4 e;
-  for (int r = 0; r < 4; ++r)
-    for (int c = 0; c < 4; ++c) e(r, c) = m(r, c);
-  return e;
-}
-
-cv::Matx44d ToCv(const Mat4& e) {
-  cv::Matx44d m;
-  for (int r = 0; r < 4; ++r)
-    for (int c = 0; c < 4; ++c) m(r, c) = e(r, c);
-  return m;
-}
 
 Mat4 InverseRigid(const Mat4& T) {
   Mat4 inv = Mat4::Identity();
@@ -67,6 +54,14 @@ struct Problem {
   std::vector<Eigen::Vector3d> samples;
 };
 
+// Where the poses put sample point `s` of edge e's source minus where the
+// measured registration puts it (mm).
+Eigen::Vector3d EdgeResidual(const Mat4& model_target_from_source, const Mat4& measured,
+                             const Eigen::Vector3d& s) {
+  return (model_target_from_source.topLeftCorner<3, 3>() - measured.topLeftCorner<3, 3>()) * s +
+         (model_target_from_source.topRightCorner<3, 1>() - measured.topRightCorner<3, 1>());
+}
+
 // Residuals of poses view0_from_view over all edges and samples (mm),
 // weighted by sqrt(edge weight).
 Vec Residuals(const Problem& p, const std::vector<Mat4>& poses) {
@@ -77,16 +72,14 @@ Vec Residuals(const Problem& p, const std::vector<Mat4>& poses) {
     const Mat4 model = InverseRigid(poses[edge.target]) * poses[edge.source];
     const double w = std::sqrt(edge.weight);
     for (const auto& s : p.samples) {
-      const Eigen::Vector3d d = (model.topLeftCorner<3, 3>() - p.measured[e].topLeftCorner<3, 3>()) * s +
-                                (model.topRightCorner<3, 1>() - p.measured[e].topRightCorner<3, 1>());
-      r.segment<3>(k) = w * d;
+      r.segment<3>(k) = w * EdgeResidual(model, p.measured[e], s);
       k += 3;
     }
   }
   return r;
 }
 
-// Per-edge RMS residuals (unweighted) → overall RMS and max point residual.
+// RMS and max of the unweighted point residuals.
 void Figures(const Problem& p, const std::vector<Mat4>& poses, double* rms, double* max) {
   double sum = 0, mx = 0;
   std::size_t n = 0;
@@ -94,10 +87,7 @@ void Figures(const Problem& p, const std::vector<Mat4>& poses, double* rms, doub
     const PoseEdge& edge = p.edges[e];
     const Mat4 model = InverseRigid(poses[edge.target]) * poses[edge.source];
     for (const auto& s : p.samples) {
-      const Eigen::Vector3d a = model.topLeftCorner<3, 3>() * s + model.topRightCorner<3, 1>();
-      const Eigen::Vector3d b =
-          p.measured[e].topLeftCorner<3, 3>() * s + p.measured[e].topRightCorner<3, 1>();
-      const double d = (a - b).norm();
+      const double d = EdgeResidual(model, p.measured[e], s).norm();
       sum += d * d;
       mx = std::max(mx, d);
       ++n;

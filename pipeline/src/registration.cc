@@ -5,16 +5,12 @@
 
 #include "craftscan/pipeline/scan_dataset.h"
 
+#include "eigen_cv.h"
 #include <algorithm>
 #include <array>
-#include <atomic>
 #include <chrono>
 #include <cmath>
-#include <cstdio>
-#include <cstdlib>
-#include <cstring>
 #include <limits>
-#include <numeric>
 #include <random>
 
 #include <Eigen/Core>
@@ -40,20 +36,6 @@ double MsSince(Clock::time_point start) {
 bool Fail(std::string* why, const std::string& message) {
   if (why) *why = message;
   return false;
-}
-
-Eigen::Matrix4d ToEigen(const cv::Matx44d& m) {
-  Eigen::Matrix4d e;
-  for (int r = 0; r < 4; ++r)
-    for (int c = 0; c < 4; ++c) e(r, c) = m(r, c);
-  return e;
-}
-
-cv::Matx44d ToCv(const Eigen::Matrix4d& e) {
-  cv::Matx44d m;
-  for (int r = 0; r < 4; ++r)
-    for (int c = 0; c < 4; ++c) m(r, c) = e(r, c);
-  return m;
 }
 
 Eigen::Vector3f V(const cv::Vec3f& p) { return {p[0], p[1], p[2]}; }
@@ -395,11 +377,9 @@ ViewCloud ConditionCloud(const PointCloud& input, const ConditioningOptions& opt
   if (input.HasColors()) kept.colors_rgb.reserve(input.size());
   const cv::Matx44d& T = options.volume.turntable_from_cloud;
   const double r2 = options.volume.radius_mm * options.volume.radius_mm;
-  std::size_t non_finite = 0;
   for (std::size_t i = 0; i < input.size(); ++i) {
     const cv::Vec3f& p = input.points_mm[i];
     if (!std::isfinite(p[0]) || !std::isfinite(p[1]) || !std::isfinite(p[2])) {
-      ++non_finite;
       continue;
     }
     if (options.volume.enabled) {
@@ -413,7 +393,6 @@ ViewCloud ConditionCloud(const PointCloud& input, const ConditioningOptions& opt
     kept.points_mm.push_back(p);
     if (input.HasColors()) kept.colors_rgb.push_back(input.colors_rgb[i]);
   }
-  (void)non_finite;
   if (kept.empty()) {
     view.error = options.volume.enabled ? "no points left inside the working volume"
                                         : "the input cloud has no finite points";
@@ -771,36 +750,33 @@ RegistrationResult RegisterCoarse(const ViewCloud& source, const ViewCloud& targ
 
 // --- Fine ---------------------------------------------------------------------
 
-RegistrationResult RegisterFine(const ViewCloud& source, const ViewCloud& target,
-                                const cv::Matx44d& initial_target_from_source,
-                                const FineOptions& options, int num_threads) {
-  const auto start = Clock::now();
+namespace {
+
+// The source points fine registration uses: an even stride through the fine
+// cloud down to `max_points` (0 = all). Returns `fine` itself when no
+// stride is needed, else fills and returns *strided.
+const PointCloud& StridedSource(const PointCloud& fine, int max_points, PointCloud* strided) {
+  const std::size_t cap = max_points > 0 ? static_cast<std::size_t>(max_points) : fine.size();
+  if (fine.size() <= cap) return fine;
+  const double stride = static_cast<double>(fine.size()) / static_cast<double>(cap);
+  for (std::size_t k = 0; k < cap; ++k) {
+    const std::size_t i = static_cast<std::size_t>(k * stride);
+    strided->points_mm.push_back(fine.points_mm[i]);
+    strided->normals.push_back(fine.normals[i]);
+  }
+  return *strided;
+}
+
+// The ICP iterations of the fine stage: source points `s` (with normals)
+// against `target` (indexed by `target_index`) from `initial_target_from_source`.
+// Sets the pose, iterations and converged flag (status kOk), or a failure;
+// leaves fitness and timing to the caller.
+RegistrationResult IterateFine(const PointCloud& s, const ViewCloud& target,
+                               const PointIndex& target_index,
+                               const Eigen::Matrix4d& initial_target_from_source,
+                               const FineOptions& options, int threads) {
   RegistrationResult result;
-  std::string why;
-  if (!options.IsValid(&why)) {
-    result.message = "invalid options: " + why;
-    return result;
-  }
   const PointCloud& t = target.fine;
-  if (source.fine.size() < 3 || t.size() < 3 || !source.fine.HasNormals() || !t.HasNormals()) {
-    result.message = "fine clouds need at least 3 points with normals";
-    return result;
-  }
-  PointCloud strided;
-  const std::size_t cap = options.max_source_points > 0
-                              ? static_cast<std::size_t>(options.max_source_points)
-                              : source.fine.size();
-  if (source.fine.size() > cap) {
-    const double stride = static_cast<double>(source.fine.size()) / static_cast<double>(cap);
-    for (std::size_t k = 0; k < cap; ++k) {
-      const std::size_t i = static_cast<std::size_t>(k * stride);
-      strided.points_mm.push_back(source.fine.points_mm[i]);
-      strided.normals.push_back(source.fine.normals[i]);
-    }
-  }
-  const PointCloud& s = source.fine.size() > cap ? strided : source.fine;
-  const int threads = std::max(1, num_threads);
-  PointIndex target_index(t);
   const Eigen::Vector3d view_t(target.viewpoint_mm[0], target.viewpoint_mm[1],
                                target.viewpoint_mm[2]);
   const double cos_max = std::cos(options.max_normal_angle_deg * M_PI / 180.0);
@@ -814,7 +790,7 @@ RegistrationResult RegisterFine(const ViewCloud& source, const ViewCloud& target
   double radius = 0;
   for (const auto& p : s.points_mm) radius = std::max(radius, (V(p).cast<double>() - centroid).norm());
 
-  Eigen::Matrix4d T = ToEigen(initial_target_from_source);
+  Eigen::Matrix4d T = initial_target_from_source;
   double gate = options.max_correspondence_mm;
   struct Pair {
     float d2 = -1;  // < 0: rejected
@@ -824,8 +800,6 @@ RegistrationResult RegisterFine(const ViewCloud& source, const ViewCloud& target
   std::vector<Pair> pairs(s.size());
   int iteration = 0;
   bool converged = false;
-  double last_mean = std::numeric_limits<double>::quiet_NaN();
-  std::size_t last_count = 0;
   // Anderson acceleration (type II, as in AA-ICP / Fast and Robust ICP) of
   // the fixed-point map T → ICP step(T), on x = (radius·rotation vector,
   // translation). Weighted point-to-point ICP creeps along weakly
@@ -889,20 +863,18 @@ RegistrationResult RegisterFine(const ViewCloud& source, const ViewCloud& target
       result.message = "fine registration lost its correspondences (" + std::to_string(z) +
                        " pairs within " + std::to_string(gate) + " mm)";
       result.iterations = iteration;
-      result.time_ms = MsSince(start);
       return result;
     }
-    last_count = z;
-    last_mean = sum_d / static_cast<double>(z);
-    if (accelerated && last_mean > accepted_mean) {
+    const double mean = sum_d / static_cast<double>(z);
+    if (accelerated && mean > accepted_mean) {
       T = plain_step;  // the accelerated step made things worse: undo it
       hist_g.clear();
       hist_f.clear();
       accelerated = false;
       continue;
     }
-    accepted_mean = last_mean;
-    if (last_mean < options.stop_mean_distance_mm) {
+    accepted_mean = mean;
+    if (mean < options.stop_mean_distance_mm) {
       converged = true;
       break;
     }
@@ -950,8 +922,7 @@ RegistrationResult RegisterFine(const ViewCloud& source, const ViewCloud& target
       if (!x.allFinite()) {
         result.message = "point-to-plane system is singular";
         result.iterations = iteration;
-        result.time_ms = MsSince(start);
-        return result;
+          return result;
       }
       const Eigen::Vector3d w(x[0], x[1], x[2]);
       const double angle = w.norm();
@@ -1001,17 +972,44 @@ RegistrationResult RegisterFine(const ViewCloud& source, const ViewCloud& target
       break;
     }
   }
-  (void)last_count;
-  (void)last_mean;
-  const Overlap o = MeasureOverlap(s, target_index, T, options.max_correspondence_mm, threads);
   result.status = RegistrationResult::Status::kOk;
   result.target_from_source = ToCv(T);
-  result.fitness = o.fitness;
-  result.rmse_mm = o.rmse;
-  result.inliers = o.inliers;
   result.iterations = iteration;
   result.converged = converged;
   if (!converged) result.message = "stopped at max_iterations";
+  return result;
+}
+
+}  // namespace
+
+RegistrationResult RegisterFine(const ViewCloud& source, const ViewCloud& target,
+                                const cv::Matx44d& initial_target_from_source,
+                                const FineOptions& options, int num_threads) {
+  const auto start = Clock::now();
+  RegistrationResult result;
+  std::string why;
+  if (!options.IsValid(&why)) {
+    result.message = "invalid options: " + why;
+    return result;
+  }
+  const PointCloud& t = target.fine;
+  if (source.fine.size() < 3 || t.size() < 3 || !source.fine.HasNormals() || !t.HasNormals()) {
+    result.message = "fine clouds need at least 3 points with normals";
+    return result;
+  }
+  PointCloud strided;
+  const PointCloud& s = StridedSource(source.fine, options.max_source_points, &strided);
+  const int threads = std::max(1, num_threads);
+  const PointIndex target_index(t);
+  result = IterateFine(s, target, target_index, ToEigen(initial_target_from_source), options,
+                       threads);
+  if (result.IsUsable()) {
+    const Overlap o = MeasureOverlap(s, target_index, ToEigen(result.target_from_source),
+                                     options.max_correspondence_mm, threads);
+    result.fitness = o.fitness;
+    result.rmse_mm = o.rmse;
+    result.inliers = o.inliers;
+  }
   result.time_ms = MsSince(start);
   return result;
 }
@@ -1089,8 +1087,20 @@ RegistrationResult RegisterPair(const ViewCloud& source, const ViewCloud& target
         "revolution) and there is no prior pose";
     return result;
   }
+  // One target index and one strided source for every fine run below.
+  const int threads = options.num_threads;
+  const PointIndex target_index(target.fine);
+  PointCloud strided;
+  const PointCloud& fine_source =
+      StridedSource(source.fine, options.fine.max_source_points, &strided);
+  auto refine = [&](const cv::Matx44d& initial) {
+    const auto fine_start = Clock::now();
+    RegistrationResult r =
+        IterateFine(fine_source, target, target_index, ToEigen(initial), options.fine, threads);
+    r.time_ms = MsSince(fine_start);
+    return r;
+  };
   // Fitness and RMSE of a fine pose at the (tighter) fitness gate.
-  PointIndex target_index(target.fine);
   auto evaluate = [&](RegistrationResult* r) {
     const Overlap o = MeasureOverlap(source.fine, target_index, ToEigen(r->target_from_source),
                                      options.fitness_distance_mm, options.num_threads);
@@ -1110,16 +1120,14 @@ RegistrationResult RegisterPair(const ViewCloud& source, const ViewCloud& target
   constexpr double kReplaceRatio = 1.5;  // relative fitness gain
   std::optional<RegistrationResult> from_prior;
   if (has_prior) {
-    from_prior = RegisterFine(source, target, *options.coarse.prior_target_from_source, options.fine,
-                              options.num_threads);
+    from_prior = refine(*options.coarse.prior_target_from_source);
     if (from_prior->IsUsable()) evaluate(&*from_prior);
   }
   const RegistrationResult coarse =
       RegisterCoarse(source, target, options.coarse, options.num_threads);
   std::optional<RegistrationResult> from_coarse;
   if (coarse.IsUsable() && !(coarse.prior_kept && from_prior)) {
-    from_coarse = RegisterFine(source, target, coarse.target_from_source, options.fine,
-                               options.num_threads);
+    from_coarse = refine(coarse.target_from_source);
     if (from_coarse->IsUsable()) evaluate(&*from_coarse);
   }
   const bool prior_ok = from_prior && from_prior->IsUsable();

@@ -23,6 +23,22 @@ bool ReprojectOptions::IsValid(std::string* why) const {
   return true;
 }
 
+cv::Mat TextureMask(const cv::Mat& color, int window, double min_std) {
+  if (color.empty() || (color.type() != CV_8UC1 && color.type() != CV_8UC3)) {
+    throw std::invalid_argument("TextureMask: color must be a non-empty CV_8UC1 or CV_8UC3");
+  }
+  if (window < 3 || window % 2 == 0) {
+    throw std::invalid_argument("TextureMask: window must be odd and >= 3");
+  }
+  cv::Mat grey, g, mean, mean2;
+  if (color.type() == CV_8UC3) cv::cvtColor(color, grey, cv::COLOR_BGR2GRAY);
+  else grey = color;
+  grey.convertTo(g, CV_32F);
+  cv::boxFilter(g, mean, CV_32F, cv::Size(window, window));
+  cv::boxFilter(g.mul(g), mean2, CV_32F, cv::Size(window, window));
+  return (mean2 - mean.mul(mean)) >= min_std * min_std;
+}
+
 std::vector<ColoredPoint> ReprojectToPoints(const cv::Mat& disparity, const cv::Mat& Q,
                                             const cv::Mat& color, const ReprojectOptions& options) {
   std::string why;
@@ -47,19 +63,10 @@ std::vector<ColoredPoint> ReprojectToPoints(const cv::Mat& disparity, const cv::
   if (options.min_texture_std > 0 && color.empty()) {
     throw std::invalid_argument("ReprojectToPoints: the texture filter needs the colour image");
   }
-  cv::Mat texture_ok;  // CV_8U, non-zero where the texture passes
-  if (options.min_texture_std > 0) {
-    cv::Mat grey;
-    if (color.type() == CV_8UC3) cv::cvtColor(color, grey, cv::COLOR_BGR2GRAY);
-    else grey = color;
-    cv::Mat g, mean, mean2;
-    grey.convertTo(g, CV_32F);
-    const cv::Size window(options.texture_window, options.texture_window);
-    cv::boxFilter(g, mean, CV_32F, window);
-    cv::boxFilter(g.mul(g), mean2, CV_32F, window);
-    const double t = options.min_texture_std;
-    texture_ok = (mean2 - mean.mul(mean)) >= t * t;
-  }
+  const cv::Mat texture_ok =  // CV_8U, non-zero where the texture passes
+      options.min_texture_std > 0
+          ? TextureMask(color, options.texture_window, options.min_texture_std)
+          : cv::Mat();
 
   std::vector<ColoredPoint> points;
   points.reserve(static_cast<std::size_t>(disparity.total()));

@@ -281,12 +281,8 @@ bool RunSimScan(const sim::SceneOptions& scene_options, int num_views, double st
     // object: the background (its true disparity lies outside the band, so
     // any match there is false) and the platter.
     const cv::Matx44d turntable_from_rig = TurntableFromRig(c.turntable);
-    cv::Mat grey, g, mean, mean2;
-    cv::cvtColor(left, grey, cv::COLOR_BGR2GRAY);
-    grey.convertTo(g, CV_32F);
-    cv::boxFilter(g, mean, CV_32F, cv::Size(7, 7));
-    cv::boxFilter(g.mul(g), mean2, CV_32F, cv::Size(7, 7));
-    const cv::Mat textured = (mean2 - mean.mul(mean)) >= reproject.min_texture_std * reproject.min_texture_std;
+    const cv::Mat textured =
+        TextureMask(left, reproject.texture_window, reproject.min_texture_std);
     for (int v = 0; v < mask.rows; ++v) {
       const float* d = match.disparity.ptr<float>(v);
       const std::uint8_t* label = render.rectified_labels.ptr<std::uint8_t>(v);

@@ -41,6 +41,13 @@ struct ReprojectOptions {
 // or empty (grey 255).
 // Throws std::invalid_argument on mismatched inputs or invalid options.
 // Thread-safe.
+// The texture mask of ReprojectOptions::min_texture_std: CV_8UC1, 255 where
+// the grey-level standard deviation of `color` (CV_8UC1 or CV_8UC3 BGR) over
+// the window × window neighbourhood is at least min_std. Throws
+// std::invalid_argument on an empty or unsupported image or an even or
+// too small window.
+cv::Mat TextureMask(const cv::Mat& color, int window, double min_std);
+
 std::vector<ColoredPoint> ReprojectToPoints(const cv::Mat& disparity, const cv::Mat& Q,
                                             const cv::Mat& color,
                                             const ReprojectOptions& options = {});

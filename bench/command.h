@@ -35,5 +35,6 @@ std::unique_ptr<BenchCommand> MakeStereoCommand();
 std::unique_ptr<BenchCommand> MakeCalibCommand();
 std::unique_ptr<BenchCommand> MakeSimDepthCommand();
 std::unique_ptr<BenchCommand> MakeRegistrationCommand();
+std::unique_ptr<BenchCommand> MakeDdsCommand();
 
 }  // namespace craftscan::bench

@@ -1,20 +1,33 @@
 // The driver conformance suite: written against the abstract StereoCamera and
 // Turntable interfaces (camera.h, turntable.h) and run for every driver
 // profile below, each loaded THROUGH the PluginLoader from the build's plugin
-// directory. A driver joins the suite with one DriverProfile. Fault tests
-// need a driver that can simulate the fault; they skip when the profile has
-// no config for it. All waiting goes through a fake clock, except for drivers
-// of real serial devices (serial_turntable), which talk to an in-process
-// emulator on a PTY in real time.
+// directory. A driver joins the suite with one DriverProfile; what it talks
+// to (an emulator, fake devices) is its TestRig, set up per test. Fault tests
+// need a driver or rig that can make the fault; they skip otherwise.
+//
+//   driver            camera part                    turntable part
+//   sim               all, loss by config            all (fake clock)
+//   aravis            all, loss by killing a fake    - (camera only)
+//                     camera (Aravis fakes in a
+//                     private network namespace)
+//   serial_turntable  - (turntable only)             all, against the PTY GRBL
+//                                                    emulator in real time
+//
+// Host services are a fake clock (FakeHost): the sim waits on it; the aravis
+// and serial drivers wait on real I/O with real timeouts.
 #include <gtest/gtest.h>
 
 #include <chrono>
 #include <cmath>
+#include <functional>
 #include <memory>
+#include <optional>
 #include <string>
+#include <thread>
 #include <utility>
 #include <vector>
 
+#include "aravis_fakes.h"
 #include "craftscan/drivers/plugin_loader.h"
 #include "fake_host.h"
 #include "turntable_emulator.h"
@@ -23,24 +36,111 @@ namespace craftscan::drivers {
 namespace {
 
 using std::chrono::milliseconds;
+using Clock = std::chrono::steady_clock;
+
+// What a driver under test talks to, set up for each test.
+class TestRig {
+ public:
+  virtual ~TestRig() = default;
+  // Added to the profile's config (e.g. the emulator's PTY as `port`).
+  virtual DriverConfig Config() const { return {}; }
+  // A camera loss from outside the driver: LoseCamera() makes a device
+  // vanish mid-stream, RestoreCamera() brings it back power-cycled.
+  virtual bool CanLoseCamera() const { return false; }
+  virtual void LoseCamera() {}
+  virtual void RestoreCamera() {}
+  // The platter's true angle (deg from home), when the rig knows it.
+  virtual std::optional<double> TurntableAngle() const { return std::nullopt; }
+};
 
 struct DriverProfile {
   std::string name;     // test name suffix
   std::string plugin;   // craftscan-driver-<plugin>.so
   DriverConfig config;  // a small, fast device
+  // Makes the rig for one test. Null with *skip set: the environment lacks
+  // what the rig needs (the test skips); null without: the test fails.
+  // Empty function: no rig.
+  std::function<std::unique_ptr<TestRig>(std::string* skip)> make_rig;
   // Added to `config`: the camera is lost after `frames_before_loss` frames
-  // per connection. Empty: the driver cannot simulate a loss (tests skip).
+  // per connection. Empty: the loss comes from the rig (LoseCamera), if it can.
   DriverConfig loss_config;
-  int frames_before_loss = 0;
-  // Added to `config`: moves take many host sleeps (for Abort). Empty: skip.
+  int frames_before_loss = 2;
+  // Added to `config`: moves slow enough to be aborted or time out
+  // (turntable tests skip without it).
   DriverConfig slow_move_config;
-  bool has_camera = true;  // false: the camera tests skip (a turntable-only driver)
-  // A GRBL turntable emulator (tests/tools) is started per test and its PTY
-  // path passed as the `port` config key.
-  bool needs_turntable_emulator = false;
+  // Real time per host sleep during slow moves, so that a driver waiting on
+  // the fake clock (sim) is seen Moving by another thread.
+  milliseconds real_time_per_sleep{0};
+  bool has_camera = true;     // false: the camera tests skip
+  bool has_turntable = true;  // false: the turntable tests skip
+  // After Abort() mid-move: Ready at the stop angle (true) or Unhomed (the
+  // driver lost the position).
+  bool abort_keeps_position = true;
 };
 
 void PrintTo(const DriverProfile& profile, std::ostream* os) { *os << profile.name; }
+
+// The GRBL emulator on a PTY (tests/tools/turntable-emulator): fast homing.
+class EmulatorRig : public TestRig {
+ public:
+  static std::unique_ptr<TestRig> Make(std::string* skip) {
+    craftscan::testing::EmulatorOptions options;
+    options.homing_time = milliseconds(20);
+    std::string error;
+    auto emulator = craftscan::testing::TurntableEmulator::Start(options, &error);
+    if (!emulator) {
+      *skip = "";
+      ADD_FAILURE() << "turntable emulator: " << error;
+      return nullptr;
+    }
+    return std::unique_ptr<TestRig>(new EmulatorRig(std::move(emulator)));
+  }
+  DriverConfig Config() const override { return {{"port", emulator_->slave_path()}}; }
+  std::optional<double> TurntableAngle() const override {
+    return emulator_->machine_position_deg();  // homed at machine 0
+  }
+
+ private:
+  explicit EmulatorRig(std::unique_ptr<craftscan::testing::TurntableEmulator> emulator)
+      : emulator_(std::move(emulator)) {}
+  std::unique_ptr<craftscan::testing::TurntableEmulator> emulator_;
+};
+
+// Two Aravis fake GigE cameras, 640×480, polling their trigger at 500 Hz.
+class AravisRig : public TestRig {
+ public:
+  static std::unique_ptr<TestRig> Make(std::string* skip) {
+    const std::string why = aravis::test::EnterNetns();
+    if (!why.empty()) {
+      *skip = "no private network namespace: " + why;
+      return nullptr;
+    }
+    auto rig = std::unique_ptr<AravisRig>(new AravisRig);
+    rig->left_ = rig->NewFake("127.0.0.1", "LEFT01", 11);
+    rig->right_ = rig->NewFake("127.0.0.2", "RIGHT01", 99);
+    if (!rig->left_->running() || !rig->right_->running()) {
+      ADD_FAILURE() << "the Aravis fake cameras did not start";
+      return nullptr;
+    }
+    return rig;
+  }
+  bool CanLoseCamera() const override { return true; }
+  void LoseCamera() override { right_.reset(); }
+  void RestoreCamera() override {
+    right_ = NewFake("127.0.0.2", "RIGHT01", 99);
+    ASSERT_TRUE(right_->running());
+  }
+
+ private:
+  static std::unique_ptr<aravis::test::FakeCamera> NewFake(const char* address, const char* serial,
+                                                           int seed) {
+    aravis::test::FakeCameraOptions options;
+    options.sensor = cv::Size(640, 480);
+    options.trigger_poll_hz = 500;
+    return std::make_unique<aravis::test::FakeCamera>(address, serial, seed, options);
+  }
+  std::unique_ptr<aravis::test::FakeCamera> left_, right_;
+};
 
 std::vector<DriverProfile> Profiles() {
   DriverProfile sim;
@@ -50,10 +150,20 @@ std::vector<DriverProfile> Profiles() {
   sim.loss_config = {{"disconnect_after", "2"}, {"reconnect_failures", "1"}};
   sim.frames_before_loss = 2;
   sim.slow_move_config = {{"turntable_speed_deg_s", "30"}};
+  sim.real_time_per_sleep = milliseconds(1);
+
+  // The aravis plugin on two fake cameras; reconnect delays on the fake clock.
+  DriverProfile aravis;
+  aravis.name = "aravis";
+  aravis.plugin = "aravis";
+  aravis.config = {{"left", "127.0.0.1"}, {"right", "127.0.0.2"}, {"packet_size", "8000"},
+                   {"reconnect_attempts", "3"}, {"reconnect_delay_ms", "100"}};
+  aravis.make_rig = AravisRig::Make;
+  aravis.has_turntable = false;
 
   // The GRBL serial turntable on the PTY emulator: fast feed (600 deg/s) and
-  // short timeouts so every test stays well under 2 s. Its moves block in
-  // real time (no host sleeps), so the Abort-during-a-move test skips.
+  // short timeouts so every test stays well under 2 s; 60 deg/s for the
+  // moves that are aborted or time out.
   DriverProfile serial;
   serial.name = "serial_turntable";
   serial.plugin = "serial_turntable";
@@ -67,26 +177,33 @@ std::vector<DriverProfile> Profiles() {
                    {"homing_timeout_ms", "1000"},
                    {"move_timeout_margin_ms", "300"},
                    {"status_poll_ms", "5"}};
+  serial.make_rig = EmulatorRig::Make;
+  serial.slow_move_config = {{"feed_deg_min", "3600"}};
   serial.has_camera = false;
-  serial.needs_turntable_emulator = true;
-  return {sim, serial};
-}
-
-// Fast emulator: homing takes 20 ms.
-std::unique_ptr<craftscan::testing::TurntableEmulator> StartEmulator() {
-  craftscan::testing::EmulatorOptions options;
-  options.homing_time = milliseconds(20);
-  std::string error;
-  auto emulator = craftscan::testing::TurntableEmulator::Start(options, &error);
-  EXPECT_TRUE(emulator) << error;
-  return emulator;
+  return {sim, aravis, serial};
 }
 
 constexpr milliseconds kTimeout{2000};
 
 class DriverConformance : public ::testing::TestWithParam<DriverProfile> {
  protected:
-  // Creates a driver instance with the profile's config plus `extra`.
+  void SetUp() override {
+    // Before starting a rig: camera tests need a camera, turntable tests a turntable.
+    const std::string test = ::testing::UnitTest::GetInstance()->current_test_info()->name();
+    if (test.rfind("Camera", 0) == 0 && !GetParam().has_camera) {
+      GTEST_SKIP() << GetParam().name << " has no camera";
+    }
+    if (test.rfind("Turntable", 0) == 0 && !GetParam().has_turntable) {
+      GTEST_SKIP() << GetParam().name << " has no turntable";
+    }
+    if (!GetParam().make_rig) return;
+    std::string skip;
+    rig_ = GetParam().make_rig(&skip);
+    if (!rig_ && !skip.empty()) GTEST_SKIP() << GetParam().name << ": " << skip;
+    ASSERT_TRUE(rig_) << GetParam().name << ": the test rig did not start";
+  }
+
+  // Creates a driver instance with the profile's config, the rig's, then `extra`.
   std::unique_ptr<DriverInstance> MakeInstance(const DriverConfig& extra = {}) {
     PluginLoader loader(CRAFTSCAN_PLUGIN_DIR);
     std::shared_ptr<const Plugin> plugin;
@@ -94,10 +211,8 @@ class DriverConformance : public ::testing::TestWithParam<DriverProfile> {
     EXPECT_TRUE(status.ok()) << status.ToString();
     if (!plugin) return nullptr;
     DriverConfig config = GetParam().config;
-    if (GetParam().needs_turntable_emulator) {
-      if (!emulator_) emulator_ = StartEmulator();
-      if (!emulator_) return nullptr;
-      config.insert_or_assign("port", emulator_->slave_path());
+    if (rig_) {
+      for (const auto& [key, value] : rig_->Config()) config.insert_or_assign(key, value);
     }
     for (const auto& [key, value] : extra) config.insert_or_assign(key, value);
     std::unique_ptr<DriverInstance> instance;
@@ -124,24 +239,31 @@ class DriverConformance : public ::testing::TestWithParam<DriverProfile> {
     return turntable;
   }
 
+  // A turntable opened and homed (null, with a failure, if that fails).
+  std::unique_ptr<Turntable> MakeHomedTurntable(const DriverConfig& extra) {
+    auto turntable = MakeTurntable(extra);
+    if (!turntable) return nullptr;
+    DriverStatus status = turntable->Open();
+    if (status.ok()) status = turntable->Home(kTimeout);
+    EXPECT_TRUE(status.ok()) << status.ToString();
+    return status.ok() ? std::move(turntable) : nullptr;
+  }
+
   // Opens, configures and starts a camera.
   static void StartStreaming(StereoCamera* camera, const CameraSettings& settings = {}) {
-    ASSERT_TRUE(camera->Open().ok());
-    const DriverStatus status = camera->Configure(settings);
+    DriverStatus status = camera->Open();
+    ASSERT_TRUE(status.ok()) << status.ToString();
+    status = camera->Configure(settings);
     ASSERT_TRUE(status.ok()) << status.ToString();
     ASSERT_TRUE(camera->Start().ok());
     ASSERT_EQ(camera->state(), CameraState::kStreaming);
   }
 
   test::FakeHost fake_;
-  std::unique_ptr<craftscan::testing::TurntableEmulator> emulator_;  // outlives the devices
+  // Test bodies own their devices as locals, destroyed before the fixture:
+  // the rig outlives them.
+  std::unique_ptr<TestRig> rig_;
 };
-
-// Camera tests skip for a driver without a camera.
-#define SKIP_WITHOUT_CAMERA()                                                          \
-  do {                                                                                 \
-    if (!GetParam().has_camera) GTEST_SKIP() << GetParam().name << " has no camera"; \
-  } while (0)
 
 // Expects `call` to return `expected`; any error must carry a message.
 #define EXPECT_CODE(call, expected)                                                   \
@@ -156,7 +278,6 @@ class DriverConformance : public ::testing::TestWithParam<DriverProfile> {
 // ------------------------------------------------------------------ camera --
 
 TEST_P(DriverConformance, CameraCallsBeforeOpenAreWrongState) {
-  SKIP_WITHOUT_CAMERA();
   auto camera = MakeCamera();
   ASSERT_TRUE(camera);
   EXPECT_EQ(camera->state(), CameraState::kClosed);
@@ -171,13 +292,12 @@ TEST_P(DriverConformance, CameraCallsBeforeOpenAreWrongState) {
 }
 
 TEST_P(DriverConformance, CameraOpenConfigureCaptureStop) {
-  SKIP_WITHOUT_CAMERA();
   auto camera = MakeCamera();
   ASSERT_TRUE(camera);
-  const cv::Size sensor = camera->info().sensor_size;
-  ASSERT_FALSE(sensor.empty());
   EXPECT_CODE(camera->Open(), StatusCode::kOk);
   EXPECT_EQ(camera->state(), CameraState::kOpen);
+  const cv::Size sensor = camera->info().sensor_size;  // a real device says at Open
+  ASSERT_FALSE(sensor.empty());
   EXPECT_CODE(camera->Open(), StatusCode::kWrongState);
   EXPECT_CODE(camera->Start(), StatusCode::kWrongState);  // not configured yet
   CameraSettings settings;
@@ -215,7 +335,6 @@ TEST_P(DriverConformance, CameraOpenConfigureCaptureStop) {
 }
 
 TEST_P(DriverConformance, CameraUnbalancedStopIsWrongState) {
-  SKIP_WITHOUT_CAMERA();
   auto camera = MakeCamera();
   ASSERT_TRUE(camera);
   ASSERT_TRUE(camera->Open().ok());
@@ -231,7 +350,6 @@ TEST_P(DriverConformance, CameraUnbalancedStopIsWrongState) {
 }
 
 TEST_P(DriverConformance, CameraReconfigureOnlyWhenNotStreaming) {
-  SKIP_WITHOUT_CAMERA();
   auto camera = MakeCamera();
   ASSERT_TRUE(camera);
   ASSERT_NO_FATAL_FAILURE(StartStreaming(camera.get()));
@@ -254,7 +372,6 @@ TEST_P(DriverConformance, CameraReconfigureOnlyWhenNotStreaming) {
 }
 
 TEST_P(DriverConformance, CameraRoiAndInvalidSettings) {
-  SKIP_WITHOUT_CAMERA();
   auto camera = MakeCamera();
   ASSERT_TRUE(camera);
   ASSERT_TRUE(camera->Open().ok());
@@ -279,10 +396,17 @@ TEST_P(DriverConformance, CameraRoiAndInvalidSettings) {
   EXPECT_EQ(frame.settings.roi, roi.roi);
 }
 
+// The loss comes from the driver's config (a simulated disconnect) or from
+// the rig (a fake device killed mid-stream).
+bool CanLoseCamera(const DriverProfile& profile, const TestRig* rig) {
+  return !profile.loss_config.empty() || (rig != nullptr && rig->CanLoseCamera());
+}
+
 TEST_P(DriverConformance, CameraLossAndRecovery) {
-  SKIP_WITHOUT_CAMERA();
   const DriverProfile& profile = GetParam();
-  if (profile.loss_config.empty()) GTEST_SKIP() << profile.name << " cannot simulate a loss";
+  if (!CanLoseCamera(profile, rig_.get())) {
+    GTEST_SKIP() << profile.name << " cannot simulate a loss";
+  }
   auto camera = MakeCamera(profile.loss_config);
   ASSERT_TRUE(camera);
   CameraSettings settings;
@@ -293,6 +417,7 @@ TEST_P(DriverConformance, CameraLossAndRecovery) {
   for (int i = 0; i < profile.frames_before_loss; ++i) {
     ASSERT_TRUE(camera->Capture(kTimeout, &frame).ok()) << i;
   }
+  if (profile.loss_config.empty()) rig_->LoseCamera();
   EXPECT_CODE(camera->Capture(kTimeout, &frame), StatusCode::kDeviceLost);
   EXPECT_EQ(camera->state(), CameraState::kLost);
   // Lost until reconnected: every call but Reconnect/Close says so.
@@ -301,6 +426,9 @@ TEST_P(DriverConformance, CameraLossAndRecovery) {
   EXPECT_CODE(camera->Configure(settings), StatusCode::kDeviceLost);
   EXPECT_EQ(camera->state(), CameraState::kLost);
 
+  if (profile.loss_config.empty()) {
+    ASSERT_NO_FATAL_FAILURE(rig_->RestoreCamera());
+  }
   EXPECT_CODE(camera->Reconnect(), StatusCode::kOk);
   EXPECT_EQ(camera->state(), CameraState::kStreaming);  // back where it was
   ASSERT_TRUE(camera->Capture(kTimeout, &frame).ok());
@@ -315,14 +443,18 @@ TEST_P(DriverConformance, CameraLossAndRecovery) {
 }
 
 TEST_P(DriverConformance, CameraCloseFromLost) {
-  SKIP_WITHOUT_CAMERA();
   const DriverProfile& profile = GetParam();
-  if (profile.loss_config.empty()) GTEST_SKIP() << profile.name << " cannot simulate a loss";
+  if (!CanLoseCamera(profile, rig_.get())) {
+    GTEST_SKIP() << profile.name << " cannot simulate a loss";
+  }
   auto camera = MakeCamera(profile.loss_config);
   ASSERT_TRUE(camera);
   ASSERT_NO_FATAL_FAILURE(StartStreaming(camera.get()));
   StereoFrame frame;
-  for (int i = 0; i <= profile.frames_before_loss; ++i) camera->Capture(kTimeout, &frame);
+  if (profile.loss_config.empty()) rig_->LoseCamera();
+  for (int i = 0; i <= profile.frames_before_loss && camera->state() != CameraState::kLost; ++i) {
+    camera->Capture(kTimeout, &frame);
+  }
   ASSERT_EQ(camera->state(), CameraState::kLost);
   EXPECT_CODE(camera->Close(), StatusCode::kOk);
   EXPECT_EQ(camera->state(), CameraState::kClosed);
@@ -388,40 +520,88 @@ TEST_P(DriverConformance, TurntableAbortOutsideAMoveDoesNothing) {
   EXPECT_CODE(turntable->MoveTo(20, kTimeout), StatusCode::kOk);  // a stale abort is not kept
 }
 
-TEST_P(DriverConformance, TurntableAbortStopsAMove) {
+// Abort() from another thread while MoveTo() blocks: the move stops, MoveTo
+// returns kAborted, Status() reports where it stopped (Ready), or Unhomed
+// for a driver that loses the position; the turntable is usable again.
+TEST_P(DriverConformance, TurntableAbortDuringAMove) {
   const DriverProfile& profile = GetParam();
   if (profile.slow_move_config.empty()) GTEST_SKIP() << profile.name << " has no slow moves";
-  auto turntable = MakeTurntable(profile.slow_move_config);
+  auto turntable = MakeHomedTurntable(profile.slow_move_config);
   ASSERT_TRUE(turntable);
-  ASSERT_TRUE(turntable->Open().ok());
-  ASSERT_TRUE(turntable->Home(kTimeout).ok());
-  // Abort from inside the move, as another thread would: on the 3rd host
-  // sleep the state is Moving; Abort() must not block on the move.
-  int sleeps = 0;
-  TurntableState state_during_move = TurntableState::kClosed;
-  DriverStatus abort_status = DriverStatus::Error(StatusCode::kFault, "not called");
-  fake_.OnSleep([&] {
-    if (++sleeps == 3) {
-      state_during_move = turntable->Status().state;
-      abort_status = turntable->Abort();
-    }
-  });
-  EXPECT_CODE(turntable->MoveTo(90, std::chrono::minutes(10)), StatusCode::kAborted);
+  if (profile.real_time_per_sleep.count() > 0) {
+    fake_.OnSleep([&] { std::this_thread::sleep_for(profile.real_time_per_sleep); });
+  }
+  DriverStatus move = DriverStatus::Error(StatusCode::kFault, "not run");
+  std::thread mover([&] { move = turntable->MoveTo(90, std::chrono::minutes(1)); });
+  // Wait (bounded) until the move is under way, let it turn a little, abort.
+  const auto give_up = Clock::now() + std::chrono::seconds(5);
+  while (turntable->Status().state != TurntableState::kMoving && Clock::now() < give_up) {
+    std::this_thread::sleep_for(milliseconds(1));
+  }
+  const TurntableState during = turntable->Status().state;
+  std::this_thread::sleep_for(milliseconds(100));
+  const DriverStatus abort = turntable->Abort();
+  mover.join();
   fake_.OnSleep({});
-  EXPECT_EQ(state_during_move, TurntableState::kMoving);
-  EXPECT_TRUE(abort_status.ok()) << abort_status.ToString();
+  EXPECT_EQ(during, TurntableState::kMoving);
+  EXPECT_TRUE(abort.ok()) << abort.ToString();
+  EXPECT_EQ(move.code, StatusCode::kAborted) << move.ToString();
   const TurntableStatus status = turntable->Status();
-  EXPECT_EQ(status.state, TurntableState::kReady);
-  EXPECT_GT(status.angle_deg, 0);
-  EXPECT_LT(status.angle_deg, 90);
-  EXPECT_CODE(turntable->MoveTo(90, std::chrono::minutes(10)), StatusCode::kOk);
+  if (profile.abort_keeps_position) {
+    EXPECT_EQ(status.state, TurntableState::kReady);
+    EXPECT_TRUE(status.homed);
+    EXPECT_GT(status.angle_deg, 0.5);
+    EXPECT_LT(status.angle_deg, 89.5);
+    if (rig_ && rig_->TurntableAngle()) {
+      const double stopped = *rig_->TurntableAngle();
+      EXPECT_NEAR(status.angle_deg, stopped, 0.01);  // reports where it really is
+      std::this_thread::sleep_for(milliseconds(50));
+      EXPECT_NEAR(*rig_->TurntableAngle(), stopped, 1e-9);  // and it stands still
+    }
+  } else {
+    EXPECT_EQ(status.state, TurntableState::kUnhomed);
+    EXPECT_FALSE(status.homed);
+    EXPECT_CODE(turntable->Home(kTimeout), StatusCode::kOk);
+  }
+  EXPECT_CODE(turntable->MoveTo(90, std::chrono::minutes(1)), StatusCode::kOk);
   EXPECT_NEAR(turntable->Status().angle_deg, 90, 0.01);
+  if (rig_ && rig_->TurntableAngle()) {
+    EXPECT_NEAR(*rig_->TurntableAngle(), 90, 0.01);
+  }
+}
+
+// A move that cannot finish within the call's timeout is stopped: kTimeout,
+// state Fault with a reason; Home() makes the turntable usable again.
+TEST_P(DriverConformance, TurntableMoveTimeoutStopsAndFaults) {
+  const DriverProfile& profile = GetParam();
+  if (profile.slow_move_config.empty()) GTEST_SKIP() << profile.name << " has no slow moves";
+  auto turntable = MakeHomedTurntable(profile.slow_move_config);
+  ASSERT_TRUE(turntable);
+  const auto t0 = Clock::now();
+  EXPECT_CODE(turntable->MoveTo(90, milliseconds(100)), StatusCode::kTimeout);  // needs > 1 s
+  EXPECT_LT(Clock::now() - t0, milliseconds(1000));
+  TurntableStatus status = turntable->Status();
+  EXPECT_EQ(status.state, TurntableState::kFault);
+  EXPECT_FALSE(status.fault_reason.empty());
+  if (rig_ && rig_->TurntableAngle()) {
+    const double stopped = *rig_->TurntableAngle();
+    EXPECT_LT(stopped, 89);
+    std::this_thread::sleep_for(milliseconds(50));
+    EXPECT_NEAR(*rig_->TurntableAngle(), stopped, 1e-9);  // really stopped
+  }
+  EXPECT_CODE(turntable->MoveTo(10, kTimeout), StatusCode::kWrongState);  // Fault: Home first
+  EXPECT_CODE(turntable->Home(kTimeout), StatusCode::kOk);
+  status = turntable->Status();
+  EXPECT_EQ(status.state, TurntableState::kReady);
+  EXPECT_TRUE(status.fault_reason.empty());
+  EXPECT_CODE(turntable->MoveTo(10, kTimeout), StatusCode::kOk);
 }
 
 // ------------------------------------------------- serial_turntable config --
 
-// The serial turntable plugin without an emulator: config errors and the
-// missing camera.
+// The serial turntable plugin beyond the generic suite: config errors, the
+// missing camera, and (on the PTY emulator) the per-call timeouts and the
+// abort=reset mode.
 class SerialTurntablePlugin : public ::testing::Test {
  protected:
   DriverStatus Create(const DriverConfig& config, std::unique_ptr<DriverInstance>* instance) {
@@ -432,6 +612,36 @@ class SerialTurntablePlugin : public ::testing::Test {
     if (!plugin) return status;
     EXPECT_EQ(plugin->kinds(), kCraftscanDriverTurntable);
     return plugin->CreateInstance(config, fake_.services(), instance);
+  }
+
+  // An emulator whose homing takes `homing`, and an opened turntable on it.
+  struct SerialBench {
+    std::unique_ptr<craftscan::testing::TurntableEmulator> emulator;
+    std::unique_ptr<DriverInstance> instance;
+    std::unique_ptr<Turntable> turntable;  // declared last: closed first
+  };
+  SerialBench StartSerial(milliseconds homing, const DriverConfig& extra) {
+    SerialBench bench;
+    craftscan::testing::EmulatorOptions options;
+    options.homing_time = homing;
+    std::string error;
+    bench.emulator = craftscan::testing::TurntableEmulator::Start(options, &error);
+    EXPECT_TRUE(bench.emulator) << error;
+    if (!bench.emulator) return bench;
+    DriverConfig config = {{"port", bench.emulator->slave_path()}, {"feed_deg_min", "3600"},
+                           {"banner_timeout_ms", "300"},           {"command_timeout_ms", "300"},
+                           {"homing_timeout_ms", "2000"},          {"status_poll_ms", "5"}};
+    for (const auto& [key, value] : extra) config.insert_or_assign(key, value);
+    const DriverStatus created = Create(config, &bench.instance);
+    EXPECT_TRUE(created.ok()) << created.ToString();
+    if (!bench.instance) return bench;
+    DriverStatus status;
+    bench.turntable = bench.instance->CreateTurntable(&status);
+    EXPECT_TRUE(bench.turntable) << status.ToString();
+    if (bench.turntable) {
+      EXPECT_TRUE(bench.turntable->Open().ok());
+    }
+    return bench;
   }
 
   test::FakeHost fake_;
@@ -450,7 +660,8 @@ TEST_F(SerialTurntablePlugin, BadConfigValuesNameTheKey) {
   const std::vector<std::pair<std::string, std::string>> bad = {
       {"baud", "fast"},         {"feed_deg_min", "-1"}, {"homing", "maybe"},
       {"settle_ms", "-5"},      {"position_tolerance_deg", "x"},
-      {"command_timeout_ms", "0"}, {"no_such_key", "1"}};
+      {"command_timeout_ms", "0"}, {"no_such_key", "1"},
+      {"abort", "stop"},        {"hold_timeout_ms", "0"}};
   for (const auto& [key, value] : bad) {
     std::unique_ptr<DriverInstance> instance;
     const DriverStatus status = Create({{"port", "/dev/null"}, {key, value}}, &instance);
@@ -470,6 +681,55 @@ TEST_F(SerialTurntablePlugin, ProvidesNoCamera) {
   EXPECT_EQ(status.code, StatusCode::kUnsupported);
   EXPECT_NE(status.message.find("turntable only"), std::string::npos) << status.message;
   EXPECT_TRUE(instance->CreateTurntable(&status)) << status.ToString();
+}
+
+TEST_F(SerialTurntablePlugin, HomeHonoursTheCallTimeout) {
+  SerialBench bench = StartSerial(milliseconds(600), {});
+  ASSERT_TRUE(bench.turntable);
+  Turntable& table = *bench.turntable;
+  const auto t0 = Clock::now();
+  const DriverStatus status = table.Home(milliseconds(100));  // homing takes 600 ms
+  const auto took = Clock::now() - t0;
+  EXPECT_EQ(status.code, StatusCode::kTimeout) << status.ToString();
+  EXPECT_NE(status.message.find("Home()'s timeout of 100 ms"), std::string::npos) << status.message;
+  EXPECT_GE(took, milliseconds(95));
+  EXPECT_LT(took, milliseconds(400));
+  EXPECT_EQ(table.Status().state, TurntableState::kFault);
+  EXPECT_EQ(bench.emulator->state(), "Alarm");  // the homing cycle was stopped
+  const DriverStatus again = table.Home(milliseconds(3000));
+  EXPECT_TRUE(again.ok()) << again.ToString();
+  EXPECT_EQ(table.Status().state, TurntableState::kReady);
+  // Zero or negative timeouts are refused, naming the call.
+  EXPECT_EQ(table.Home(milliseconds(0)).code, StatusCode::kInvalidArgument);
+  const DriverStatus negative = table.MoveTo(10, milliseconds(-1));
+  EXPECT_EQ(negative.code, StatusCode::kInvalidArgument);
+  EXPECT_NE(negative.message.find("MoveTo: timeout"), std::string::npos) << negative.message;
+  EXPECT_EQ(table.Status().state, TurntableState::kReady);
+}
+
+TEST_F(SerialTurntablePlugin, AbortWithResetLosesThePosition) {
+  SerialBench bench = StartSerial(milliseconds(20), {{"abort", "reset"}});
+  ASSERT_TRUE(bench.turntable);
+  Turntable& table = *bench.turntable;
+  ASSERT_TRUE(table.Home(milliseconds(2000)).ok());
+  DriverStatus move;
+  std::thread mover([&] { move = table.MoveTo(90, std::chrono::minutes(1)); });  // 1.5 s
+  const auto give_up = Clock::now() + std::chrono::seconds(5);
+  while (table.Status().state != TurntableState::kMoving && Clock::now() < give_up) {
+    std::this_thread::sleep_for(milliseconds(1));
+  }
+  std::this_thread::sleep_for(milliseconds(100));
+  EXPECT_TRUE(table.Abort().ok());
+  mover.join();
+  EXPECT_EQ(move.code, StatusCode::kAborted) << move.ToString();
+  EXPECT_EQ(table.Status().state, TurntableState::kUnhomed);
+  EXPECT_FALSE(table.Status().homed);
+  EXPECT_EQ(bench.emulator->state(), "Alarm");  // GRBL: reset in motion
+  const double stopped = bench.emulator->machine_position_deg();
+  EXPECT_GT(stopped, 0.5);
+  EXPECT_LT(stopped, 89.5);
+  EXPECT_TRUE(table.Home(milliseconds(2000)).ok());
+  EXPECT_TRUE(table.MoveTo(5, milliseconds(2000)).ok());
 }
 
 INSTANTIATE_TEST_SUITE_P(Drivers, DriverConformance, ::testing::ValuesIn(Profiles()),

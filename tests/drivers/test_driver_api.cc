@@ -157,5 +157,52 @@ TEST(HostServices, DefaultsFillEveryMember) {
   host.events({});
 }
 
+TEST(Reconnector, WakeEndsTheBackOffWithinOneSlice) {
+  FakeHost fake;
+  ReconnectPolicy policy;
+  policy.max_attempts = 3;
+  policy.initial_delay = milliseconds(60'000);  // a long back-off the wake must cut short
+  policy.max_delay = milliseconds(60'000);
+  Reconnector reconnector(policy, fake.services(), "test/usbcam");
+  ReconnectWake wake;
+  // The device "arrives" during the 3rd slice of the first delay.
+  int slices = 0;
+  fake.OnSleep([&] {
+    if (++slices == 3) wake.Notify();
+  });
+  const std::int64_t start = fake.now_ns();
+  std::vector<std::int64_t> attempt_times;
+  const DriverStatus status = reconnector.Run(
+      [&] {
+        attempt_times.push_back(fake.now_ns() - start);
+        return DriverStatus::Ok();
+      },
+      &wake, milliseconds(10));
+  fake.OnSleep({});
+  EXPECT_TRUE(status.ok()) << status.ToString();
+  EXPECT_EQ(attempt_times, (std::vector<std::int64_t>{30 * kMs}));  // not 60 s
+  EXPECT_EQ(fake.sleeps(), (std::vector<std::int64_t>{10 * kMs, 10 * kMs, 10 * kMs}));
+  EXPECT_FALSE(wake.Consume());  // consumed by Run
+
+  // A wake notified before Run skips the first delay entirely; without one,
+  // the whole delay is slept (in slices).
+  FakeHost fake2;
+  Reconnector r2(policy, fake2.services(), "test/usbcam");
+  wake.Notify();
+  int attempts = 0;
+  const DriverStatus gave_up = r2.Run(
+      [&] {
+        ++attempts;
+        return DriverStatus::Error(StatusCode::kDeviceLost, "unplugged");
+      },
+      &wake, milliseconds(20'000));
+  EXPECT_EQ(gave_up.code, StatusCode::kDeviceLost);
+  EXPECT_EQ(attempts, 3);
+  std::int64_t total = 0;
+  for (std::int64_t ns : fake2.sleeps()) total += ns;
+  EXPECT_EQ(total, 2 * 60'000 * kMs);    // delays before attempts 2 and 3 only
+  EXPECT_EQ(fake2.sleeps().size(), 6u);  // 3 slices each
+}
+
 }  // namespace
 }  // namespace craftscan::drivers

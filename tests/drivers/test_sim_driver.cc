@@ -1,20 +1,27 @@
 // The sim driver plugin beyond the conformance suite: the camera pair and the
 // turntable share one scene (a capture after a move equals a direct render at
-// that angle), move timing on the injected clock, and the fault knobs. The
+// that angle), move timing on the injected clock, the fault knobs, and the
+// calibration scenes (held_board, platter_board) calibrating the rig and the
+// turntable axis through the driver API as the daemon's jobs do. The
 // devices are loaded through the PluginLoader; the direct renders use
 // craftscan_sim with the driver's own option mapping (driver_options.h).
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <cstdio>
 #include <numbers>
 #include <string>
 #include <thread>
+#include <utility>
 #include <vector>
 
 #include <opencv2/core.hpp>
 
 #include "craftscan/drivers/plugin_loader.h"
+#include "craftscan/pipeline/calibration.h"
+#include "craftscan/sim/calibration_scenes.h"
 #include "craftscan/sim/driver_options.h"
 #include "craftscan/sim/station.h"
 #include "fake_host.h"
@@ -271,6 +278,255 @@ TEST_F(SimDriver, ExposureAndGainBrightenTheImage) {
   CameraSettings too_much;
   too_much.exposure_us = 2e6;  // linear exposure 200 > 100
   EXPECT_EQ(camera_->Configure(too_much).code, StatusCode::kInvalidArgument);
+}
+
+// --- calibration scenes ------------------------------------------------------
+
+// Frame i of held_board shows the board at held pose i mod 16, exactly as a
+// direct render of SimHeldBoardSceneOptions(…, i) (images only); the board
+// moves between frames and comes back with frame 16.
+TEST_F(SimDriver, HeldBoardFrameIdPicksThePose) {
+  for (const char* type : {"chessboard", "charuco"}) {
+    SCOPED_TRACE(type);
+    const DriverConfig config =
+        With(kSmall, {{"scene", "held_board"}, {"board_type", type}, {"supersampling", "1"}});
+    ASSERT_NO_FATAL_FAILURE(Create(config));
+    SimDriverOptions options;
+    std::string why;
+    ASSERT_TRUE(SimDriverOptionsFromConfig(config, &options, &why)) << why;
+    std::vector<StereoFrame> frames;
+    for (int i = 0; i < 17; ++i) frames.push_back(Capture());
+    auto station = SimStation::Create(SimRigOptions(options, frames[1].settings), &why);
+    ASSERT_TRUE(station) << why;
+    for (const std::uint64_t id : {1u, 16u}) {
+      ASSERT_EQ(frames[id].left.frame_id, id);
+      auto scene = Scene::Create(SimHeldBoardSceneOptions(options, *station, id), &why);
+      ASSERT_TRUE(scene) << why;
+      const StereoRender direct = station->Render(*scene, id, RenderOutputs::kImagesOnly);
+      EXPECT_TRUE(BitIdentical(frames[id].left.image, direct.left));
+      EXPECT_TRUE(BitIdentical(frames[id].right.image, direct.right));
+    }
+    const SceneOptions pose0 = SimHeldBoardSceneOptions(options, *station, 0);
+    const SceneOptions pose16 = SimHeldBoardSceneOptions(options, *station, 16);
+    EXPECT_EQ(pose0.board.rotation_rad, pose16.board.rotation_rad);
+    EXPECT_EQ(pose0.board.translation_mm, pose16.board.translation_mm);
+    EXPECT_EQ(pose0.board.spec.type, options.board.type);
+    // Frames 0 and 16: the same pose, other noise (σ = 1 grey level).
+    cv::Mat diff;
+    cv::absdiff(frames[0].left.image, frames[16].left.image, diff);
+    EXPECT_LT(cv::mean(diff)[1], 1.5);
+    EXPECT_FALSE(BitIdentical(frames[0].left.image, frames[16].left.image));
+    // Frames 0 and 1: the board moved.
+    cv::absdiff(frames[0].left.image, frames[1].left.image, diff);
+    EXPECT_GT(cv::countNonZero(diff.reshape(1) > 60), 1000);
+  }
+}
+
+// The exact calibration of the driver's rig and the figures a calibration is
+// judged by.
+struct RigErrors {
+  double focal_pct = 0;     // largest |Δf| / f of fx, fy of both cameras
+  double principal_px = 0;  // largest |Δ(cx, cy)| of both cameras
+  double baseline_mm = 0;
+};
+
+RigErrors CompareRig(const StereoCalibration& estimate, const StereoCalibration& truth) {
+  RigErrors e;
+  for (int camera = 0; camera < 2; ++camera) {
+    const cv::Matx33d& k = (camera ? estimate.right : estimate.left).camera_matrix;
+    const cv::Matx33d& t = (camera ? truth.right : truth.left).camera_matrix;
+    for (int axis = 0; axis < 2; ++axis) {
+      e.focal_pct = std::max(e.focal_pct, 100 * std::abs(k(axis, axis) / t(axis, axis) - 1));
+    }
+    e.principal_px = std::max(e.principal_px, std::hypot(k(0, 2) - t(0, 2), k(1, 2) - t(1, 2)));
+  }
+  e.baseline_mm = std::abs(estimate.baseline_mm() - truth.baseline_mm());
+  return e;
+}
+
+double SecondsSince(std::chrono::steady_clock::time_point start) {
+  return std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+}
+
+// The full-size default rig through the driver, point sampled (1×1) to save
+// time, as the daemon's calibrate job runs it: 16 captures of the held
+// chessboard, DetectStereoBoard, CalibrateStereo. Tolerances of the sim
+// calibration test (test_sim_calibration: focal 0.2 %, baseline 0.1 mm,
+// stereo RMS 0.2 px); at 1×1 the corners are ~2× noisier than at 2×2, so the
+// principal point (held to 3 px there) is only printed.
+TEST_F(SimDriver, HeldBoardCapturesCalibrateTheRig) {
+  const DriverConfig config = {{"scene", "held_board"}, {"threads", "2"}, {"supersampling", "1"}};
+  ASSERT_NO_FATAL_FAILURE(Create(config));
+  SimDriverOptions options;
+  std::string why;
+  ASSERT_TRUE(SimDriverOptionsFromConfig(config, &options, &why)) << why;
+  const BoardSpec& board = options.board;
+  double capture_s = 0, detect_s = 0;
+  std::vector<StereoBoardView> views;
+  for (int i = 0; i < 16; ++i) {
+    auto start = std::chrono::steady_clock::now();
+    const StereoFrame frame = Capture();
+    capture_s += SecondsSince(start);
+    start = std::chrono::steady_clock::now();
+    views.push_back(
+        DetectStereoBoard("view" + std::to_string(i), frame.left.image, frame.right.image, board));
+    detect_s += SecondsSince(start);
+    EXPECT_TRUE(views.back().left.found && views.back().right.found)
+        << "view " << i << ": " << views.back().left.message << " / " << views.back().right.message;
+  }
+  StereoCalibrationOptions calibration_options;
+  calibration_options.rectification.zero_disparity = false;  // as the station's
+  const auto start = std::chrono::steady_clock::now();
+  const StereoCalibrationResult r =
+      CalibrateStereo(views, options.image_size, board, calibration_options);
+  const double calibrate_s = SecondsSince(start);
+  ASSERT_EQ(r.status, StereoCalibrationResult::Status::kOk) << r.message;
+  auto station = SimStation::Create(SimRigOptions(options), &why);
+  ASSERT_TRUE(station) << why;
+  const RigErrors e = CompareRig(r.calibration, station->calibration());
+  std::printf(
+      "held_board through the driver (1x1): %d views; focal %.4f %%, principal point %.3f px, "
+      "baseline %.4f mm; RMS stereo %.4f px; per view: capture %.2f s, detect %.2f s; "
+      "calibrate %.2f s\n",
+      r.report().views_used, e.focal_pct, e.principal_px, e.baseline_mm, r.report().rms_stereo_px,
+      capture_s / 16, detect_s / 16, calibrate_s);
+  EXPECT_EQ(r.report().views_used, 16);
+  EXPECT_TRUE(r.IsUsable()) << r.report().verdict_reason;
+  EXPECT_LT(e.focal_pct, 0.2) << "%";
+  EXPECT_LT(e.baseline_mm, 0.1) << "mm";
+  EXPECT_LT(r.report().rms_stereo_px, 0.2) << "px";
+}
+
+// The chessboard on the platter through the driver, as the daemon's
+// calibrate-turntable job runs it: MoveTo 0, 60, …, 300°, Capture,
+// DetectBoard, CalibrateTurntableAxis with the rig's exact calibration.
+// Tolerances of test_sim_calibration's exact-calibration axis test:
+// direction 0.1°, platter point 0.2 mm, step angles 0.05°.
+TEST_F(SimDriver, PlatterBoardCapturesGiveTheTurntableAxis) {
+  const DriverConfig config = {
+      {"scene", "platter_board"}, {"threads", "2"}, {"supersampling", "1"}};
+  ASSERT_NO_FATAL_FAILURE(Create(config));
+  SimDriverOptions options;
+  std::string why;
+  ASSERT_TRUE(SimDriverOptionsFromConfig(config, &options, &why)) << why;
+  ASSERT_TRUE(turntable_->Home(kTimeout).ok());
+  double capture_s = 0, detect_s = 0;
+  std::vector<TurntableStep> steps;
+  for (int angle_deg = 0; angle_deg < 360; angle_deg += 60) {
+    ASSERT_TRUE(turntable_->MoveTo(angle_deg, kTimeout).ok());
+    auto start = std::chrono::steady_clock::now();
+    const StereoFrame frame = Capture();
+    capture_s += SecondsSince(start);
+    TurntableStep step;
+    step.commanded_angle_rad = angle_deg * std::numbers::pi / 180;
+    start = std::chrono::steady_clock::now();
+    step.left = DetectBoard(frame.left.image, options.board);
+    detect_s += SecondsSince(start);
+    EXPECT_TRUE(step.left.found) << "at " << angle_deg << "°: " << step.left.message;
+    steps.push_back(std::move(step));
+  }
+  auto station = SimStation::Create(SimRigOptions(options), &why);
+  ASSERT_TRUE(station) << why;
+  StereoCalibration truth = station->calibration();
+  truth.board = options.board;
+  TurntableAxisOptions axis_options;
+  axis_options.board_thickness_mm = SimSceneOptions(options).board.thickness_mm;
+  const TurntableAxisResult r = CalibrateTurntableAxis(truth, steps, axis_options);
+  ASSERT_EQ(r.status, TurntableAxisResult::Status::kOk) << r.message;
+  const cv::Vec3d& direction = truth.turntable.direction_in_rig;
+  const double direction_deg =
+      std::acos(std::clamp(r.axis.direction_in_rig.dot(direction) /
+                               (cv::norm(r.axis.direction_in_rig) * cv::norm(direction)),
+                           -1.0, 1.0)) *
+      180 / std::numbers::pi;
+  const double point_mm = cv::norm(r.axis.point_in_rig_mm - truth.turntable.point_in_rig_mm);
+  std::printf(
+      "platter_board through the driver (1x1): %d steps; direction %.4f°, point %.3f mm, max "
+      "step angle error %.4f°, residual %.4f mm; per view: capture %.2f s, detect %.2f s\n",
+      r.steps_used, direction_deg, point_mm, r.max_abs_angle_error_deg, r.residual_mm,
+      capture_s / 6, detect_s / 6);
+  EXPECT_TRUE(r.IsUsable()) << r.verdict_reason;
+  EXPECT_EQ(r.steps_used, 6);
+  EXPECT_LT(direction_deg, 0.1);
+  EXPECT_LT(point_mm, 0.2);
+  EXPECT_LT(r.max_abs_angle_error_deg, 0.05);
+}
+
+TEST(SimDriverOptions, SceneAndBoardKeys) {
+  SimDriverOptions o;
+  std::string why;
+  ASSERT_TRUE(SimDriverOptionsFromConfig({}, &o, &why)) << why;
+  EXPECT_EQ(o.scene, SimSceneType::kObject);
+  EXPECT_EQ(o.supersampling, 2);
+  auto board_of = [&](const DriverConfig& config) {
+    SimDriverOptions options;
+    std::string error;
+    EXPECT_TRUE(SimDriverOptionsFromConfig(config, &options, &error)) << error;
+    return options.board;
+  };
+  auto same = [](const BoardSpec& a, const BoardSpec& b) {
+    return a.type == b.type && a.cols == b.cols && a.rows == b.rows && a.square_mm == b.square_mm &&
+           a.marker_mm == b.marker_mm && a.aruco_dictionary == b.aruco_dictionary;
+  };
+  EXPECT_TRUE(same(board_of({{"scene", "held_board"}}), HeldChessboard()));
+  EXPECT_TRUE(same(board_of({{"scene", "held_board"}, {"board_type", "charuco"}}), HeldCharuco()));
+  EXPECT_TRUE(same(board_of({{"scene", "platter_board"}}), PlatterChessboard()));
+  EXPECT_TRUE(
+      same(board_of({{"scene", "platter_board"}, {"board_type", "charuco"}}), PlatterCharuco()));
+  // Keys override single fields; a ChArUco marker defaults to 2/3 of the square.
+  const BoardSpec custom = board_of({{"scene", "held_board"},
+                                     {"board_type", "charuco"},
+                                     {"board_cols", "8"},
+                                     {"board_rows", "6"},
+                                     {"board_square_mm", "15"},
+                                     {"board_dictionary", "0"}});
+  EXPECT_EQ(custom.cols, 8);
+  EXPECT_EQ(custom.rows, 6);
+  EXPECT_DOUBLE_EQ(custom.square_mm, 15);
+  EXPECT_DOUBLE_EQ(custom.marker_mm, 10);
+  EXPECT_EQ(custom.aruco_dictionary, 0);
+  EXPECT_DOUBLE_EQ(
+      board_of({{"scene", "held_board"}, {"board_type", "charuco"}, {"board_marker_mm", "7.5"}})
+          .marker_mm,
+      7.5);
+  ASSERT_TRUE(SimDriverOptionsFromConfig(
+      {{"scene", "platter_board"}, {"object", "egg"}, {"supersampling", "1"}}, &o, &why))
+      << why;
+  EXPECT_EQ(SimRigOptions(o).supersampling, 1);
+  EXPECT_EQ(SimSceneOptions(o).object.type, ObjectType::kNone);  // `object` ignored
+  EXPECT_TRUE(SimSceneOptions(o).board.enabled);
+  ASSERT_TRUE(SimDriverOptionsFromConfig({{"scene", "held_board"}}, &o, &why)) << why;
+  EXPECT_EQ(SimSceneOptions(o).object.type, ObjectType::kNone);
+  EXPECT_FALSE(SimSceneOptions(o).board.enabled);  // each frame places it
+  for (SimSceneType t :
+       {SimSceneType::kObject, SimSceneType::kHeldBoard, SimSceneType::kPlatterBoard}) {
+    SimSceneType back = SimSceneType::kObject;
+    EXPECT_TRUE(SimSceneTypeFromString(ToString(t), &back));
+    EXPECT_EQ(back, t);
+  }
+
+  // Refusals name the key.
+  const std::vector<std::pair<DriverConfig, std::string>> bad = {
+      {{{"scene", "desk"}}, "'scene'"},
+      {{{"scene", "held_board"}, {"board_type", "circles"}}, "'board_type'"},
+      {{{"scene", "held_board"}, {"board_cols", "nine"}}, "'board_cols'"},
+      {{{"scene", "held_board"}, {"board_colz", "9"}}, "'board_colz'"},
+      {{{"scene", "held_board"}, {"board_rows", "2"}}, "board_rows"},
+      {{{"scene", "held_board"}, {"board_square_mm", "-8"}}, "board_square_mm"},
+      {{{"scene", "held_board"}, {"board_type", "charuco"}, {"board_marker_mm", "12"}},
+       "board_marker_mm"},
+      {{{"scene", "held_board"}, {"board_type", "charuco"}, {"board_cols", "20"}},
+       "board_dictionary"},
+      {{{"scene", "platter_board"}, {"board_cols", "8"}}, "board_cols + board_rows must be odd"},
+      {{{"scene", "platter_board"}, {"board_square_mm", "25"}}, "does not fit on the platter"},
+      {{{"supersampling", "5"}}, "supersampling"},
+  };
+  for (const auto& [config, needle] : bad) {
+    EXPECT_FALSE(SimDriverOptionsFromConfig(config, &o, &why)) << needle;
+    EXPECT_NE(why.find(needle), std::string::npos) << why;
+  }
+  // Board keys are not checked by the object scene, which does not show one.
+  EXPECT_TRUE(SimDriverOptionsFromConfig({{"board_rows", "2"}}, &o, &why)) << why;
 }
 
 TEST(SimDriverOptions, ParsesAndRefusesKeys) {

@@ -9,6 +9,7 @@
 #include <thread>
 
 #include "craftscan/drivers/usb_hotplug.h"
+#include "fake_usb_source.h"
 
 namespace craftscan::drivers {
 namespace {
@@ -16,44 +17,12 @@ namespace {
 using namespace std::chrono_literals;
 using Clock = std::chrono::steady_clock;
 
-class FakeUsbEventSource : public UsbEventSource {
- public:
-  DriverStatus Start(std::function<void(const UsbDeviceEvent&)> sink) override {
-    if (fail_start) return DriverStatus::Error(StatusCode::kUnsupported, "fake: no USB");
-    sink_ = std::move(sink);
-    ++starts;
-    return DriverStatus::Ok();
-  }
-  void Stop() override { ++stops; }
-  void Emit(const UsbDeviceEvent& e) {
-    if (sink_) sink_(e);
-  }
-  bool fail_start = false;
-  int starts = 0, stops = 0;
-
- private:
-  std::function<void(const UsbDeviceEvent&)> sink_;
-};
+using test::FakeUsbEventSource;
 
 UsbDeviceEvent Arrived(std::string serial, std::uint8_t address, bool u3v = true) {
-  UsbDeviceEvent e;
-  e.kind = UsbDeviceEvent::Kind::kArrived;
-  e.vendor_id = 0x2676;
-  e.product_id = 0xba02;
-  e.bus = 2;
-  e.address = address;
-  e.serial = std::move(serial);
-  e.is_usb3_vision = u3v;
-  return e;
+  return test::UsbArrived(std::move(serial), address, u3v);
 }
-
-UsbDeviceEvent Left(std::uint8_t address) {
-  UsbDeviceEvent e;
-  e.kind = UsbDeviceEvent::Kind::kLeft;
-  e.bus = 2;
-  e.address = address;
-  return e;
-}
+UsbDeviceEvent Left(std::uint8_t address) { return test::UsbLeft(address); }
 
 struct Recorder {
   std::vector<std::pair<UsbDeviceEvent::Kind, std::string>> events;
@@ -142,9 +111,9 @@ TEST(UsbHotplug, StopWakesWaitersAndStopsTheSource) {
   EXPECT_FALSE(monitor.WaitForArrival("NEVER", 10s));
   EXPECT_LT(Clock::now() - t0, 2s);
   stopper.join();
-  EXPECT_EQ(fake->stops, 1);
+  EXPECT_EQ(fake->stops.load(), 1);
   monitor.Stop();  // idempotent
-  EXPECT_EQ(fake->stops, 1);
+  EXPECT_EQ(fake->stops.load(), 1);
 }
 
 TEST(UsbHotplug, SourceThatCannotStartIsAClearError) {

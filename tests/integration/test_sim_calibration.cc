@@ -28,6 +28,7 @@
 
 #include "craftscan/pipeline/calibration.h"
 #include "craftscan/pipeline/rectify.h"
+#include "craftscan/sim/calibration_scenes.h"
 #include "craftscan/sim/station.h"
 
 namespace craftscan::sim {
@@ -41,22 +42,6 @@ constexpr double kRadToDeg = 180.0 / CV_PI;
 double SecondsSince(std::chrono::steady_clock::time_point start) {
   return std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
 }
-
-cv::Vec3d Apply(const cv::Matx44d& T, const cv::Vec3d& p) {
-  const cv::Vec4d q = T * cv::Vec4d(p[0], p[1], p[2], 1);
-  return {q[0], q[1], q[2]};
-}
-
-cv::Matx44d Rigid(const cv::Matx33d& R, const cv::Vec3d& t) {
-  cv::Matx44d m = cv::Matx44d::eye();
-  for (int i = 0; i < 3; ++i) {
-    for (int j = 0; j < 3; ++j) m(i, j) = R(i, j);
-    m(i, 3) = t[i];
-  }
-  return m;
-}
-
-cv::Matx33d Rotation(const cv::Matx44d& m) { return m.get_minor<3, 3>(0, 0); }
 
 double AngleDeg(const cv::Vec3d& a, const cv::Vec3d& b) {
   return std::acos(std::clamp(a.dot(b) / (cv::norm(a) * cv::norm(b)), -1.0, 1.0)) * kRadToDeg;
@@ -74,32 +59,9 @@ std::vector<cv::Vec3d> ToVec3d(const std::vector<cv::Point3f>& points) {
   return out;
 }
 
-// Exact projection of points (in some frame F) into a raw camera, given
-// camera_from_F and the camera's exact intrinsics.
-std::vector<cv::Point2f> Project(const cv::Matx44d& camera_from_f, const CameraIntrinsics& camera,
-                                 const std::vector<cv::Vec3d>& p_in_f) {
-  std::vector<cv::Point3d> p;
-  for (const cv::Vec3d& q : p_in_f) p.emplace_back(Apply(camera_from_f, q));
-  std::vector<cv::Point2d> image;
-  cv::projectPoints(p, cv::Vec3d(0, 0, 0), cv::Vec3d(0, 0, 0), camera.camera_matrix,
-                    camera.distortion, image);
-  return std::vector<cv::Point2f>(image.begin(), image.end());
-}
-
 bool Inside(const cv::Point2f& p, cv::Size size, double margin_px) {
   return p.x >= margin_px && p.y >= margin_px && p.x <= size.width - 1 - margin_px &&
          p.y <= size.height - 1 - margin_px;
-}
-
-// Smallest distance (px) of the points from the image border; negative when
-// one is outside.
-double InsideMargin(const std::vector<cv::Point2f>& points, cv::Size size) {
-  double margin = 1e9;
-  for (const cv::Point2f& p : points) {
-    margin = std::min({margin, static_cast<double>(p.x), static_cast<double>(p.y),
-                       size.width - 1.0 - p.x, size.height - 1.0 - p.y});
-  }
-  return margin;
 }
 
 struct Stats {
@@ -123,7 +85,8 @@ Stats Summarize(const std::vector<double>& values) {
 // The default rig, rendering on two threads; `supersampling` 2 for
 // calibration views. With 2×2 samples on a regular grid an edge's position
 // is resolved to ±1/4 px only where the edge runs along the pixel grid, so
-// the boards below are held a little rolled, as hands hold them: the corner
+// the held poses (calibration_scenes.h) are a little rolled, as hands hold
+// boards: the corner
 // error against the exact projection is then ~0.06 px RMS (~0.15 px with
 // unrolled boards; ~0.12 px rolled at 1×1, ~0.05 px at 3×3).
 std::unique_ptr<SimStation> MakeStation(int supersampling) {
@@ -141,220 +104,6 @@ const SimStation& Station() {
   return *station;
 }
 
-// The white border around the squares: one square for the chessboard.
-double MarginMm(const BoardSpec& spec) {
-  return spec.type == BoardSpec::Type::kChessboard ? spec.square_mm : 10;
-}
-
-// A scene with nothing but the board. No cast shadows: nothing can shade
-// the board, and they cost a fifth of the render time.
-SceneOptions BoardScene(const BoardSpec& spec) {
-  SceneOptions options;
-  options.object.type = ObjectType::kNone;
-  options.lighting.shadows = false;
-  options.board.enabled = true;
-  options.board.spec = spec;
-  options.board.margin_mm = MarginMm(spec);
-  return options;
-}
-
-// --- boards held in front of the rig -----------------------------------------
-
-// A 9×6 chessboard (odd + even: its corner order is unambiguous). With
-// 2400 px lenses the view at 400 mm is only 213 × 171 mm, and past ~350 mm
-// the platter fills its lower half, leaving ~80–120 mm of height above it:
-// 20 mm squares (a 220 × 160 mm board with its margin) could not be seen
-// whole at all; 10 mm ones (120 × 90 mm) fit far away only unrolled; 8 mm
-// squares (96 × 72 mm, 40–65 px on the images) fit rolled and tilted at
-// 300–500 mm.
-BoardSpec Chessboard() {
-  BoardSpec board;
-  board.cols = 9;
-  board.rows = 6;
-  board.square_mm = 8;
-  return board;
-}
-
-// A ChArUco board larger than the view (192 × 144 mm of squares): ChArUco
-// corners need not all be seen, so it can reach into the image corners where
-// a fully visible chessboard cannot, which pins the principal point down.
-BoardSpec Charuco() {
-  BoardSpec board;
-  board.type = BoardSpec::Type::kCharuco;
-  board.cols = 16;
-  board.rows = 12;
-  board.square_mm = 12;
-  board.marker_mm = 8;
-  board.aruco_dictionary = cv::aruco::DICT_4X4_100;
-  return board;
-}
-
-// The printed board's outline in the board frame.
-std::vector<cv::Vec3d> BoardOutline(const BoardSpec& spec) {
-  const bool chess = spec.type == BoardSpec::Type::kChessboard;
-  const double s = spec.square_mm;
-  const double m = MarginMm(spec);
-  const double x0 = (chess ? -s : 0) - m, y0 = (chess ? -s : 0) - m;
-  const double x1 = spec.cols * s + m, y1 = spec.rows * s + m;
-  return {{x0, y0, 0}, {x1, y0, 0}, {x1, y1, 0}, {x0, y1, 0}};
-}
-
-cv::Vec3d BoardCentre(const BoardSpec& spec) {
-  const std::vector<cv::Vec3d> o = BoardOutline(spec);
-  return (o[0] + o[2]) * 0.5;
-}
-
-// A board pose in front of the rig: its centre on the ray from the midpoint
-// of the optical centres towards the target (where the optical axes meet)
-// turned by (right, down) half fields of view, `distance_mm` deep in the rig
-// frame; the board faces the cameras, then is tilted and rolled.
-struct HeldPose {
-  // Offset of the centre in the image, in half fields of view. A chessboard
-  // is slid along this direction instead (PlaceWholeBoard).
-  double right, down;
-  double distance_mm;  // depth of the board centre in the rig frame
-  double tilt_x_deg;   // about the rig's x axis: > 0 turns the board's bottom away
-  double tilt_y_deg;   // about the rig's y axis: > 0 turns the board's left side away
-  double roll_deg;     // about the viewing direction
-};
-
-constexpr double kEdgePx = 12;  // a fully visible board keeps this far from the image border
-
-struct Placement {
-  cv::Matx44d rig_from_board = cv::Matx44d::eye();
-  double margin_px = 0;  // the outline's distance from the borders of both images
-  double lowest_mm = 0;  // the outline's lowest point above the platter (world z)
-  int corners_seen = 0;  // corners inside both images (kEdgePx) and above the platter
-  bool fully_visible() const { return margin_px >= kEdgePx && lowest_mm >= 2; }
-};
-
-Placement PlaceBoard(const SimStation& station, const BoardSpec& spec, const HeldPose& pose,
-                     double scale = 1) {
-  const StereoCalibration& c = station.calibration();
-  const cv::Matx44d world_from_rig = station.world_from_rig();
-  const cv::Matx44d left_from_rig = station.left_from_world() * world_from_rig;
-  const cv::Matx44d right_from_rig = station.right_from_world() * world_from_rig;
-  const cv::Vec3d mid(c.baseline_mm() / 2, 0, 0);  // the rig's x axis runs along the baseline
-  const cv::Vec3d target =
-      Apply(station.rig_from_world(), {0, 0, station.options().target_height_mm});
-  const cv::Vec3d towards = (target - mid) * (1.0 / (target - mid)[2]);
-  const double f = c.rectified_focal_px();
-  const cv::Vec3d offset(scale * pose.right * c.image_size.width / (2 * f),
-                         scale * pose.down * c.image_size.height / (2 * f), 0);
-  cv::Matx33d rx, ry, rz;
-  cv::Rodrigues(cv::Vec3d(pose.tilt_x_deg * kDegToRad, 0, 0), rx);
-  cv::Rodrigues(cv::Vec3d(0, pose.tilt_y_deg * kDegToRad, 0), ry);
-  cv::Rodrigues(cv::Vec3d(0, 0, pose.roll_deg * kDegToRad), rz);
-  const cv::Matx33d R = rz * ry * rx;  // board axes start as the rig's: facing the cameras
-  const cv::Vec3d centre = mid + pose.distance_mm * (towards + offset);
-
-  Placement p;
-  p.rig_from_board = Rigid(R, centre - R * BoardCentre(spec));
-  const std::vector<cv::Vec3d> outline = BoardOutline(spec);
-  p.margin_px = std::min(
-      InsideMargin(Project(left_from_rig * p.rig_from_board, c.left, outline), c.image_size),
-      InsideMargin(Project(right_from_rig * p.rig_from_board, c.right, outline), c.image_size));
-  const cv::Matx44d world_from_board = world_from_rig * p.rig_from_board;
-  p.lowest_mm = 1e9;
-  for (const cv::Vec3d& q : outline)
-    p.lowest_mm = std::min(p.lowest_mm, Apply(world_from_board, q)[2]);
-  const std::vector<cv::Vec3d> corners = ToVec3d(BoardCornersInBoard(spec));
-  const std::vector<cv::Point2f> left = Project(left_from_rig * p.rig_from_board, c.left, corners);
-  const std::vector<cv::Point2f> right =
-      Project(right_from_rig * p.rig_from_board, c.right, corners);
-  for (std::size_t i = 0; i < corners.size(); ++i) {
-    if (Inside(left[i], c.image_size, kEdgePx) && Inside(right[i], c.image_size, kEdgePx) &&
-        Apply(world_from_board, corners[i])[2] >= 2) {
-      ++p.corners_seen;
-    }
-  }
-  return p;
-}
-
-// Raises a pose in the image (in steps of 1 % of the half field) until the
-// board clears the platter: farther than ~350 mm the lower half of the view
-// sees the platter top, so far boards are held high.
-HeldPose AbovePlatter(const SimStation& station, const BoardSpec& spec, HeldPose pose) {
-  for (int i = 0; i < 200 && PlaceBoard(station, spec, pose).lowest_mm < 2; ++i) pose.down -= 0.01;
-  return pose;
-}
-
-// A chessboard must be seen whole: from above the platter, slide the board
-// along the pose's (right, down) direction to the farthest place where it is
-// fully visible in both images and above the platter.
-Placement PlaceWholeBoard(const SimStation& station, const BoardSpec& spec, const HeldPose& pose) {
-  HeldPose centred = pose;
-  centred.right = centred.down = 0;
-  const double lift = AbovePlatter(station, spec, centred).down;
-  auto slid = [&](double s) {
-    HeldPose p = pose;
-    p.right = s * pose.right;
-    p.down = lift + s * pose.down;
-    return PlaceBoard(station, spec, p);
-  };
-  constexpr int kSteps = 150;
-  int last = -1;
-  for (int i = 0; i <= kSteps; ++i) {
-    if (slid(1.5 * i / kSteps).fully_visible()) last = i;
-  }
-  if (last < 0) return slid(0);
-  double lo = 1.5 * last / kSteps, hi = 1.5 * (last + 1) / kSteps;
-  for (int i = 0; i < 20; ++i) {
-    const double s = (lo + hi) / 2;
-    (slid(s).fully_visible() ? lo : hi) = s;
-  }
-  return slid(lo);
-}
-
-// A ChArUco board overfills the view: it only has to clear the platter.
-Placement PlaceBoardAbovePlatter(const SimStation& station, const BoardSpec& spec,
-                                 const HeldPose& pose) {
-  return PlaceBoard(station, spec, AbovePlatter(station, spec, pose));
-}
-
-SceneOptions HeldBoardScene(const SimStation& station, const BoardSpec& spec,
-                            const cv::Matx44d& rig_from_board) {
-  SceneOptions options = BoardScene(spec);
-  options.board.placement = BoardPlacement::kInWorld;
-  const cv::Matx44d world_from_board = station.world_from_rig() * rig_from_board;
-  cv::Rodrigues(Rotation(world_from_board), options.board.rotation_rad);
-  options.board.translation_mm = {world_from_board(0, 3), world_from_board(1, 3),
-                                  world_from_board(2, 3)};
-  return options;
-}
-
-// 16 chessboard poses: 310–500 mm deep, tilts up to 35° about both axes,
-// rolled 15–30°, each pushed as far as it goes towards a side or corner of
-// the view (coverage 0.66 of the image: a whole board cannot reach further
-// into the corners).
-const std::vector<HeldPose>& ChessboardPoses() {
-  static const std::vector<HeldPose> poses = {
-      {0, -1, 400, -10, -10, 20},    {-1, -1, 450, -25, 20, 25},    {1, -1, 450, -25, -25, -25},
-      {-1, 1, 320, -30, 15, -20},    {1, 1, 320, -30, -15, 20},     {0, -1, 500, -35, 0, -15},
-      {0, 1, 320, 35, 0, 25},        {-1, 0, 330, 0, 35, -20},      {1, 0, 330, 0, -35, 20},
-      {-0.5, -1, 500, -20, 30, 15},  {0.5, -1, 500, -20, -30, -15}, {0.3, -1, 470, -30, -20, -20},
-      {-1, 0.6, 310, 25, -20, 15},   {1, 0.6, 310, 25, 20, -15},    {-1, -0.8, 400, -15, 10, 30},
-      {1, -0.8, 400, -15, -10, -30},
-  };
-  return poses;
-}
-
-// 16 ChArUco poses, 300–480 mm, tilts up to 35°, rolled 5–30°, the centre
-// where given (raised where the board would reach into the platter).
-const std::vector<HeldPose>& CharucoPoses() {
-  static const std::vector<HeldPose> poses = {
-      {0, -0.3, 330, -20, 25, 15},    {0, -0.3, 330, -20, -25, -15},
-      {0, 0, 300, 30, 30, 20},        {0, 0, 300, 30, -30, -20},
-      {-0.5, -0.5, 400, -35, 25, 10}, {0.5, -0.5, 400, -35, -25, -10},
-      {0, -0.8, 480, -35, 20, 25},    {0, -0.8, 480, -35, -20, -25},
-      {-0.5, 0.5, 300, 20, 35, 5},    {0.5, 0.5, 300, 20, -35, -5},
-      {0, -0.5, 380, -30, 0, 30},     {0, 0.2, 320, 35, 0, -30},
-      {-0.6, 0, 340, -10, 35, 15},    {0.6, 0, 340, -10, -35, -15},
-      {-0.5, -0.5, 300, 35, 35, 15},  {0.5, 0.5, 300, -35, -35, 15},
-  };
-  return poses;
-}
-
 // Distances (px) of detected corners from their exact projections, both
 // cameras, appended to *errors.
 void AddDetectionErrors(const SimStation& station, const StereoRender& frame,
@@ -364,7 +113,7 @@ void AddDetectionErrors(const SimStation& station, const StereoRender& frame,
     if (!d.found) continue;
     const cv::Matx44d camera_from_world =
         camera ? station.right_from_world() : station.left_from_world();
-    const std::vector<cv::Point2f> truth = Project(
+    const std::vector<cv::Point2f> truth = ProjectIntoCamera(
         camera_from_world * frame.world_from_board,
         camera ? frame.calibration.right : frame.calibration.left, ToVec3d(d.object_points));
     for (std::size_t i = 0; i < truth.size(); ++i) {
@@ -398,8 +147,7 @@ CalibrationRun CalibrateFromHeldBoards(const BoardSpec& spec, const std::vector<
   std::vector<double> errors;
   std::vector<StereoBoardView> views;
   for (std::size_t i = 0; i < poses.size(); ++i) {
-    const Placement placement = whole ? PlaceWholeBoard(station, spec, poses[i])
-                                      : PlaceBoardAbovePlatter(station, spec, poses[i]);
+    const HeldBoardPlacement placement = PlaceHeldBoard(station, spec, poses[i]);
     if (whole) {
       EXPECT_TRUE(placement.fully_visible())
           << "pose " << i << ": the chessboard is " << placement.margin_px
@@ -487,29 +235,6 @@ const std::vector<double>& TurntableAnglesDeg() {
   return angles;
 }
 
-// 9×6 (not 180°-symmetric), 12 mm squares: larger than the held board, as
-// nothing but the platter's rim limits it.
-BoardSpec PlatterChessboard() {
-  BoardSpec board = Chessboard();
-  board.square_mm = 12;
-  return board;
-}
-
-SceneOptions PlatterBoardScene(const BoardSpec& spec) {
-  SceneOptions options = BoardScene(spec);
-  options.board.placement = BoardPlacement::kOnPlatter;
-  options.board.platter_yaw_rad = 0.3;
-  // Put the board's centre at world (20, 0) at angle 0.
-  options.board.platter_position_mm = {0, 0};
-  std::string error;
-  auto probe = Scene::Create(options, &error);
-  EXPECT_TRUE(probe) << error;
-  if (!probe) return options;
-  const cv::Vec3d centre = Apply(probe->world_from_board(), BoardCentre(spec));
-  options.board.platter_position_mm = {20 - centre[0], 0 - centre[1]};
-  return options;
-}
-
 struct TurntableCapture {
   std::vector<TurntableStep> steps;
   double board_thickness_mm = 0;
@@ -532,9 +257,10 @@ const TurntableCapture& PlatterBoardCapture() {
     const std::vector<cv::Vec3d> corners = ToVec3d(BoardCornersInBoard(spec));
     for (double angle_deg : TurntableAnglesDeg()) {
       scene->SetTurntableAngle(angle_deg * kDegToRad);
-      EXPECT_GE(InsideMargin(Project(station->left_from_world() * scene->world_from_board(),
-                                     station->calibration().left, corners),
-                             station->calibration().image_size),
+      EXPECT_GE(MarginInsideImagePx(
+                    ProjectIntoCamera(station->left_from_world() * scene->world_from_board(),
+                                      station->calibration().left, corners),
+                    station->calibration().image_size),
                 30)
           << "at " << angle_deg << "° the board leaves the left image";
       const auto start = std::chrono::steady_clock::now();
@@ -626,9 +352,9 @@ Stats VolumeRowErrors(const Rectifier& rectifier) {
   }
   const cv::Matx44d world_from_rig = station.world_from_rig();
   const std::vector<cv::Point2f> left =
-      Project(station.left_from_world() * world_from_rig, truth.left, points_in_rig);
+      ProjectIntoCamera(station.left_from_world() * world_from_rig, truth.left, points_in_rig);
   const std::vector<cv::Point2f> right =
-      Project(station.right_from_world() * world_from_rig, truth.right, points_in_rig);
+      ProjectIntoCamera(station.right_from_world() * world_from_rig, truth.right, points_in_rig);
   std::vector<cv::Point2f> seen_left, seen_right;
   for (std::size_t i = 0; i < points_in_rig.size(); ++i) {
     if (Inside(left[i], truth.image_size, 0) && Inside(right[i], truth.image_size, 0)) {
@@ -661,8 +387,8 @@ RectificationErrors CheckRectification(const StereoCalibration& calibration) {
   EXPECT_TRUE(rectifier.Init(calibration, &error)) << error;
   if (!rectifier.IsReady()) return out;
 
-  const BoardSpec spec = Chessboard();
-  const Placement placement = PlaceBoard(station, spec, kHeldOutPose);
+  const BoardSpec spec = HeldChessboard();
+  const HeldBoardPlacement placement = PlaceBoard(station, spec, kHeldOutPose);
   EXPECT_TRUE(placement.fully_visible())
       << placement.margin_px << " px, " << placement.lowest_mm << " mm";
   auto scene = Scene::Create(HeldBoardScene(station, spec, placement.rig_from_board), &error);
@@ -675,9 +401,9 @@ RectificationErrors CheckRectification(const StereoCalibration& calibration) {
   // Ground truth: the board's corners projected exactly into both raw images.
   const std::vector<cv::Vec3d> corners = ToVec3d(BoardCornersInBoard(spec));
   const std::vector<cv::Point2f> raw_left =
-      Project(station.left_from_world() * frame.world_from_board, truth.left, corners);
+      ProjectIntoCamera(station.left_from_world() * frame.world_from_board, truth.left, corners);
   const std::vector<cv::Point2f> raw_right =
-      Project(station.right_from_world() * frame.world_from_board, truth.right, corners);
+      ProjectIntoCamera(station.right_from_world() * frame.world_from_board, truth.right, corners);
   out.rows_px = Summarize(RowErrors(rectifier, raw_left, raw_right));
 
   // The rectified images: the board found there lies where the point mapping
@@ -735,7 +461,7 @@ RectificationErrors CheckRectification(const StereoCalibration& calibration) {
 // point 0.17 mm, step angles within 0.010°) and its rectification of a new
 // pair (corner rows mean 0.0065 px, max 0.019 px; see below).
 TEST(SimCalibration, ChessboardCalibrationRecoversTheRigTheAxisAndTheRows) {
-  const CalibrationRun run = CalibrateFromHeldBoards(Chessboard(), ChessboardPoses());
+  const CalibrationRun run = CalibrateFromHeldBoards(HeldChessboard(), ChessboardPoses());
   const StereoCalibrationResult& r = run.result;
   ASSERT_EQ(r.status, StereoCalibrationResult::Status::kOk) << r.message;
   const CalibrationErrors e = ReportCalibration("chessboard", run);
@@ -764,10 +490,10 @@ TEST(SimCalibration, ChessboardCalibrationRecoversTheRigTheAxisAndTheRows) {
     // extrapolated).
     SCOPED_TRACE("rectification with the chessboard calibration");
     const RectificationErrors rect = CheckRectification(r.calibration);
-    EXPECT_EQ(rect.rows_px.count, Chessboard().NumCorners());
+    EXPECT_EQ(rect.rows_px.count, HeldChessboard().NumCorners());
     EXPECT_LT(rect.rows_px.mean, 0.1) << "px";
     EXPECT_LT(rect.rows_px.max, 0.1) << "px";
-    EXPECT_EQ(rect.detected_rows_px.count, Chessboard().NumCorners());
+    EXPECT_EQ(rect.detected_rows_px.count, HeldChessboard().NumCorners());
     EXPECT_LT(rect.detected_rows_px.mean, 0.1) << "px";
     EXPECT_LT(rect.maps_px.mean, 0.1) << "px";
     EXPECT_LT(rect.volume_rows_px.mean, 0.1) << "px";
@@ -784,7 +510,7 @@ TEST(SimCalibration, ChessboardCalibrationRecoversTheRigTheAxisAndTheRows) {
 // Gaussian corner noise σ = 0.06 px, 30 seeds: principal point median
 // 0.41 px, 90th percentile 0.72 px, worst 0.80 px.
 TEST(SimCalibration, CharucoCalibrationRecoversTheRig) {
-  const CalibrationRun run = CalibrateFromHeldBoards(Charuco(), CharucoPoses());
+  const CalibrationRun run = CalibrateFromHeldBoards(HeldCharuco(), CharucoPoses());
   const StereoCalibrationResult& r = run.result;
   ASSERT_EQ(r.status, StereoCalibrationResult::Status::kOk) << r.message;
   const CalibrationErrors e = ReportCalibration("charuco", run);

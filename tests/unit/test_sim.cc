@@ -1,7 +1,7 @@
 // The simulated station (drivers/sim): determinism, ground-truth
 // consistency against OpenCV's camera model, turntable motion, boards, PLY
-// meshes and option validation. Renders are small (320×256) except one at
-// the default 1280×1024.
+// meshes, the calibration scenes and option validation. Renders are small
+// (320×256) except one at the default 1280×1024.
 #include <gtest/gtest.h>
 
 #include <algorithm>
@@ -18,6 +18,7 @@
 #include <opencv2/core.hpp>
 #include <opencv2/imgproc.hpp>
 
+#include "craftscan/sim/calibration_scenes.h"
 #include "craftscan/sim/ply.h"
 #include "craftscan/sim/station.h"
 
@@ -624,6 +625,140 @@ TEST(SimBoard, BoardOnThePlatterTurnsWithIt) {
   EXPECT_NEAR(origin_turned[1], origin_at_zero[0], 1e-9);
   const StereoRender r = station->Render(*scene);
   EXPECT_GT(cv::countNonZero(r.left_labels == static_cast<int>(SurfaceLabel::kBoard)), 1000);
+}
+
+// --- calibration scenes (calibration_scenes.h) -------------------------------
+
+// The default rig, point sampled (the ray caches are 4× smaller; the
+// geometry the placements use is the same).
+std::unique_ptr<SimStation> DefaultRigPointSampled() {
+  RigOptions rig;
+  rig.supersampling = 1;
+  rig.num_threads = 2;
+  return MakeStation(rig);
+}
+
+std::vector<cv::Vec3d> CornersInBoard(const BoardSpec& spec) {
+  std::vector<cv::Vec3d> out;
+  for (const cv::Point3f& p : BoardCornersInBoard(spec)) out.emplace_back(p.x, p.y, p.z);
+  return out;
+}
+
+TEST(SimCalibrationScenes, HeldPosesShowTheBoardsOnTheDefaultRig) {
+  const auto station = DefaultRigPointSampled();
+  ASSERT_TRUE(station);
+  ASSERT_EQ(ChessboardPoses().size(), 16u);
+  ASSERT_EQ(CharucoPoses().size(), 16u);
+  EXPECT_EQ(&HeldPoses(BoardSpec::Type::kChessboard), &ChessboardPoses());
+  EXPECT_EQ(&HeldPoses(BoardSpec::Type::kCharuco), &CharucoPoses());
+  const BoardSpec chess = HeldChessboard();
+  const BoardSpec charuco = HeldCharuco();
+  std::string why;
+  ASSERT_TRUE(chess.IsValid(&why)) << why;
+  ASSERT_TRUE(charuco.IsValid(&why)) << why;
+  EXPECT_FALSE(chess.IsRotationallySymmetric());
+  for (std::size_t i = 0; i < ChessboardPoses().size(); ++i) {
+    const HeldBoardPlacement p = PlaceHeldBoard(*station, chess, ChessboardPoses()[i]);
+    EXPECT_TRUE(p.fully_visible())
+        << "pose " << i << ": " << p.margin_px << " px, " << p.lowest_mm << " mm";
+    EXPECT_EQ(p.corners_seen, chess.NumCorners()) << "pose " << i;
+    // Pushed as far as it goes: to the edge margin or down to the platter.
+    EXPECT_TRUE(p.margin_px < kHeldBoardEdgePx + 1 || p.lowest_mm < 3)
+        << "pose " << i << ": " << p.margin_px << " px, " << p.lowest_mm << " mm";
+  }
+  for (std::size_t i = 0; i < CharucoPoses().size(); ++i) {
+    const HeldBoardPlacement p = PlaceHeldBoard(*station, charuco, CharucoPoses()[i]);
+    EXPECT_GE(p.lowest_mm, 2) << "pose " << i;
+    EXPECT_GE(p.corners_seen, 60) << "pose " << i;
+    EXPECT_LT(p.margin_px, 0) << "pose " << i << ": the ChArUco board overfills the view";
+  }
+  // A chessboard too large to be seen whole (220 × 160 mm): the centred
+  // pose raised above the platter, reaching out of the images.
+  BoardSpec large = chess;
+  large.square_mm = 20;
+  const HeldBoardPlacement p = PlaceWholeBoard(*station, large, ChessboardPoses()[0]);
+  EXPECT_FALSE(p.fully_visible());
+  EXPECT_LT(p.margin_px, kHeldBoardEdgePx);
+  EXPECT_GE(p.lowest_mm, 2);
+}
+
+TEST(SimCalibrationScenes, HeldBoardSceneFixesTheBoardInTheRigFrame) {
+  const auto station = DefaultRigPointSampled();
+  ASSERT_TRUE(station);
+  const BoardSpec spec = HeldChessboard();
+  const HeldBoardPlacement p = PlaceHeldBoard(*station, spec, ChessboardPoses()[3]);
+  const SceneOptions options = HeldBoardScene(*station, spec, p.rig_from_board);
+  EXPECT_EQ(options.object.type, ObjectType::kNone);
+  EXPECT_FALSE(options.lighting.shadows);
+  EXPECT_EQ(options.board.placement, BoardPlacement::kInWorld);
+  EXPECT_DOUBLE_EQ(options.board.margin_mm, BoardMarginMm(spec));
+  const auto scene = MakeScene(options);
+  ASSERT_TRUE(scene);
+  const cv::Matx44d expected = station->world_from_rig() * p.rig_from_board;
+  EXPECT_LT(cv::norm(scene->world_from_board() - expected, cv::NORM_INF), 1e-9);
+  scene->SetTurntableAngle(1.0);  // held in the hand: it does not turn
+  EXPECT_LT(cv::norm(scene->world_from_board() - expected, cv::NORM_INF), 1e-9);
+  // The outline's centre is where BoardCentre says, 96 × 72 mm around it.
+  const std::vector<cv::Vec3d> outline = BoardOutline(spec);
+  EXPECT_NEAR(outline[2][0] - outline[0][0], 96, 1e-12);
+  EXPECT_NEAR(outline[2][1] - outline[0][1], 72, 1e-12);
+  EXPECT_LT(cv::norm(BoardCentre(spec) - cv::Vec3d(32, 20, 0)), 1e-12);
+}
+
+// Both platter boards lie on the platter, their centre 20 mm off the axis,
+// and stay in the left image while the turntable turns: every chessboard
+// corner ≥ 30 px inside at 0, 60, …, 300°, and all ChArUco corners inside.
+TEST(SimCalibrationScenes, PlatterBoardsLieOnThePlatterInView) {
+  const auto station = DefaultRigPointSampled();
+  ASSERT_TRUE(station);
+  const StereoCalibration& c = station->calibration();
+  for (const BoardSpec& spec : {PlatterChessboard(), PlatterCharuco()}) {
+    SCOPED_TRACE(Describe(spec));
+    std::string why;
+    ASSERT_TRUE(spec.IsValid(&why)) << why;
+    EXPECT_FALSE(spec.IsRotationallySymmetric());
+    const SceneOptions options = PlatterBoardScene(spec);
+    EXPECT_EQ(options.board.placement, BoardPlacement::kOnPlatter);
+    EXPECT_LE(PlatterBoardReachMm(spec), options.platter_radius_mm);
+    const auto scene = MakeScene(options);
+    ASSERT_TRUE(scene);
+    const cv::Vec3d centre = Apply(scene->world_from_board(), BoardCentre(spec));
+    EXPECT_LT(cv::norm(centre - cv::Vec3d(20, 0, options.board.thickness_mm)), 1e-9);
+    for (const cv::Vec3d& q : BoardOutline(spec)) {
+      const cv::Vec3d p = Apply(scene->world_from_board(), q);
+      EXPECT_LE(std::hypot(p[0], p[1]), PlatterBoardReachMm(spec) + 1e-9);
+    }
+    for (int angle_deg = 0; angle_deg < 360; angle_deg += 60) {
+      scene->SetTurntableAngle(angle_deg * kPi / 180);
+      const double margin = MarginInsideImagePx(
+          ProjectIntoCamera(station->left_from_world() * scene->world_from_board(), c.left,
+                            CornersInBoard(spec)),
+          c.image_size);
+      EXPECT_GE(margin, spec.type == BoardSpec::Type::kChessboard ? 30 : 0)
+          << "at " << angle_deg << "°";
+    }
+  }
+  // An invalid spec: options Scene::Create refuses with the spec's error.
+  BoardSpec bad = PlatterChessboard();
+  bad.cols = 1;
+  std::string error;
+  EXPECT_FALSE(Scene::Create(PlatterBoardScene(bad), &error));
+  EXPECT_NE(error.find("board"), std::string::npos) << error;
+}
+
+TEST(SimRender, ImagesOnlyRenderHasTheSameImagesAndNoGroundTruth) {
+  auto station = MakeStation(SmallRig());
+  const auto scene = MakeScene(SceneOptions{});
+  const StereoRender full = station->Render(*scene, 5);
+  const StereoRender images = station->Render(*scene, 5, RenderOutputs::kImagesOnly);
+  ASSERT_TRUE(full.IsUsable() && images.IsUsable()) << images.message;
+  EXPECT_TRUE(BitIdentical(full.left, images.left));
+  EXPECT_TRUE(BitIdentical(full.right, images.right));
+  EXPECT_TRUE(images.left_depth_mm.empty());
+  EXPECT_TRUE(images.rectified_disparity.empty());
+  EXPECT_TRUE(images.rectified_visible_right.empty());
+  EXPECT_EQ(images.rig_from_world, full.rig_from_world);
+  EXPECT_EQ(images.world_from_object, full.world_from_object);
 }
 
 // --- meshes -------------------------------------------------------------------

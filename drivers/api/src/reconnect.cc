@@ -46,10 +46,36 @@ void Reconnector::ReportLost(std::string_view message) const {
 }
 
 DriverStatus Reconnector::Run(const std::function<DriverStatus()>& attempt) const {
+  return Run(attempt, nullptr);
+}
+
+DriverStatus Reconnector::Run(const std::function<DriverStatus()>& attempt, ReconnectWake* wake,
+                              std::chrono::milliseconds slice) const {
+  const std::int64_t slice_ns = std::max<std::int64_t>(
+      1, std::chrono::duration_cast<std::chrono::nanoseconds>(slice).count());
   DriverStatus last;
   for (int i = 1; i <= policy_.max_attempts; ++i) {
-    const auto delay = policy_.DelayBefore(i);
-    host_.sleep_ns(std::chrono::duration_cast<std::chrono::nanoseconds>(delay).count());
+    const std::int64_t delay_ns =
+        std::chrono::duration_cast<std::chrono::nanoseconds>(policy_.DelayBefore(i)).count();
+    if (wake == nullptr) {
+      host_.sleep_ns(delay_ns);
+    } else {
+      // Sliced so a wake ends the delay within one slice.
+      std::int64_t slept_ns = 0;
+      bool woken = wake->Consume();
+      while (!woken && slept_ns < delay_ns) {
+        const std::int64_t step = std::min(slice_ns, delay_ns - slept_ns);
+        host_.sleep_ns(step);
+        slept_ns += step;
+        woken = wake->Consume();
+      }
+      if (woken && slept_ns < delay_ns) {
+        host_.log(LogLevel::kInfo, device_ + ": reconnect attempt " + std::to_string(i) +
+                                       " woken early after " +
+                                       std::to_string(slept_ns / 1'000'000) + " of " +
+                                       std::to_string(delay_ns / 1'000'000) + " ms");
+      }
+    }
     last = attempt();
     if (last.ok()) {
       host_.log(LogLevel::kInfo, device_ + ": reconnected (attempt " + std::to_string(i) + ")");

@@ -2,5 +2,5 @@
 #include "aravis_camera.h"
 
 CRAFTSCAN_DRIVER_PLUGIN("aravis", kCraftscanDriverCamera,
-                        "GigE Vision stereo pair over Aravis, software-triggered (camera only)",
+                        "GigE Vision / USB3 Vision stereo pair over Aravis (camera only)",
                         craftscan::aravis::CreateAravisInstance)

@@ -101,7 +101,8 @@ class SerialTurntable final : public drivers::Turntable {
     return status;
   }
 
-  DriverStatus Home(std::chrono::milliseconds /*timeout*/) noexcept override {
+  DriverStatus Home(std::chrono::milliseconds timeout) noexcept override {
+    if (timeout.count() <= 0) return BadTimeout("Home", timeout);
     std::lock_guard call(call_mutex_);
     if (table_.state() == GrblTurntable::State::kDeviceLost) {
       const DriverStatus reconnected = Finish(table_.Reconnect());
@@ -113,17 +114,18 @@ class SerialTurntable final : public drivers::Turntable {
         state != TurntableState::kFault) {
       return drivers::TurntableWrongState("Home", state, "Unhomed, Ready or Fault");
     }
-    return Finish(table_.Home());
+    return Finish(table_.Home(timeout));
   }
 
-  DriverStatus MoveTo(double angle_deg, std::chrono::milliseconds /*timeout*/) noexcept override {
+  DriverStatus MoveTo(double angle_deg, std::chrono::milliseconds timeout) noexcept override {
+    if (timeout.count() <= 0) return BadTimeout("MoveTo", timeout);
     std::lock_guard call(call_mutex_);
     const TurntableState state = ToApiState(table_.state());
     if (state != TurntableState::kReady) {
       return drivers::TurntableWrongState(
           "MoveTo", state, state == TurntableState::kUnhomed ? "Ready (Home() first)" : "Ready");
     }
-    return Finish(table_.MoveTo(angle_deg));
+    return Finish(table_.MoveTo(angle_deg, timeout));
   }
 
   DriverStatus Abort() noexcept override {
@@ -151,11 +153,18 @@ class SerialTurntable final : public drivers::Turntable {
   }
 
  private:
+  static DriverStatus BadTimeout(std::string_view call, std::chrono::milliseconds timeout) {
+    return DriverStatus::Error(Code::kInvalidArgument,
+                               std::string(call) + ": timeout must be > 0 ms, got " +
+                                   std::to_string(timeout.count()) + " ms");
+  }
+
   // Converts the result of a driving call and records the angle, the fault
   // reason and a device loss. Called with call_mutex_ held.
   DriverStatus Finish(const serial_turntable::Status& result) noexcept {
     try {
       const GrblTurntable::State state = table_.state();
+      // Ready after a move, a homing or a feed-hold abort: the angle it is at.
       if (state == GrblTurntable::State::kReady) angle_deg_ = table_.angle_deg();
       {
         std::lock_guard lock(mutex_);
@@ -241,6 +250,7 @@ class SerialTurntableInstance final : public drivers::DriverInstance {
 bool SerialTurntableOptionsFromConfig(const drivers::DriverConfig& config,
                                       GrblTurntableOptions* options, std::string* why) {
   GrblTurntableOptions o;
+  o.abort_mode = GrblTurntableOptions::AbortMode::kFeedHold;  // the plugin's default
   bool have_port = false;
   for (const auto& [key, value] : config) {
     bool ok = true;
@@ -282,6 +292,17 @@ bool SerialTurntableOptionsFromConfig(const drivers::DriverConfig& config,
       ok = ParseMs(key, value, 1, &o.status_poll_interval, why);
     } else if (key == "timeouts_until_lost") {
       ok = ParseInt(key, value, 1, &o.timeouts_until_lost, why);
+    } else if (key == "abort") {
+      if (value == "feed_hold") {
+        o.abort_mode = GrblTurntableOptions::AbortMode::kFeedHold;
+      } else if (value == "reset") {
+        o.abort_mode = GrblTurntableOptions::AbortMode::kReset;
+      } else {
+        *why = "config key 'abort': '" + value + "' is not feed_hold or reset";
+        return false;
+      }
+    } else if (key == "hold_timeout_ms") {
+      ok = ParseMs(key, value, 1, &o.hold_timeout, why);
     } else {
       *why = "unknown config key '" + key + "'";
       return false;

@@ -16,6 +16,9 @@
 //   move_timeout_factor     1.5
 //   status_poll_ms          20      between '?' status queries during a move
 //   timeouts_until_lost     3       consecutive timeouts that mean the device is gone
+//   abort                   feed_hold  how Abort() stops a move: feed_hold keeps the
+//                                      position (Ready), reset loses it (Unhomed)
+//   hold_timeout_ms         2000    feed hold: '!' until the controller reports Hold:0
 //
 // Mapping onto the API (turntable.h):
 // - States: GrblTurntable's DeviceLost is reported as Fault (fault_reason
@@ -23,10 +26,19 @@
 // - Codes: DeviceError/Alarm/PositionMismatch -> kFault, ProtocolError ->
 //   kIoError (the message keeps the original code name); the others 1:1.
 // - Abort() outside a move does nothing (GRBL's soft reset would lose the
-//   position); during a move it soft-resets GRBL, so the platter stops and the
-//   state becomes Unhomed (the driver lost its position).
-// - The per-call timeouts of Home()/MoveTo() are not used: the configured
-//   timeouts above bound every wait (the core runs on the real clock).
+//   position). During a move, abort=feed_hold: GRBL's feed hold ('!')
+//   decelerates the platter; once the controller reports Hold:0 a soft reset
+//   flushes the rest of the move (GRBL keeps the position after a completed
+//   hold) and "G92 X<angle>" restores the work offset: MoveTo returns
+//   kAborted, the state is Ready at the reported angle. If the hold fails
+//   (no Hold:0 within hold_timeout_ms, an alarm) or with abort=reset, a soft
+//   reset halts it at once: Unhomed (the position is lost).
+// - Per-call timeouts (> 0, else kInvalidArgument): Home(timeout) and
+//   MoveTo(angle, timeout) are bounded by the shorter of the call's timeout
+//   and the configured ones. A move or homing cut short by it is stopped
+//   (soft reset): kTimeout, state Fault (fault_reason says why); it does not
+//   count towards timeouts_until_lost. The waits run on the real clock
+//   (serial I/O), not HostServices.
 #pragma once
 
 #include <string>

@@ -60,6 +60,7 @@ bool GrblTurntableOptions::IsValid(std::string* why) const {
   }
   if (status_poll_interval.count() <= 0) return fail("status_poll_interval must be > 0");
   if (timeouts_until_lost < 1) return fail("timeouts_until_lost must be >= 1");
+  if (hold_timeout.count() <= 0) return fail("hold_timeout must be > 0");
   return true;
 }
 
@@ -91,9 +92,9 @@ bool GrblTurntable::SetStateUnlessAborted(State state) {
   return true;
 }
 
-Status GrblTurntable::Fail(Status status) {
+Status GrblTurntable::Fail(Status status, bool silence) {
   std::lock_guard lock(write_mutex_);
-  if (status.code == StatusCode::kTimeout) {
+  if (status.code == StatusCode::kTimeout && silence) {
     if (++consecutive_timeouts_ >= options_.timeouts_until_lost) {
       status.code = StatusCode::kDeviceLost;
       status.message += "; " + std::to_string(consecutive_timeouts_) +
@@ -111,6 +112,24 @@ Status GrblTurntable::Fail(Status status) {
   angle_deg_ = kNaN;
   last_error_ = status;
   return status;
+}
+
+void GrblTurntable::StopWithReset() {
+  {
+    std::lock_guard lock(write_mutex_);
+    reset_pending_ = true;  // ReadReplies() consumes the answer (ALARM:3/6 and the banner)
+    if (!port_.Write(std::string_view(&kSoftReset, 1), options_.command_timeout).ok()) return;
+  }
+  // Wait (bounded) for the banner, so the controller has stopped on return.
+  const bool aborted = abort_requested_.exchange(false);
+  const auto deadline = Clock::now() + options_.banner_timeout;
+  std::vector<GrblReply> ignored;
+  while (reset_pending_.load()) {
+    ignored.clear();
+    const Status s = ReadReplies(deadline, &ignored);
+    if (!s.ok()) break;  // a later call's BeginCall() waits for the rest
+  }
+  if (aborted) abort_requested_ = true;
 }
 
 Status GrblTurntable::Write(std::string_view bytes) {
@@ -213,6 +232,7 @@ Status GrblTurntable::OpenAndGreet() {
 
 Status GrblTurntable::BeginCall() {
   abort_requested_ = false;
+  hold_requested_ = false;
   if (reset_pending_.load()) {
     // Abort() reset the controller: wait until ReadReplies() has consumed the
     // banner, so it is not taken as a reply to the next command.
@@ -365,8 +385,21 @@ void GrblTurntable::Close() {
   angle_deg_ = kNaN;
 }
 
-Status GrblTurntable::Home() {
+Status GrblTurntable::Home(std::chrono::milliseconds timeout) {
   std::lock_guard call(command_mutex_);
+  const bool bounded = timeout.count() > 0;
+  const auto call_deadline = Clock::now() + timeout;
+  bool cut = false;  // the last wait was shortened by the call's timeout
+  // A configured wait, cut to what is left of the call's timeout.
+  const auto limit = [&](std::chrono::milliseconds configured) {
+    cut = false;
+    if (!bounded) return configured;
+    const auto left =
+        std::chrono::duration_cast<std::chrono::milliseconds>(call_deadline - Clock::now());
+    const auto wait = std::clamp(left, std::chrono::milliseconds(1), configured);
+    cut = wait < configured;
+    return wait;
+  };
   const State from = state_;
   if (from != State::kUnhomed && from != State::kReady && from != State::kFault) {
     return WrongState("Home()");
@@ -387,17 +420,23 @@ Status GrblTurntable::Home() {
     angle_deg_ = kNaN;
   }
   if (s.ok() && options_.homing_enabled) {
-    s = Command("$H", options_.homing_timeout);
+    s = Command("$H", limit(options_.homing_timeout));
   } else if (s.ok()) {
-    s = Command("$X", options_.command_timeout);
-    if (s.ok()) s = Command("G92 X0", options_.command_timeout);
+    s = Command("$X", limit(options_.command_timeout));
+    if (s.ok()) s = Command("G92 X0", limit(options_.command_timeout));
   }
   GrblStatusReport report;
-  if (s.ok()) s = QueryStatus(options_.command_timeout, &report);
+  if (s.ok()) s = QueryStatus(limit(options_.command_timeout), &report);
   if (s.ok() && report.state != GrblState::kIdle) {
     s = {report.state == GrblState::kAlarm ? StatusCode::kAlarm : StatusCode::kProtocolError,
          "controller reports '" + report.state_text + "' instead of Idle after homing on " +
              options_.port_path};
+  }
+  if (s.code == StatusCode::kTimeout && cut) {
+    // The caller's limit, not a silent controller: stop the homing cycle.
+    s.message += " (Home()'s timeout of " + Ms(timeout) + " expired; homing stopped)";
+    StopWithReset();
+    return Fail(std::move(s), /*silence=*/false);
   }
   if (!s.ok()) return Fail(std::move(s));
   origin_x_ = report.x_is_work ? 0.0 : *report.x;
@@ -406,7 +445,7 @@ Status GrblTurntable::Home() {
   return Status::Ok();
 }
 
-Status GrblTurntable::MoveTo(double angle_deg) {
+Status GrblTurntable::MoveTo(double angle_deg, std::chrono::milliseconds timeout) {
   std::lock_guard call(command_mutex_);
   if (state_ != State::kReady) return WrongState("MoveTo()");
   if (!std::isfinite(angle_deg) || std::abs(angle_deg) > 1e6) {
@@ -422,13 +461,16 @@ Status GrblTurntable::MoveTo(double angle_deg) {
   const std::string target = Fixed(angle_deg, 3);
   const auto start = Clock::now();
   const double nominal_s = std::abs(angle_deg - from_deg) / options_.feed_deg_per_min * 60.0;
-  const auto limit = std::chrono::duration_cast<std::chrono::milliseconds>(
-                         std::chrono::duration<double>(nominal_s * options_.move_timeout_factor)) +
-                     options_.move_timeout_margin;
+  auto limit = std::chrono::duration_cast<std::chrono::milliseconds>(
+                   std::chrono::duration<double>(nominal_s * options_.move_timeout_factor)) +
+               options_.move_timeout_margin;
+  const bool call_bound = timeout.count() > 0 && timeout < limit;
+  if (call_bound) limit = timeout;
   const auto deadline = start + limit;
+  bool move_expired = false;
 
   s = Command("G90 G1 X" + target + " F" + Fixed(options_.feed_deg_per_min, 1),
-              options_.command_timeout);
+              call_bound ? std::min(limit, options_.command_timeout) : options_.command_timeout);
   GrblStatusReport report;
   while (s.ok()) {
     s = QueryStatus(options_.command_timeout, &report);
@@ -441,10 +483,11 @@ Status GrblTurntable::MoveTo(double angle_deg) {
     }
     if (Clock::now() >= deadline) {
       const double reported = report.x_is_work ? *report.x : *report.x - origin_x_;
-      s = {StatusCode::kTimeout, "move to " + target + " deg did not finish within " + Ms(limit) +
-                                     " (last state '" + report.state_text + "' at " +
-                                     Fixed(reported, 3) + " deg) on " + options_.port_path};
-      consecutive_timeouts_ = 0;  // the controller is alive; this is not a silence timeout
+      s = {StatusCode::kTimeout,
+           "move to " + target + " deg did not finish within " + Ms(limit) +
+               (call_bound ? " (MoveTo()'s timeout)" : "") + " (last state '" + report.state_text +
+               "' at " + Fixed(reported, 3) + " deg) on " + options_.port_path + "; stopped"};
+      move_expired = true;  // the controller is alive; this is not a silence timeout
       break;
     }
     // Wait one poll interval, watching for asynchronous ALARM:N lines.
@@ -493,8 +536,34 @@ Status GrblTurntable::MoveTo(double angle_deg) {
     } while (w.ok());
     if (w.code != StatusCode::kTimeout) s = std::move(w);
   }
+  if ((s.code == StatusCode::kAborted || abort_requested_.load()) && hold_requested_.load()) {
+    hold_requested_ = false;
+    double stopped = 0;
+    const Status held = CompleteHold(target, &stopped);
+    if (held.ok()) {
+      const Status aborted{StatusCode::kAborted, "move to " + target + " deg aborted at " +
+                                                     Fixed(stopped, 3) + " deg (feed hold) on " +
+                                                     options_.port_path};
+      std::lock_guard lock(write_mutex_);
+      abort_requested_ = false;
+      angle_deg_ = stopped;
+      state_ = State::kReady;
+      last_error_ = aborted;
+      return aborted;
+    }
+    // The hold failed: halt with a reset; the position is lost.
+    StopWithReset();
+    abort_requested_ = true;
+    return Fail({StatusCode::kAborted, "move to " + target + " deg aborted on " +
+                                           options_.port_path + "; the feed hold failed (" +
+                                           held.message + "): home again"});
+  }
   if (s.code == StatusCode::kAborted || abort_requested_.load()) {
     s = {StatusCode::kAborted, "move to " + target + " deg aborted on " + options_.port_path};
+  }
+  if (move_expired) {
+    StopWithReset();
+    return Fail(std::move(s), /*silence=*/false);
   }
   if (!s.ok()) return Fail(std::move(s));
   angle_deg_ = angle_deg;
@@ -505,10 +574,82 @@ Status GrblTurntable::MoveTo(double angle_deg) {
   return Status::Ok();
 }
 
+Status GrblTurntable::CompleteHold(const std::string& target, double* stopped_deg) {
+  const std::string where = " on " + options_.port_path;
+  const auto deadline = Clock::now() + options_.hold_timeout;
+  GrblStatusReport report;
+  std::vector<GrblReply> ignored;
+  for (;;) {
+    if (Clock::now() >= deadline) {
+      return {StatusCode::kTimeout, "the feed hold did not complete within " +
+                                        Ms(options_.hold_timeout) + " (last state '" +
+                                        report.state_text + "')" + where};
+    }
+    abort_requested_ = false;  // reads work again; a repeated Abort() only re-sends '!'
+    Status s = QueryStatus(options_.command_timeout, &report);
+    if (s.code == StatusCode::kAborted) continue;
+    if (!s.ok()) return s;
+    if (report.state == GrblState::kIdle) break;  // the move ended before the hold took
+    if (report.state == GrblState::kHold && report.state_text == "Hold:0") break;
+    if (report.state == GrblState::kAlarm) {
+      return {StatusCode::kAlarm, "controller entered the Alarm state while holding the move to " +
+                                      target + " deg" + where};
+    }
+    if (report.state == GrblState::kRun || report.state == GrblState::kJog) {
+      s = Write("!");  // the hold came before the move had started
+      if (!s.ok()) return s;
+    }
+    ignored.clear();
+    s = ReadReplies(std::min(deadline, Clock::now() + options_.status_poll_interval), &ignored);
+    if (s.code == StatusCode::kDeviceLost || s.code == StatusCode::kIoError) return s;
+  }
+  const double stopped = report.x_is_work ? *report.x : *report.x - origin_x_;
+  // Flush the rest of the move: a reset after Hold:0 keeps the position.
+  Status s;
+  {
+    std::lock_guard lock(write_mutex_);
+    reset_pending_ = true;
+    s = port_.Write(std::string_view(&kSoftReset, 1), options_.command_timeout);
+  }
+  if (!s.ok()) return s;
+  const auto banner_deadline = Clock::now() + options_.banner_timeout;
+  while (reset_pending_.load()) {
+    ignored.clear();
+    s = ReadReplies(banner_deadline, &ignored);
+    if (s.code == StatusCode::kAborted) {
+      abort_requested_ = false;
+      continue;
+    }
+    if (s.code == StatusCode::kTimeout) {
+      reset_pending_ = false;
+      return {StatusCode::kTimeout, "no Grbl banner within " + Ms(options_.banner_timeout) +
+                                        " after the feed hold's soft reset" + where};
+    }
+    if (!s.ok()) return s;
+  }
+  s = QueryStatus(options_.command_timeout, &report);
+  if (!s.ok()) return s;
+  if (report.state != GrblState::kIdle) {
+    return {StatusCode::kAlarm, "controller reports '" + report.state_text +
+                                    "' after the feed hold's soft reset" + where};
+  }
+  // The reset may clear the G92 work offset: make the stop angle current again.
+  s = Command("G92 X" + Fixed(stopped, 3), options_.command_timeout);
+  if (!s.ok()) return s;
+  *stopped_deg = stopped;
+  return Status::Ok();
+}
+
 Status GrblTurntable::Abort() {
   std::lock_guard lock(write_mutex_);
   const State s = state_;
   if (s == State::kClosed || s == State::kDeviceLost) return WrongState("Abort()");
+  if (options_.abort_mode == GrblTurntableOptions::AbortMode::kFeedHold && s == State::kMoving) {
+    // MoveTo() completes the stop (CompleteHold) and keeps the position.
+    hold_requested_ = true;
+    abort_requested_ = true;
+    return port_.Write("!", options_.command_timeout);
+  }
   abort_requested_ = true;
   reset_pending_ = true;
   Status w = port_.Write(std::string_view(&kSoftReset, 1), options_.command_timeout);

@@ -2,7 +2,10 @@
 #include <charconv>
 #include <cmath>
 #include <string>
+#include <utility>
+#include <vector>
 
+#include "craftscan/sim/calibration_scenes.h"
 #include "craftscan/sim/driver_options.h"
 
 namespace craftscan::sim {
@@ -29,12 +32,66 @@ bool ParseBool(const std::string& text, bool* value) {
 
 }  // namespace
 
+std::string_view ToString(SimSceneType type) {
+  switch (type) {
+    case SimSceneType::kObject:
+      return "object";
+    case SimSceneType::kHeldBoard:
+      return "held_board";
+    case SimSceneType::kPlatterBoard:
+      return "platter_board";
+  }
+  return "unknown";
+}
+
+bool SimSceneTypeFromString(std::string_view text, SimSceneType* type) {
+  for (SimSceneType t :
+       {SimSceneType::kObject, SimSceneType::kHeldBoard, SimSceneType::kPlatterBoard}) {
+    if (text == ToString(t)) {
+      *type = t;
+      return true;
+    }
+  }
+  return false;
+}
+
+BoardSpec DefaultSimBoard(SimSceneType scene, BoardSpec::Type type) {
+  const bool chess = type == BoardSpec::Type::kChessboard;
+  if (scene == SimSceneType::kPlatterBoard) return chess ? PlatterChessboard() : PlatterCharuco();
+  return chess ? HeldChessboard() : HeldCharuco();
+}
+
 bool SimDriverOptions::IsValid(std::string* why) const {
   if (image_size.width < 16 || image_size.height < 16 || image_size.width > 8192 ||
       image_size.height > 8192) {
     return Fail(why, "image_size must be between 16x16 and 8192x8192");
   }
   if (threads < 1 || threads > 256) return Fail(why, "threads must be in [1, 256]");
+  if (supersampling < 1 || supersampling > 4) return Fail(why, "supersampling must be in [1, 4]");
+  if (scene != SimSceneType::kObject) {
+    std::string board_why;
+    if (!board.IsValid(&board_why)) {
+      return Fail(why,
+                  "board_type/board_cols/board_rows/board_square_mm/board_marker_mm/"
+                  "board_dictionary: " +
+                      board_why);
+    }
+  }
+  if (scene == SimSceneType::kPlatterBoard) {
+    if (board.IsRotationallySymmetric()) {
+      return Fail(why, "board_cols + board_rows must be odd for scene platter_board: a " +
+                           Describe(board) +
+                           " looks the same turned by 180°, so it cannot calibrate the "
+                           "turntable axis");
+    }
+    const double radius_mm = SceneOptions().platter_radius_mm;
+    if (PlatterBoardReachMm(board) > radius_mm) {
+      return Fail(why, "board_cols/board_rows/board_square_mm: the " + Describe(board) +
+                           " does not fit on the platter (it reaches " +
+                           std::to_string(PlatterBoardReachMm(board)) + " mm from the axis, " +
+                           "the platter's radius is " + std::to_string(radius_mm) + " mm)");
+    }
+  }
   if (!(turntable_speed_deg_s >= 0 && std::isfinite(turntable_speed_deg_s))) {
     return Fail(why, "turntable_speed_deg_s must be >= 0");
   }
@@ -52,9 +109,22 @@ bool SimDriverOptions::IsValid(std::string* why) const {
 bool SimDriverOptionsFromConfig(const drivers::DriverConfig& config, SimDriverOptions* options,
                                 std::string* why) {
   SimDriverOptions o;
+  // The board keys override fields of the scene's default board, known only
+  // once `scene` and `board_type` are read: collect them first.
+  BoardSpec::Type board_type = BoardSpec::Type::kChessboard;
+  std::vector<std::pair<std::string, std::string>> board_keys;
   for (const auto& [key, value] : config) {
     bool ok = true;
-    if (key == "object") {
+    if (key == "scene") {
+      ok = SimSceneTypeFromString(value, &o.scene);
+    } else if (key == "board_type") {
+      ok = BoardTypeFromString(value, &board_type);
+    } else if (key.rfind("board_", 0) == 0) {
+      board_keys.emplace_back(key, value);
+      continue;
+    } else if (key == "supersampling") {
+      ok = ParseNumber(value, &o.supersampling);
+    } else if (key == "object") {
       ok = ObjectTypeFromString(value, &o.object) && o.object != ObjectType::kMesh;
     } else if (key == "image_size") {
       const auto x = value.find('x');
@@ -90,6 +160,29 @@ bool SimDriverOptionsFromConfig(const drivers::DriverConfig& config, SimDriverOp
     }
     if (!ok) return Fail(why, "bad value '" + value + "' for sim driver config key '" + key + "'");
   }
+  o.board = DefaultSimBoard(o.scene, board_type);
+  bool marker_given = false;
+  for (const auto& [key, value] : board_keys) {
+    bool ok = true;
+    if (key == "board_cols") {
+      ok = ParseNumber(value, &o.board.cols);
+    } else if (key == "board_rows") {
+      ok = ParseNumber(value, &o.board.rows);
+    } else if (key == "board_square_mm") {
+      ok = ParseNumber(value, &o.board.square_mm);
+    } else if (key == "board_marker_mm") {
+      ok = ParseNumber(value, &o.board.marker_mm);
+      marker_given = true;
+    } else if (key == "board_dictionary") {
+      ok = ParseNumber(value, &o.board.aruco_dictionary);
+    } else {
+      return Fail(why, "unknown sim driver config key '" + key + "'");
+    }
+    if (!ok) return Fail(why, "bad value '" + value + "' for sim driver config key '" + key + "'");
+  }
+  if (o.board.type == BoardSpec::Type::kCharuco && !marker_given) {
+    o.board.marker_mm = o.board.square_mm * 2 / 3;
+  }
   if (!o.IsValid(why)) return false;
   *options = o;
   return true;
@@ -108,6 +201,7 @@ RigOptions SimRigOptions(const SimDriverOptions& options, const drivers::CameraS
   rig.left.principal_offset_px *= s;
   rig.right.principal_offset_px *= s;
   rig.num_threads = options.threads;
+  rig.supersampling = options.supersampling;
   rig.seed = options.seed;
   rig.exposure = SimExposure(settings);
   return rig;
@@ -115,7 +209,28 @@ RigOptions SimRigOptions(const SimDriverOptions& options, const drivers::CameraS
 
 SceneOptions SimSceneOptions(const SimDriverOptions& options) {
   SceneOptions scene;
-  scene.object.type = options.object;
+  switch (options.scene) {
+    case SimSceneType::kObject:
+      scene.object.type = options.object;
+      break;
+    case SimSceneType::kHeldBoard:
+      scene = BoardScene(options.board);
+      scene.board.enabled = false;
+      break;
+    case SimSceneType::kPlatterBoard:
+      scene = PlatterBoardScene(options.board);
+      break;
+  }
+  scene.seed = options.seed;
+  return scene;
+}
+
+SceneOptions SimHeldBoardSceneOptions(const SimDriverOptions& options, const SimStation& station,
+                                      std::uint64_t frame_id) {
+  const std::vector<HeldPose>& poses = HeldPoses(options.board.type);
+  const HeldPose& pose = poses[frame_id % poses.size()];
+  const HeldBoardPlacement placement = PlaceHeldBoard(station, options.board, pose);
+  SceneOptions scene = HeldBoardScene(station, options.board, placement.rig_from_board);
   scene.seed = options.seed;
   return scene;
 }

@@ -288,7 +288,8 @@ cv::Matx44d SimStation::world_from_rig() const { return impl_->world_from_rig.To
 cv::Matx44d SimStation::left_from_world() const { return impl_->left.cam_from_world.ToCv(); }
 cv::Matx44d SimStation::right_from_world() const { return impl_->right.cam_from_world.ToCv(); }
 
-StereoRender SimStation::Render(const Scene& scene, std::uint64_t frame_index) const {
+StereoRender SimStation::Render(const Scene& scene, std::uint64_t frame_index,
+                                RenderOutputs outputs) const {
   const auto start = std::chrono::steady_clock::now();
   const Impl& s = *impl_;
   const Scene::Impl& world = *scene.impl_;
@@ -302,15 +303,6 @@ StereoRender SimStation::Render(const Scene& scene, std::uint64_t frame_index) c
   StereoRender out;
   out.left.create(h, w, CV_8UC3);
   out.right.create(h, w, CV_8UC3);
-  out.left_depth_mm.create(h, w, CV_32FC1);
-  out.left_labels.create(h, w, CV_8UC1);
-  out.left_object_mask.create(h, w, CV_8UC1);
-  out.rectified_disparity.create(h, w, CV_32FC1);
-  out.rectified_depth_mm.create(h, w, CV_32FC1);
-  out.rectified_labels.create(h, w, CV_8UC1);
-  out.rectified_object_mask.create(h, w, CV_8UC1);
-  out.rectified_visible_right.create(h, w, CV_8UC1);
-
   const V3 centre_left = s.left.world_from_cam.t, centre_right = s.right.world_from_cam.t;
   const double rf_x = s.P1(0, 0), rf_y = s.P1(1, 1), rc_x = s.P1(0, 2), rc_y = s.P1(1, 2);
   const cv::Matx34d& P2 = s.P2;
@@ -338,6 +330,41 @@ StereoRender SimStation::Render(const Scene& scene, std::uint64_t frame_index) c
       bgr[ch] = Quantize(v);
     }
   };
+
+  // The poses, calibration and timing every render reports.
+  auto finish = [&] {
+    out.turntable_angle_rad = world.angle_rad;
+    out.world_from_object = world.WorldFromObject().ToCv();
+    out.world_from_board = world.WorldFromBoard().ToCv();
+    out.rig_from_world = s.rig_from_world.ToCv();
+    out.calibration = s.calibration;
+    if (world.options.board.enabled) out.calibration.board = world.options.board.spec;
+    out.status = StereoRender::Status::kOk;
+    out.render_ms =
+        std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count();
+    return out;
+  };
+
+  if (outputs == RenderOutputs::kImagesOnly) {
+    ForRows(s.arena.get(), h, [&](int y) {
+      auto* left_row = out.left.ptr<std::uint8_t>(y);
+      auto* right_row = out.right.ptr<std::uint8_t>(y);
+      for (int x = 0; x < w; ++x) {
+        shade_pixel(s.left, s.left_rays, 0, x, y, left_row + 3 * x);
+        shade_pixel(s.right, s.right_rays, 1, x, y, right_row + 3 * x);
+      }
+    });
+    return finish();
+  }
+
+  out.left_depth_mm.create(h, w, CV_32FC1);
+  out.left_labels.create(h, w, CV_8UC1);
+  out.left_object_mask.create(h, w, CV_8UC1);
+  out.rectified_disparity.create(h, w, CV_32FC1);
+  out.rectified_depth_mm.create(h, w, CV_32FC1);
+  out.rectified_labels.create(h, w, CV_8UC1);
+  out.rectified_object_mask.create(h, w, CV_8UC1);
+  out.rectified_visible_right.create(h, w, CV_8UC1);
 
   ForRows(s.arena.get(), h, [&](int y) {
     auto* left_row = out.left.ptr<std::uint8_t>(y);
@@ -407,16 +434,7 @@ StereoRender SimStation::Render(const Scene& scene, std::uint64_t frame_index) c
     }
   });
 
-  out.turntable_angle_rad = world.angle_rad;
-  out.world_from_object = world.WorldFromObject().ToCv();
-  out.world_from_board = world.WorldFromBoard().ToCv();
-  out.rig_from_world = s.rig_from_world.ToCv();
-  out.calibration = s.calibration;
-  if (world.options.board.enabled) out.calibration.board = world.options.board.spec;
-  out.status = StereoRender::Status::kOk;
-  out.render_ms =
-      std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count();
-  return out;
+  return finish();
 }
 
 }  // namespace craftscan::sim

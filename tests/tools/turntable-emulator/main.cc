@@ -29,6 +29,7 @@ constexpr const char* kUsage = R"(usage: craftscan-turntable-emulator [options]
   --no-banner          no banner on start (only after a soft reset, 0x18)
   --start-in-alarm     start locked in the Alarm state, like GRBL with homing enabled
   --start-deg D        machine position at start (default 0)
+  --hold-decel A       feed-hold deceleration in deg/s^2 (default 3600)
   --version V          version in the banner (default 1.1h)
   --control-fifo PATH  create FIFO PATH and read commands from it:
                          garbage TEXT | silent on|off | alarm N | offset DEG | hangup | quit
@@ -100,6 +101,12 @@ int main(int argc, char** argv) {
       options.start_in_alarm = true;
     } else if (arg == "--start-deg") {
       options.start_position_deg = std::atof(value("--start-deg").c_str());
+    } else if (arg == "--hold-decel") {
+      options.hold_decel_deg_s2 = std::atof(value("--hold-decel").c_str());
+      if (!(options.hold_decel_deg_s2 > 0)) {
+        std::fprintf(stderr, "--hold-decel: expected a deceleration > 0 deg/s^2\n");
+        return 2;
+      }
     } else if (arg == "--version") {
       options.version = value("--version");
     } else if (arg == "--control-fifo") {

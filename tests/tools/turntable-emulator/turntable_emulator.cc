@@ -23,7 +23,7 @@ namespace {
 
 using Clock = std::chrono::steady_clock;
 
-enum class EmuState { kIdle, kRun, kHome, kAlarm };
+enum class EmuState { kIdle, kRun, kHold, kHome, kAlarm };
 
 const char* Name(EmuState s) {
   switch (s) {
@@ -31,6 +31,8 @@ const char* Name(EmuState s) {
       return "Idle";
     case EmuState::kRun:
       return "Run";
+    case EmuState::kHold:
+      return "Hold";
     case EmuState::kHome:
       return "Home";
     case EmuState::kAlarm:
@@ -66,6 +68,10 @@ struct TurntableEmulator::Impl {
   double pos_deg = 0;  // machine position at move_start (or current when not moving)
   Move current{0, 0};
   Clock::time_point move_start, move_end, homing_end;
+  // Feed hold: from hold_from_deg at hold_start, velocity hold_v_deg_s
+  // (signed) decelerating to a stop at hold_end.
+  Clock::time_point hold_start, hold_end;
+  double hold_from_deg = 0, hold_v_deg_s = 0;
   std::deque<Move> queue;
   std::deque<std::string> held_lines;  // received during homing
   double wco_deg = 0;                  // G92 work offset: WPos = MPos − wco
@@ -103,6 +109,13 @@ struct TurntableEmulator::Impl {
   }
 
   double Position(Clock::time_point now) const {
+    if (state == EmuState::kHold) {
+      const double t = std::chrono::duration<double>(std::min(now, hold_end) - hold_start).count();
+      const double a = hold_v_deg_s >= 0 ? options.hold_decel_deg_s2 : -options.hold_decel_deg_s2;
+      const double p = hold_from_deg + hold_v_deg_s * t - 0.5 * a * t * t;
+      // A hold never carries the platter past the move's target.
+      return hold_v_deg_s >= 0 ? std::min(p, current.target_deg) : std::max(p, current.target_deg);
+    }
     if (state != EmuState::kRun) return pos_deg;
     if (now >= move_end) return current.target_deg;
     const double t = std::chrono::duration<double>(now - move_start).count() /
@@ -113,7 +126,31 @@ struct TurntableEmulator::Impl {
   // Where the machine will be when the queue is done (machine coordinates).
   double PlannedEnd() const {
     if (!queue.empty()) return queue.back().target_deg;
-    return state == EmuState::kRun ? current.target_deg : pos_deg;
+    return state == EmuState::kRun || state == EmuState::kHold ? current.target_deg : pos_deg;
+  }
+
+  bool HoldComplete(Clock::time_point now) const {
+    return state == EmuState::kHold && now >= hold_end;
+  }
+
+  // '!' during a move: decelerate to a stop.
+  void FeedHold(Clock::time_point now) {
+    if (state != EmuState::kRun) return;  // GRBL ignores a hold when nothing moves
+    hold_from_deg = Position(now);
+    const double speed = current.feed_per_min / 60.0;
+    hold_v_deg_s = current.target_deg >= pos_deg ? speed : -speed;
+    hold_start = now;
+    hold_end = now + std::chrono::duration_cast<Clock::duration>(
+                         std::chrono::duration<double>(speed / options.hold_decel_deg_s2));
+    state = EmuState::kHold;
+  }
+
+  // '~' after a completed hold: the move continues to its target.
+  void CycleStart(Clock::time_point now) {
+    if (!HoldComplete(now)) return;
+    pos_deg = Position(now);
+    state = EmuState::kIdle;
+    StartMove(current, now);
   }
 
   void StartMove(const Move& move, Clock::time_point now) {
@@ -157,7 +194,11 @@ struct TurntableEmulator::Impl {
 
   void SoftReset(Clock::time_point now) {
     ++resets;
-    const EmuState was = state;
+    // Reset in a completed hold keeps the position; while still slowing
+    // down it is a reset in motion.
+    const EmuState was = HoldComplete(now)          ? EmuState::kIdle
+                         : state == EmuState::kHold ? EmuState::kRun
+                                                    : state;
     Halt(now);
     line.clear();
     line_overflow = false;
@@ -178,7 +219,9 @@ struct TurntableEmulator::Impl {
   void StatusReport(Clock::time_point now) {
     const double x = Position(now) + offset_deg;
     const double f = state == EmuState::kRun ? current.feed_per_min : 0;
-    Send(std::string("<") + Name(state) + Fmt("|MPos:%.3f,0.000,0.000|FS:%.0f,0>\r\n", x, f));
+    std::string name = Name(state);
+    if (state == EmuState::kHold) name += HoldComplete(now) ? ":0" : ":1";
+    Send("<" + name + Fmt("|MPos:%.3f,0.000,0.000|FS:%.0f,0>\r\n", x, f));
   }
 
   void Error(int code) { Send("error:" + std::to_string(code) + "\r\n"); }
@@ -192,7 +235,7 @@ struct TurntableEmulator::Impl {
     if (text[0] == '$') {
       if (text == "$H") {
         if (!options.homing_enabled) return Error(5);
-        if (state == EmuState::kRun) return Error(8);
+        if (state == EmuState::kRun || state == EmuState::kHold) return Error(8);
         Halt(now);
         state = EmuState::kHome;
         homing_end = now + options.homing_time;
@@ -269,7 +312,7 @@ struct TurntableEmulator::Impl {
       if (motion_mode == 1 && !feed) return Error(22);
       const double target = absolute ? *x + wco_deg : PlannedEnd() + *x;
       Move move{target, motion_mode == 0 ? options.rapid_deg_per_min : *feed};
-      if (state == EmuState::kRun) {
+      if (state == EmuState::kRun || state == EmuState::kHold) {
         queue.push_back(move);
       } else {
         StartMove(move, now);
@@ -282,7 +325,8 @@ struct TurntableEmulator::Impl {
     if (silent) return;
     if (c == '?') return StatusReport(now);
     if (c == 0x18) return SoftReset(now);
-    if (c == '!' || c == '~') return;  // feed hold / cycle start: not emulated
+    if (c == '!') return FeedHold(now);
+    if (c == '~') return CycleStart(now);
     if (c == '\n' || c == '\r') {
       if (line.empty() && c == '\r') return;  // CR LF: one line
       ++lines;

@@ -11,8 +11,12 @@
 //
 // Speaks: banner "Grbl 1.1h ['$' for help]" on start and after a soft reset
 // (0x18); real-time '?' (status report <Idle|MPos:x,0.000,0.000|FS:f,0>, with
-// the interpolated position and Idle/Run/Home/Alarm), 0x18 (reset: halts
-// motion, ALARM:3 if it was moving); lines "$H" (homing takes homing_time;
+// the interpolated position and Idle/Run/Hold:1/Hold:0/Home/Alarm), '!' (feed
+// hold: a move decelerates at hold_decel_deg_s2 to a stop, Hold:1 while
+// slowing, Hold:0 once stopped), '~' (cycle start: a held move resumes), 0x18
+// (reset: halts motion, ALARM:3 if it was moving or still slowing down in a
+// hold; after Hold:0 the position is kept and no alarm is raised, as GRBL);
+// lines "$H" (homing takes homing_time;
 // MPos becomes 0), "$X" (unlock), "$$"/"$I"/"$G"/"$#" (ok), "G90", "G91",
 // "G92 X<v>", "G0/G1 X<v> F<deg/min>", combinations on one line (moves queue).
 // Motion is at constant speed: time = distance / feed. Malformed lines get
@@ -33,6 +37,7 @@ struct EmulatorOptions {
   bool start_in_alarm = false;       // like GRBL with homing enabled at power-up: "$H"/"$X" needed
   double start_position_deg = 0;     // MPos at start (deg)
   double rapid_deg_per_min = 36000;  // G0 speed (deg/min)
+  double hold_decel_deg_s2 = 3600;   // deceleration of a feed hold (deg/s²), > 0
   std::string version = "1.1h";      // banner version, e.g. "0.9j" to test the check
   // If not empty: a symlink made to point at the PTY slave (replaced
   // atomically), so a client can reopen the same path after a restart.
@@ -62,7 +67,7 @@ class TurntableEmulator {
 
   // ---- introspection (any thread) ----
   double machine_position_deg();  // current, interpolated
-  std::string state();            // "Idle", "Run", "Home", "Alarm"
+  std::string state();            // "Idle", "Run", "Hold", "Home", "Alarm"
   int lines_received();
   int resets_received();
   bool hung_up();

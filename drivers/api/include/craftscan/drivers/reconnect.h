@@ -3,9 +3,11 @@
 // to the host. A driver detects the loss (transport error, N consecutive
 // timeouts, ...), calls ReportLost(), and in its Reconnect() runs
 // Reconnector::Run with an attempt that reopens the device and re-applies the
-// last settings.
+// last settings. A ReconnectWake lets another thread (e.g. a USB hot-plug
+// arrival of the lost device) end a back-off delay early.
 #pragma once
 
+#include <atomic>
 #include <chrono>
 #include <functional>
 #include <string>
@@ -28,6 +30,22 @@ struct ReconnectPolicy {
   std::chrono::milliseconds DelayBefore(int attempt) const;
 };
 
+// Ends a Reconnector::Run back-off early. Thread-safe; Notify() from any
+// thread, Run() consumes it.
+class ReconnectWake {
+ public:
+  // The current back-off delay of a Run using this wake (or, if none is
+  // running, the first delay of the next one) ends at once.
+  void Notify() { pending_.store(true); }
+  // Drops a pending Notify() (e.g. one left over from before a new loss).
+  void Clear() { pending_.store(false); }
+  // True once per Notify().
+  bool Consume() { return pending_.exchange(false); }
+
+ private:
+  std::atomic<bool> pending_{false};
+};
+
 class Reconnector {
  public:
   // `device` names the device in events and log lines (e.g. "sim/camera").
@@ -48,6 +66,11 @@ class Reconnector {
   // the last failure reports kGaveUp and returns kDeviceLost with the last
   // attempt's message. attempt is called on the caller's thread.
   DriverStatus Run(const std::function<DriverStatus()>& attempt) const;
+  // As Run(attempt), but each back-off delay is slept in host sleeps of at
+  // most `slice` and ends as soon as wake->Consume() returns true: the next
+  // attempt is made at once (logged as "woken early"). A null wake: Run(attempt).
+  DriverStatus Run(const std::function<DriverStatus()>& attempt, ReconnectWake* wake,
+                   std::chrono::milliseconds slice = std::chrono::milliseconds(10)) const;
 
  private:
   ReconnectPolicy policy_;

@@ -2,12 +2,46 @@
 // camera pair and a turntable sharing one sim::Scene, so a capture after a
 // move shows the object turned.
 //
-// Config keys (all optional; unknown keys are refused, naming the key):
+// Config keys (all optional; unknown keys and values are refused, naming the key):
+//   scene                   what the cameras see                      (object)
+//     object                  the object on the turntable (`object`)
+//     held_board              no object; a calibration board held in front of the
+//                             rig: frame id i shows it at held pose i mod N
+//                             (HeldPoses(board_type), N = 16: calibration_scenes.h),
+//                             like a technician moving the board between
+//                             captures; the platter still turns with the turntable
+//     platter_board           no object; a chessboard (or ChArUco) lying on the
+//                             platter (PlatterBoardScene: its centre 20 mm off
+//                             the axis), turning with the turntable, so captures
+//                             after MoveTo show it turned (turntable axis calibration)
 //   object                  carved_box | egg | embroidery | none   (carved_box)
+//                           (ignored by the board scenes)
 //   image_size              WxH, px; the default rig scaled to it     (1280x1024)
 //   seed                    scene textures and sensor noise           (1)
 //   threads                 render threads, 1…256                     (1)
+//   supersampling           s: s×s samples per pixel, 1…4 (1 = point sampled:
+//                           a quarter of the rays, board corners ~2× noisier) (2)
 //   turntable_speed_deg_s   0 = moves are instantaneous, else deg/s   (0)
+// The board of the board scenes (ignored by `object`). It must be the board
+// the detector is told about (the calibration's BoardSpec): nothing else
+// tells a chessboard's square size.
+//   board_type              chessboard | charuco                      (chessboard)
+//   board_cols, board_rows  chessboard: inner corners per row / column;
+//                           charuco: squares per row / column
+//   board_square_mm         edge of a square, mm
+//   board_marker_mm         charuco: marker edge, mm, < square  (square · 2/3)
+//   board_dictionary        charuco: OpenCV predefined ArUco dictionary number
+//                           (cv::aruco::PREDEFINED_DICTIONARY_NAME) (1 = DICT_4X4_100)
+// Defaults (DefaultSimBoard; calibration_scenes.h), each key overriding one field:
+//   held_board     chessboard 9×6, 8 mm (HeldChessboard: what the poses are made for)
+//                  charuco 16×12, 12 mm, 8 mm markers (HeldCharuco)
+//   platter_board  chessboard 9×6, 12 mm (PlatterChessboard)
+//                  charuco 10×7, 15 mm, 10 mm markers (PlatterCharuco)
+// The board must be a valid BoardSpec. On the platter it must also lie on it
+// (PlatterBoardReachMm ≤ the 150 mm platter radius) and a chessboard must not
+// be 180°-symmetric (board_cols + board_rows odd): the turntable axis needs
+// its corner order. A held board too large for the view is accepted; its
+// frames then show it cut off, as a real one would be.
 // Fault knobs:
 //   drop_frame_every N      frame ids that are multiples of N (N ≥ 2) are
 //                           dropped: Capture returns the next id     (0 = off)
@@ -22,29 +56,46 @@
 //   reconnect_attempts, reconnect_delay_ms, reconnect_max_delay_ms:
 //                           the ReconnectPolicy (5, 200, 5000)
 //
-// Images: the render of frame id i uses SimStation::Render(scene, i), so a
-// capture can be reproduced exactly from SimRigOptions/SimSceneOptions.
+// Images: the render of frame id i uses SimStation::Render(scene, i) with
+// the scene SimSceneOptions (held_board: SimHeldBoardSceneOptions(…, i)) at
+// the turntable's angle, so a capture can be reproduced exactly from
+// SimRigOptions and those (the driver renders images only, no ground truth).
 // Exposure: the rig's linear exposure is exposure_us / 10000 · 10^(gain_db / 20)
 // (10 ms at 0 dB = the renderer's default exposure 1.0); it must be ≤ 100.
 #pragma once
 
 #include <cstdint>
 #include <string>
+#include <string_view>
 
 #include <opencv2/core.hpp>
 
 #include "craftscan/drivers/camera.h"
 #include "craftscan/drivers/host.h"
 #include "craftscan/drivers/reconnect.h"
+#include "craftscan/pipeline/calibration.h"
+#include "craftscan/sim/calibration_scenes.h"
 #include "craftscan/sim/station.h"
 
 namespace craftscan::sim {
 
+enum class SimSceneType { kObject, kHeldBoard, kPlatterBoard };
+std::string_view ToString(SimSceneType type);  // "object", "held_board", "platter_board"
+bool SimSceneTypeFromString(std::string_view text, SimSceneType* type);
+
+// The default board of a board scene (see board_* above).
+BoardSpec DefaultSimBoard(SimSceneType scene, BoardSpec::Type type);
+
 struct SimDriverOptions {
-  ObjectType object = ObjectType::kCarvedBox;
+  SimSceneType scene = SimSceneType::kObject;
+  ObjectType object = ObjectType::kCarvedBox;  // scene kObject only
+  // The board of the board scenes; SimDriverOptionsFromConfig fills in
+  // DefaultSimBoard(scene, board_type) and applies the board_* keys.
+  BoardSpec board = DefaultSimBoard(SimSceneType::kHeldBoard, BoardSpec::Type::kChessboard);
   cv::Size image_size{1280, 1024};  // px
   std::uint64_t seed = 1;
   int threads = 1;
+  int supersampling = 2;             // 1…4
   double turntable_speed_deg_s = 0;  // 0 = instantaneous
   int drop_frame_every = 0;          // 0 = off, else ≥ 2
   int stall_ms = 0;                  // ≥ 0
@@ -54,7 +105,8 @@ struct SimDriverOptions {
   bool turntable_stall = false;
   drivers::ReconnectPolicy reconnect;
 
-  bool IsValid(std::string* why) const;  // names the offending key
+  // Names the offending key (board problems name the board_* keys).
+  bool IsValid(std::string* why) const;
 };
 
 // Parses and validates a driver config; false with *why naming the key.
@@ -65,7 +117,15 @@ bool SimDriverOptionsFromConfig(const drivers::DriverConfig& config, SimDriverOp
 // exposure from the camera settings) and the scene it shares.
 RigOptions SimRigOptions(const SimDriverOptions& options,
                          const drivers::CameraSettings& settings = {});
+// The shared scene: the object; the board on the platter; for held_board
+// the board scene with the board disabled (each frame places it: below).
 SceneOptions SimSceneOptions(const SimDriverOptions& options);
+// held_board: the scene of frame `frame_id`, the board at held pose
+// frame_id mod N placed for `station`'s rig (PlaceHeldBoard; it depends only
+// on the rig's geometry, i.e. image_size), at turntable angle 0. Costs
+// ~2 ms (the placement search); thread-safe.
+SceneOptions SimHeldBoardSceneOptions(const SimDriverOptions& options, const SimStation& station,
+                                      std::uint64_t frame_id);
 double SimExposure(const drivers::CameraSettings& settings);  // the rig's linear exposure
 
 }  // namespace craftscan::sim

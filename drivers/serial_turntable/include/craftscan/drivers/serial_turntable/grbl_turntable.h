@@ -15,7 +15,7 @@
 //     Closed ─────────────> Unhomed ─────────────> Ready ─────────────────> Moving
 //       ^                     ^  ^                 ^  ^                       │
 //       │ Close()             │  │ Abort()         │  └── Idle at target, ────┤
-//       │ (any state)         │  └─────────────────┼───── settled             │
+//       │ (any state)         │  └──────(reset)────┼───── settled             │
 //       │                     │                    │ Home()                   │ error:N,
 //       │          Reconnect()│                  Fault <──────────────────────┘ ALARM:N,
 //       │                     │                    ^                            timeout,
@@ -25,7 +25,10 @@
 //   Closed      port closed. Connect().
 //   Unhomed     connected, banner seen, version 1.1; angle unknown. Home().
 //   Ready       angle known (the shadow angle_deg()). MoveTo(), Home().
-//   Moving      inside MoveTo() (visible to other threads). Abort().
+//   Moving      inside MoveTo() (visible to other threads). Abort(): with
+//               AbortMode::kReset -> Unhomed at once; with kFeedHold the
+//               move is stopped keeping the position -> Ready (Unhomed if
+//               the hold fails).
 //   Fault       the last command failed (message in last_error()); the angle
 //               is unknown. Home() (soft-resets first), Reconnect(), Close().
 //   DeviceLost  the port failed (EIO/ENXIO/hang-up) or `timeouts_until_lost`
@@ -71,6 +74,15 @@ struct GrblTurntableOptions {
   std::chrono::milliseconds status_poll_interval{20};  // between '?' during a move
   std::chrono::milliseconds settle_time{0};            // wait after the move ends (vibration)
   int timeouts_until_lost = 3;  // consecutive timeouts that mean the device is gone, >= 1
+  // How Abort() stops a move. kReset: soft reset (0x18) at once; GRBL
+  // halts and loses the position (ALARM:3), so the table is Unhomed.
+  // kFeedHold: feed hold ('!'), wait for Hold:0, then the soft reset that
+  // flushes the rest of the move (GRBL keeps the position after a completed
+  // hold), then "G92 X<angle>" to restore the work offset: Ready where the
+  // platter stopped.
+  enum class AbortMode { kReset, kFeedHold };
+  AbortMode abort_mode = AbortMode::kReset;
+  std::chrono::milliseconds hold_timeout{2000};  // feed hold: '!' until Hold:0
 
   bool IsValid(std::string* why) const;
 };
@@ -93,20 +105,28 @@ class GrblTurntable {
   // Unhomed/Ready/Fault -> Ready. From Fault, soft-resets first. Homing:
   // "$H" (homing_timeout); without a switch: "$X" then "G92 X0". Then checks
   // the controller reports Idle and records the reported origin. The shadow
-  // angle becomes 0.
-  Status Home();
+  // angle becomes 0. `timeout` > 0 also bounds the homing command and the
+  // final status query (the shorter limit wins); when it expires the homing
+  // cycle is stopped (soft reset): kTimeout, Fault, and it does not count
+  // towards timeouts_until_lost (the controller may just be slow).
+  Status Home(std::chrono::milliseconds timeout = std::chrono::milliseconds(0));
 
   // Ready -> Moving -> Ready. Sends "G90 G1 X<angle_deg> F<feed>", waits for
   // ok, polls '?' until Idle, checks the reported position against the
   // commanded one within position_tolerance_deg, then waits settle_time.
   // `angle_deg` is absolute (work coordinates, 0 = home), any finite value.
   // Failures -> Fault (kDeviceError, kAlarm, kTimeout, kPositionMismatch) or
-  // DeviceLost; Abort() -> kAborted and Unhomed.
-  Status MoveTo(double angle_deg);
+  // DeviceLost; Abort() -> kAborted and Unhomed (kReset) or Ready at the
+  // angle where it stopped (kFeedHold). `timeout` > 0 bounds the move
+  // together with the configured limit (the shorter wins). A move that does
+  // not finish in time is stopped (soft reset): kTimeout, Fault.
+  Status MoveTo(double angle_deg, std::chrono::milliseconds timeout = std::chrono::milliseconds(0));
 
-  // Stops now: sends GRBL's soft reset (0x18), which halts motion; GRBL then
-  // needs homing (ALARM:3 if it was moving). A MoveTo() in progress returns
-  // kAborted. Any open state -> Unhomed (Closed/DeviceLost: kWrongState).
+  // Stops now. AbortMode::kReset, or outside a move: sends GRBL's soft reset
+  // (0x18), which halts motion; GRBL then needs homing (ALARM:3 if it was
+  // moving); any open state -> Unhomed. kFeedHold during a move: sends the
+  // feed hold ('!') and returns; the MoveTo() in progress completes the stop
+  // (see AbortMode) and returns kAborted. Closed/DeviceLost: kWrongState.
   // Callable from any thread.
   Status Abort();
 
@@ -139,8 +159,15 @@ class GrblTurntable {
   Status Command(const std::string& line, std::chrono::milliseconds timeout);
   Status QueryStatus(std::chrono::milliseconds timeout, GrblStatusReport* report);
   Status ReadReplies(Clock::time_point deadline, std::vector<GrblReply>* replies);
-  Status BeginCall();          // clears a stale abort, consumes a pending reset, drains input
-  Status Fail(Status status);  // records; moves to Fault, DeviceLost or (aborted) Unhomed
+  Status BeginCall();  // clears a stale abort, consumes a pending reset, drains input
+  // Records; moves to Fault, DeviceLost or (aborted) Unhomed. A kTimeout
+  // counts towards timeouts_until_lost unless `silence` is false.
+  Status Fail(Status status, bool silence = true);
+  // Halts motion with a soft reset whose answer ReadReplies() will consume.
+  void StopWithReset();
+  // Feed hold requested by Abort(): waits for the stop, flushes the move,
+  // restores the work offset; *stopped_deg = the angle where it stopped.
+  Status CompleteHold(const std::string& target, double* stopped_deg);
   bool SetStateUnlessAborted(State state);
   Status WrongState(std::string_view call) const;
   std::string UnknownSummary() const;
@@ -152,7 +179,8 @@ class GrblTurntable {
   GrblReplyParser parser_;
   std::atomic<State> state_{State::kClosed};
   std::atomic<bool> abort_requested_{false};
-  std::atomic<bool> reset_pending_{false};  // Abort() sent 0x18; banner not consumed yet
+  std::atomic<bool> hold_requested_{false};  // Abort() sent '!' (kFeedHold)
+  std::atomic<bool> reset_pending_{false};   // Abort() sent 0x18; banner not consumed yet
   std::atomic<double> angle_deg_;
   double origin_x_ = 0;  // reported machine X at angle 0
   Status last_error_;

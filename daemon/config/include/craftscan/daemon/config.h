@@ -1,0 +1,244 @@
+// craftscand's configuration: the YAML file, environment overrides,
+// validation that names the offending field, and a YAML dump
+// (`craftscand --print-config`). Only the daemon parses this file; the
+// settings map onto the pipeline's option structs (MatcherOptions() …).
+//
+// File format (version 1; systemd/craftscand.yaml is the annotated example).
+// Every key is optional except `version`; unknown keys are refused, naming
+// the key path. Ranges are checked at load.
+//
+//   version: 1                    required; other versions are refused
+//   station: station1             [A-Za-z0-9_]{1,32}; in DDS topic names
+//   data_dir: /var/lib/craftscan  absolute; sessions/ and calibration/ live here
+//   log_level: info               debug | info | warning | error
+//   dds:
+//     domain: 0                   0..232 (Cyclone DDS's port mapping limit)
+//     config_file: ""             absolute path of a Cyclone DDS XML file, or
+//                                 "" (then CYCLONEDDS_URI or Cyclone's defaults)
+//   auth:
+//     tokens_file: /etc/craftscan/tokens.yaml   absolute (see auth.h)
+//   plugins:
+//     path: [<libdir>/craftscan/drivers]       absolute directories, ≥ 1, no ':'
+//   devices:                      omitted entirely: the simulated station
+//     camera:    {driver: sim, config: {object: carved_box}}
+//     turntable: {driver: sim, config: {object: carved_box}}
+//                                 driver: [A-Za-z0-9_]{1,64} (the plugin
+//                                 craftscan-driver-<driver>.so); config: a map of
+//                                 scalars, passed as strings (drivers::DriverConfig).
+//                                 When given, both devices are required. The same
+//                                 driver with the same config map means one driver
+//                                 instance serves both (the sim needs this: its
+//                                 camera renders its turntable's angle).
+//   calibration:
+//     board:
+//       type: chessboard          chessboard | charuco
+//       cols: 9                   2..100 (chessboard: inner corners per row)
+//       rows: 6                   2..100
+//       square_mm: 25             (0, 1000]
+//       marker_mm: 0              [0, 1000]; ChArUco only, < square_mm
+//       dictionary: DICT_4X4_50   ChArUco only: an OpenCV ArUco dictionary name
+//                                 (DICT_4X4_50 … DICT_APRILTAG_36h11) or its number
+//                                 The board as a whole must satisfy BoardSpec::IsValid.
+//     turntable_board: {...}      the board lying on the platter for
+//                                 calibrate-turntable, same keys as board
+//     turntable_board_thickness_mm: 3   [0, 100] its printed face above the platter
+//     views: 15                   3..1000 board views per calibration
+//     max_rms_px: 0.5             (0, 10] reprojection RMS accept threshold
+//   scan:
+//     views: 6                    1..360 views per scan
+//     step_deg: 60                (0, 360] turntable step; views × step_deg ≤ 360
+//     settle_ms: 200              0..60000 wait after a move before triggering
+//     exposure_us: 10000          (0, 10000000]
+//     gain_db: 0                  [0, 60]
+//   pipeline:
+//     threads: 2                  1..256 worker threads per stage
+//     min_disparity: 0            px, −4096..4096
+//     num_disparities: 0          px, 0..4096; 0 = derive the band from the
+//                                 calibration and the working volume
+//     min_texture_std: 2.5        grey levels [0, 255]; 0 = off (ReprojectOptions)
+//     volume_radius_mm: 120       (0, 10000] working volume around the axis
+//     volume_min_height_mm: 1.5   [−1000, 10000] above the platter
+//     volume_max_height_mm: 200   (min, 10000]
+//     mesh: true                  Poisson mesh after fusion
+//   limits:
+//     max_command_bytes: 65536    1024..16777216 (serialized DDS command)
+//     queue_capacity: 2           1..16 items between capture, matching, registration
+//   watchdog:
+//     enabled: true               ping systemd's watchdog when it asks
+//                                 (WATCHDOG_USEC); false never pings
+//
+// Booleans: true/false (also yes/no, on/off, 1/0). Numbers: plain decimal
+// (no hex, no units, no trailing text).
+//
+// Environment overrides: every scalar field (and plugins.path) can be set by
+// CRAFTSCAN_<PATH>, the path's segments upper-cased and joined by '_':
+// CRAFTSCAN_STATION, CRAFTSCAN_DATA_DIR, CRAFTSCAN_LOG_LEVEL,
+// CRAFTSCAN_DDS_DOMAIN, CRAFTSCAN_DDS_CONFIG_FILE, CRAFTSCAN_AUTH_TOKENS_FILE,
+// CRAFTSCAN_PLUGINS_PATH (directories joined by ':'),
+// CRAFTSCAN_DEVICES_CAMERA_DRIVER, CRAFTSCAN_CALIBRATION_BOARD_SQUARE_MM,
+// CRAFTSCAN_SCAN_VIEWS, CRAFTSCAN_PIPELINE_THREADS, CRAFTSCAN_WATCHDOG_ENABLED,
+// … (ConfigEnvironmentVariables() lists them all). Overrides apply after the
+// file and are validated the same way; an error names the variable. Other
+// CRAFTSCAN_* variables (e.g. the clients' CRAFTSCAN_TOKEN) are ignored.
+#pragma once
+
+#include <map>
+#include <string>
+#include <string_view>
+#include <vector>
+
+#include "craftscan/drivers/host.h"
+#include "craftscan/pipeline/adcensus.h"
+#include "craftscan/pipeline/calibration.h"
+#include "craftscan/pipeline/reproject.h"
+#include "craftscan/pipeline/scan_reconstruction.h"
+
+namespace craftscan::daemon {
+
+// The config file version this build reads.
+inline constexpr int kConfigVersion = 1;
+
+// The driver plugin directory of this build's install prefix
+// (<libdir>/craftscan/drivers), the default plugins.path.
+std::string DefaultPluginDirectory();
+
+// The log level: the drivers' enum, so the daemon's logger and the drivers'
+// host log share one scale. drivers::ToString gives "debug", "info",
+// "warning", "error"; LogLevelFromString reads them back.
+using LogLevel = drivers::LogLevel;
+bool LogLevelFromString(std::string_view text, LogLevel* level);
+
+struct DdsSettings {
+  int domain = 0;           // DDS domain id, 0..232
+  std::string config_file;  // absolute path of a Cyclone DDS XML file, or empty
+};
+
+struct AuthSettings {
+  std::string tokens_file = "/etc/craftscan/tokens.yaml";  // absolute; see auth.h
+};
+
+struct PluginSettings {
+  std::vector<std::string> path = {DefaultPluginDirectory()};  // absolute dirs, searched in order
+  // The directories joined by ':' (drivers::PluginLoader's search path).
+  std::string SearchPath() const;
+};
+
+struct DeviceSettings {
+  std::string driver = "sim";    // plugin name: craftscan-driver-<driver>.so
+  drivers::DriverConfig config;  // passed to the driver as is
+  // Whether `other` is served by the same driver instance (same driver and config).
+  bool SharesInstanceWith(const DeviceSettings& other) const {
+    return driver == other.driver && config == other.config;
+  }
+};
+
+struct DevicesSettings {  // defaults: the simulated station (one sim instance)
+  DeviceSettings camera;
+  DeviceSettings turntable;
+};
+
+// Default boards: the ones the simulated station's rig (100 mm baseline,
+// ~400 mm to the axis) is made for; a real station sets its printed boards.
+inline BoardSpec DefaultBoard(double square_mm) {
+  BoardSpec board;
+  board.cols = 9;
+  board.rows = 6;
+  board.square_mm = square_mm;
+  return board;
+}
+
+struct CalibrationSettings {
+  // Held in front of the cameras (calibrate); craftscan::BoardSpec.
+  BoardSpec board = DefaultBoard(8);
+  // Lying on the platter (calibrate-turntable); its printed face is
+  // turntable_board_thickness_mm above the platter. Not 180°-symmetric
+  // (a chessboard's cols + rows odd): the axis fit needs its corner order.
+  BoardSpec turntable_board = DefaultBoard(12);
+  double turntable_board_thickness_mm = 3;  // [0, 100]
+  int views = 15;           // board views captured per calibration, 3..1000
+  double max_rms_px = 0.5;  // accept threshold on the reprojection RMS (px), (0, 10]
+};
+
+struct ScanSettings {
+  int views = 6;               // views per scan, 1..360
+  double step_deg = 60;        // turntable step between views (°), (0, 360]
+  int settle_ms = 200;         // wait after a move before triggering (ms), 0..60000
+  double exposure_us = 10000;  // µs, (0, 10000000]
+  double gain_db = 0;          // dB, [0, 60]
+};
+
+struct PipelineSettings {
+  int threads = 2;                    // worker threads per stage, 1..256
+  int min_disparity = 0;              // px, −4096..4096
+  int num_disparities = 0;            // px, 0..4096; 0 = derive from calibration + volume
+  double min_texture_std = 2.5;       // grey levels, [0, 255]; 0 = off
+  double volume_radius_mm = 120;      // (0, 10000]
+  double volume_min_height_mm = 1.5;  // [−1000, 10000]
+  double volume_max_height_mm = 200;  // > volume_min_height_mm, ≤ 10000
+  bool mesh = true;                   // Poisson mesh after fusion
+};
+
+struct LimitSettings {
+  int max_command_bytes = 65536;  // largest accepted command (bytes), 1024..16777216
+  // Items in flight between capture, matching and registration (each a
+  // stereo pair or a cloud of tens of MB): 2 lets capture run one view ahead
+  // of matching without holding more than a few hundred MB. 1..16.
+  int queue_capacity = 2;
+};
+
+struct WatchdogSettings {
+  bool enabled = true;  // ping when systemd sets WATCHDOG_USEC; false: never ping
+};
+
+struct DaemonConfig {
+  std::string station = "station1";             // [A-Za-z0-9_]{1,32}
+  std::string data_dir = "/var/lib/craftscan";  // absolute
+  LogLevel log_level = LogLevel::kInfo;
+  DdsSettings dds;
+  AuthSettings auth;
+  PluginSettings plugins;
+  DevicesSettings devices;
+  CalibrationSettings calibration;
+  ScanSettings scan;
+  PipelineSettings pipeline;
+  LimitSettings limits;
+  WatchdogSettings watchdog;
+
+  // Checks every field's range and the cross-field rules (board validity,
+  // views × step_deg ≤ 360, volume heights ordered, matcher options). On
+  // failure *why (may be null) starts with the field path, e.g.
+  // "scan.views: must be an integer in 1..360, got '0'".
+  bool IsValid(std::string* why) const;
+};
+
+// Parses a config from YAML text, then applies the CRAFTSCAN_* entries of
+// `env` (name → value; other entries ignored), then validates. On failure
+// returns false, leaves *config unchanged and sets *error to one message
+// naming the field path (and the YAML line, or the environment variable).
+// Never throws. Thread-safe.
+bool ParseDaemonConfig(const std::string& yaml_text, const std::map<std::string, std::string>& env,
+                       DaemonConfig* config, std::string* error);
+
+// Reads `path` and parses it with the process environment's CRAFTSCAN_*
+// overrides. Errors are prefixed with the path. Never throws. Thread-safe as
+// long as no other thread modifies the environment.
+bool LoadDaemonConfig(const std::string& path, DaemonConfig* config, std::string* error);
+
+// The config as a version-1 YAML document with every field, in schema
+// order. ParseDaemonConfig(DumpDaemonConfig(c), {}, …) yields c again.
+std::string DumpDaemonConfig(const DaemonConfig& config);
+
+// The environment variables ParseDaemonConfig reads, in schema order.
+std::vector<std::string> ConfigEnvironmentVariables();
+
+// The process environment's variables that start with "CRAFTSCAN_".
+std::map<std::string, std::string> CraftscanEnvironment();
+
+// The settings as pipeline options. MatcherOptions: threads, and the
+// disparity band when num_disparities > 0 (otherwise the caller sets the
+// band it derived). ReconstructionOptions: threads, working volume, mesh.
+ADCensusOptions MatcherOptions(const PipelineSettings& settings);
+ReprojectOptions ReprojectionOptions(const PipelineSettings& settings);
+ScanOptions ReconstructionOptions(const PipelineSettings& settings);
+
+}  // namespace craftscan::daemon

@@ -1,0 +1,41 @@
+// craftscand's service: builds the station from a DaemonConfig (sessions,
+// tokens, DDS, devices, jobs) and runs the main loop — commands in, replies
+// out, StationStatus on change and every second, systemd notifications
+// (READY=1 once the devices were opened, WATCHDOG=1 only while healthy,
+// STATUS= lines, STOPPING=1) — until RequestStop().
+//
+// Stopping (SIGTERM): the running job is cancelled at its next safe point —
+// every capture already acknowledged is on disk and its session is marked
+// interrupted, so `resume` continues it — then the devices are closed.
+#pragma once
+
+#include <atomic>
+#include <memory>
+#include <string>
+
+#include "craftscan/daemon/config.h"
+
+namespace craftscan::daemon {
+
+class Daemon {
+ public:
+  // Checks what can be checked before serving: the data directory (sessions
+  // store), the tokens file, the DDS participant and topics. Null with
+  // *error naming the part and the problem. Devices are opened by Run().
+  static std::unique_ptr<Daemon> Create(const DaemonConfig& config, std::string* error);
+  ~Daemon();
+
+  // Serves until RequestStop(); returns the process exit code (0 after a
+  // clean stop).
+  int Run();
+  // Async-signal-safe: sets a flag the main loop polls (within 100 ms).
+  void RequestStop() { stop_.store(true); }
+
+ private:
+  struct Impl;
+  explicit Daemon(std::unique_ptr<Impl> impl);
+  std::unique_ptr<Impl> impl_;
+  std::atomic<bool> stop_{false};
+};
+
+}  // namespace craftscan::daemon

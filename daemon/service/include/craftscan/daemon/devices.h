@@ -1,0 +1,103 @@
+// DeviceManager: the station's hardware as the daemon sees it. Loads the
+// configured driver plugins (the sim station when none is configured), opens
+// the stereo camera and the turntable, follows their connect / loss /
+// recovery events for StationStatus, and wraps captures and moves with the
+// recovery the jobs need (reconnect on loss, bounded retries on timeouts).
+#pragma once
+
+#include <atomic>
+#include <chrono>
+#include <functional>
+#include <memory>
+#include <mutex>
+#include <string>
+#include <vector>
+
+#include "craftscan/drivers/camera.h"
+#include "craftscan/drivers/host.h"
+#include "craftscan/drivers/plugin_loader.h"
+#include "craftscan/drivers/turntable.h"
+#include "craftscan/pipeline/calibration.h"
+
+namespace craftscan::daemon {
+
+struct DeviceSpec {
+  std::string driver = "sim";  // plugin name: craftscan-driver-<driver>.so
+  drivers::DriverConfig config;
+};
+
+struct DeviceSetup {
+  std::string plugin_path;  // directories separated by ':'
+  DeviceSpec camera, turntable;  // same driver + same config → one shared instance
+  drivers::CameraSettings camera_settings;
+  std::chrono::milliseconds capture_timeout{5000};
+  std::chrono::milliseconds home_timeout{60000};
+  std::chrono::milliseconds move_timeout{60000};
+  int capture_retries = 3;  // consecutive timeouts/dropped captures before giving up
+};
+
+// One device's line in StationStatus.
+struct DeviceReport {
+  std::string name;   // "camera", "turntable"
+  std::string kind;   // "stereo_camera", "turntable"
+  std::string driver;
+  std::string state;  // the driver state ("Streaming", "Ready", "Lost", ...) or "absent"
+  std::string message;  // last event or error
+};
+
+// Thread-safety: Open/Close/SwitchScene/ApplyCameraSettings from one thread
+// (the job thread or the service's start-up); Reports() from any thread;
+// Capture/MoveTo/Home from the job thread only.
+class DeviceManager {
+ public:
+  // `log` and `on_change` may be empty; on_change is called (from any thread)
+  // whenever a device event arrives so the service can republish its status.
+  DeviceManager(DeviceSetup setup, std::function<void(drivers::LogLevel, std::string_view)> log,
+                std::function<void()> on_change);
+  ~DeviceManager();
+
+  // Loads the plugins, creates and opens both devices, configures and starts
+  // the camera and homes the turntable. False with *error naming the device.
+  bool Open(std::string* error);
+  void Close();
+  bool IsOpen() const { return open_.load(); }
+
+  std::vector<DeviceReport> Reports() const;
+  bool IsSim() const;  // the camera's driver is "sim"
+  drivers::CameraSettings camera_settings() const;
+
+  // For calibration on the simulated station: reopens the sim driver with
+  // its `scene` key set ("object", "held_board", "platter_board") showing
+  // `board` (may be null for "object"). On a real station the operator
+  // presents the board and this returns true without changing anything.
+  bool SwitchScene(const std::string& scene, const BoardSpec* board, std::string* error);
+
+  // One stereo pair. Loss → Reconnect() (the driver's back-off) and retry;
+  // timeouts → up to capture_retries tries. `cancel` is polled between tries.
+  bool Capture(drivers::StereoFrame* frame, const std::atomic<bool>& cancel, std::string* error);
+  bool MoveTo(double angle_deg, std::string* error);
+  bool Home(std::string* error);
+  bool AbortMove();
+  drivers::TurntableStatus TurntableStatusNow() const;
+  // Stop, Configure with the new settings, Start; on failure the old ones are restored.
+  bool ApplyCameraSettings(const drivers::CameraSettings& settings, std::string* error);
+
+ private:
+  bool OpenLocked(const DeviceSpec& camera, const DeviceSpec& turntable, std::string* error);
+  void Note(const std::string& device, const std::string& message);
+
+  DeviceSetup setup_;
+  std::function<void(drivers::LogLevel, std::string_view)> log_;
+  std::function<void()> on_change_;
+  drivers::PluginLoader loader_;
+  std::unique_ptr<drivers::DriverInstance> camera_instance_, turntable_instance_;
+  std::unique_ptr<drivers::StereoCamera> camera_;
+  std::unique_ptr<drivers::Turntable> turntable_;
+  std::atomic<bool> open_{false};
+  std::string scene_ = "object";
+  mutable std::mutex mutex_;  // guards messages_, camera_settings_ and the device pointers' swap
+  std::string camera_message_, turntable_message_;
+  drivers::CameraSettings camera_settings_;
+};
+
+}  // namespace craftscan::daemon

@@ -1,0 +1,174 @@
+// JobEngine: runs the station's jobs, one at a time, on worker threads.
+//
+//   calibrate            board views → stereo calibration + report; stored
+//                        under <data_dir>/calibration/<id>/ and made current
+//                        only when accepted
+//   calibrate-turntable  the board on the platter at several angles → the
+//                        turntable axis, added to the current calibration
+//   capture              one view → disparity → cloud (a one-view session)
+//   scan                 N views at a step → registration → fusion → mesh →
+//                        measurements (a session)
+//   resume               an interrupted scan from its last durable step
+//
+// A scan runs three stages joined by bounded queues (capacity from the
+// options; a stereo pair is ~8 MB, so 2 keeps memory bounded while capture
+// of view k+1 overlaps matching of view k):
+//
+//   capture (move, settle, trigger, store durably, publish)
+//     ─Q1─► match (rectify, AD-Census, reproject, store, publish)
+//     ─Q2─► reconstruct (after the last view: ReconstructScan, outputs)
+//
+// Cancel and shutdown close the queues; each stage finishes its item and
+// stops; the session is marked interrupted (resumable), never dropped.
+// An exception escaping a stage becomes a failed job.
+#pragma once
+
+#include <atomic>
+#include <chrono>
+#include <condition_variable>
+#include <cstdint>
+#include <functional>
+#include <memory>
+#include <mutex>
+#include <optional>
+#include <string>
+#include <thread>
+#include <vector>
+
+#include <nlohmann/json.hpp>
+#include <opencv2/core.hpp>
+
+#include "craftscan/daemon/devices.h"
+#include "craftscan/daemon/session_store.h"
+#include "craftscan/daemon/view_processor.h"
+#include "craftscan/drivers/camera.h"
+#include "craftscan/pipeline/calibration.h"
+#include "craftscan/pipeline/point_cloud.h"
+#include "craftscan/pipeline/scan_reconstruction.h"
+
+namespace craftscan::daemon {
+
+// What the jobs publish; implemented by the DDS bridge (and by tests). Called
+// from the job threads, possibly concurrently; implementations must be
+// thread-safe and must not block for long.
+class JobSink {
+ public:
+  virtual ~JobSink() = default;
+  virtual void Progress(const std::string& job, const std::string& stage, int current, int total,
+                        const std::string& message) = 0;
+  // A capture, called only once it is durable on disk (the acknowledgement).
+  virtual void Capture(const std::string& session, int view, double angle_deg,
+                       const drivers::StereoFrame& frame) = 0;
+  virtual void Disparity(const std::string& session, int view, const cv::Mat& disparity,
+                         double focal_px, double baseline_mm, int min_disparity,
+                         int num_disparities) = 0;
+  // view −1 = the fused cloud. world_from_cloud: the cloud's pose in the
+  // turntable frame (mm).
+  virtual void Cloud(const std::string& session, int view, const PointCloud& cloud,
+                     const cv::Matx44d& world_from_cloud) = 0;
+  // The calibration in force changed (after calibrate / calibrate-turntable).
+  virtual void CalibrationChanged(const StereoCalibration& calibration) { (void)calibration; }
+};
+
+struct JobEngineOptions {
+  std::string data_dir;
+  int default_views = 6;
+  double default_step_deg = 60;
+  std::chrono::milliseconds settle{200};
+  int queue_capacity = 2;
+  int threads = 2;  // matcher and reconstruction threads
+  ViewProcessorOptions view;
+  ScanOptions scan;  // reconstruction options (num_threads overridden by threads)
+  // Calibration.
+  BoardSpec board;              // held in front of the cameras
+  BoardSpec turntable_board;    // lying on the platter
+  int calibration_views = 16;
+  int calibration_max_attempts = 40;  // captures tried before giving up
+  double max_rms_px = 0.5;
+  StereoCalibrationOptions calibration;
+  std::vector<double> turntable_angles_deg{0, 60, 120, 180, 240, 300};
+  double turntable_board_thickness_mm = 3;
+};
+
+enum class JobState { kIdle, kRunning, kDone, kFailed, kCancelled };
+std::string_view ToString(JobState state);  // "idle", "running", ...
+
+struct JobInfo {
+  std::string id;       // "job-<n>", empty when none ran yet
+  std::string verb;     // "scan", "capture", ...
+  JobState state = JobState::kIdle;
+  std::string session;  // the session it writes, if any
+  std::string stage;    // current stage
+  double progress = 0;  // 0…1
+  std::string message;  // result summary or error
+  nlohmann::json result;  // verb-specific result (measurements, calibration figures)
+};
+
+struct ScanRequest {
+  std::string object = "object";
+  int views = 0;          // 0 = the default
+  double step_deg = 0;    // 0 = 360 / views
+  std::string client;
+};
+
+class JobEngine {
+ public:
+  JobEngine(JobEngineOptions options, DeviceManager* devices, SessionStore* store, JobSink* sink,
+            std::function<void(drivers::LogLevel, std::string_view)> log);
+  ~JobEngine();
+
+  // Loads <data_dir>/calibration/current.yaml if present. False with *error
+  // for a present but unreadable one (the daemon starts anyway, without it).
+  bool LoadCurrentCalibration(std::string* error);
+  std::optional<StereoCalibration> calibration() const;
+  std::string calibration_id() const;
+
+  // Each Start* returns false with *error when busy ("busy: job-3 (scan)
+  // is running") or when the request is invalid; on success *info holds the
+  // new job's id (and session for scan/capture/resume).
+  bool StartScan(const ScanRequest& request, JobInfo* info, std::string* error);
+  bool StartCapture(const std::string& object, JobInfo* info, std::string* error);
+  bool StartCalibrate(JobInfo* info, std::string* error);
+  bool StartCalibrateTurntable(JobInfo* info, std::string* error);
+  bool StartResume(const std::string& session_id, JobInfo* info, std::string* error);
+  // Asks the running job to stop at its next safe point. False if none runs.
+  bool Cancel(std::string* error);
+  // Cancels the running job (its session becomes interrupted) and joins it.
+  void Shutdown();
+
+  bool Busy() const;
+  JobInfo Current() const;  // the running job, else the last finished one
+  // Waits until no job runs (for tests and shutdown); false on timeout.
+  bool WaitIdle(std::chrono::milliseconds timeout) const;
+
+ private:
+  struct ScanPlan;
+  bool Launch(const std::string& verb, const std::string& session, std::function<void()> body,
+              JobInfo* info, std::string* error);
+  void RunScan(const std::shared_ptr<ScanPlan>& plan);
+  void RunCalibrate();
+  void RunCalibrateTurntable();
+  void SetStage(const std::string& stage, int current, int total, const std::string& message);
+  void Finish(JobState state, const std::string& message, nlohmann::json result = {});
+  bool SetCurrentCalibration(const StereoCalibration& calibration, const std::string& id,
+                             std::string* error);
+  std::string NewCalibrationDir(std::string* id, std::string* error);
+
+  JobEngineOptions options_;
+  DeviceManager* devices_;
+  SessionStore* store_;
+  JobSink* sink_;
+  std::function<void(drivers::LogLevel, std::string_view)> log_;
+
+  mutable std::mutex mutex_;  // guards current_, calibration_, calibration_id_
+  mutable std::condition_variable idle_;
+  JobInfo current_;
+  bool running_ = false;
+  std::uint64_t next_job_ = 1;
+  std::optional<StereoCalibration> calibration_;
+  std::string calibration_id_;
+  std::atomic<bool> cancel_{false};
+  std::thread worker_;
+};
+
+}  // namespace craftscan::daemon

@@ -1,0 +1,479 @@
+#include "craftscan/daemon/daemon.h"
+
+#include <chrono>
+#include <ctime>
+#include <mutex>
+#include <optional>
+#include <thread>
+#include <utility>
+
+#include <spdlog/spdlog.h>
+
+#include "craftscan/daemon/auth.h"
+#include "craftscan/daemon/commands.h"
+#include "craftscan/daemon/devices.h"
+#include "craftscan/daemon/jobs.h"
+#include "craftscan/daemon/notify.h"
+#include "craftscan/daemon/session_store.h"
+#include "craftscan/dds/convert.h"
+#include "craftscan/dds/endpoint.h"
+#include "craftscan/dds/participant.h"
+#include "craftscan/dds/topics.h"
+
+namespace craftscan::daemon {
+namespace {
+
+using Clock = std::chrono::steady_clock;
+
+std::int64_t WallNs() {
+  return std::chrono::duration_cast<std::chrono::nanoseconds>(
+             std::chrono::system_clock::now().time_since_epoch())
+      .count();
+}
+
+void Log(drivers::LogLevel level, std::string_view message) {
+  switch (level) {
+    case drivers::LogLevel::kDebug: spdlog::debug("{}", message); break;
+    case drivers::LogLevel::kInfo: spdlog::info("{}", message); break;
+    case drivers::LogLevel::kWarning: spdlog::warn("{}", message); break;
+    case drivers::LogLevel::kError: spdlog::error("{}", message); break;
+  }
+}
+
+// Publishes what the jobs produce on the station's topics (craftscan's and
+// the ROS 2-compatible ones). A failed write is logged, never fatal: a slow
+// subscriber must not stop a scan (the data is on disk).
+class DdsPublisher : public JobSink {
+ public:
+  bool Create(const std::shared_ptr<dds::Participant>& p, const std::string& station,
+              std::string* error) {
+    station_ = station;
+    using dds::Side;
+    return (progress_ = dds::Writer<dds::msg::JobProgress>::Create(p, dds::ProgressTopic(station), error)) &&
+           (capture_ = dds::Writer<dds::msg::StereoCapture>::Create(p, dds::CaptureTopic(station), error)) &&
+           (disparity_ = dds::Writer<dds::msg::Disparity>::Create(p, dds::DisparityTopic(station), error)) &&
+           (cloud_ = dds::Writer<dds::msg::PointCloud>::Create(p, dds::CloudTopic(station), error)) &&
+           (ros_left_ = dds::Writer<dds::ros::Image>::Create(p, dds::RosImageTopic(station, Side::kLeft), error)) &&
+           (ros_right_ = dds::Writer<dds::ros::Image>::Create(p, dds::RosImageTopic(station, Side::kRight), error)) &&
+           (ros_info_left_ = dds::Writer<dds::ros::CameraInfo>::Create(p, dds::RosCameraInfoTopic(station, Side::kLeft), error)) &&
+           (ros_info_right_ = dds::Writer<dds::ros::CameraInfo>::Create(p, dds::RosCameraInfoTopic(station, Side::kRight), error)) &&
+           (ros_disparity_ = dds::Writer<dds::ros::DisparityImage>::Create(p, dds::RosDisparityTopic(station), error)) &&
+           (ros_cloud_ = dds::Writer<dds::ros::PointCloud2>::Create(p, dds::RosCloudTopic(station), error));
+  }
+
+  Clock::time_point last_activity() const {
+    std::lock_guard lock(mutex_);
+    return last_activity_;
+  }
+
+  void Progress(const std::string& job, const std::string& stage, int current, int total,
+                const std::string& message) override {
+    Touch();
+    dds::Outgoing<dds::msg::JobProgress> out;
+    out.msg().job_id = out.Keep(job);
+    out.msg().stage = out.Keep(stage);
+    out.msg().current = current;
+    out.msg().total = total;
+    out.msg().message = out.Keep(message);
+    out.msg().stamp_ns = WallNs();
+    Write(*progress_, out.msg(), "progress");
+  }
+
+  void Capture(const std::string& session, int view, double angle_deg,
+               const drivers::StereoFrame& frame) override {
+    Touch();
+    std::string error;
+    dds::StereoCaptureMeta meta;
+    meta.session = session;
+    meta.view_index = view;
+    meta.angle_deg = angle_deg;
+    meta.exposure_us = frame.settings.exposure_us;
+    meta.gain_db = frame.settings.gain_db;
+    const std::int64_t now = WallNs();
+    meta.left_stamp_ns = meta.right_stamp_ns = now;
+    meta.left_frame_id = station_ + "_left_optical";
+    meta.right_frame_id = station_ + "_right_optical";
+    dds::Outgoing<dds::msg::StereoCapture> out;
+    if (dds::MakeStereoCapture(frame.left.image, frame.right.image, meta, &out, &error)) {
+      Write(*capture_, out.msg(), "capture");
+    } else {
+      spdlog::warn("capture topic: {}", error);
+    }
+    dds::Outgoing<dds::ros::Image> left, right;
+    if (dds::MakeImage(frame.left.image, now, meta.left_frame_id, &left, &error) &&
+        dds::MakeImage(frame.right.image, now, meta.right_frame_id, &right, &error)) {
+      Write(*ros_left_, left.msg(), "left image_raw");
+      Write(*ros_right_, right.msg(), "right image_raw");
+    } else {
+      spdlog::warn("image_raw topics: {}", error);
+    }
+  }
+
+  void Disparity(const std::string& session, int view, const cv::Mat& disparity, double focal_px,
+                 double baseline_mm, int min_disparity, int num_disparities) override {
+    Touch();
+    std::string error;
+    dds::DisparityMeta meta;
+    meta.session = session;
+    meta.view_index = view;
+    meta.f_px = static_cast<float>(focal_px);
+    meta.baseline_mm = static_cast<float>(baseline_mm);
+    meta.cx_offset_px = cx_offset_px_;
+    meta.min_disparity = static_cast<float>(min_disparity);
+    meta.max_disparity = static_cast<float>(min_disparity + num_disparities - 1);
+    meta.stamp_ns = WallNs();
+    meta.frame_id = station_ + "_rig";
+    dds::Outgoing<dds::msg::Disparity> out;
+    if (dds::MakeDisparity(disparity, meta, &out, &error)) {
+      Write(*disparity_, out.msg(), "disparity");
+    } else {
+      spdlog::warn("disparity topic: {}", error);
+    }
+    dds::Outgoing<dds::ros::DisparityImage> ros;
+    if (dds::MakeDisparityImage(disparity, meta, &ros, &error)) {
+      Write(*ros_disparity_, ros.msg(), "ros disparity");
+    } else {
+      spdlog::warn("ros disparity topic: {}", error);
+    }
+  }
+
+  void Cloud(const std::string& session, int view, const PointCloud& cloud,
+             const cv::Matx44d& world_from_cloud) override {
+    Touch();
+    std::string error;
+    dds::CloudMeta meta;
+    meta.session = session;
+    meta.view_index = view;
+    meta.kind = view < 0 ? "fused" : "view";
+    meta.world_from_view = world_from_cloud;
+    meta.stamp_ns = WallNs();
+    meta.frame_id = view < 0 ? station_ + "_turntable" : station_ + "_rig";
+    dds::Outgoing<dds::msg::PointCloud> out;
+    if (dds::MakeCloud(cloud, meta, &out, &error)) {
+      Write(*cloud_, out.msg(), "cloud");
+    } else {
+      spdlog::warn("cloud topic: {}", error);
+    }
+    dds::Outgoing<dds::ros::PointCloud2> ros;
+    if (dds::MakePointCloud2(cloud, meta.stamp_ns, meta.frame_id, &ros, &error)) {
+      Write(*ros_cloud_, ros.msg(), "ros cloud");
+    } else {
+      spdlog::warn("ros cloud topic: {}", error);
+    }
+  }
+
+  void CalibrationChanged(const StereoCalibration& calibration) override {
+    std::string error;
+    cx_offset_px_ = static_cast<float>(calibration.P1(0, 2) - calibration.P2(0, 2));
+    const std::int64_t now = WallNs();
+    dds::Outgoing<dds::ros::CameraInfo> left, right;
+    if (dds::MakeCameraInfo(calibration, dds::Side::kLeft, now, station_ + "_left_optical", &left,
+                            &error) &&
+        dds::MakeCameraInfo(calibration, dds::Side::kRight, now, station_ + "_right_optical",
+                            &right, &error)) {
+      Write(*ros_info_left_, left.msg(), "left camera_info");
+      Write(*ros_info_right_, right.msg(), "right camera_info");
+    } else {
+      spdlog::warn("camera_info topics: {}", error);
+    }
+  }
+
+ private:
+  void Touch() {
+    std::lock_guard lock(mutex_);
+    last_activity_ = Clock::now();
+  }
+  template <typename Msg>
+  void Write(dds::Writer<Msg>& writer, const Msg& msg, const char* what) {
+    std::string error;
+    if (!writer.Write(msg, &error)) spdlog::warn("{}: {}", what, error);
+  }
+
+  std::string station_;
+  std::atomic<float> cx_offset_px_{0};
+  mutable std::mutex mutex_;
+  Clock::time_point last_activity_ = Clock::now();
+  std::unique_ptr<dds::Writer<dds::msg::JobProgress>> progress_;
+  std::unique_ptr<dds::Writer<dds::msg::StereoCapture>> capture_;
+  std::unique_ptr<dds::Writer<dds::msg::Disparity>> disparity_;
+  std::unique_ptr<dds::Writer<dds::msg::PointCloud>> cloud_;
+  std::unique_ptr<dds::Writer<dds::ros::Image>> ros_left_, ros_right_;
+  std::unique_ptr<dds::Writer<dds::ros::CameraInfo>> ros_info_left_, ros_info_right_;
+  std::unique_ptr<dds::Writer<dds::ros::DisparityImage>> ros_disparity_;
+  std::unique_ptr<dds::Writer<dds::ros::PointCloud2>> ros_cloud_;
+};
+
+}  // namespace
+
+struct Daemon::Impl {
+  DaemonConfig config;
+  SystemdNotifier notifier;
+  std::unique_ptr<SessionStore> store;
+  std::optional<TokenAuthority> tokens;
+  std::shared_ptr<dds::Participant> participant;
+  std::unique_ptr<dds::Writer<dds::msg::StationStatus>> status_writer;
+  std::unique_ptr<dds::Writer<dds::msg::Reply>> reply_writer;
+  std::unique_ptr<dds::Reader<dds::msg::Command>> command_reader;
+  DdsPublisher publisher;
+  std::unique_ptr<DeviceManager> devices;
+  std::unique_ptr<JobEngine> jobs;
+  std::unique_ptr<CommandHandler> handler;
+  std::atomic<bool> status_dirty{true};
+  std::string last_error;
+  std::string state = "starting";
+
+  nlohmann::json StatusJson() const;
+  void PublishStatus();
+};
+
+nlohmann::json Daemon::Impl::StatusJson() const {
+  nlohmann::json devices_json = nlohmann::json::array();
+  for (const DeviceReport& d : devices->Reports()) {
+    devices_json.push_back({{"name", d.name}, {"kind", d.kind}, {"driver", d.driver},
+                            {"state", d.state}, {"message", d.message}});
+  }
+  const JobInfo job = jobs->Current();
+  return {{"station", config.station},
+          {"state", state},
+          {"devices", devices_json},
+          {"job", {{"id", job.id}, {"verb", job.verb}, {"state", ToString(job.state)},
+                   {"session", job.session}, {"stage", job.stage}, {"progress", job.progress},
+                   {"message", job.message}, {"result", job.result}}},
+          {"last_error", last_error},
+          {"calibration_id", jobs->calibration_id()}};
+}
+
+void Daemon::Impl::PublishStatus() {
+  const JobInfo job = jobs->Current();
+  dds::Outgoing<dds::msg::StationStatus> out;
+  auto& m = out.msg();
+  m.station = out.Keep(config.station);
+  m.state = out.Keep(state);
+  std::vector<dds::msg::DeviceStatus> list;
+  for (const DeviceReport& d : devices->Reports()) {
+    dds::msg::DeviceStatus s{};
+    s.name = out.Keep(d.name);
+    s.kind = out.Keep(d.kind);
+    s.state = out.Keep(d.state);
+    s.message = out.Keep(d.message);
+    list.push_back(s);
+  }
+  const std::size_t count = list.size();
+  dds::msg::DeviceStatus* devices_data = out.Keep(std::move(list));
+  dds::Borrow(&m.devices, devices_data, count);
+  m.job_id = out.Keep(job.id);
+  m.job_verb = out.Keep(job.verb);
+  m.job_state = out.Keep(ToString(job.state));
+  m.progress = job.progress;
+  m.last_error = out.Keep(last_error);
+  m.stamp_ns = WallNs();
+  m.calibration_id = out.Keep(jobs->calibration_id());
+  std::string error;
+  if (!status_writer->Write(m, &error)) spdlog::warn("status: {}", error);
+}
+
+Daemon::Daemon(std::unique_ptr<Impl> impl) : impl_(std::move(impl)) {}
+Daemon::~Daemon() = default;
+
+std::unique_ptr<Daemon> Daemon::Create(const DaemonConfig& config, std::string* error) {
+  auto impl = std::make_unique<Impl>();
+  impl->config = config;
+  std::string why;
+  if (!config.IsValid(&why)) {
+    *error = "config: " + why;
+    return nullptr;
+  }
+  impl->store = SessionStore::Open(config.data_dir, &why);
+  if (!impl->store) {
+    *error = "data_dir: " + why;
+    return nullptr;
+  }
+  impl->tokens = TokenAuthority::Load(config.auth.tokens_file, &why);
+  if (!impl->tokens) {
+    *error = "auth.tokens_file: " + why;
+    return nullptr;
+  }
+  dds::ParticipantOptions options;
+  options.domain_id = static_cast<std::uint32_t>(config.dds.domain);
+  if (!config.dds.config_file.empty()) options.config = dds::ConfigFileUri(config.dds.config_file);
+  impl->participant = dds::Participant::Create(options, &why);
+  if (!impl->participant) {
+    *error = "dds: " + why;
+    return nullptr;
+  }
+  const std::string& station = config.station;
+  if (!(impl->status_writer = dds::Writer<dds::msg::StationStatus>::Create(
+            impl->participant, dds::StatusTopic(station), &why)) ||
+      !(impl->reply_writer =
+            dds::Writer<dds::msg::Reply>::Create(impl->participant, dds::ReplyTopic(station), &why)) ||
+      !(impl->command_reader = dds::Reader<dds::msg::Command>::Create(
+            impl->participant, dds::CommandTopic(station), &why)) ||
+      !impl->publisher.Create(impl->participant, station, &why)) {
+    *error = "dds: " + why;
+    return nullptr;
+  }
+
+  DeviceSetup setup;
+  setup.plugin_path = config.plugins.SearchPath();
+  setup.camera = {config.devices.camera.driver, config.devices.camera.config};
+  setup.turntable = {config.devices.turntable.driver, config.devices.turntable.config};
+  setup.camera_settings.exposure_us = config.scan.exposure_us;
+  setup.camera_settings.gain_db = config.scan.gain_db;
+  Impl* raw = impl.get();
+  impl->devices = std::make_unique<DeviceManager>(setup, Log, [raw] { raw->status_dirty = true; });
+
+  JobEngineOptions jobs;
+  jobs.data_dir = config.data_dir;
+  jobs.default_views = config.scan.views;
+  jobs.default_step_deg = config.scan.step_deg;
+  jobs.settle = std::chrono::milliseconds(config.scan.settle_ms);
+  jobs.queue_capacity = config.limits.queue_capacity;
+  jobs.threads = config.pipeline.threads;
+  jobs.view.volume_radius_mm = config.pipeline.volume_radius_mm;
+  jobs.view.volume_min_height_mm = config.pipeline.volume_min_height_mm;
+  jobs.view.volume_max_height_mm = config.pipeline.volume_max_height_mm;
+  jobs.view.min_texture_std = config.pipeline.min_texture_std;
+  jobs.view.min_disparity = config.pipeline.min_disparity;
+  jobs.view.num_disparities = config.pipeline.num_disparities;
+  jobs.scan = ReconstructionOptions(config.pipeline);
+  jobs.board = config.calibration.board;
+  jobs.turntable_board = config.calibration.turntable_board;
+  jobs.turntable_board_thickness_mm = config.calibration.turntable_board_thickness_mm;
+  jobs.calibration_views = config.calibration.views;
+  jobs.max_rms_px = config.calibration.max_rms_px;
+  jobs.calibration.rectification.zero_disparity = false;
+  impl->jobs = std::make_unique<JobEngine>(jobs, impl->devices.get(), impl->store.get(),
+                                           &impl->publisher, Log);
+  if (!impl->jobs->LoadCurrentCalibration(&why)) {
+    spdlog::error("calibration: {} (starting without one; run calibrate)", why);
+    impl->last_error = "calibration: " + why;
+  }
+  CommandLimits limits;
+  limits.max_argument_bytes = static_cast<std::size_t>(config.limits.max_command_bytes);
+  impl->handler = std::make_unique<CommandHandler>(
+      limits, &*impl->tokens, impl->jobs.get(), impl->devices.get(), impl->store.get(),
+      [raw] { return raw->StatusJson(); });
+  return std::unique_ptr<Daemon>(new Daemon(std::move(impl)));
+}
+
+int Daemon::Run() {
+  Impl& d = *impl_;
+  std::string error;
+  std::vector<std::string> problems;
+  const std::vector<std::string> interrupted = d.store->MarkInterrupted(&problems);
+  for (const std::string& id : interrupted) spdlog::warn("session {} was unfinished: marked interrupted", id);
+  for (const std::string& p : problems) spdlog::error("sessions: {}", p);
+  if (const auto c = d.jobs->calibration()) d.publisher.CalibrationChanged(*c);
+
+  d.notifier.Status("opening devices");
+  d.PublishStatus();
+  auto last_open_try = Clock::now();
+  if (!d.devices->Open(&error)) {
+    d.last_error = "devices: " + error;
+    d.state = "error";
+    spdlog::error("devices: {} (retrying every 10 s)", error);
+  } else {
+    d.state = "idle";
+  }
+  // Ready once the devices were tried: a station without its hardware still
+  // serves status and sessions, and says why in STATUS= and StationStatus.
+  d.notifier.Ready(d.state == "idle" ? "ready: devices up" : "degraded: " + d.last_error);
+  spdlog::info("craftscand serving station '{}' on DDS domain {}", d.config.station,
+               d.config.dds.domain);
+
+  const auto ping_interval = d.config.watchdog.enabled ? d.notifier.WatchdogPingInterval()
+                                                       : std::chrono::microseconds(0);
+  auto last_ping = Clock::time_point{};
+  auto last_status = Clock::now();
+  std::string last_job_state, last_summary;
+  dds::Sample<dds::msg::Command> command;
+  while (!stop_.load()) {
+    const dds::TakeStatus taken =
+        d.command_reader->Take(std::chrono::milliseconds(100), &command, &error);
+    if (taken == dds::TakeStatus::kOk) {
+      CommandRequest request;
+      request.request_id = std::string(dds::View(command->request_id));
+      request.client = std::string(dds::View(command->client));
+      request.token = std::string(dds::View(command->token));
+      request.verb = std::string(dds::View(command->verb));
+      request.arguments = std::string(dds::View(command->arguments));
+      const CommandReply reply = d.handler->Handle(request);
+      spdlog::debug("command {} '{}' from '{}': {}", reply.request_id, request.verb.substr(0, 64),
+                    reply.client, ToString(reply.code));
+      if (reply.code != ReplyCode::kOk) {
+        spdlog::info("command {} '{}' from '{}': {}: {}", reply.request_id, request.verb.substr(0, 64),
+                     reply.client, ToString(reply.code), reply.message);
+      }
+      dds::Outgoing<dds::msg::Reply> out;
+      out.msg().request_id = out.Keep(reply.request_id);
+      out.msg().client = out.Keep(reply.client);
+      out.msg().code = static_cast<std::int32_t>(reply.code);
+      out.msg().code_name = out.Keep(ToString(reply.code));
+      out.msg().message = out.Keep(reply.message);
+      std::string result = reply.result.dump(-1, ' ', false, nlohmann::json::error_handler_t::replace);
+      if (result.size() > dds::kMaxReplyResultBytes) result = "{\"truncated\":true}";
+      out.msg().result = out.Keep(result);
+      if (!d.reply_writer->Write(out.msg(), &error)) spdlog::warn("reply: {}", error);
+      d.status_dirty = true;
+    } else if (taken == dds::TakeStatus::kError) {
+      spdlog::warn("command topic: {}", error);
+      std::this_thread::sleep_for(std::chrono::milliseconds(100));
+    }
+
+    const auto now = Clock::now();
+    // Devices that failed to open are retried.
+    if (!d.devices->IsOpen() && !d.jobs->Busy() && now - last_open_try > std::chrono::seconds(10)) {
+      last_open_try = now;
+      if (d.devices->Open(&error)) {
+        d.state = "idle";
+        d.last_error.clear();
+        d.notifier.Status("ready: devices up");
+      } else {
+        d.last_error = "devices: " + error;
+      }
+      d.status_dirty = true;
+    }
+    const JobInfo job = d.jobs->Current();
+    const std::string job_state = job.id + std::string(ToString(job.state)) + job.stage;
+    if (job_state != last_job_state) {
+      last_job_state = job_state;
+      d.status_dirty = true;
+      if (job.state == JobState::kFailed) d.last_error = job.message;
+      if (d.devices->IsOpen()) d.state = d.jobs->Busy() ? "busy" : "idle";
+    }
+    // STATUS= when a job starts or ends (not per stage: each is a datagram
+    // the service manager must read).
+    const std::string summary = d.jobs->Busy() ? "busy: " + job.id + " " + job.verb
+                                               : "idle; last job " + job.id + " " +
+                                                     std::string(ToString(job.state));
+    if (summary != last_summary) {
+      last_summary = summary;
+      d.notifier.Status(summary);
+    }
+    if (d.status_dirty.exchange(false) || now - last_status > std::chrono::seconds(1)) {
+      d.PublishStatus();
+      last_status = now;
+    }
+    // Healthy: this loop runs, and a running job has reported within 10 min
+    // (a driver call hung forever stops the pings; systemd restarts us and
+    // the session resumes).
+    const bool healthy =
+        !d.jobs->Busy() || now - d.publisher.last_activity() < std::chrono::minutes(10);
+    if (ping_interval.count() > 0 && healthy && now - last_ping >= ping_interval) {
+      d.notifier.Watchdog();
+      last_ping = now;
+    }
+  }
+
+  spdlog::info("stopping");
+  d.notifier.Stopping("stopping: checkpointing the running job");
+  d.state = "stopping";
+  d.PublishStatus();
+  d.jobs->Shutdown();
+  d.devices->Close();
+  d.PublishStatus();
+  spdlog::info("stopped cleanly");
+  return 0;
+}
+
+}  // namespace craftscan::daemon

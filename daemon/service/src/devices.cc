@@ -1,0 +1,237 @@
+#include "craftscan/daemon/devices.h"
+
+#include <thread>
+#include <utility>
+
+namespace craftscan::daemon {
+namespace {
+
+bool Fail(std::string* error, std::string message) {
+  if (error) *error = std::move(message);
+  return false;
+}
+
+}  // namespace
+
+DeviceManager::DeviceManager(DeviceSetup setup,
+                             std::function<void(drivers::LogLevel, std::string_view)> log,
+                             std::function<void()> on_change)
+    : setup_(std::move(setup)),
+      log_(std::move(log)),
+      on_change_(std::move(on_change)),
+      loader_(setup_.plugin_path),
+      camera_settings_(setup_.camera_settings) {}
+
+DeviceManager::~DeviceManager() { Close(); }
+
+void DeviceManager::Note(const std::string& device, const std::string& message) {
+  {
+    std::lock_guard lock(mutex_);
+    (device == "camera" ? camera_message_ : turntable_message_) = message;
+  }
+  if (on_change_) on_change_();
+}
+
+bool DeviceManager::Open(std::string* error) {
+  return OpenLocked(setup_.camera, setup_.turntable, error);
+}
+
+bool DeviceManager::OpenLocked(const DeviceSpec& camera_spec, const DeviceSpec& turntable_spec,
+                               std::string* error) {
+  Close();
+  drivers::HostServices host;
+  host.log = [this](drivers::LogLevel level, std::string_view message) {
+    if (log_) log_(level, message);
+  };
+  host.events = [this](const drivers::DeviceEventInfo& event) {
+    const bool is_camera = event.device.find("camera") != std::string::npos;
+    std::string text = std::string(drivers::ToString(event.event));
+    if (event.attempt > 0) text += " (attempt " + std::to_string(event.attempt) + ")";
+    if (!event.message.empty()) text += ": " + event.message;
+    Note(is_camera ? "camera" : "turntable", text);
+    if (log_) log_(drivers::LogLevel::kInfo, event.device + ": " + text);
+  };
+
+  auto create = [&](const DeviceSpec& spec, std::unique_ptr<drivers::DriverInstance>* instance) {
+    std::shared_ptr<const drivers::Plugin> plugin;
+    drivers::DriverStatus s = loader_.Load(spec.driver, &plugin);
+    if (!s.ok()) return Fail(error, "driver '" + spec.driver + "': " + s.ToString());
+    s = plugin->CreateInstance(spec.config, host, instance);
+    if (!s.ok()) return Fail(error, "driver '" + spec.driver + "': " + s.ToString());
+    return true;
+  };
+  if (!create(camera_spec, &camera_instance_)) return false;
+  drivers::DriverInstance* turntable_source = camera_instance_.get();
+  if (turntable_spec.driver != camera_spec.driver || turntable_spec.config != camera_spec.config) {
+    if (!create(turntable_spec, &turntable_instance_)) return false;
+    turntable_source = turntable_instance_.get();
+  }
+  drivers::DriverStatus s;
+  auto camera = camera_instance_->CreateCamera(&s);
+  if (!camera) return Fail(error, "camera (driver '" + camera_spec.driver + "'): " + s.ToString());
+  auto turntable = turntable_source->CreateTurntable(&s);
+  if (!turntable)
+    return Fail(error, "turntable (driver '" + turntable_spec.driver + "'): " + s.ToString());
+
+  if (s = camera->Open(); !s.ok()) return Fail(error, "camera: " + s.ToString());
+  const drivers::CameraSettings settings = camera_settings();
+  if (s = camera->Configure(settings); !s.ok()) return Fail(error, "camera: " + s.ToString());
+  if (s = camera->Start(); !s.ok()) return Fail(error, "camera: " + s.ToString());
+  if (s = turntable->Open(); !s.ok()) return Fail(error, "turntable: " + s.ToString());
+  if (s = turntable->Home(setup_.home_timeout); !s.ok())
+    return Fail(error, "turntable: " + s.ToString());
+  {
+    std::lock_guard lock(mutex_);
+    camera_ = std::move(camera);
+    turntable_ = std::move(turntable);
+    camera_message_ = "connected";
+    turntable_message_ = "connected, homed";
+  }
+  open_ = true;
+  if (on_change_) on_change_();
+  return true;
+}
+
+void DeviceManager::Close() {
+  std::unique_ptr<drivers::StereoCamera> camera;
+  std::unique_ptr<drivers::Turntable> turntable;
+  {
+    std::lock_guard lock(mutex_);
+    camera = std::move(camera_);
+    turntable = std::move(turntable_);
+  }
+  open_ = false;
+  if (camera) {
+    if (camera->state() == drivers::CameraState::kStreaming) camera->Stop();
+    camera->Close();
+  }
+  if (turntable) turntable->Close();
+  camera.reset();
+  turntable.reset();
+  camera_instance_.reset();
+  turntable_instance_.reset();
+}
+
+std::vector<DeviceReport> DeviceManager::Reports() const {
+  std::lock_guard lock(mutex_);
+  std::vector<DeviceReport> out;
+  out.push_back({"camera", "stereo_camera", setup_.camera.driver,
+                 camera_ ? std::string(drivers::ToString(camera_->state())) : "absent",
+                 camera_message_});
+  std::string turntable_state = "absent";
+  if (turntable_) {
+    const drivers::TurntableStatus status = turntable_->Status();
+    turntable_state = std::string(drivers::ToString(status.state));
+  }
+  out.push_back({"turntable", "turntable", setup_.turntable.driver, turntable_state,
+                 turntable_message_});
+  return out;
+}
+
+bool DeviceManager::IsSim() const { return setup_.camera.driver == "sim"; }
+
+drivers::CameraSettings DeviceManager::camera_settings() const {
+  std::lock_guard lock(mutex_);
+  return camera_settings_;
+}
+
+bool DeviceManager::SwitchScene(const std::string& scene, const BoardSpec* board,
+                                std::string* error) {
+  if (!IsSim() || (scene == scene_ && scene == "object")) return true;
+  DeviceSpec camera = setup_.camera, turntable = setup_.turntable;
+  const bool shared = camera.driver == turntable.driver && camera.config == turntable.config;
+  if (scene != "object") {
+    camera.config["scene"] = scene;
+    if (board) {
+      camera.config["board_type"] = std::string(ToString(board->type));
+      camera.config["board_cols"] = std::to_string(board->cols);
+      camera.config["board_rows"] = std::to_string(board->rows);
+      camera.config["board_square_mm"] = std::to_string(board->square_mm);
+      if (board->type == BoardSpec::Type::kCharuco) {
+        camera.config["board_marker_mm"] = std::to_string(board->marker_mm);
+        camera.config["board_dictionary"] = std::to_string(board->aruco_dictionary);
+      }
+    }
+  }
+  if (shared) turntable = camera;
+  if (!OpenLocked(camera, turntable, error)) {
+    std::string ignored;
+    OpenLocked(setup_.camera, setup_.turntable, &ignored);  // back to the object scene
+    scene_ = "object";
+    return false;
+  }
+  scene_ = scene;
+  return true;
+}
+
+bool DeviceManager::Capture(drivers::StereoFrame* frame, const std::atomic<bool>& cancel,
+                            std::string* error) {
+  if (!camera_) return Fail(error, "camera: not open");
+  std::string last;
+  for (int attempt = 0; attempt < setup_.capture_retries; ++attempt) {
+    if (cancel) return Fail(error, "cancelled");
+    drivers::DriverStatus s = camera_->Capture(setup_.capture_timeout, frame);
+    if (s.ok()) return true;
+    last = s.ToString();
+    Note("camera", last);
+    if (s.code == drivers::StatusCode::kDeviceLost ||
+        camera_->state() == drivers::CameraState::kLost) {
+      if (log_) log_(drivers::LogLevel::kWarning, "camera lost: " + last + "; reconnecting");
+      const drivers::DriverStatus r = camera_->Reconnect();
+      if (!r.ok()) return Fail(error, "camera lost and not recovered: " + r.ToString());
+      continue;
+    }
+    if (s.code != drivers::StatusCode::kTimeout) return Fail(error, "camera: " + last);
+  }
+  return Fail(error, "camera: " + std::to_string(setup_.capture_retries) +
+                         " captures failed; last: " + last);
+}
+
+bool DeviceManager::MoveTo(double angle_deg, std::string* error) {
+  if (!turntable_) return Fail(error, "turntable: not open");
+  const drivers::DriverStatus s = turntable_->MoveTo(angle_deg, setup_.move_timeout);
+  if (!s.ok()) {
+    Note("turntable", s.ToString());
+    return Fail(error, "turntable: " + s.ToString());
+  }
+  return true;
+}
+
+bool DeviceManager::Home(std::string* error) {
+  if (!turntable_) return Fail(error, "turntable: not open");
+  const drivers::DriverStatus s = turntable_->Home(setup_.home_timeout);
+  if (!s.ok()) {
+    Note("turntable", s.ToString());
+    return Fail(error, "turntable: " + s.ToString());
+  }
+  Note("turntable", "homed");
+  return true;
+}
+
+bool DeviceManager::AbortMove() { return turntable_ && turntable_->Abort().ok(); }
+
+drivers::TurntableStatus DeviceManager::TurntableStatusNow() const {
+  std::lock_guard lock(mutex_);
+  return turntable_ ? turntable_->Status() : drivers::TurntableStatus{};
+}
+
+bool DeviceManager::ApplyCameraSettings(const drivers::CameraSettings& settings,
+                                        std::string* error) {
+  std::string why;
+  if (!settings.IsValid(&why)) return Fail(error, "camera settings: " + why);
+  if (!camera_) return Fail(error, "camera: not open");
+  const drivers::CameraSettings old = camera_settings();
+  if (camera_->state() == drivers::CameraState::kStreaming) camera_->Stop();
+  drivers::DriverStatus s = camera_->Configure(settings);
+  if (!s.ok()) {
+    camera_->Configure(old);
+    camera_->Start();
+    return Fail(error, "camera: " + s.ToString());
+  }
+  if (s = camera_->Start(); !s.ok()) return Fail(error, "camera: " + s.ToString());
+  std::lock_guard lock(mutex_);
+  camera_settings_ = settings;
+  return true;
+}
+
+}  // namespace craftscan::daemon

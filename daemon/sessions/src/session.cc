@@ -1,0 +1,537 @@
+#include <unistd.h>
+
+#include <algorithm>
+#include <cstdio>
+#include <filesystem>
+#include <utility>
+
+#include <opencv2/core.hpp>
+#include <opencv2/imgcodecs.hpp>
+
+#include "craftscan/pipeline/atomic_file.h"
+#include "craftscan/pipeline/pfm.h"
+#include "session_internal.h"
+
+namespace craftscan::daemon {
+namespace {
+
+using internal::ViewFolder;
+
+bool SetError(std::string* error, const std::string& message) {
+  if (error) *error = message;
+  return false;
+}
+
+std::string NowUtc() { return internal::IsoUtc(std::chrono::system_clock::now()); }
+
+// The record of a file as it is on disk now.
+bool RecordOf(const std::string& path, FileRecord* record, std::string* bytes, std::string* error) {
+  std::string local;
+  std::string* data = bytes ? bytes : &local;
+  if (!internal::ReadFileBytes(path, data, error)) return false;
+  record->size_bytes = data->size();
+  record->fnv1a64 = Fnv1a64(*data);
+  return true;
+}
+
+// Empty if the bytes match the record, else what differs.
+std::string Mismatch(const std::string& bytes, const FileRecord& record) {
+  if (bytes.size() != record.size_bytes) {
+    return "size " + std::to_string(bytes.size()) + " bytes, the manifest says " +
+           std::to_string(record.size_bytes) + " (truncated or replaced)";
+  }
+  if (Fnv1a64(bytes) != record.fnv1a64) {
+    return "checksum differs from the manifest (modified or corrupt)";
+  }
+  return {};
+}
+
+bool CheckPngImage(const cv::Mat& image, const char* which, std::string* error) {
+  if (image.empty()) return SetError(error, std::string(which) + " image is empty");
+  const int depth = image.depth();
+  const int channels = image.channels();
+  if ((depth != CV_8U && depth != CV_16U) || (channels != 1 && channels != 3 && channels != 4)) {
+    return SetError(error, std::string(which) + " image has type " + cv::typeToString(image.type()) +
+                               "; PNG stores 8- or 16-bit images with 1, 3 or 4 channels");
+  }
+  return true;
+}
+
+bool EncodePng(const cv::Mat& image, std::string* bytes, std::string* error) {
+  try {
+    std::vector<uchar> buffer;
+    // Level 1: captures are acknowledged only once written, so speed beats size.
+    if (!cv::imencode(".png", image, buffer, {cv::IMWRITE_PNG_COMPRESSION, 1})) {
+      return SetError(error, "PNG encoding failed");
+    }
+    bytes->assign(buffer.begin(), buffer.end());
+    return true;
+  } catch (const cv::Exception& e) {
+    return SetError(error, std::string("PNG encoding failed: ") + e.what());
+  }
+}
+
+bool DecodePng(const std::string& bytes, cv::Mat* image, const std::string& path,
+               std::string* error) {
+  try {
+    const cv::Mat raw(1, static_cast<int>(bytes.size()), CV_8U,
+                      const_cast<char*>(bytes.data()));
+    *image = cv::imdecode(raw, cv::IMREAD_UNCHANGED);
+  } catch (const cv::Exception& e) {
+    return SetError(error, "'" + path + "': cannot decode PNG: " + e.what());
+  }
+  return !image->empty() || SetError(error, "'" + path + "': cannot decode PNG");
+}
+
+}  // namespace
+
+namespace internal {
+
+std::string ViewFolder(int view) {
+  char text[32];
+  std::snprintf(text, sizeof text, "views/%03d", view);
+  return text;
+}
+
+bool ReadManifest(const std::string& dir, const std::string& id, Manifest* manifest,
+                  std::string* error) {
+  std::string text;
+  if (!ReadFileBytes(dir + "/" + kManifestJson, &text, error)) return false;
+  std::string why;
+  if (!ManifestFromJson(text, manifest, &why)) {
+    return SetError(error, "'" + dir + "/" + kManifestJson + "': " + why);
+  }
+  if (manifest->id != id) {
+    return SetError(error, "'" + dir + "/" + kManifestJson + "': id '" + manifest->id +
+                               "' differs from the folder name '" + id + "'");
+  }
+  return true;
+}
+
+void VerifyFiles(const std::string& dir, const Manifest& manifest, VerifyResult* result,
+                 std::set<std::string>* damaged) {
+  const auto check = [&](const std::string& relative, const FileRecord& record) {
+    std::string bytes, why;
+    if (!ReadFileBytes(dir + "/" + relative, &bytes, &why)) {
+      result->problems.push_back(relative + ": " + why);
+    } else {
+      ++result->files_checked;
+      result->bytes_checked += bytes.size();
+      why = Mismatch(bytes, record);
+      if (why.empty()) return;
+      result->problems.push_back(relative + ": " + why);
+    }
+    if (damaged) damaged->insert(relative);
+  };
+  if (manifest.calibration) check(kCalibrationYaml, *manifest.calibration);
+  for (const auto& [index, view] : manifest.views) {
+    for (const auto& [name, record] : view.files) check(ViewFolder(index) + "/" + name, record);
+  }
+  for (const auto& [name, record] : manifest.outputs) check(name, record);
+}
+
+}  // namespace internal
+
+Session::Session(std::string id, std::string dir, std::unique_ptr<Lock> lock, Manifest manifest)
+    : id_(std::move(id)), dir_(std::move(dir)), lock_(std::move(lock)),
+      manifest_(std::move(manifest)) {}
+
+Session::~Session() = default;
+
+Manifest Session::manifest() const {
+  std::lock_guard lock(mutex_);
+  return manifest_;
+}
+
+SessionState Session::state() const {
+  std::lock_guard lock(mutex_);
+  return manifest_.state;
+}
+
+nlohmann::json Session::params() const {
+  std::lock_guard lock(mutex_);
+  return manifest_.params;
+}
+
+std::vector<int> Session::DurableViews() const {
+  std::lock_guard lock(mutex_);
+  return manifest_.CapturedViews();
+}
+
+std::string Session::CalibrationPath() const {
+  std::lock_guard lock(mutex_);
+  return manifest_.calibration ? dir_ + "/" + internal::kCalibrationYaml : std::string();
+}
+
+bool Session::WriteLocked(Manifest next, std::string* error) {
+  next.updated_utc = NowUtc();
+  std::string why;
+  if (!WriteFileAtomically(dir_ + "/" + internal::kManifestJson, ManifestToJson(next), &why)) {
+    return SetError(error, Prefix() + "cannot update the manifest: " + why);
+  }
+  manifest_ = std::move(next);
+  return true;
+}
+
+bool Session::Commit(const std::function<bool(Manifest*, std::string*)>& change,
+                     std::string* error) {
+  std::lock_guard lock(mutex_);
+  Manifest next = manifest_;
+  return change(&next, error) && WriteLocked(std::move(next), error);
+}
+
+bool Session::SetState(SessionState state, const std::string& detail, std::string* error) {
+  return Commit(
+      [&](Manifest* m, std::string* why) {
+        if (!IsAllowedTransition(m->state, state)) {
+          return SetError(why, Prefix() + "cannot go from " + ToString(m->state) + " to " +
+                                   ToString(state));
+        }
+        m->state = state;
+        m->error = state == SessionState::kFailed || state == SessionState::kInterrupted
+                       ? detail
+                       : std::string();
+        m->journal.push_back({NowUtc(), ToString(state), detail});
+        return true;
+      },
+      error);
+}
+
+bool Session::Unlist(const std::function<bool(Manifest*)>& remove, std::string* error) {
+  std::lock_guard lock(mutex_);
+  Manifest next = manifest_;
+  // Nothing listed: nothing to write.
+  return !remove(&next) || WriteLocked(std::move(next), error);
+}
+
+bool Session::Claim(const std::string& key, std::string* error) {
+  std::lock_guard lock(mutex_);
+  if (!IsActive(manifest_.state)) {
+    return SetError(error, Prefix() + "cannot store " + key + " in state " +
+                               ToString(manifest_.state) +
+                               " (only created, capturing or reconstructing)");
+  }
+  if (!busy_.insert(key).second) {
+    return SetError(error, Prefix() + key + " is being stored by another call");
+  }
+  return true;
+}
+
+void Session::Release(const std::string& key) {
+  std::lock_guard lock(mutex_);
+  busy_.erase(key);
+}
+
+bool Session::Store(const StoreStep& step, std::string* error) {
+  if (!Claim(step.key, error)) return false;
+  // A file the manifest lists is taken off it before being replaced, so the
+  // manifest never points at bytes it has no checksum for.
+  if (!Unlist(step.unlist, error)) {
+    Release(step.key);
+    return false;
+  }
+  std::string why;
+  bool ok = step.write(&why);
+  if (!ok) SetError(error, Prefix() + "cannot store the " + step.what + ": " + why);
+  ok = ok && Commit(step.list, error);
+  if (!ok) {
+    // Whatever this call wrote is listed nowhere: remove it (frees a full disk).
+    for (const std::string& path : step.paths) ::unlink(path.c_str());
+  }
+  Release(step.key);
+  return ok;
+}
+
+bool Session::CheckView(int view, const std::string& what, bool needs_capture,
+                        std::string* error) const {
+  if (view < 0 || view > kMaxViewIndex) {
+    return SetError(error, Prefix() + what + ": view index " + std::to_string(view) +
+                               " is outside 0.." + std::to_string(kMaxViewIndex));
+  }
+  if (!needs_capture) return true;
+  std::lock_guard lock(mutex_);
+  const auto it = manifest_.views.find(view);
+  return (it != manifest_.views.end() && it->second.HasCapture()) ||
+         SetError(error, Prefix() + what + ": view " + std::to_string(view) +
+                             " has no durable capture");
+}
+
+bool Session::CopyCalibration(const std::string& source_path, const std::string& calibration_id,
+                              std::string* error) {
+  std::string bytes, why;
+  if (!internal::ReadFileBytes(source_path, &bytes, &why)) {
+    return SetError(error, Prefix() + "cannot copy the calibration: " + why);
+  }
+  const std::string path = dir_ + "/" + internal::kCalibrationYaml;
+  StoreStep step;
+  step.key = internal::kCalibrationYaml;
+  step.what = "calibration";
+  step.paths = {path};
+  step.unlist = [](Manifest* m) {
+    const bool listed = m->calibration.has_value();
+    m->calibration.reset();
+    return listed;
+  };
+  step.write = [&](std::string* e) { return WriteFileAtomically(path, bytes, e); };
+  step.list = [&](Manifest* m, std::string*) {
+    m->calibration = FileRecord{bytes.size(), Fnv1a64(bytes)};
+    m->calibration_id = calibration_id;
+    m->journal.push_back({NowUtc(), "calibration",
+                          "copied from '" + source_path + "' (id '" + calibration_id + "')"});
+    return true;
+  };
+  return Store(step, error);
+}
+
+bool Session::StoreCapture(int view, double angle_deg, const cv::Mat& left, const cv::Mat& right,
+                           const nlohmann::json& meta, std::string* error) {
+  StoreStep step;
+  step.what = "capture of view " + std::to_string(view);
+  if (!CheckView(view, step.what, false, error)) return false;
+  std::string why;
+  if (!CheckPngImage(left, "left", &why) || !CheckPngImage(right, "right", &why)) {
+    return SetError(error, Prefix() + step.what + ": " + why);
+  }
+  if (!meta.is_object()) {
+    return SetError(error, Prefix() + step.what + ": meta is not a JSON object");
+  }
+  // Encode before claiming: slow, and needs no lock.
+  std::string files[3];
+  if (!EncodePng(left, &files[0], &why) || !EncodePng(right, &files[1], &why)) {
+    return SetError(error, Prefix() + step.what + ": " + why);
+  }
+  files[2] = meta.dump(2, ' ', false, nlohmann::json::error_handler_t::replace) + "\n";
+
+  const char* names[3] = {kLeftPng, kRightPng, kMetaJson};
+  step.key = ViewFolder(view);
+  const std::string folder = dir_ + "/" + step.key;
+  for (const char* name : names) step.paths.push_back(folder + "/" + name);
+  // A new capture makes the view's disparity and cloud stale: all of it goes.
+  step.unlist = [view](Manifest* m) { return m->views.erase(view) > 0; };
+  step.write = [&](std::string* e) {
+    bool ok = internal::MakeDurableDir(dir_ + "/views", e) && internal::MakeDurableDir(folder, e);
+    for (int i = 0; ok && i < 3; ++i) ok = WriteFileAtomically(step.paths[i], files[i], e);
+    return ok;
+  };
+  step.list = [&](Manifest* m, std::string*) {
+    ViewRecord& v = m->views[view];
+    v.index = view;
+    v.angle_deg = angle_deg;
+    v.captured_utc = NowUtc();
+    for (int i = 0; i < 3; ++i) v.files[names[i]] = {files[i].size(), Fnv1a64(files[i])};
+    return true;
+  };
+  return Store(step, error);
+}
+
+bool Session::StoreViewFile(int view, const char* file, const OutputWriter& writer,
+                            std::string* error) {
+  StoreStep step;
+  step.what = std::string(file) + " of view " + std::to_string(view);
+  if (!CheckView(view, step.what, true, error)) return false;
+  step.key = ViewFolder(view);
+  const std::string path = dir_ + "/" + step.key + "/" + file;
+  step.paths = {path};
+  // A new disparity map makes the view's cloud stale.
+  const bool drops_cloud = std::string(file) == kDisparityPfm;
+  step.unlist = [&](Manifest* m) {
+    const auto it = m->views.find(view);
+    if (it == m->views.end()) return false;
+    const bool listed = it->second.files.erase(file) > 0;
+    return (drops_cloud && it->second.files.erase(kCloudPly) > 0) || listed;
+  };
+  FileRecord record;
+  step.write = [&](std::string* e) { return writer(path, e) && RecordOf(path, &record, nullptr, e); };
+  step.list = [&](Manifest* m, std::string* e) {
+    const auto it = m->views.find(view);
+    if (it == m->views.end() || !it->second.HasCapture()) {  // a failed recapture meanwhile
+      return SetError(e, Prefix() + step.what + ": the view's capture is gone");
+    }
+    it->second.files[file] = record;
+    return true;
+  };
+  return Store(step, error);
+}
+
+bool Session::StoreDisparity(int view, const cv::Mat& disparity_px, std::string* error) {
+  if (disparity_px.empty() || disparity_px.type() != CV_32FC1) {
+    return SetError(error, Prefix() + "disparity of view " + std::to_string(view) + " must be " +
+                               "a non-empty CV_32FC1 image, got " +
+                               (disparity_px.empty() ? std::string("an empty one")
+                                                     : cv::typeToString(disparity_px.type())));
+  }
+  return StoreViewFile(
+      view, kDisparityPfm,
+      [&](const std::string& path, std::string* e) { return WritePfm(path, disparity_px, e); },
+      error);
+}
+
+bool Session::StoreCloud(int view, const PointCloud& cloud, std::string* error) {
+  std::string why;
+  if (!cloud.IsValid(&why)) {
+    return SetError(error, Prefix() + "cloud of view " + std::to_string(view) + ": " + why);
+  }
+  return StoreViewFile(
+      view, kCloudPly,
+      [&](const std::string& path, std::string* e) { return WritePly(path, cloud, true, e); },
+      error);
+}
+
+bool Session::StoreOutput(const std::string& name, std::string_view bytes, std::string* error) {
+  return StoreOutputWith(
+      name,
+      [&](const std::string& path, std::string* e) { return WriteFileAtomically(path, bytes, e); },
+      error);
+}
+
+bool Session::StoreOutputWith(const std::string& name, const OutputWriter& writer,
+                              std::string* error) {
+  std::string why;
+  if (!IsValidOutputName(name, &why)) return SetError(error, Prefix() + why);
+  StoreStep step;
+  step.key = name;
+  step.what = "output " + name;
+  const std::string path = dir_ + "/" + name;
+  step.paths = {path};
+  step.unlist = [&](Manifest* m) { return m->outputs.erase(name) > 0; };
+  FileRecord record;
+  step.write = [&](std::string* e) {
+    // The output's folders, outermost first.
+    for (std::size_t slash = name.find('/'); slash != std::string::npos;
+         slash = name.find('/', slash + 1)) {
+      if (!internal::MakeDurableDir(dir_ + "/" + name.substr(0, slash), e)) return false;
+    }
+    return writer(path, e) && RecordOf(path, &record, nullptr, e);
+  };
+  step.list = [&](Manifest* m, std::string*) {
+    m->outputs[name] = record;
+    m->journal.push_back({NowUtc(), "output", name});
+    return true;
+  };
+  return Store(step, error);
+}
+
+bool Session::FindViewFile(int view, const char* file, FileRecord* record,
+                           std::string* error) const {
+  std::lock_guard lock(mutex_);
+  const auto it = manifest_.views.find(view);
+  const auto f = it == manifest_.views.end() ? nullptr : &it->second.files;
+  if (!f || f->count(file) == 0) {
+    return SetError(error, Prefix() + "view " + std::to_string(view) + " has no durable " + file);
+  }
+  *record = f->at(file);
+  return true;
+}
+
+bool Session::LoadVerified(const std::string& relative, const FileRecord& record,
+                           std::string* bytes, std::string* error) const {
+  std::string why;
+  if (!internal::ReadFileBytes(dir_ + "/" + relative, bytes, &why)) {
+    return SetError(error, Prefix() + why);
+  }
+  why = Mismatch(*bytes, record);
+  return why.empty() || SetError(error, Prefix() + "'" + dir_ + "/" + relative + "': " + why);
+}
+
+bool Session::LoadCapture(int view, cv::Mat* left, cv::Mat* right, nlohmann::json* meta,
+                          std::string* error) const {
+  const std::string folder = ViewFolder(view);
+  std::string bytes;
+  FileRecord record;
+  cv::Mat* images[2] = {left, right};
+  const char* names[2] = {kLeftPng, kRightPng};
+  for (int i = 0; i < 2; ++i) {
+    if (!FindViewFile(view, names[i], &record, error) ||
+        !LoadVerified(folder + "/" + names[i], record, &bytes, error) ||
+        !DecodePng(bytes, images[i], dir_ + "/" + folder + "/" + names[i], error)) {
+      return false;
+    }
+  }
+  if (!FindViewFile(view, kMetaJson, &record, error) ||
+      !LoadVerified(folder + "/" + kMetaJson, record, &bytes, error)) {
+    return false;
+  }
+  if (meta) {
+    *meta = nlohmann::json::parse(bytes, nullptr, /*allow_exceptions=*/false);
+    if (meta->is_discarded()) {
+      return SetError(error, Prefix() + "'" + folder + "/meta.json' is not valid JSON");
+    }
+  }
+  return true;
+}
+
+bool Session::LoadDisparity(int view, cv::Mat* disparity_px, std::string* error) const {
+  const std::string relative = ViewFolder(view) + "/" + kDisparityPfm;
+  std::string bytes;
+  FileRecord record;
+  return FindViewFile(view, kDisparityPfm, &record, error) &&
+         LoadVerified(relative, record, &bytes, error) &&
+         ReadPfm(dir_ + "/" + relative, disparity_px, error);
+}
+
+bool Session::LoadCloud(int view, PointCloud* cloud, std::string* error) const {
+  const std::string relative = ViewFolder(view) + "/" + kCloudPly;
+  std::string bytes;
+  FileRecord record;
+  return FindViewFile(view, kCloudPly, &record, error) &&
+         LoadVerified(relative, record, &bytes, error) &&
+         ReadPly(dir_ + "/" + relative, cloud, error);
+}
+
+bool Session::LoadOutput(const std::string& name, std::string* bytes, std::string* error) const {
+  FileRecord record;
+  {
+    std::lock_guard lock(mutex_);
+    const auto it = manifest_.outputs.find(name);
+    if (it == manifest_.outputs.end()) {
+      return SetError(error, Prefix() + "no durable output named '" + name + "'");
+    }
+    record = it->second;
+  }
+  return LoadVerified(name, record, bytes, error);
+}
+
+VerifyResult Session::Verify() const {
+  VerifyResult result;
+  result.manifest_ok = true;
+  internal::VerifyFiles(dir_, manifest(), &result, nullptr);
+  return result;
+}
+
+ResumePoint Session::GetResumePoint(bool verify_files) const {
+  const Manifest m = manifest();
+  std::set<std::string> damaged;
+  ResumePoint point;
+  if (verify_files) {
+    VerifyResult result;
+    internal::VerifyFiles(dir_, m, &result, &damaged);
+    point.damaged = result.problems;
+  }
+  const auto durable = [&](const ViewRecord& v, const char* file) {
+    return v.files.count(file) > 0 && damaged.count(ViewFolder(v.index) + "/" + file) == 0;
+  };
+  std::set<int> captured;
+  for (const auto& [index, v] : m.views) {
+    if (!durable(v, kLeftPng) || !durable(v, kRightPng) || !durable(v, kMetaJson)) continue;
+    captured.insert(index);
+    if (!durable(v, kDisparityPfm)) {
+      point.to_match.push_back(index);
+    } else if (!durable(v, kCloudPly)) {
+      point.to_reproject.push_back(index);
+    }
+  }
+  const auto planned = m.params.find("views");
+  if (planned != m.params.end() && planned->is_number_integer() && planned->get<long long>() >= 0 &&
+      planned->get<long long>() <= kMaxViewIndex + 1) {
+    point.planned_views = planned->get<int>();
+    for (int i = 0; i < point.planned_views; ++i) {
+      if (captured.count(i) == 0) point.to_capture.push_back(i);
+    }
+  }
+  point.next_capture = 0;
+  while (captured.count(point.next_capture) > 0) ++point.next_capture;
+  if (point.planned_views >= 0) point.next_capture = std::min(point.next_capture, point.planned_views);
+  return point;
+}
+
+}  // namespace craftscan::daemon

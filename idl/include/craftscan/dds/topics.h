@@ -1,0 +1,72 @@
+// Topic names and QoS of one station (DESIGN.md, "DDS interface"): each
+// function returns the name, the message type (as the template argument) and
+// the QoS, so a Writer and a Reader made from the same function always match.
+//
+//   craftscan/<station>/status      StationStatus  reliable, transient-local, keep-last 1
+//   craftscan/<station>/command     Command        reliable, volatile, keep-last 16
+//   craftscan/<station>/reply       Reply          reliable, volatile, keep-last 16
+//   craftscan/<station>/progress    JobProgress    reliable, volatile, keep-last 16
+//   craftscan/<station>/capture     StereoCapture  reliable, volatile, keep-last 1
+//   craftscan/<station>/disparity   Disparity      reliable, volatile, keep-last 1
+//   craftscan/<station>/cloud       PointCloud     reliable, volatile, keep-last 2
+//   rt/craftscan/<station>/left/image_raw, right/image_raw   Image_      reliable, keep-last 1
+//   rt/craftscan/<station>/left/camera_info, right/...       CameraInfo_ reliable,
+//                                                            transient-local, keep-last 1
+//   rt/craftscan/<station>/disparity                         DisparityImage_ reliable, keep-last 1
+//   rt/craftscan/<station>/cloud                             PointCloud2_ reliable, keep-last 1
+//
+// The rt/ topics are what ROS 2 (rmw_cyclonedds) calls /craftscan/<station>/...;
+// they are XCDR1 only. A reliable writer also serves best-effort readers
+// (ROS's sensor-data QoS), and a transient-local one serves volatile readers.
+#pragma once
+
+#include <cstdint>
+#include <string>
+#include <string_view>
+
+#include "craftscan/dds/messages.h"
+
+namespace craftscan::dds {
+
+struct TopicQos {
+  bool reliable = true;
+  bool transient_local = false;  // late joiners get the last history_depth samples
+  int32_t history_depth = 1;     // keep-last N (≥ 1)
+  bool xcdr1_only = false;       // data representation XCDR1 (ROS 2); else Cyclone's default
+  // How long a reliable Write may block when the writer's unacknowledged data
+  // is above Cyclone's WhcHigh (readers lagging), ms (≥ 0).
+  int32_t max_blocking_ms = 1000;
+
+  bool IsValid(std::string* why) const;
+};
+
+// A topic: its name, its QoS, and (as Msg) its type.
+template <typename Msg>
+struct TopicSpec {
+  std::string name;
+  TopicQos qos;
+};
+
+enum class Side { kLeft, kRight };
+std::string_view ToString(Side side);  // "left", "right"
+
+// A station id as used in topic names: 1..64 characters, [A-Za-z0-9_],
+// starting with a letter (what ROS 2 allows in a name token). False with
+// *why (may be null) otherwise. The topic functions below do not check; a
+// Writer/Reader on a malformed name fails to be created.
+bool IsValidStationId(std::string_view station, std::string* why);
+
+TopicSpec<msg::StationStatus> StatusTopic(std::string_view station);
+TopicSpec<msg::Command> CommandTopic(std::string_view station);
+TopicSpec<msg::Reply> ReplyTopic(std::string_view station);
+TopicSpec<msg::JobProgress> ProgressTopic(std::string_view station);
+TopicSpec<msg::StereoCapture> CaptureTopic(std::string_view station);
+TopicSpec<msg::Disparity> DisparityTopic(std::string_view station);
+TopicSpec<msg::PointCloud> CloudTopic(std::string_view station);
+
+TopicSpec<ros::Image> RosImageTopic(std::string_view station, Side side);
+TopicSpec<ros::CameraInfo> RosCameraInfoTopic(std::string_view station, Side side);
+TopicSpec<ros::DisparityImage> RosDisparityTopic(std::string_view station);
+TopicSpec<ros::PointCloud2> RosCloudTopic(std::string_view station);
+
+}  // namespace craftscan::dds

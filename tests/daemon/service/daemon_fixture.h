@@ -1,0 +1,177 @@
+// Runs craftscand as a child process on the simulated station, in a fresh
+// data directory with a tokens file and the sim rig's exact calibration, on
+// a private DDS domain kept on loopback; with a fake NOTIFY_SOCKET.
+#pragma once
+
+#include <signal.h>
+#include <fcntl.h>
+#include <spawn.h>
+#include <sys/stat.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include <chrono>
+#include <cstdlib>
+#include <cstring>
+#include <filesystem>
+#include <fstream>
+#include <memory>
+#include <random>
+#include <string>
+#include <thread>
+#include <vector>
+
+#include "craftscan/dds/participant.h"
+#include "craftscan/pipeline/calibration.h"
+#include "craftscan/sim/driver_options.h"
+#include "craftscan/sim/station.h"
+#include "fake_notify_socket.h"
+
+extern char** environ;
+
+namespace craftscan::testing {
+
+inline constexpr const char* kObserverToken = "observer-token-0123456789";
+inline constexpr const char* kOperatorToken = "operator-token-0123456789";
+inline constexpr const char* kAdminToken = "admin-token-0123456789abc";
+
+class DaemonFixture {
+ public:
+  // image_size of the sim camera, e.g. "1280x1024".
+  explicit DaemonFixture(std::string image_size = "1280x1024", std::string extra_sim = "")
+      : image_size_(std::move(image_size)), extra_sim_(std::move(extra_sim)) {
+    std::random_device rd;
+    domain_ = 1 + rd() % 200;
+    station_ = "t" + std::to_string(rd() % 1000000);
+    char dir[] = "/tmp/craftscand-test-XXXXXX";
+    root_ = ::mkdtemp(dir);
+    std::filesystem::create_directories(root_ + "/data/calibration");
+  }
+  ~DaemonFixture() {
+    Stop(SIGKILL);
+    std::error_code ignored;
+    std::filesystem::remove_all(root_, ignored);
+  }
+
+  const std::string& root() const { return root_; }
+  std::string data_dir() const { return root_ + "/data"; }
+  const std::string& station() const { return station_; }
+  std::uint32_t domain() const { return domain_; }
+  std::string dds_config() const {
+    return dds::ConfigFileUri(CRAFTSCAN_SOURCE_DIR "/systemd/cyclonedds.xml") + "," +
+           dds::LoopbackOnlyConfigXml();
+  }
+  FakeNotifySocket& notify() { return notify_; }
+
+  // Writes tokens, config and the exact sim calibration. False with *error.
+  bool Prepare(std::string* error, bool with_calibration = true) {
+    {
+      std::ofstream tokens(root_ + "/tokens.yaml");
+      tokens << "tokens:\n"
+             << "  - {name: watcher, token: \"" << kObserverToken << "\", role: observer}\n"
+             << "  - {name: tech, token: \"" << kOperatorToken << "\", role: operator}\n"
+             << "  - {name: boss, token: \"" << kAdminToken << "\", role: admin}\n";
+    }
+    ::chmod((root_ + "/tokens.yaml").c_str(), 0600);
+    std::ofstream config(root_ + "/craftscand.yaml");
+    config << "version: 1\n"
+           << "station: " << station_ << "\n"
+           << "data_dir: " << data_dir() << "\n"
+           << "log_level: debug\n"
+           << "dds: {domain: " << domain_ << "}\n"
+           << "auth: {tokens_file: " << root_ << "/tokens.yaml}\n"
+           << "plugins: {path: [" << CRAFTSCAN_PLUGIN_DIR << "]}\n"
+           << "devices:\n"
+           << "  camera: {driver: sim, config: {image_size: " << image_size_
+           << ", threads: 2" << extra_sim_ << "}}\n"
+           << "  turntable: {driver: sim, config: {image_size: " << image_size_
+           << ", threads: 2" << extra_sim_ << "}}\n"
+           << "scan: {settle_ms: 0}\n"
+           // The carved box (80 x 60 x 50 mm) with a margin: the band the
+           // matcher searches follows from this volume.
+           << "pipeline: {threads: 2, volume_radius_mm: 65, volume_max_height_mm: 70}\n";
+    config.close();
+    if (!with_calibration) return true;
+    sim::SimDriverOptions options;
+    if (!sim::SimDriverOptionsFromConfig({{"image_size", image_size_}}, &options, error)) return false;
+    auto station = sim::SimStation::Create(sim::SimRigOptions(options), error);
+    if (!station) return false;
+    return SaveCalibration(data_dir() + "/calibration/current.yaml", station->calibration(), error);
+  }
+
+  // Starts craftscand; with watchdog_usec > 0 it gets WATCHDOG_USEC. With
+  // `notify` it gets NOTIFY_SOCKET: the test must then keep reading notify()
+  // (a full datagram queue blocks the sender, as with a real manager).
+  bool Start(std::string* error, long watchdog_usec = 0, bool notify = false) {
+    std::vector<std::string> env;
+    for (char** e = environ; *e; ++e) {
+      const std::string v = *e;
+      if (v.rfind("NOTIFY_SOCKET=", 0) == 0 || v.rfind("CYCLONEDDS_URI=", 0) == 0 ||
+          v.rfind("WATCHDOG_", 0) == 0)
+        continue;
+      env.push_back(v);
+    }
+    if (notify) env.push_back("NOTIFY_SOCKET=" + notify_.address());
+    env.push_back("CYCLONEDDS_URI=" + dds_config());
+    if (watchdog_usec > 0) env.push_back("WATCHDOG_USEC=" + std::to_string(watchdog_usec));
+    std::vector<char*> envp;
+    for (std::string& v : env) envp.push_back(v.data());
+    envp.push_back(nullptr);
+    const std::string config = root_ + "/craftscand.yaml";
+    const std::string log = root_ + "/craftscand.log";
+    std::vector<std::string> args = {CRAFTSCAND_PATH, "--config", config};
+    std::vector<char*> argv;
+    for (std::string& a : args) argv.push_back(a.data());
+    argv.push_back(nullptr);
+    posix_spawn_file_actions_t actions;
+    posix_spawn_file_actions_init(&actions);
+    posix_spawn_file_actions_addopen(&actions, 2, log.c_str(), O_WRONLY | O_CREAT | O_APPEND, 0644);
+    posix_spawn_file_actions_addopen(&actions, 1, log.c_str(), O_WRONLY | O_CREAT | O_APPEND, 0644);
+    const int r = posix_spawn(&pid_, CRAFTSCAND_PATH, &actions, nullptr, argv.data(), envp.data());
+    posix_spawn_file_actions_destroy(&actions);
+    if (r != 0) {
+      *error = std::string("posix_spawn craftscand: ") + std::strerror(r);
+      pid_ = -1;
+      return false;
+    }
+    return true;
+  }
+
+  pid_t pid() const { return pid_; }
+
+  // Sends `signal` and waits for the exit; returns the wait status (-1 if
+  // not running or it did not exit within the timeout, then it is killed).
+  int Stop(int signal, std::chrono::seconds timeout = std::chrono::seconds(60)) {
+    if (pid_ <= 0) return -1;
+    ::kill(pid_, signal);
+    const auto deadline = std::chrono::steady_clock::now() + timeout;
+    int status = -1;
+    while (std::chrono::steady_clock::now() < deadline) {
+      const pid_t r = ::waitpid(pid_, &status, WNOHANG);
+      if (r == pid_) {
+        pid_ = -1;
+        return status;
+      }
+      std::this_thread::sleep_for(std::chrono::milliseconds(20));
+    }
+    ::kill(pid_, SIGKILL);
+    ::waitpid(pid_, &status, 0);
+    pid_ = -1;
+    return -1;
+  }
+
+  std::string Log() const {
+    std::ifstream in(root_ + "/craftscand.log");
+    return std::string(std::istreambuf_iterator<char>(in), {});
+  }
+
+ private:
+  std::string image_size_, extra_sim_;
+  std::uint32_t domain_ = 0;
+  std::string station_;
+  std::string root_;
+  FakeNotifySocket notify_;
+  pid_t pid_ = -1;
+};
+
+}  // namespace craftscan::testing

@@ -1,0 +1,361 @@
+// craftscand end to end: the real daemon binary on the simulated station,
+// real DDS on loopback (a private domain), a fake NOTIFY_SOCKET.
+#include <gtest/gtest.h>
+
+#include <sys/wait.h>
+
+#include <chrono>
+#include <cstdio>
+#include <set>
+#include <string>
+#include <thread>
+
+#include <opencv2/core.hpp>
+
+#include "craftscan/daemon/session_store.h"
+#include "craftscan/pipeline/point_cloud.h"
+#include "daemon_fixture.h"
+#include "station_client.h"
+
+namespace craftscan::testing {
+namespace {
+
+using namespace std::chrono_literals;
+using daemon::SessionState;
+
+struct Running {
+  DaemonFixture fixture;
+  StationClient client;
+  explicit Running(std::string image_size) : fixture(std::move(image_size)) {}
+};
+
+// Starts the daemon and a client; fails the test (returns null) if either
+// does not come up.
+std::unique_ptr<Running> StartDaemon(const std::string& image_size, long watchdog_usec = 0,
+                                     bool with_calibration = true) {
+  auto r = std::make_unique<Running>(image_size);
+  std::string error;
+  if (!r->fixture.Prepare(&error, with_calibration)) {
+    ADD_FAILURE() << error;
+    return nullptr;
+  }
+  if (!r->fixture.Start(&error, watchdog_usec, /*notify=*/watchdog_usec > 0)) {
+    ADD_FAILURE() << error;
+    return nullptr;
+  }
+  if (!r->client.Start(r->fixture.domain(), r->fixture.dds_config(), r->fixture.station(), &error)) {
+    ADD_FAILURE() << error;
+    return nullptr;
+  }
+  if (!r->client.WaitForDaemon(30s)) {
+    ADD_FAILURE() << "the daemon's command reader never matched; log:\n" << r->fixture.Log();
+    return nullptr;
+  }
+  return r;
+}
+
+// Waits until the job `id` leaves the running state; returns its final
+// state as reported by the status verb.
+nlohmann::json WaitForJob(StationClient& client, const std::string& id, std::chrono::seconds timeout) {
+  const auto deadline = std::chrono::steady_clock::now() + timeout;
+  std::string last = "no reply";
+  while (std::chrono::steady_clock::now() < deadline) {
+    const auto reply = client.Send("status", nullptr, kObserverToken, 10s);
+    if (reply && reply->code == 0) {
+      const nlohmann::json job = reply->result["job"];
+      if (job["id"] == id && job["state"] != "running") return job;
+      last = reply->result.dump();
+    } else if (reply) {
+      last = reply->code_name + ": " + reply->message;
+    }
+    std::this_thread::sleep_for(200ms);
+  }
+  return {{"state", "still running after the timeout"}, {"last_status", last}};
+}
+
+TEST(Daemon, ScanOfSixViewsPublishesEverythingAndStoresTheSession) {
+  auto r = StartDaemon("1280x1024");
+  ASSERT_TRUE(r);
+  StationClient& client = r->client;
+  const auto start = std::chrono::steady_clock::now();
+  const auto reply = client.Send("scan", {{"object", "carved box"}, {"views", 6}, {"step_deg", 60}},
+                                 kOperatorToken);
+  ASSERT_TRUE(reply) << r->fixture.Log();
+  ASSERT_EQ(reply->code_name, "ok") << reply->message;
+  const std::string job_id = reply->result["id"];
+  const std::string session_id = reply->result["session"];
+  EXPECT_EQ(session_id.substr(16), "carved_box");
+
+  const nlohmann::json job = WaitForJob(client, job_id, 600s);
+  const double total_s =
+      std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  ASSERT_EQ(job.value("state", ""), "done") << job.dump(2) << "\n" << r->fixture.Log();
+  const nlohmann::json result = job["result"];
+  std::printf("6-view 1280x1024 scan: %.1f s end to end; capture %.0f ms, match %.0f ms (both "
+              "summed over views, overlapping), reconstruction %.0f ms: %s\n",
+              total_s, result.value("capture_ms", 0.0), result.value("match_ms", 0.0),
+              result.value("reconstruct_ms", 0.0), result["stage_ms"].dump().c_str());
+  RecordProperty("scan_seconds", std::to_string(total_s));
+
+  // Clouds: 6 views and the fused one, all of this session.
+  ASSERT_TRUE(client.WaitFor(
+      [&](StationClient& c) {
+        std::set<int> views;
+        for (const CloudRecord& cloud : c.clouds)
+          if (cloud.session == session_id) views.insert(cloud.view);
+        return views.size() == 7;
+      },
+      30s));
+  // Progress per stage.
+  {
+    auto lock = client.Lock();
+    std::set<std::string> stages;
+    for (const auto& [id, stage] : client.progress)
+      if (id == job_id) stages.insert(stage);
+    for (const char* stage : {"capture", "match", "register", "write", "done"}) {
+      EXPECT_TRUE(stages.count(stage)) << "no progress for stage " << stage;
+    }
+    EXPECT_EQ(client.captures.size(), 6u);
+  }
+
+  // The session on disk is done, intact, and holds what was published.
+  std::string error;
+  auto store = daemon::SessionStore::Open(r->fixture.data_dir(), &error);
+  ASSERT_TRUE(store) << error;
+  EXPECT_TRUE(store->Verify(session_id).IsIntact());
+  auto session = store->OpenSession(session_id, &error);
+  ASSERT_TRUE(session) << error;
+  EXPECT_EQ(session->state(), SessionState::kDone);
+  EXPECT_EQ(session->DurableViews().size(), 6u);
+  const daemon::Manifest manifest = session->manifest();
+  for (const char* output : {"fused.ply", "mesh.ply", "report.json"}) {
+    EXPECT_TRUE(manifest.outputs.count(output)) << output;
+  }
+  auto lock = client.Lock();
+  for (const CloudRecord& published : client.clouds) {
+    if (published.session != session_id) continue;
+    PointCloud stored;
+    if (published.view >= 0) {
+      ASSERT_TRUE(session->LoadCloud(published.view, &stored, &error)) << error;
+    } else {
+      std::string bytes;
+      ASSERT_TRUE(ReadPly(session->dir() + "/fused.ply", &stored, &error)) << error;
+    }
+    ASSERT_EQ(stored.size(), published.cloud.size()) << "view " << published.view;
+    ASSERT_GT(stored.size(), 1000u) << "view " << published.view;
+    EXPECT_EQ(stored.points_mm, published.cloud.points_mm) << "view " << published.view;
+  }
+}
+
+TEST(Daemon, BadCommandsGetClearErrorsAndTheDaemonKeepsServing) {
+  auto r = StartDaemon("640x512");
+  ASSERT_TRUE(r);
+  StationClient& c = r->client;
+  struct Case {
+    std::string verb, arguments, token, code;
+  };
+  const std::vector<Case> cases = {
+      {"status", "", "wrong-token-0123456789", "unauthenticated"},
+      {"status", "", "", "unauthenticated"},
+      {"explode", "", kAdminToken, "unknown_verb"},
+      {"scan", "{}", kObserverToken, "forbidden"},
+      {"calibrate", "", kOperatorToken, "forbidden"},
+      {"scan", "{\"views\": \"six\"}", kOperatorToken, "bad_argument"},
+      {"scan", "{\"views\": 1000}", kOperatorToken, "bad_argument"},
+      {"scan", "{\"colour\": 1}", kOperatorToken, "bad_argument"},
+      {"scan", "{\"step_deg\": 1e999}", kOperatorToken, "bad_request"},
+      {"scan", "[1, 2]", kOperatorToken, "bad_request"},
+      {"scan", "{\"views\": 6", kOperatorToken, "bad_request"},
+      {"resume", "{\"session\": \"../../etc\"}", kOperatorToken, "bad_argument"},
+      {"resume", "{\"session\": \"20260101-000000-nothing\"}", kOperatorToken, "not_found"},
+      {"get", "{\"session\": \"20260101-000000-nothing\"}", kObserverToken, "not_found"},
+      {"turntable", "{\"action\": \"spin\"}", kOperatorToken, "bad_argument"},
+      {"camera", "{\"exposure_us\": -5}", kOperatorToken, "bad_argument"},
+      {"scan", "{\"object\": \"" + std::string(70000, 'x') + "\"}", kOperatorToken, "too_large"},
+      {"cancel", "", kOperatorToken, "failed"},
+  };
+  for (const Case& k : cases) {
+    const auto reply = c.SendRaw(k.verb, k.arguments, k.token);
+    ASSERT_TRUE(reply) << k.verb << " " << k.arguments.substr(0, 60) << ": no reply";
+    EXPECT_EQ(reply->code_name, k.code) << k.verb << " " << k.arguments.substr(0, 60) << ": "
+                                        << reply->message;
+    EXPECT_FALSE(reply->message.empty());
+  }
+  // A scan with a traversal attempt in the object name stays in sessions/.
+  auto scan = c.Send("capture", {{"object", "../../../etc/passwd"}}, kOperatorToken);
+  ASSERT_TRUE(scan);
+  ASSERT_EQ(scan->code_name, "ok") << scan->message;
+  const std::string session = scan->result["session"];
+  EXPECT_EQ(session.find('/'), std::string::npos);
+  EXPECT_EQ(session.find(".."), std::string::npos);
+  // Busy while it runs.
+  const auto busy = c.Send("scan", {{"views", 6}}, kOperatorToken);
+  ASSERT_TRUE(busy);
+  EXPECT_EQ(busy->code_name, "busy") << busy->message;
+  const nlohmann::json job = WaitForJob(c, scan->result["id"], 120s);
+  EXPECT_EQ(job.value("state", ""), "done") << job.dump() << r->fixture.Log();
+  EXPECT_TRUE(std::filesystem::exists(r->fixture.data_dir() + "/sessions/" + session + "/views/000/left.png"));
+  // Still serving.
+  const auto status = c.Send("status", nullptr, kObserverToken);
+  ASSERT_TRUE(status);
+  EXPECT_EQ(status->code_name, "ok");
+  EXPECT_EQ(status->result["state"], "idle");
+  const auto sessions = c.Send("sessions", nullptr, kObserverToken);
+  ASSERT_TRUE(sessions);
+  EXPECT_EQ(sessions->result["sessions"].size(), 1u);
+}
+
+TEST(Daemon, SigkillDuringAScanLosesNothingAndResumeCompletesItWithoutRecapturing) {
+  auto r = StartDaemon("640x512");
+  ASSERT_TRUE(r);
+  const auto reply = r->client.Send("scan", {{"object", "egg"}, {"views", 6}}, kOperatorToken);
+  ASSERT_TRUE(reply);
+  ASSERT_EQ(reply->code_name, "ok") << reply->message;
+  const std::string session_id = reply->result["session"];
+  // Kill it once three captures were acknowledged.
+  ASSERT_TRUE(r->client.WaitFor([](StationClient& c) { return c.captures.size() >= 3; }, 120s))
+      << r->fixture.Log();
+  std::vector<CaptureRecord> acknowledged;
+  {
+    auto lock = r->client.Lock();
+    acknowledged = r->client.captures;
+  }
+  const int status = r->fixture.Stop(SIGKILL);
+  ASSERT_TRUE(WIFSIGNALED(status));
+
+  // Every acknowledged capture is on disk and intact.
+  std::string error;
+  {
+    auto store = daemon::SessionStore::Open(r->fixture.data_dir(), &error);
+    ASSERT_TRUE(store) << error;
+    const daemon::VerifyResult verify = store->Verify(session_id);
+    EXPECT_TRUE(verify.IsIntact()) << (verify.problems.empty() ? "" : verify.problems[0]);
+    auto session = store->OpenSession(session_id, &error);
+    ASSERT_TRUE(session) << error;
+    const std::vector<int> durable = session->DurableViews();
+    for (const CaptureRecord& ack : acknowledged) {
+      EXPECT_TRUE(std::count(durable.begin(), durable.end(), ack.view)) << "view " << ack.view;
+    }
+  }
+
+  // Restart: the session is interrupted; resume completes it.
+  ASSERT_TRUE(r->fixture.Start(&error)) << error;
+  ASSERT_TRUE(r->client.WaitFor(
+      [](StationClient& c) { return c.last_status_state == "idle"; }, 60s)) << r->fixture.Log();
+  const auto sessions = r->client.Send("sessions", nullptr, kObserverToken);
+  ASSERT_TRUE(sessions);
+  ASSERT_EQ(sessions->result["sessions"].size(), 1u);
+  EXPECT_EQ(sessions->result["sessions"][0]["state"], "interrupted");
+  std::size_t captures_before = 0;
+  {
+    auto lock = r->client.Lock();
+    captures_before = r->client.captures.size();
+  }
+  const auto resume = r->client.Send("resume", {{"session", session_id}}, kOperatorToken);
+  ASSERT_TRUE(resume);
+  ASSERT_EQ(resume->code_name, "ok") << resume->message;
+  const nlohmann::json job = WaitForJob(r->client, resume->result["id"], 300s);
+  ASSERT_EQ(job.value("state", ""), "done") << job.dump() << r->fixture.Log()
+                                            << "\ndaemon alive: " << (::kill(r->fixture.pid(), 0) == 0);
+  {
+    auto lock = r->client.Lock();
+    std::set<int> recaptured;
+    for (std::size_t i = captures_before; i < r->client.captures.size(); ++i) {
+      recaptured.insert(r->client.captures[i].view);
+    }
+    for (const CaptureRecord& ack : acknowledged) {
+      EXPECT_FALSE(recaptured.count(ack.view)) << "view " << ack.view << " was captured again";
+    }
+    EXPECT_EQ(recaptured.size() + acknowledged.size(), 6u);
+  }
+  auto store = daemon::SessionStore::Open(r->fixture.data_dir(), &error);
+  ASSERT_TRUE(store);
+  auto session = store->OpenSession(session_id, &error);
+  ASSERT_TRUE(session) << error;
+  EXPECT_EQ(session->state(), SessionState::kDone);
+  EXPECT_EQ(session->DurableViews().size(), 6u);
+  EXPECT_TRUE(session->Verify().IsIntact());
+}
+
+// Calibration from scratch on the simulated station: the held board
+// (stereo) and the board on the platter (turntable axis), against the sim
+// rig's exact calibration.
+TEST(Daemon, CalibratesTheStationFromBoardViews) {
+  auto r = StartDaemon("1280x1024", 0, /*with_calibration=*/false);
+  ASSERT_TRUE(r);
+  StationClient& c = r->client;
+  const auto refused = c.Send("scan", {{"views", 6}}, kOperatorToken);
+  ASSERT_TRUE(refused);
+  EXPECT_EQ(refused->code_name, "failed");
+  EXPECT_NE(refused->message.find("no calibration"), std::string::npos) << refused->message;
+
+  const auto calibrate = c.Send("calibrate", nullptr, kAdminToken);
+  ASSERT_TRUE(calibrate);
+  ASSERT_EQ(calibrate->code_name, "ok") << calibrate->message;
+  nlohmann::json job = WaitForJob(c, calibrate->result["id"], 600s);
+  ASSERT_EQ(job.value("state", ""), "done") << job.dump(2) << r->fixture.Log();
+  const nlohmann::json stereo = job["result"];
+  std::printf("calibrate: %s\n", stereo.dump().c_str());
+
+  const auto axis = c.Send("calibrate-turntable", nullptr, kAdminToken);
+  ASSERT_TRUE(axis);
+  ASSERT_EQ(axis->code_name, "ok") << axis->message;
+  job = WaitForJob(c, axis->result["id"], 300s);
+  ASSERT_EQ(job.value("state", ""), "done") << job.dump(2) << r->fixture.Log();
+  std::printf("calibrate-turntable: %s\n", job["result"].dump().c_str());
+
+  // The current calibration against the rig's exact one.
+  std::string error;
+  StereoCalibration measured;
+  ASSERT_TRUE(LoadCalibration(r->fixture.data_dir() + "/calibration/current.yaml", &measured, &error))
+      << error;
+  sim::SimDriverOptions options;
+  ASSERT_TRUE(sim::SimDriverOptionsFromConfig({{"image_size", "1280x1024"}}, &options, &error));
+  auto station = sim::SimStation::Create(sim::SimRigOptions(options), &error);
+  ASSERT_TRUE(station) << error;
+  const StereoCalibration& truth = station->calibration();
+  const double fx = measured.left.camera_matrix(0, 0), fx_true = truth.left.camera_matrix(0, 0);
+  EXPECT_NEAR(fx / fx_true, 1.0, 0.003) << fx << " vs " << fx_true;
+  EXPECT_NEAR(cv::norm(measured.T), cv::norm(truth.T), 0.2);
+  EXPECT_LT(stereo.value("rms_stereo_px", 1e9), 0.3);
+  ASSERT_TRUE(measured.turntable.valid);
+  const double cos_angle = measured.turntable.direction_in_rig.dot(truth.turntable.direction_in_rig);
+  EXPECT_LT(std::acos(std::min(1.0, cos_angle)) * 180 / CV_PI, 0.2);
+  const cv::Vec3d d = measured.turntable.point_in_rig_mm - truth.turntable.point_in_rig_mm;
+  // The point may slide along the axis only with the platter height error.
+  EXPECT_LT(cv::norm(d), 2.0) << d;
+  const auto status = c.Send("status", nullptr, kObserverToken);
+  ASSERT_TRUE(status);
+  EXPECT_EQ(status->result["calibration_id"], job["result"]["calibration_id"]);
+}
+
+TEST(Daemon, TellsSystemdReadyWatchdogAndStoppingInOrder) {
+  auto r = StartDaemon("640x512", /*watchdog_usec=*/400000);
+  ASSERT_TRUE(r);
+  FakeNotifySocket& manager = r->fixture.notify();
+  std::vector<std::string> order;
+  auto note = [&](const NotifyMessage& m) {
+    for (const char* a : {"READY=1", "WATCHDOG=1", "STOPPING=1"})
+      if (m.Has(a) && (order.empty() || order.back() != a)) order.push_back(a);
+  };
+  const auto ready = manager.WaitFor("READY=1", 30s);
+  ASSERT_TRUE(ready) << r->fixture.Log();
+  EXPECT_EQ(ready->pid, r->fixture.pid());
+  note(*ready);
+  EXPECT_TRUE(ready->Value("STATUS").has_value());
+  const auto ping = manager.WaitFor("WATCHDOG=1", 5s);
+  ASSERT_TRUE(ping);
+  note(*ping);
+  ::kill(r->fixture.pid(), SIGTERM);
+  while (auto m = manager.Receive(10s)) {
+    note(*m);
+    if (m->Has("STOPPING=1")) break;
+  }
+  const int status = r->fixture.Stop(SIGTERM);
+  ASSERT_TRUE(WIFEXITED(status)) << r->fixture.Log();
+  EXPECT_EQ(WEXITSTATUS(status), 0);
+  EXPECT_EQ(order, (std::vector<std::string>{"READY=1", "WATCHDOG=1", "STOPPING=1"}));
+}
+
+}  // namespace
+}  // namespace craftscan::testing

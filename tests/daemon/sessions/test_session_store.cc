@@ -1,0 +1,612 @@
+// SessionStore and Session: layout, round trips, journal, interruption,
+// leftovers of crashes, corrupt manifests, verification and resume points.
+#include <gtest/gtest.h>
+
+#include <sys/stat.h>
+
+#include <algorithm>
+#include <atomic>
+#include <cmath>
+#include <filesystem>
+#include <fstream>
+#include <limits>
+#include <map>
+#include <set>
+#include <thread>
+
+#include <nlohmann/json.hpp>
+
+#include "craftscan/pipeline/atomic_file.h"
+#include "craftscan/pipeline/point_cloud.h"
+#include "session_test_util.h"
+
+namespace craftscan::daemon {
+namespace {
+
+namespace fs = std::filesystem;
+using namespace testing;  // NOLINT(build/namespaces): the helpers of session_test_util.h
+
+nlohmann::json Meta(int view) {
+  return {{"view", view}, {"exposure_us", 8000 + view}, {"stamp_ns", 1714555800000000000LL + view}};
+}
+
+bool Capture(Session& s, int view, std::string* error) {
+  return s.StoreCapture(view, view * 90.0, NoiseImage(40, 30, CV_8UC3, 2 * view),
+                        NoiseImage(40, 30, CV_8UC3, 2 * view + 1), Meta(view), error);
+}
+
+TEST_F(SessionTest, OpenRefusesDataDirsThatAreMissingOrNotDirectories) {
+  std::string error;
+  EXPECT_EQ(SessionStore::Open(Path("missing"), &error), nullptr);
+  EXPECT_TRUE(Contains(error, "missing") && Contains(error, "No such file or directory")) << error;
+  WriteBytes("plain", "x");
+  EXPECT_EQ(SessionStore::Open(Path("plain"), &error), nullptr);
+  EXPECT_TRUE(Contains(error, "is not a directory")) << error;
+  EXPECT_EQ(SessionStore::Open("", &error), nullptr);
+  // data_dir/sessions exists as a file: not usable.
+  fs::create_directories(Path("odd"));
+  WriteBytes("odd/sessions", "x");
+  EXPECT_EQ(SessionStore::Open(Path("odd"), &error), nullptr);
+  EXPECT_TRUE(Contains(error, "odd/sessions") && Contains(error, "File exists")) << error;
+  EXPECT_TRUE(fs::is_directory(fs::path(data_dir_) / "sessions"));
+  EXPECT_EQ(testing::CountTemporaries(data_dir_), 0);  // the writability probe is gone
+}
+
+TEST_F(SessionTest, HostileObjectNamesStayInsideTheSessionsFolder) {
+  const auto now = Clock::now();
+  const std::string names[] = {"../../etc", "a/b", ".hidden", "-rf", "\xc3\x84gg \xe5\xb5\x8c",
+                               std::string(300, 'n'), "", "/abs/path", "..", "x\\..\\y"};
+  std::set<std::string> ids;
+  for (const auto& name : names) {
+    std::string error;
+    auto s = store_->Create(name, "capture", nlohmann::json::object(), now, &error);
+    ASSERT_NE(s, nullptr) << name << ": " << error;
+    EXPECT_TRUE(IsValidSessionId(s->id())) << s->id();
+    EXPECT_EQ(fs::path(s->dir()).parent_path(), fs::path(store_->sessions_dir()));
+    EXPECT_TRUE(fs::is_regular_file(fs::path(s->dir()) / "manifest.json"));
+    EXPECT_EQ(s->manifest().object_name, name);
+    EXPECT_EQ(s->manifest().object, SanitizeObjectName(name));
+    ids.insert(s->id());
+  }
+  EXPECT_EQ(ids.size(), std::size(names));
+  // Nothing was created anywhere but in sessions/ (and nothing hidden there).
+  int entries = 0;
+  for (const auto& e : fs::directory_iterator(data_dir_)) {
+    EXPECT_EQ(e.path().filename(), "sessions");
+    ++entries;
+  }
+  EXPECT_EQ(entries, 1);
+  int sessions = 0;
+  for (const auto& e : fs::directory_iterator(store_->sessions_dir())) {
+    EXPECT_NE(e.path().filename().string()[0], '.') << e.path();
+    ++sessions;
+  }
+  EXPECT_EQ(sessions, static_cast<int>(std::size(names)));
+}
+
+TEST_F(SessionTest, IdsGetSuffixesOnCollisionAndInvalidArgumentsAreRefused) {
+  // 2024-05-01 09:30:00 UTC.
+  const Clock::time_point now{std::chrono::seconds(1714555800)};
+  std::string error;
+  auto a = store_->Create("egg", "scan", {{"views", 3}}, now, &error);
+  auto b = store_->Create("egg", "scan", {{"views", 3}}, now, &error);
+  auto c = store_->Create("egg", "scan", {{"views", 3}}, now, &error);
+  ASSERT_TRUE(a && b && c) << error;
+  EXPECT_EQ(a->id(), "20240501-093000-egg");
+  EXPECT_EQ(b->id(), "20240501-093000-egg-2");
+  EXPECT_EQ(c->id(), "20240501-093000-egg-3");
+  EXPECT_EQ(c->manifest().id, c->id());
+  EXPECT_EQ(a->manifest().created_utc, "2024-05-01T09:30:00.000Z");
+  EXPECT_EQ(a->state(), SessionState::kCreated);
+  EXPECT_EQ(a->params()["views"], 3);
+
+  EXPECT_EQ(store_->Create("egg", "Scan!", nlohmann::json::object(), now, &error), nullptr);
+  EXPECT_TRUE(Contains(error, "job verb")) << error;
+  EXPECT_EQ(store_->Create("egg", "", nlohmann::json::object(), now, &error), nullptr);
+  EXPECT_EQ(store_->Create("egg", "scan", nlohmann::json::array({1}), now, &error), nullptr);
+  EXPECT_TRUE(Contains(error, "JSON object") && Contains(error, "array")) << error;
+  EXPECT_EQ(store_->List().size(), 3u);
+}
+
+TEST_F(SessionTest, StoreAndLoadRoundTripBitExactly) {
+  auto s = NewCapturing("round trip", 3);
+  ASSERT_NE(s, nullptr);
+  std::string error;
+  WriteBytes("rig.yaml", "%YAML:1.0\nbaseline_mm: 60.25\n");
+  ASSERT_TRUE(s->CopyCalibration(Path("rig.yaml"), "rig-a", &error)) << error;
+  EXPECT_EQ(ReadAll(s->CalibrationPath()), "%YAML:1.0\nbaseline_mm: 60.25\n");
+  fs::remove(Path("rig.yaml"));  // copied, never referenced
+  EXPECT_TRUE(fs::exists(fs::path(s->dir()) / "calibration.yaml"));
+
+  // 8-bit colour, 16-bit grey and 8-bit BGRA pairs.
+  const int types[3] = {CV_8UC3, CV_16UC1, CV_8UC4};
+  std::vector<cv::Mat> lefts, rights;
+  for (int v = 0; v < 3; ++v) {
+    lefts.push_back(NoiseImage(97, 61, types[v], 10 * v));
+    rights.push_back(NoiseImage(97, 61, types[v], 10 * v + 1));
+    ASSERT_TRUE(s->StoreCapture(v, 120.0 * v, lefts[v], rights[v], Meta(v), &error)) << error;
+  }
+  cv::Mat disparity = NoiseImage(97, 61, CV_32FC1, 99);
+  disparity.at<float>(0, 0) = std::numeric_limits<float>::quiet_NaN();
+  disparity.at<float>(1, 1) = -std::numeric_limits<float>::infinity();
+  disparity.at<float>(2, 2) = 1e-42f;  // denormal
+  ASSERT_TRUE(s->StoreDisparity(1, disparity, &error)) << error;
+  PointCloud cloud;
+  for (int i = 0; i < 500; ++i) {
+    cloud.points_mm.push_back({i * 0.1f, -i * 1e-3f, 300.0f + i / 7.0f});
+    cloud.normals.push_back({0, std::sin(i * 0.1f), std::cos(i * 0.1f)});
+    cloud.colors_rgb.push_back({static_cast<uchar>(i), 7, static_cast<uchar>(255 - i % 256)});
+  }
+  ASSERT_TRUE(s->StoreCloud(1, cloud, &error)) << error;
+  const std::string report = "{\"length_mm\": 81.5}\n";
+  ASSERT_TRUE(s->StoreOutput("report.json", report, &error)) << error;
+  ASSERT_TRUE(s->StoreOutput("previews/view001.png", std::string("\x89PNG\0\1", 6), &error))
+      << error;
+  ASSERT_TRUE(s->StoreOutputWith(
+      "fused.ply",
+      [&](const std::string& path, std::string* e) { return WritePly(path, cloud, true, e); },
+      &error))
+      << error;
+
+  const auto check = [&](const Session& session) {
+    for (int v = 0; v < 3; ++v) {
+      cv::Mat left, right;
+      nlohmann::json meta;
+      ASSERT_TRUE(session.LoadCapture(v, &left, &right, &meta, &error)) << error;
+      EXPECT_TRUE(BitExact(left, lefts[v])) << "view " << v;
+      EXPECT_TRUE(BitExact(right, rights[v])) << "view " << v;
+      EXPECT_EQ(meta, Meta(v));
+      EXPECT_EQ(session.manifest().views.at(v).angle_deg, 120.0 * v);
+    }
+    cv::Mat d;
+    ASSERT_TRUE(session.LoadDisparity(1, &d, &error)) << error;
+    EXPECT_TRUE(BitExact(d, disparity));
+    PointCloud back;
+    ASSERT_TRUE(session.LoadCloud(1, &back, &error)) << error;
+    ASSERT_EQ(back.size(), cloud.size());
+    EXPECT_EQ(0, std::memcmp(back.points_mm.data(), cloud.points_mm.data(), 500 * 12));
+    EXPECT_EQ(0, std::memcmp(back.normals.data(), cloud.normals.data(), 500 * 12));
+    EXPECT_EQ(0, std::memcmp(back.colors_rgb.data(), cloud.colors_rgb.data(), 500 * 3));
+    std::string bytes;
+    ASSERT_TRUE(session.LoadOutput("report.json", &bytes, &error)) << error;
+    EXPECT_EQ(bytes, report);
+    ASSERT_TRUE(session.LoadOutput("previews/view001.png", &bytes, &error)) << error;
+    EXPECT_EQ(bytes, std::string("\x89PNG\0\1", 6));
+    EXPECT_EQ(session.DurableViews(), (std::vector<int>{0, 1, 2}));
+    const VerifyResult verify = session.Verify();
+    EXPECT_TRUE(verify.IsIntact()) << ::testing::PrintToString(verify.problems);
+    EXPECT_EQ(verify.files_checked, 1 + 9 + 2 + 3);  // calibration, 3 views, 2 view files, outputs
+  };
+  check(*s);
+  // Missing things are errors, not crashes.
+  cv::Mat m1, m2;
+  EXPECT_FALSE(s->LoadDisparity(0, &m1, &error));
+  EXPECT_TRUE(Contains(error, "view 0 has no durable disparity.pfm")) << error;
+  EXPECT_FALSE(s->LoadCapture(7, &m1, &m2, nullptr, &error));
+  std::string none;
+  EXPECT_FALSE(s->LoadOutput("mesh.ply", &none, &error));
+  EXPECT_TRUE(Contains(error, "no durable output named 'mesh.ply'")) << error;
+
+  // The same after closing and reopening from disk.
+  const std::string id = s->id();
+  s.reset();
+  auto reopened = store_->OpenSession(id, &error);
+  ASSERT_NE(reopened, nullptr) << error;
+  check(*reopened);
+  EXPECT_TRUE(store_->Verify(id).IsIntact());
+  EXPECT_EQ(reopened->manifest().calibration_id, "rig-a");
+  // The layout of DESIGN.md.
+  const fs::path dir = reopened->dir();
+  for (const char* file : {"manifest.json", "calibration.yaml", "views/000/left.png",
+                           "views/000/right.png", "views/000/meta.json", "views/001/disparity.pfm",
+                           "views/001/cloud.ply", "fused.ply", "report.json",
+                           "previews/view001.png"}) {
+    EXPECT_TRUE(fs::is_regular_file(dir / file)) << file;
+  }
+  EXPECT_EQ(testing::CountTemporaries(dir), 0);
+}
+
+TEST_F(SessionTest, ManifestJournalFollowsTheJobAndDoneIsFinal) {
+  auto s = NewCapturing("journal", 1);
+  ASSERT_NE(s, nullptr);
+  std::string error;
+  WriteBytes("rig.yaml", "calib");
+  ASSERT_TRUE(s->CopyCalibration(Path("rig.yaml"), "rig-b", &error)) << error;
+  ASSERT_TRUE(Capture(*s, 0, &error)) << error;
+  ASSERT_TRUE(s->SetState(SessionState::kReconstructing, "registering 1 view", &error)) << error;
+  ASSERT_TRUE(s->StoreOutput("fused.ply", "ply", &error)) << error;
+  ASSERT_TRUE(s->SetState(SessionState::kDone, "", &error)) << error;
+
+  // The manifest on disk, read as plain JSON.
+  const auto j = nlohmann::json::parse(ReadAll(s->dir() + "/manifest.json"));
+  EXPECT_EQ(j["format"], "craftscan-session");
+  EXPECT_EQ(j["format_version"], 1);
+  EXPECT_EQ(j["id"], s->id());
+  EXPECT_EQ(j["state"], "done");
+  EXPECT_EQ(j["job"], "scan");
+  EXPECT_EQ(j["calibration"]["id"], "rig-b");
+  EXPECT_EQ(j["calibration"]["size"], 5);
+  EXPECT_EQ(j["views"][0]["files"]["left.png"]["size"],
+            fs::file_size(s->dir() + "/views/000/left.png"));
+  std::vector<std::string> events;
+  std::string last_time;
+  for (const auto& e : j["journal"]) {
+    events.push_back(e["event"]);
+    EXPECT_GE(e["time"].get<std::string>(), last_time);  // ISO 8601 sorts as text
+    last_time = e["time"];
+  }
+  EXPECT_EQ(events, (std::vector<std::string>{"created", "capturing", "calibration",
+                                              "reconstructing", "output", "done"}));
+  EXPECT_EQ(j["journal"][3]["detail"], "registering 1 view");
+  EXPECT_EQ(j["journal"][4]["detail"], "fused.ply");
+  EXPECT_GE(j["updated"].get<std::string>(), last_time);
+
+  // Done is final: no transitions, no stores; nothing on disk changes.
+  const std::string before = ReadAll(s->dir() + "/manifest.json");
+  EXPECT_FALSE(s->SetState(SessionState::kCapturing, "", &error));
+  EXPECT_TRUE(Contains(error, "cannot go from done to capturing")) << error;
+  EXPECT_FALSE(Capture(*s, 1, &error));
+  EXPECT_TRUE(Contains(error, "in state done")) << error;
+  EXPECT_FALSE(s->StoreOutput("mesh.ply", "ply", &error));
+  EXPECT_EQ(ReadAll(s->dir() + "/manifest.json"), before);
+  EXPECT_EQ(s->state(), SessionState::kDone);
+
+  // Failure keeps its reason; resume clears it.
+  auto f = NewCapturing("fails", 1);
+  ASSERT_NE(f, nullptr);
+  ASSERT_TRUE(f->SetState(SessionState::kFailed, "camera lost", &error)) << error;
+  EXPECT_EQ(f->manifest().error, "camera lost");
+  ASSERT_TRUE(f->SetState(SessionState::kCapturing, "resume", &error)) << error;
+  EXPECT_EQ(f->manifest().error, "");
+}
+
+TEST_F(SessionTest, MarkInterruptedMarksOnlyUnfinishedSessionsNotHeldOpen) {
+  std::string error;
+  const auto make = [&](const std::string& name, std::vector<SessionState> path) {
+    auto s = store_->Create(name, "scan", {{"views", 2}}, Clock::now(), &error);
+    EXPECT_NE(s, nullptr) << error;
+    for (SessionState state : path) EXPECT_TRUE(s->SetState(state, "test", &error)) << error;
+    return s;
+  };
+  using S = SessionState;
+  const std::string created = make("created", {})->id();
+  const std::string capturing = make("capturing", {S::kCapturing})->id();
+  const std::string reconstructing = make("recon", {S::kCapturing, S::kReconstructing})->id();
+  const std::string done = make("done", {S::kCapturing, S::kDone})->id();
+  const std::string failed = make("failed", {S::kCapturing, S::kFailed})->id();
+  const std::string interrupted = make("interrupted", {S::kInterrupted})->id();
+  auto live = make("live", {S::kCapturing});  // a running job holds it open
+  const std::string live_id = live->id();
+  auto corrupt = make("corrupt", {S::kCapturing});
+  const std::string corrupt_id = corrupt->id();
+  corrupt.reset();
+  WriteBytes(fs::relative(store_->sessions_dir() + "/" + corrupt_id + "/manifest.json", dir_),
+             "{\"format\": \"craftscan-se");
+
+  std::vector<std::string> problems;
+  std::vector<std::string> marked = store_->MarkInterrupted(&problems);
+  std::vector<std::string> expected{created, capturing, reconstructing};
+  std::sort(expected.begin(), expected.end());
+  EXPECT_EQ(marked, expected);
+  ASSERT_EQ(problems.size(), 1u) << ::testing::PrintToString(problems);
+  EXPECT_TRUE(Contains(problems[0], corrupt_id) && Contains(problems[0], "not valid JSON"))
+      << problems[0];
+
+  std::map<std::string, std::string> states;
+  for (const auto& summary : store_->List()) states[summary.id] = summary.state;
+  EXPECT_EQ(states[created], "interrupted");
+  EXPECT_EQ(states[capturing], "interrupted");
+  EXPECT_EQ(states[reconstructing], "interrupted");
+  EXPECT_EQ(states[done], "done");
+  EXPECT_EQ(states[failed], "failed");
+  EXPECT_EQ(states[interrupted], "interrupted");
+  EXPECT_EQ(states[live->id()], "capturing");
+  EXPECT_EQ(states[corrupt_id], "corrupt");
+  EXPECT_EQ(live->state(), SessionState::kCapturing);
+
+  auto s = store_->OpenSession(reconstructing, &error);
+  ASSERT_NE(s, nullptr) << error;
+  const Manifest m = s->manifest();
+  EXPECT_EQ(m.journal.back().event, "interrupted");
+  EXPECT_EQ(m.journal.back().detail, "craftscand stopped while the session was reconstructing");
+  EXPECT_EQ(m.error, m.journal.back().detail);
+  // The interrupted journal entry of the already-interrupted session was not repeated.
+  auto i = store_->OpenSession(interrupted, &error);
+  ASSERT_NE(i, nullptr) << error;
+  EXPECT_EQ(i->manifest().journal.size(), 2u);
+  // Resume.
+  EXPECT_TRUE(s->SetState(SessionState::kReconstructing, "resume", &error)) << error;
+  // The next start marks what was active then: the resumed one and the
+  // live one, now that nobody holds them.
+  s.reset();
+  live.reset();
+  expected = {reconstructing, live_id};
+  std::sort(expected.begin(), expected.end());
+  EXPECT_EQ(store_->MarkInterrupted(nullptr), expected);
+}
+
+TEST_F(SessionTest, LeftoverTemporariesFromACrashDoNotConfuseLoadingAndAreCleanedUp) {
+  auto s = NewCapturing("leftovers", 2);
+  ASSERT_NE(s, nullptr);
+  std::string error;
+  ASSERT_TRUE(Capture(*s, 0, &error)) << error;
+  const std::string id = s->id();
+  const std::string dir = s->dir();
+  s.reset();
+  // What a crash in the middle of writes leaves: temporaries beside files
+  // (WriteFileAtomically names), a half-created session folder, a view
+  // folder whose files never became durable.
+  const fs::path rel = fs::relative(dir, dir_);
+  WriteBytes((rel / "views/000/.left.png.tmp-AbC123").string(), "half a PNG");
+  WriteBytes((rel / ".manifest.json.tmp-XyZ789").string(), "{\"format\": \"craftscan-session\"");
+  fs::create_directories(fs::path(dir) / "views/001");
+  WriteBytes((rel / "views/001/.right.png.tmp-QQQQQQ").string(), "x");
+  const fs::path half = fs::path(store_->sessions_dir()) / ".20240501-093000-x.tmp-Qw1234";
+  fs::create_directories(half);
+  WriteBytes(fs::relative(half / "manifest.json", dir_).string(), "{}");
+
+  const auto list = store_->List();
+  ASSERT_EQ(list.size(), 1u);
+  EXPECT_EQ(list[0].id, id);
+  EXPECT_EQ(list[0].views_captured, 1);
+  EXPECT_TRUE(store_->Verify(id).IsIntact());
+  auto again = store_->OpenSession(id, &error);
+  ASSERT_NE(again, nullptr) << error;
+  cv::Mat left, right;
+  ASSERT_TRUE(again->LoadCapture(0, &left, &right, nullptr, &error)) << error;
+  EXPECT_TRUE(BitExact(left, NoiseImage(40, 30, CV_8UC3, 0)));
+  const ResumePoint resume = again->GetResumePoint(true);
+  EXPECT_EQ(resume.to_capture, (std::vector<int>{1}));
+  EXPECT_TRUE(resume.damaged.empty());
+  again.reset();
+
+  EXPECT_EQ(testing::CountTemporaries(store_->sessions_dir()), 4);
+  store_->MarkInterrupted(nullptr);
+  EXPECT_EQ(testing::CountTemporaries(store_->sessions_dir()), 0);
+  EXPECT_FALSE(fs::exists(half));
+  EXPECT_TRUE(store_->Verify(id).IsIntact());
+}
+
+TEST_F(SessionTest, CorruptManifestsAreListedWithTheReasonNotFatal) {
+  std::string error;
+  const std::string good = NewCapturing("good", 1)->id();
+  const std::string truncated = NewCapturing("truncated", 1)->id();
+  const std::string missing = NewCapturing("missing", 1)->id();
+  const std::string wrong_id = NewCapturing("wrongid", 1)->id();
+  const fs::path sessions = store_->sessions_dir();
+  const std::string text = ReadAll((sessions / truncated / "manifest.json").string());
+  std::ofstream(sessions / truncated / "manifest.json") << text.substr(0, text.size() / 3);
+  fs::remove(sessions / missing / "manifest.json");
+  const std::string other = ReadAll((sessions / good / "manifest.json").string());
+  std::ofstream(sessions / wrong_id / "manifest.json") << other;
+  fs::create_directories(sessions / "notes");
+
+  std::map<std::string, SessionSummary> by_id;
+  for (const auto& summary : store_->List()) by_id[summary.id] = summary;
+  ASSERT_EQ(by_id.size(), 5u);
+  EXPECT_EQ(by_id[good].state, "capturing");
+  EXPECT_EQ(by_id[good].object_name, "good");
+  EXPECT_EQ(by_id[good].job, "scan");
+  EXPECT_FALSE(by_id[good].created_utc.empty());
+  EXPECT_EQ(by_id[truncated].state, "corrupt");
+  EXPECT_TRUE(Contains(by_id[truncated].problem, "not valid JSON")) << by_id[truncated].problem;
+  EXPECT_EQ(by_id[missing].state, "corrupt");
+  EXPECT_TRUE(Contains(by_id[missing].problem, "No such file or directory"));
+  EXPECT_EQ(by_id[wrong_id].state, "corrupt");
+  EXPECT_TRUE(Contains(by_id[wrong_id].problem, "differs from the folder name"));
+  EXPECT_EQ(by_id["notes"].state, "corrupt");
+  EXPECT_TRUE(Contains(by_id["notes"].problem, "not a session id"));
+
+  EXPECT_EQ(store_->OpenSession(truncated, &error), nullptr);
+  EXPECT_TRUE(Contains(error, "session " + truncated + " is corrupt") &&
+              Contains(error, "manifest.json"))
+      << error;
+  EXPECT_FALSE(store_->Verify(truncated).IsIntact());
+  EXPECT_FALSE(store_->Verify(truncated).manifest_ok);
+  EXPECT_TRUE(store_->Verify(good).IsIntact());
+  EXPECT_NE(store_->OpenSession(good, &error), nullptr) << error;
+}
+
+TEST_F(SessionTest, VerifyDetectsTruncatedModifiedAndMissingFiles) {
+  auto s = NewCapturing("verify", 3);
+  ASSERT_NE(s, nullptr);
+  std::string error;
+  for (int v = 0; v < 3; ++v) {
+    ASSERT_TRUE(Capture(*s, v, &error)) << error;
+    ASSERT_TRUE(s->StoreDisparity(v, NoiseImage(40, 30, CV_32FC1, 50 + v), &error)) << error;
+  }
+  ASSERT_TRUE(s->Verify().IsIntact());
+  const fs::path dir = s->dir();
+  // Truncate view 0's left image, flip one byte of view 1's disparity map
+  // (same size), delete view 2's meta.json.
+  fs::resize_file(dir / "views/000/left.png", fs::file_size(dir / "views/000/left.png") - 10);
+  {
+    std::fstream f(dir / "views/001/disparity.pfm", std::ios::in | std::ios::out | std::ios::binary);
+    f.seekg(-7, std::ios::end);
+    const char c = static_cast<char>(f.get());
+    f.seekp(-7, std::ios::end);
+    f.put(static_cast<char>(c ^ 0x20));
+  }
+  fs::remove(dir / "views/002/meta.json");
+
+  for (const VerifyResult& result : {s->Verify(), store_->Verify(s->id())}) {
+    EXPECT_TRUE(result.manifest_ok);
+    EXPECT_FALSE(result.IsIntact());
+    ASSERT_EQ(result.problems.size(), 3u) << ::testing::PrintToString(result.problems);
+    EXPECT_TRUE(Contains(result.problems[0], "views/000/left.png") &&
+                Contains(result.problems[0], "truncated"))
+        << result.problems[0];
+    EXPECT_TRUE(Contains(result.problems[1], "views/001/disparity.pfm") &&
+                Contains(result.problems[1], "checksum"))
+        << result.problems[1];
+    EXPECT_TRUE(Contains(result.problems[2], "views/002/meta.json") &&
+                Contains(result.problems[2], "No such file"))
+        << result.problems[2];
+    EXPECT_EQ(result.files_checked, 3 * 4 - 1);
+  }
+  cv::Mat a, b;
+  EXPECT_FALSE(s->LoadCapture(0, &a, &b, nullptr, &error));
+  EXPECT_TRUE(Contains(error, "left.png") && Contains(error, "manifest says")) << error;
+  EXPECT_FALSE(s->LoadDisparity(1, &a, &error));
+  EXPECT_TRUE(Contains(error, "checksum differs")) << error;
+
+  // Resume treats damaged files as not durable: recapture 0 and 2, rematch 1.
+  const ResumePoint resume = s->GetResumePoint(true);
+  EXPECT_EQ(resume.to_capture, (std::vector<int>{0, 2}));
+  EXPECT_EQ(resume.next_capture, 0);
+  EXPECT_EQ(resume.to_match, (std::vector<int>{1}));
+  EXPECT_EQ(resume.damaged.size(), 3u);
+  // Without verification the manifest alone says all is there.
+  EXPECT_TRUE(s->GetResumePoint(false).to_capture.empty());
+}
+
+TEST_F(SessionTest, ResumePointNamesTheFirstStepNotYetDurable) {
+  auto s = NewCapturing("resume", 5);
+  ASSERT_NE(s, nullptr);
+  std::string error;
+  for (int v : {0, 1, 2, 4}) ASSERT_TRUE(Capture(*s, v, &error)) << error;
+  for (int v : {0, 1}) ASSERT_TRUE(s->StoreDisparity(v, NoiseImage(8, 8, CV_32FC1, v), &error));
+  PointCloud cloud;
+  cloud.points_mm = {{1, 2, 3}};
+  ASSERT_TRUE(s->StoreCloud(0, cloud, &error)) << error;
+
+  ResumePoint r = s->GetResumePoint(false);
+  EXPECT_EQ(r.planned_views, 5);
+  EXPECT_EQ(r.next_capture, 3);
+  EXPECT_EQ(r.to_capture, (std::vector<int>{3}));
+  EXPECT_EQ(r.to_match, (std::vector<int>{2, 4}));
+  EXPECT_EQ(r.to_reproject, (std::vector<int>{1}));
+  EXPECT_FALSE(r.CapturesComplete());
+
+  // A new capture of view 1 makes its disparity stale; a new disparity of
+  // view 0 makes its cloud stale.
+  ASSERT_TRUE(Capture(*s, 1, &error)) << error;
+  ASSERT_TRUE(s->StoreDisparity(0, NoiseImage(8, 8, CV_32FC1, 7), &error)) << error;
+  ASSERT_TRUE(Capture(*s, 3, &error)) << error;
+  r = s->GetResumePoint(true);
+  EXPECT_EQ(r.next_capture, 5);
+  EXPECT_TRUE(r.to_capture.empty());
+  EXPECT_TRUE(r.CapturesComplete());
+  EXPECT_EQ(r.to_match, (std::vector<int>{1, 2, 3, 4}));
+  EXPECT_EQ(r.to_reproject, (std::vector<int>{0}));
+
+  // Derived files need a capture; indices are range-checked.
+  EXPECT_FALSE(s->StoreDisparity(7, NoiseImage(8, 8, CV_32FC1, 1), &error));
+  EXPECT_TRUE(Contains(error, "view 7 has no durable capture")) << error;
+  EXPECT_FALSE(s->StoreCloud(9, cloud, &error));
+  EXPECT_FALSE(Capture(*s, 1000, &error));
+  EXPECT_TRUE(Contains(error, "outside 0..999")) << error;
+  EXPECT_FALSE(Capture(*s, -1, &error));
+
+  // Without a planned view count the next capture is the first gap.
+  auto open = store_->Create("open", "capture", nlohmann::json::object(), Clock::now(), &error);
+  ASSERT_NE(open, nullptr) << error;
+  ASSERT_TRUE(open->SetState(SessionState::kCapturing, "", &error));
+  for (int v : {0, 1, 3}) ASSERT_TRUE(Capture(*open, v, &error)) << error;
+  r = open->GetResumePoint(false);
+  EXPECT_EQ(r.planned_views, -1);
+  EXPECT_EQ(r.next_capture, 2);
+  EXPECT_TRUE(r.to_capture.empty());
+  EXPECT_FALSE(r.CapturesComplete());
+}
+
+TEST_F(SessionTest, BadInputsAndBadIdsGiveClearErrors) {
+  auto s = NewCapturing("inputs", 2);
+  ASSERT_NE(s, nullptr);
+  std::string error;
+  const cv::Mat ok = NoiseImage(8, 8, CV_8UC1, 1);
+  EXPECT_FALSE(s->StoreCapture(0, 0, cv::Mat(), ok, Meta(0), &error));
+  EXPECT_TRUE(Contains(error, "left image is empty")) << error;
+  EXPECT_FALSE(s->StoreCapture(0, 0, ok, NoiseImage(8, 8, CV_32FC1, 1), Meta(0), &error));
+  EXPECT_TRUE(Contains(error, "right image has type CV_32FC1")) << error;
+  EXPECT_FALSE(s->StoreCapture(0, 0, ok, ok, nlohmann::json::array(), &error));
+  EXPECT_TRUE(Contains(error, "meta is not a JSON object")) << error;
+  ASSERT_TRUE(s->StoreCapture(0, 0, ok, ok, Meta(0), &error)) << error;
+  EXPECT_FALSE(s->StoreDisparity(0, NoiseImage(8, 8, CV_8UC1, 1), &error));
+  EXPECT_TRUE(Contains(error, "CV_32FC1")) << error;
+  PointCloud bad;
+  bad.points_mm = {{1, 2, 3}};
+  bad.normals = {{0, 0, 1}, {0, 1, 0}};
+  EXPECT_FALSE(s->StoreCloud(0, bad, &error));
+  for (const char* name : {"../escape.txt", "/tmp/x", "manifest.json", "views/000/left.png"}) {
+    EXPECT_FALSE(s->StoreOutput(name, "x", &error)) << name;
+    EXPECT_TRUE(Contains(error, "output name")) << error;
+  }
+  EXPECT_FALSE(fs::exists(fs::path(dir_) / "escape.txt"));
+  EXPECT_FALSE(s->CopyCalibration(Path("nope.yaml"), "x", &error));
+  EXPECT_TRUE(Contains(error, "nope.yaml") && Contains(error, "No such file")) << error;
+  // A writer that fails: its error is passed on and nothing is recorded.
+  EXPECT_FALSE(s->StoreOutputWith(
+      "mesh.ply", [](const std::string&, std::string* e) { return (*e = "mesher gave up", false); },
+      &error));
+  EXPECT_TRUE(Contains(error, "mesher gave up")) << error;
+  EXPECT_TRUE(s->manifest().outputs.empty());
+  // A store of the same output while one is in progress is refused.
+  bool inner = true;
+  ASSERT_TRUE(s->StoreOutputWith(
+      "report.json",
+      [&](const std::string& path, std::string* e) {
+        std::string nested;
+        inner = s->StoreOutput("report.json", "{}", &nested);
+        EXPECT_TRUE(Contains(nested, "report.json is being stored by another call")) << nested;
+        return WriteFileAtomically(path, "{}", e);
+      },
+      &error))
+      << error;
+  EXPECT_FALSE(inner);
+
+  for (const std::string id : {"../x", "a/b", "..", "", "20240501-093000-../../etc"}) {
+    EXPECT_EQ(store_->OpenSession(id, &error), nullptr) << id;
+    EXPECT_TRUE(Contains(error, "invalid session id")) << error;
+    EXPECT_FALSE(store_->Verify(id).IsIntact());
+  }
+  EXPECT_EQ(store_->OpenSession("20000101-000000-nothing", &error), nullptr);
+  EXPECT_TRUE(Contains(error, "unknown session 20000101-000000-nothing")) << error;
+  EXPECT_EQ(store_->OpenSession(s->id(), &error), nullptr);
+  EXPECT_TRUE(Contains(error, "is open elsewhere")) << error;
+  const std::string id = s->id();
+  s.reset();
+  EXPECT_NE(store_->OpenSession(id, &error), nullptr) << error;
+}
+
+TEST_F(SessionTest, StoresOfDistinctViewsRunConcurrently) {
+  constexpr int kThreads = 4;
+  constexpr int kViewsPerThread = 6;
+  auto s = NewCapturing("threads", kThreads * kViewsPerThread);
+  ASSERT_NE(s, nullptr);
+  std::atomic<int> failures{0};
+  std::vector<std::thread> threads;
+  for (int t = 0; t < kThreads; ++t) {
+    threads.emplace_back([&, t] {
+      for (int i = 0; i < kViewsPerThread; ++i) {
+        const int view = t + kThreads * i;
+        std::string error;
+        PointCloud cloud;
+        cloud.points_mm = {{static_cast<float>(view), 0, 0}};
+        if (!Capture(*s, view, &error) ||
+            !s->StoreDisparity(view, NoiseImage(16, 8, CV_32FC1, view), &error) ||
+            !s->StoreCloud(view, cloud, &error)) {
+          ADD_FAILURE() << error;
+          ++failures;
+        }
+      }
+    });
+  }
+  for (auto& t : threads) t.join();
+  EXPECT_EQ(failures, 0);
+  const ResumePoint r = s->GetResumePoint(true);
+  EXPECT_TRUE(r.CapturesComplete());
+  EXPECT_TRUE(r.to_match.empty() && r.to_reproject.empty() && r.damaged.empty());
+  EXPECT_EQ(s->DurableViews().size(), static_cast<std::size_t>(kThreads * kViewsPerThread));
+  // The manifest on disk holds every view (no lost update).
+  const std::string id = s->id();
+  s.reset();
+  std::string error;
+  auto back = store_->OpenSession(id, &error);
+  ASSERT_NE(back, nullptr) << error;
+  EXPECT_EQ(back->manifest().views.size(), static_cast<std::size_t>(kThreads * kViewsPerThread));
+  for (const auto& [index, view] : back->manifest().views) EXPECT_EQ(view.files.size(), 5u);
+}
+
+}  // namespace
+}  // namespace craftscan::daemon

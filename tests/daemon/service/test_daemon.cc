@@ -6,6 +6,8 @@
 
 #include <chrono>
 #include <cstdio>
+#include <fstream>
+#include <iterator>
 #include <set>
 #include <string>
 #include <thread>
@@ -26,14 +28,15 @@ using daemon::SessionState;
 struct Running {
   DaemonFixture fixture;
   StationClient client;
-  explicit Running(std::string image_size) : fixture(std::move(image_size)) {}
+  Running(std::string image_size, std::string extra_sim)
+      : fixture(std::move(image_size), std::move(extra_sim)) {}
 };
 
 // Starts the daemon and a client; fails the test (returns null) if either
-// does not come up.
+// does not come up. extra_sim: more sim driver keys (", key: value…").
 std::unique_ptr<Running> StartDaemon(const std::string& image_size, long watchdog_usec = 0,
-                                     bool with_calibration = true) {
-  auto r = std::make_unique<Running>(image_size);
+                                     bool with_calibration = true, std::string extra_sim = "") {
+  auto r = std::make_unique<Running>(image_size, std::move(extra_sim));
   std::string error;
   if (!r->fixture.Prepare(&error, with_calibration)) {
     ADD_FAILURE() << error;
@@ -327,6 +330,100 @@ TEST(Daemon, CalibratesTheStationFromBoardViews) {
   const auto status = c.Send("status", nullptr, kObserverToken);
   ASSERT_TRUE(status);
   EXPECT_EQ(status->result["calibration_id"], job["result"]["calibration_id"]);
+}
+
+// The camera vanishes mid-scan (sim: after 3 frames per connection) and
+// comes back on the second reconnect attempt: the scan goes on, no view lost.
+TEST(DaemonFaults, CameraLostMidScanIsRecoveredAndTheScanCompletes) {
+  auto r = StartDaemon("640x512", 0, true,
+                       ", disconnect_after: 3, reconnect_failures: 1, reconnect_attempts: 3, "
+                       "reconnect_delay_ms: 50");
+  ASSERT_TRUE(r);
+  const auto reply = r->client.Send("scan", {{"object", "box"}, {"views", 6}}, kOperatorToken);
+  ASSERT_TRUE(reply);
+  ASSERT_EQ(reply->code_name, "ok") << reply->message;
+  const nlohmann::json job = WaitForJob(r->client, reply->result["id"], 300s);
+  EXPECT_EQ(job.value("state", ""), "done") << job.dump() << r->fixture.Log();
+  EXPECT_NE(r->fixture.Log().find("reconnected"), std::string::npos) << r->fixture.Log();
+  std::string error;
+  auto store = daemon::SessionStore::Open(r->fixture.data_dir(), &error);
+  ASSERT_TRUE(store);
+  auto session = store->OpenSession(reply->result["session"], &error);
+  ASSERT_TRUE(session) << error;
+  EXPECT_EQ(session->DurableViews().size(), 6u);
+  EXPECT_TRUE(session->Verify().IsIntact());
+}
+
+// The camera vanishes for good: the job fails with the reason, the session
+// is interrupted with every capture intact, the daemon keeps serving; once
+// the camera is back (restart without the fault), resume completes it.
+TEST(DaemonFaults, CameraGoneForGoodInterruptsTheScanAndResumeFinishesIt) {
+  auto r = StartDaemon("640x512", 0, true,
+                       ", disconnect_after: 2, reconnect_failures: 100, reconnect_attempts: 2, "
+                       "reconnect_delay_ms: 20");
+  ASSERT_TRUE(r);
+  const auto reply = r->client.Send("scan", {{"object", "box"}, {"views", 6}}, kOperatorToken);
+  ASSERT_TRUE(reply);
+  ASSERT_EQ(reply->code_name, "ok") << reply->message;
+  const std::string session_id = reply->result["session"];
+  const nlohmann::json job = WaitForJob(r->client, reply->result["id"], 300s);
+  EXPECT_EQ(job.value("state", ""), "failed") << job.dump();
+  EXPECT_NE(job.value("message", "").find("camera lost"), std::string::npos) << job.dump();
+  const auto status = r->client.Send("status", nullptr, kObserverToken);
+  ASSERT_TRUE(status);
+  EXPECT_NE(status->result.value("last_error", "").find("camera lost"), std::string::npos)
+      << status->result.dump();
+  std::string error;
+  {
+    auto store = daemon::SessionStore::Open(r->fixture.data_dir(), &error);
+    ASSERT_TRUE(store);
+    auto session = store->OpenSession(session_id, &error);
+    ASSERT_TRUE(session) << error;
+    EXPECT_EQ(session->state(), SessionState::kInterrupted);
+    EXPECT_EQ(session->DurableViews(), (std::vector<int>{0, 1}));
+    EXPECT_TRUE(session->Verify().IsIntact());
+  }
+  // The camera comes back: a daemon without the fault resumes the session.
+  ASSERT_EQ(r->fixture.Stop(SIGTERM), 0) << r->fixture.Log();
+  DaemonFixture& f = r->fixture;
+  {
+    std::ifstream in(f.root() + "/craftscand.yaml");
+    std::string text((std::istreambuf_iterator<char>(in)), {});
+    for (std::size_t at; (at = text.find(", disconnect_after")) != std::string::npos;) {
+      text.erase(at, text.find('}', at) - at);
+    }
+    std::ofstream(f.root() + "/craftscand.yaml") << text;
+  }
+  ASSERT_TRUE(f.Start(&error)) << error;
+  ASSERT_TRUE(r->client.WaitFor([](StationClient& c) { return c.last_status_state == "idle"; }, 60s));
+  const auto resume = r->client.Send("resume", {{"session", session_id}}, kOperatorToken);
+  ASSERT_TRUE(resume);
+  ASSERT_EQ(resume->code_name, "ok") << resume->message;
+  const nlohmann::json resumed = WaitForJob(r->client, resume->result["id"], 300s);
+  EXPECT_EQ(resumed.value("state", ""), "done") << resumed.dump() << f.Log();
+}
+
+// A turntable alarm stops the scan safely with the reason; nothing
+// recorded is lost.
+TEST(DaemonFaults, TurntableAlarmStopsTheScanWithTheReason) {
+  auto r = StartDaemon("640x512", 0, true, ", turntable_alarm: 1");
+  ASSERT_TRUE(r);
+  const auto reply = r->client.Send("scan", {{"object", "box"}, {"views", 6}}, kOperatorToken);
+  ASSERT_TRUE(reply);
+  ASSERT_EQ(reply->code_name, "ok") << reply->message;
+  const nlohmann::json job = WaitForJob(r->client, reply->result["id"], 120s);
+  EXPECT_EQ(job.value("state", ""), "failed") << job.dump();
+  EXPECT_NE(job.value("message", "").find("ALARM"), std::string::npos) << job.dump();
+  const auto status = r->client.Send("status", nullptr, kObserverToken);
+  ASSERT_TRUE(status);
+  EXPECT_EQ(status->result["state"], "idle");
+  std::string error;
+  auto store = daemon::SessionStore::Open(r->fixture.data_dir(), &error);
+  ASSERT_TRUE(store);
+  auto session = store->OpenSession(reply->result["session"], &error);
+  ASSERT_TRUE(session) << error;
+  EXPECT_EQ(session->state(), SessionState::kInterrupted);
+  EXPECT_TRUE(session->Verify().IsIntact());
 }
 
 TEST(Daemon, TellsSystemdReadyWatchdogAndStoppingInOrder) {

@@ -88,6 +88,10 @@ TopicSpec<msg::PointCloud> CloudTopic(std::string_view station) {
   return {Name(station, "cloud"), Qos(2, false)};
 }
 
+TopicSpec<msg::SessionFile> FileTopic(std::string_view station) {
+  return {Name(station, "file"), Qos(kFileTopicDepth, false)};
+}
+
 TopicSpec<ros::Image> RosImageTopic(std::string_view station, Side side) {
   return {RosName(station, std::string(ToString(side)) + "/image_raw"), RosQos(false)};
 }

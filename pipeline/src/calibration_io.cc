@@ -134,13 +134,25 @@ class Reader {
     return true;
   }
 
+  // Whether `n` is an opencv-matrix map with integer rows and cols in 1..16
+  // and a list of rows × cols values. Checked before reading: cv::read
+  // allocates rows × cols elements before it looks at the data, so a few
+  // bytes could ask for gigabytes (found by tests/fuzz).
+  static bool IsSmallMatrix(const cv::FileNode& n) {
+    if (!n.isMap()) return false;
+    const cv::FileNode rows = n["rows"], cols = n["cols"], data = n["data"];
+    if (!rows.isInt() || !cols.isInt() || !data.isSeq()) return false;
+    const int r = static_cast<int>(rows), c = static_cast<int>(cols);
+    return r >= 1 && r <= 16 && c >= 1 && c <= 16 && data.size() == static_cast<std::size_t>(r * c);
+  }
+
   // A matrix of exactly rows × cols (a 3-vector may also be stored 1×3).
   bool Matrix(const cv::FileNode& parent, const std::string& key, const std::string& name, int rows,
               int cols, cv::Mat* out) {
     cv::FileNode n;
     if (!Node(parent, key, name, &n)) return false;
     cv::Mat m;
-    if (n.isMap()) n >> m;
+    if (IsSmallMatrix(n)) n >> m;
     if (m.empty() || m.channels() != 1) {
       return Fail("key '" + name + "': expected an opencv-matrix");
     }
@@ -172,7 +184,7 @@ class Reader {
     cv::FileNode d;
     if (!Node(n, "distortion", key + ".distortion", &d)) return false;
     cv::Mat coeffs;
-    if (d.isMap()) d >> coeffs;
+    if (IsSmallMatrix(d)) d >> coeffs;
     const int count = static_cast<int>(coeffs.total());
     if (coeffs.empty() || (coeffs.rows != 1 && coeffs.cols != 1) || (count != 5 && count != 8)) {
       return Fail("key '" + key + ".distortion': expected a 1x5 or 1x8 matrix, got " +

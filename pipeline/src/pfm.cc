@@ -107,6 +107,20 @@ bool ReadPfmImpl(const std::string& path, cv::Mat* image, std::string* error) {
 
   const std::size_t row_floats = static_cast<std::size_t>(width) * channels;
   const std::size_t total_floats = row_floats * static_cast<std::size_t>(height);
+  // Check the size before allocating: a 30-byte file claiming 32768 × 32768
+  // × 3 would otherwise ask for 12 GiB first (found by tests/fuzz).
+  const std::uint64_t needed = total_floats * sizeof(float);
+  const std::streampos data_start = in.tellg();
+  if (data_start != std::streampos(-1)) {
+    in.seekg(0, std::ios::end);
+    const std::streampos end = in.tellg();
+    in.clear();
+    in.seekg(data_start);
+    if (end != std::streampos(-1) && end - data_start < static_cast<std::streamoff>(needed)) {
+      return SetError(error, where + "truncated data: expected " + std::to_string(needed) +
+                                 " bytes, found " + std::to_string(end - data_start));
+    }
+  }
   std::vector<float> data(total_floats);
   in.read(reinterpret_cast<char*>(data.data()),
           static_cast<std::streamsize>(total_floats * sizeof(float)));

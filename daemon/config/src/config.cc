@@ -1,5 +1,6 @@
 #include "craftscan/daemon/config.h"
 
+#include <yaml-cpp/eventhandler.h>
 #include <yaml-cpp/yaml.h>
 
 #include <algorithm>
@@ -396,17 +397,52 @@ bool DaemonConfig::IsValid(std::string* why) const {
   return true;
 }
 
+namespace {
+
+// The number of YAML documents in `text`, as YAML::LoadAll counts them, but
+// stopping where the parser makes no progress: yaml-cpp 0.7's LoadAll never
+// returns on some malformed input (e.g. ",": the parser hands back the same
+// empty document forever and the list grows until memory runs out;
+// jbeder/yaml-cpp#1040, fixed upstream by #1319). Found by tests/fuzz.
+// Throws YAML::Exception on a syntax error, as LoadAll does.
+std::size_t CountDocuments(const std::string& text) {
+  struct Starts : YAML::EventHandler {
+    std::vector<std::size_t> positions;
+    void OnDocumentStart(const YAML::Mark& mark) override { positions.push_back(mark.pos); }
+    void OnDocumentEnd() override {}
+    void OnNull(const YAML::Mark&, YAML::anchor_t) override {}
+    void OnAlias(const YAML::Mark&, YAML::anchor_t) override {}
+    void OnScalar(const YAML::Mark&, const std::string&, YAML::anchor_t,
+                  const std::string&) override {}
+    void OnSequenceStart(const YAML::Mark&, const std::string&, YAML::anchor_t,
+                         YAML::EmitterStyle::value) override {}
+    void OnSequenceEnd() override {}
+    void OnMapStart(const YAML::Mark&, const std::string&, YAML::anchor_t,
+                    YAML::EmitterStyle::value) override {}
+    void OnMapEnd() override {}
+  } starts;
+  std::istringstream stream(text);
+  YAML::Parser parser(stream);
+  while (parser.HandleNextDocument(starts)) {
+    const std::size_t n = starts.positions.size();
+    if (n >= 2 && starts.positions[n - 1] == starts.positions[n - 2]) return n - 1;
+  }
+  return starts.positions.size();
+}
+
+}  // namespace
+
 bool ParseDaemonConfig(const std::string& yaml_text, const std::map<std::string, std::string>& env,
                        DaemonConfig* config, std::string* error) {
   DaemonConfig parsed;
   try {
-    const std::vector<YAML::Node> documents = YAML::LoadAll(yaml_text);
-    if (documents.size() > 1) {
+    const std::size_t documents = CountDocuments(yaml_text);
+    if (documents > 1) {
       return Fail(error, "the configuration must be one YAML document, found " +
-                             std::to_string(documents.size()));
+                             std::to_string(documents));
     }
     YamlReader reader(&parsed);
-    if (!reader.ReadRoot(documents.empty() ? YAML::Node() : documents.front(), error)) {
+    if (!reader.ReadRoot(documents == 0 ? YAML::Node() : YAML::Load(yaml_text), error)) {
       return false;
     }
   } catch (const YAML::Exception& e) {
@@ -482,6 +518,7 @@ ScanOptions ReconstructionOptions(const PipelineSettings& settings) {
   options.volume_min_height_mm = settings.volume_min_height_mm;
   options.volume_max_height_mm = settings.volume_max_height_mm;
   options.mesh = settings.mesh;
+  options.measure_box = settings.measure_box;
   return options;
 }
 

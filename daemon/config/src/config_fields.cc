@@ -380,6 +380,8 @@ std::vector<Field> MakeFields() {
                         [](DaemonConfig& c) -> double& { return c.pipeline.volume_max_height_mm; },
                         {-1000, kMax}));
   f.push_back(BoolField("pipeline.mesh", [](DaemonConfig& c) -> bool& { return c.pipeline.mesh; }));
+  f.push_back(BoolField("pipeline.measure_box",
+                        [](DaemonConfig& c) -> bool& { return c.pipeline.measure_box; }));
   f.push_back(IntField(
       "limits.max_command_bytes",
       [](DaemonConfig& c) -> int& { return c.limits.max_command_bytes; }, 1024, 16 << 20));

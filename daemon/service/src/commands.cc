@@ -1,8 +1,10 @@
 #include "craftscan/daemon/commands.h"
 
-#include <cmath>
+#include <cerrno>
+#include <cstdio>
+#include <cstring>
 #include <exception>
-#include <map>
+#include <filesystem>
 #include <set>
 #include <utility>
 #include <vector>
@@ -14,119 +16,41 @@
 namespace craftscan::daemon {
 namespace {
 
-enum class ArgType { kString, kInt, kNumber };
-
-struct ArgSpec {
-  ArgType type;
-  bool required;
-  double min, max;  // numbers: range; strings: length range
-};
-
-// The argument schema of every verb (see the table in commands.h).
-const std::map<std::string, std::map<std::string, ArgSpec>>& VerbArguments() {
-  static const std::map<std::string, std::map<std::string, ArgSpec>> table = {
-      {"status", {}},
-      {"devices", {}},
-      {"sessions", {}},
-      {"get", {{"session", {ArgType::kString, true, 1, 128}}}},
-      {"capture", {{"object", {ArgType::kString, false, 1, 128}}}},
-      {"scan",
-       {{"object", {ArgType::kString, false, 1, 128}},
-        {"views", {ArgType::kInt, false, 2, 360}},
-        {"step_deg", {ArgType::kNumber, false, -360, 360}}}},
-      {"cancel", {}},
-      {"resume", {{"session", {ArgType::kString, true, 1, 128}}}},
-      {"turntable",
-       {{"action", {ArgType::kString, true, 1, 16}},
-        {"angle_deg", {ArgType::kNumber, false, -3600, 3600}}}},
-      {"camera",
-       {{"exposure_us", {ArgType::kNumber, false, 1, 10e6}},
-        {"gain_db", {ArgType::kNumber, false, 0, 48}}}},
-      {"calibrate", {}},
-      {"calibrate-turntable", {}},
-  };
-  return table;
-}
-
-bool CheckArguments(const std::map<std::string, ArgSpec>& spec, const nlohmann::json& args,
-                    std::string* why) {
-  for (const auto& [key, value] : args.items()) {
-    const auto it = spec.find(key);
-    if (it == spec.end()) {
-      std::string known;
-      for (const auto& [name, unused] : spec) known += (known.empty() ? "" : ", ") + name;
-      *why = "unknown argument '" + key + "'" +
-             (known.empty() ? " (this verb takes none)" : " (known: " + known + ")");
-      return false;
-    }
-    const ArgSpec& s = it->second;
-    switch (s.type) {
-      case ArgType::kString: {
-        if (!value.is_string()) {
-          *why = key + ": must be a string";
-          return false;
-        }
-        const std::size_t n = value.get_ref<const std::string&>().size();
-        if (n < s.min || n > s.max) {
-          *why = key + ": length must be " + std::to_string(static_cast<int>(s.min)) + ".." +
-                 std::to_string(static_cast<int>(s.max));
-          return false;
-        }
-        break;
-      }
-      case ArgType::kInt:
-        if (!value.is_number_integer() || value.get<double>() < s.min ||
-            value.get<double>() > s.max) {
-          *why = key + ": must be an integer in " + std::to_string(static_cast<int>(s.min)) +
-                 ".." + std::to_string(static_cast<int>(s.max));
-          return false;
-        }
-        break;
-      case ArgType::kNumber: {
-        const double v = value.is_number() ? value.get<double>() : NAN;
-        if (!std::isfinite(v) || v < s.min || v > s.max) {
-          *why = key + ": must be a number in [" + std::to_string(s.min) + ", " +
-                 std::to_string(s.max) + "]";
-          return false;
-        }
-        break;
-      }
-    }
-  }
-  for (const auto& [key, s] : spec) {
-    if (s.required && !args.contains(key)) {
-      *why = "missing argument '" + key + "'";
-      return false;
-    }
-  }
-  return true;
-}
-
 nlohmann::json JobJson(const JobInfo& job) {
   return {{"id", job.id},           {"verb", job.verb},         {"state", ToString(job.state)},
           {"session", job.session}, {"stage", job.stage},       {"progress", job.progress},
           {"message", job.message}, {"result", job.result}};
 }
 
-}  // namespace
-
-std::string_view ToString(ReplyCode code) {
-  switch (code) {
-    case ReplyCode::kOk: return "ok";
-    case ReplyCode::kBadRequest: return "bad_request";
-    case ReplyCode::kUnauthenticated: return "unauthenticated";
-    case ReplyCode::kUnknownVerb: return "unknown_verb";
-    case ReplyCode::kForbidden: return "forbidden";
-    case ReplyCode::kBadArgument: return "bad_argument";
-    case ReplyCode::kBusy: return "busy";
-    case ReplyCode::kNotFound: return "not_found";
-    case ReplyCode::kUnavailable: return "unavailable";
-    case ReplyCode::kFailed: return "failed";
-    case ReplyCode::kTooLarge: return "too_large";
-    case ReplyCode::kInternal: return "internal";
+// Reads and parses <sessions>/<id>/manifest.json (id already checked with
+// IsValidSessionId). False with *error.
+bool ReadManifest(const SessionStore& store, const std::string& id, std::string* text,
+                  Manifest* manifest, std::string* error) {
+  const std::string path = store.sessions_dir() + "/" + id + "/manifest.json";
+  FILE* f = std::fopen(path.c_str(), "rb");
+  if (!f) {
+    *error = "session " + id + ": cannot read its manifest: " + std::strerror(errno);
+    return false;
   }
-  return "internal";
+  text->clear();
+  char buffer[65536];
+  std::size_t n;
+  while ((n = std::fread(buffer, 1, sizeof buffer, f)) > 0) text->append(buffer, n);
+  std::fclose(f);
+  if (!ManifestFromJson(*text, manifest, error)) {
+    *error = "session " + id + ": " + *error;
+    return false;
+  }
+  return true;
 }
+
+std::string Hex64(std::uint64_t value) {
+  char text[17];
+  std::snprintf(text, sizeof text, "%016llx", static_cast<unsigned long long>(value));
+  return text;
+}
+
+}  // namespace
 
 CommandHandler::CommandHandler(CommandLimits limits, const TokenAuthority* tokens, JobEngine* jobs,
                                DeviceManager* devices, SessionStore* store,
@@ -136,55 +60,20 @@ CommandHandler::CommandHandler(CommandLimits limits, const TokenAuthority* token
 
 CommandReply CommandHandler::Handle(const CommandRequest& request) {
   CommandReply reply;
-  auto clip = [&](const std::string& s) { return s.substr(0, limits_.max_field_bytes); };
-  reply.request_id = clip(request.request_id);
-  reply.client = clip(request.client);
-  auto refuse = [&](ReplyCode code, std::string message) {
-    reply.code = code;
-    reply.message = std::move(message);
+  reply.request_id = request.request_id.substr(0, limits_.max_field_bytes);
+  reply.client = request.client.substr(0, limits_.max_field_bytes);
+  CommandCheck check = CheckCommand(request, limits_, tokens_);
+  if (!check.ok()) {
+    reply.code = check.code;
+    reply.message = std::move(check.message);
     return reply;
-  };
-  if (request.arguments.size() > limits_.max_argument_bytes) {
-    return refuse(ReplyCode::kTooLarge, "arguments are " + std::to_string(request.arguments.size()) +
-                                            " bytes; the limit is " +
-                                            std::to_string(limits_.max_argument_bytes));
   }
-  for (const auto* field : {&request.request_id, &request.client, &request.verb, &request.token}) {
-    if (field->size() > limits_.max_field_bytes) {
-      return refuse(ReplyCode::kTooLarge, "request_id, client, verb and token are limited to " +
-                                              std::to_string(limits_.max_field_bytes) + " bytes");
-    }
-  }
-  if (request.request_id.empty()) return refuse(ReplyCode::kBadRequest, "request_id is empty");
-  nlohmann::json args = nlohmann::json::object();
-  if (!request.arguments.empty()) {
-    args = nlohmann::json::parse(request.arguments, nullptr, /*allow_exceptions=*/false);
-    if (args.is_discarded()) {
-      return refuse(ReplyCode::kBadRequest, "arguments are not valid JSON");
-    }
-    if (!args.is_object()) return refuse(ReplyCode::kBadRequest, "arguments must be a JSON object");
-  }
-  const std::optional<Identity> who = tokens_ ? tokens_->Authenticate(request.token) : std::nullopt;
-  if (!who) return refuse(ReplyCode::kUnauthenticated, "unknown token");
-  const auto verb = VerbArguments().find(request.verb);
-  const std::optional<Role> needed = RequiredRole(request.verb);
-  if (verb == VerbArguments().end() || !needed) {
-    std::string known;
-    for (const auto& [name, unused] : VerbArguments()) known += (known.empty() ? "" : ", ") + name;
-    return refuse(ReplyCode::kUnknownVerb,
-                  "unknown verb '" + clip(request.verb) + "' (known: " + known + ")");
-  }
-  if (!Satisfies(who->role, *needed)) {
-    return refuse(ReplyCode::kForbidden, "'" + request.verb + "' needs role " +
-                                             std::string(ToString(*needed)) + "; " + who->name +
-                                             " is " + std::string(ToString(who->role)));
-  }
-  std::string why;
-  if (!CheckArguments(verb->second, args, &why)) return refuse(ReplyCode::kBadArgument, why);
   try {
-    return Dispatch(request.verb, args, *who, reply);
+    return Dispatch(request.verb, check.arguments, *check.identity, reply);
   } catch (const std::exception& e) {
-    return refuse(ReplyCode::kInternal, std::string("internal error: ") + e.what());
+    reply.code = ReplyCode::kInternal;
+    reply.message = std::string("internal error: ") + e.what();
+    return reply;
   }
 }
 
@@ -235,20 +124,16 @@ CommandReply CommandHandler::Dispatch(const std::string& verb, const nlohmann::j
     return done(ReplyCode::kOk, std::to_string(list.size()) + " sessions", {{"sessions", list}});
   }
   if (verb == "get") {
-    const std::string id = args["session"];
-    if (!IsValidSessionId(id)) return done(ReplyCode::kBadArgument, "session: not a session id");
+    const std::string id = args["session"];  // IsValidSessionId (CheckCommand)
+    if (args.contains("files")) return GetFiles(id, args, reply);
     const VerifyResult verify = store_->Verify(id);
     if (!verify.manifest_ok) {
       return done(ReplyCode::kNotFound, verify.problems.empty() ? "unknown session" : verify.problems[0]);
     }
     std::string text;
-    std::string path = store_->sessions_dir() + "/" + id + "/manifest.json";
+    Manifest parsed;
     nlohmann::json manifest;
-    if (FILE* f = std::fopen(path.c_str(), "rb")) {
-      char buffer[65536];
-      std::size_t n;
-      while ((n = std::fread(buffer, 1, sizeof buffer, f)) > 0) text.append(buffer, n);
-      std::fclose(f);
+    if (ReadManifest(*store_, id, &text, &parsed, &error)) {
       manifest = nlohmann::json::parse(text, nullptr, false);
     }
     return done(ReplyCode::kOk, verify.IsIntact() ? "intact" : "damaged",
@@ -271,8 +156,7 @@ CommandReply CommandHandler::Dispatch(const std::string& verb, const nlohmann::j
     return started(jobs_->StartScan(request, &job, &error));
   }
   if (verb == "resume") {
-    const std::string id = args["session"];
-    if (!IsValidSessionId(id)) return done(ReplyCode::kBadArgument, "session: not a session id");
+    const std::string id = args["session"];  // IsValidSessionId (CheckCommand)
     const bool ok = jobs_->StartResume(id, &job, &error);
     if (!ok && error.find("unknown") != std::string::npos) return done(ReplyCode::kNotFound, error);
     return started(ok);
@@ -285,8 +169,7 @@ CommandReply CommandHandler::Dispatch(const std::string& verb, const nlohmann::j
       if (!devices_->Home(&error)) return done(ReplyCode::kFailed, error);
       return done(ReplyCode::kOk, "homed");
     }
-    if (action == "move") {
-      if (!args.contains("angle_deg")) return done(ReplyCode::kBadArgument, "missing argument 'angle_deg'");
+    if (action == "move") {  // with angle_deg (CheckCommand)
       const double angle = args["angle_deg"];
       if (!devices_->MoveTo(angle, &error)) return done(ReplyCode::kFailed, error);
       return done(ReplyCode::kOk, "at " + std::to_string(angle) + " deg",
@@ -303,6 +186,68 @@ CommandReply CommandHandler::Dispatch(const std::string& verb, const nlohmann::j
                 {{"exposure_us", settings.exposure_us}, {"gain_db", settings.gain_db}});
   }
   return done(ReplyCode::kUnknownVerb, "unknown verb '" + verb + "'");
+}
+
+CommandReply CommandHandler::GetFiles(const std::string& id, const nlohmann::json& args,
+                                      CommandReply reply) {
+  auto refuse = [&](ReplyCode code, std::string message) {
+    reply.code = code;
+    reply.message = std::move(message);
+    return reply;
+  };
+  std::string text, error;
+  Manifest manifest;
+  std::error_code ec;
+  if (!std::filesystem::is_directory(store_->sessions_dir() + "/" + id, ec)) {
+    return refuse(ReplyCode::kNotFound, "unknown session " + id);
+  }
+  if (!ReadManifest(*store_, id, &text, &manifest, &error)) return refuse(ReplyCode::kNotFound, error);
+  std::vector<std::string> names;
+  const nlohmann::json& files = args["files"];  // "all" or valid names (CheckCommand)
+  if (files.is_string()) {
+    for (const auto& [name, unused] : manifest.outputs) names.push_back(name);
+    if (names.empty()) {
+      return refuse(ReplyCode::kNotFound, "session " + id + " has no outputs (it is " +
+                                              ToString(manifest.state) + ")");
+    }
+  } else {
+    std::set<std::string> seen;
+    for (const nlohmann::json& item : files) {
+      const std::string& name = item.get_ref<const std::string&>();
+      if (!manifest.outputs.count(name)) {
+        std::string available;
+        for (const auto& [output, unused] : manifest.outputs) {
+          available += (available.empty() ? "" : ", ") + output;
+        }
+        return refuse(ReplyCode::kNotFound, "session " + id + " has no durable output '" + name +
+                                                "' (it has: " +
+                                                (available.empty() ? "none" : available) + ")");
+      }
+      if (seen.insert(name).second) names.push_back(name);
+    }
+  }
+  FileTransfer transfer;
+  transfer.session = id;
+  transfer.chunk_bytes = args.value("chunk_bytes", kDefaultTransferChunkBytes);
+  nlohmann::json list = nlohmann::json::array();
+  std::uint64_t total = 0;
+  for (const std::string& name : names) {
+    const FileRecord& record = manifest.outputs.at(name);
+    transfer.files.push_back(
+        {name, store_->sessions_dir() + "/" + id + "/" + name, record.size_bytes, record.fnv1a64});
+    list.push_back({{"name", name}, {"size", record.size_bytes}, {"fnv1a64", Hex64(record.fnv1a64)}});
+    total += record.size_bytes;
+  }
+  reply.code = ReplyCode::kOk;
+  reply.message = "sending " + std::to_string(names.size()) + " files, " + std::to_string(total) +
+                  " bytes";
+  reply.result = {{"session", id},
+                  {"state", ToString(manifest.state)},
+                  {"chunk_bytes", transfer.chunk_bytes},
+                  {"total_bytes", total},
+                  {"files", list}};
+  reply.transfer = std::move(transfer);
+  return reply;
 }
 
 }  // namespace craftscan::daemon

@@ -1,7 +1,16 @@
 #include "craftscan/daemon/daemon.h"
 
+#include <fcntl.h>
+#include <sys/stat.h>
+#include <unistd.h>
+
+#include <algorithm>
+#include <cerrno>
 #include <chrono>
+#include <condition_variable>
+#include <cstring>
 #include <ctime>
+#include <deque>
 #include <mutex>
 #include <optional>
 #include <thread>
@@ -203,6 +212,178 @@ class DdsPublisher : public JobSink {
   std::unique_ptr<dds::Writer<dds::ros::PointCloud2>> ros_cloud_;
 };
 
+// Streams the files of `get` transfers (commands.h) on the station's file
+// topic, one transfer at a time on its own thread, so a large file never
+// stalls the command loop. Every kAckWindowBytes the sender waits for the
+// readers' acknowledgements (bounded by kAckTimeout), so it never runs
+// ahead of the network; readers keep kFileTopicDepth chunks for an
+// application that lags behind, and a reader gone silent ends the transfer
+// (with a log line) instead of stalling it. Chunks go to every reader of the
+// topic; clients keep those with their request id.
+class FileSender {
+ public:
+  bool Create(const std::shared_ptr<dds::Participant>& p, const std::string& station,
+              std::string* error) {
+    writer_ = dds::Writer<dds::msg::SessionFile>::Create(p, dds::FileTopic(station), error);
+    if (!writer_) return false;
+    thread_ = std::thread([this] { Loop(); });
+    return true;
+  }
+  ~FileSender() { Stop(); }
+
+  // Whether Enqueue would not exceed kMaxQueuedTransfers waiting transfers.
+  // Only the command loop enqueues, so the answer holds until it does.
+  bool HasRoom() const {
+    std::lock_guard lock(mutex_);
+    return queue_.size() < kMaxQueuedTransfers;
+  }
+  void Enqueue(std::string request_id, std::string client, FileTransfer transfer) {
+    std::lock_guard lock(mutex_);
+    queue_.push_back({std::move(request_id), std::move(client), std::move(transfer)});
+    wake_.notify_one();
+  }
+  // Drops waiting transfers, ends the running one with an error chunk and
+  // joins the thread.
+  void Stop() {
+    {
+      std::lock_guard lock(mutex_);
+      stopping_ = true;
+      queue_.clear();
+      wake_.notify_one();
+    }
+    if (thread_.joinable()) thread_.join();
+  }
+
+ private:
+  static constexpr std::size_t kAckWindowBytes = std::size_t{8} << 20;
+  static constexpr std::size_t kMaxWindowChunks = 16;  // well below kFileTopicDepth
+  static constexpr auto kAckTimeout = std::chrono::seconds(10);
+
+  struct Job {
+    std::string request_id, client;
+    FileTransfer transfer;
+  };
+
+  void Loop() {
+    for (;;) {
+      Job job;
+      {
+        std::unique_lock lock(mutex_);
+        wake_.wait(lock, [&] { return stopping_ || !queue_.empty(); });
+        if (stopping_) return;
+        job = std::move(queue_.front());
+        queue_.pop_front();
+      }
+      const auto start = Clock::now();
+      std::string error;
+      if (Send(job, &error)) {
+        spdlog::debug("get {}: sent {} files of session {} in {:.2f} s", job.request_id,
+                      job.transfer.files.size(), job.transfer.session,
+                      std::chrono::duration<double>(Clock::now() - start).count());
+      } else {
+        spdlog::warn("get {}: transfer of session {} ended: {}", job.request_id,
+                     job.transfer.session, error);
+      }
+    }
+  }
+
+  bool Stopping() const {
+    std::lock_guard lock(mutex_);
+    return stopping_;
+  }
+
+  // Writes one chunk of file `index`. `data` may be null for no data.
+  bool WriteChunk(const Job& job, std::uint32_t index, std::uint64_t offset,
+                  const std::uint8_t* data, std::size_t size, bool last, const std::string& problem,
+                  std::string* error) {
+    const TransferFile& file = job.transfer.files[index];
+    dds::Outgoing<dds::msg::SessionFile> out;
+    auto& m = out.msg();
+    m.request_id = out.Keep(job.request_id);
+    m.client = out.Keep(job.client);
+    m.session = out.Keep(job.transfer.session);
+    m.name = out.Keep(file.name);
+    m.file_index = index;
+    m.file_count = static_cast<std::uint32_t>(job.transfer.files.size());
+    m.total_size = file.size_bytes;
+    m.offset = offset;
+    if (size > 0) dds::Borrow(&m.data, data, size);
+    m.last = last;
+    m.error = out.Keep(problem);
+    return writer_->Write(m, error);
+  }
+
+  // Sends an error chunk for file `index` (best effort) and returns false
+  // with *error = problem.
+  bool Abort(const Job& job, std::uint32_t index, const std::string& problem, std::string* error) {
+    std::string ignored;
+    WriteChunk(job, index, 0, nullptr, 0, true, problem, &ignored);
+    *error = job.transfer.files[index].name + ": " + problem;
+    return false;
+  }
+
+  bool Send(const Job& job, std::string* error) {
+    const std::size_t chunk = std::clamp(job.transfer.chunk_bytes, kMinTransferChunkBytes,
+                                         std::min(kMaxTransferChunkBytes, dds::kMaxFileChunkBytes));
+    const std::size_t window = std::clamp<std::size_t>(kAckWindowBytes / chunk, 1, kMaxWindowChunks);
+    std::vector<std::uint8_t> buffer(chunk);
+    std::size_t unacknowledged = 0;
+    for (std::uint32_t index = 0; index < job.transfer.files.size(); ++index) {
+      const TransferFile& file = job.transfer.files[index];
+      const int fd = ::open(file.path.c_str(), O_RDONLY | O_CLOEXEC | O_NOCTTY);
+      if (fd < 0) return Abort(job, index, std::string("cannot open it: ") + std::strerror(errno), error);
+      struct Closer {
+        int fd;
+        ~Closer() { ::close(fd); }
+      } closer{fd};
+      struct stat st {};
+      if (::fstat(fd, &st) != 0 || !S_ISREG(st.st_mode)) {
+        return Abort(job, index, "not a regular file", error);
+      }
+      if (static_cast<std::uint64_t>(st.st_size) != file.size_bytes) {
+        return Abort(job, index,
+                     "its size on the station (" + std::to_string(st.st_size) +
+                         " bytes) differs from the manifest's (" + std::to_string(file.size_bytes) +
+                         "): changed since it was stored",
+                     error);
+      }
+      std::uint64_t offset = 0;
+      do {
+        if (Stopping()) return Abort(job, index, "craftscand is stopping", error);
+        const std::size_t n =
+            static_cast<std::size_t>(std::min<std::uint64_t>(chunk, file.size_bytes - offset));
+        std::size_t got = 0;
+        while (got < n) {
+          const ssize_t r = ::pread(fd, buffer.data() + got, n - got, static_cast<off_t>(offset + got));
+          if (r < 0 && errno == EINTR) continue;
+          if (r <= 0) {
+            return Abort(job, index,
+                         r < 0 ? std::string("read error: ") + std::strerror(errno)
+                               : std::string("shorter than the manifest says"),
+                         error);
+          }
+          got += static_cast<std::size_t>(r);
+        }
+        const bool last = offset + n == file.size_bytes;
+        if (!WriteChunk(job, index, offset, buffer.data(), n, last, "", error)) return false;
+        offset += n;
+        if (++unacknowledged >= window) {
+          if (!writer_->WaitForAcks(kAckTimeout, error)) return false;
+          unacknowledged = 0;
+        }
+      } while (offset < file.size_bytes);
+    }
+    return writer_->WaitForAcks(kAckTimeout, error);
+  }
+
+  std::unique_ptr<dds::Writer<dds::msg::SessionFile>> writer_;
+  mutable std::mutex mutex_;
+  std::condition_variable wake_;
+  std::deque<Job> queue_;  // guarded by mutex_
+  bool stopping_ = false;  // guarded by mutex_
+  std::thread thread_;
+};
+
 }  // namespace
 
 struct Daemon::Impl {
@@ -215,6 +396,7 @@ struct Daemon::Impl {
   std::unique_ptr<dds::Writer<dds::msg::Reply>> reply_writer;
   std::unique_ptr<dds::Reader<dds::msg::Command>> command_reader;
   DdsPublisher publisher;
+  FileSender files;
   std::unique_ptr<DeviceManager> devices;
   std::unique_ptr<JobEngine> jobs;
   std::unique_ptr<CommandHandler> handler;
@@ -308,7 +490,8 @@ std::unique_ptr<Daemon> Daemon::Create(const DaemonConfig& config, std::string* 
             dds::Writer<dds::msg::Reply>::Create(impl->participant, dds::ReplyTopic(station), &why)) ||
       !(impl->command_reader = dds::Reader<dds::msg::Command>::Create(
             impl->participant, dds::CommandTopic(station), &why)) ||
-      !impl->publisher.Create(impl->participant, station, &why)) {
+      !impl->publisher.Create(impl->participant, station, &why) ||
+      !impl->files.Create(impl->participant, station, &why)) {
     *error = "dds: " + why;
     return nullptr;
   }
@@ -397,7 +580,14 @@ int Daemon::Run() {
       request.token = std::string(dds::View(command->token));
       request.verb = std::string(dds::View(command->verb));
       request.arguments = std::string(dds::View(command->arguments));
-      const CommandReply reply = d.handler->Handle(request);
+      CommandReply reply = d.handler->Handle(request);
+      if (reply.transfer && !d.files.HasRoom()) {
+        reply.code = ReplyCode::kBusy;
+        reply.message = "busy: " + std::to_string(kMaxQueuedTransfers) +
+                        " file transfers are waiting; try again shortly";
+        reply.result = nlohmann::json::object();
+        reply.transfer.reset();
+      }
       spdlog::debug("command {} '{}' from '{}': {}", reply.request_id, request.verb.substr(0, 64),
                     reply.client, ToString(reply.code));
       if (reply.code != ReplyCode::kOk) {
@@ -414,6 +604,10 @@ int Daemon::Run() {
       if (result.size() > dds::kMaxReplyResultBytes) result = "{\"truncated\":true}";
       out.msg().result = out.Keep(result);
       if (!d.reply_writer->Write(out.msg(), &error)) spdlog::warn("reply: {}", error);
+      // The chunks follow the Reply that lists them.
+      if (reply.transfer) {
+        d.files.Enqueue(reply.request_id, reply.client, std::move(*reply.transfer));
+      }
       d.status_dirty = true;
     } else if (taken == dds::TakeStatus::kError) {
       spdlog::warn("command topic: {}", error);
@@ -469,6 +663,7 @@ int Daemon::Run() {
   d.notifier.Stopping("stopping: checkpointing the running job");
   d.state = "stopping";
   d.PublishStatus();
+  d.files.Stop();
   d.jobs->Shutdown();
   d.devices->Close();
   d.PublishStatus();

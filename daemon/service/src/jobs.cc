@@ -14,6 +14,7 @@
 #include <opencv2/imgcodecs.hpp>
 
 #include "craftscan/daemon/bounded_queue.h"
+#include "craftscan/daemon/report.h"
 #include "craftscan/pipeline/atomic_file.h"
 
 namespace craftscan::daemon {
@@ -494,6 +495,39 @@ void JobEngine::RunScan(const std::shared_ptr<ScanPlan>& plan) {
     session.SetState(SessionState::kFailed, "outputs: " + error, nullptr);
     Finish(JobState::kFailed, "session " + sid + " failed: " + error, {{"session", sid}});
     return;
+  }
+  // The page people look at: measurements, calibration, registration and
+  // pictures. A report that cannot be made is noted, not a failed scan.
+  SetStage("report", 0, 1, "rendering previews and report.html");
+  {
+    const Manifest manifest = session.manifest();
+    ReportInputs inputs;
+    inputs.session_id = sid;
+    inputs.object_name = manifest.object_name;
+    inputs.created_utc = manifest.created_utc;
+    inputs.calibration_id = manifest.calibration_id;
+    inputs.scan_report_json = report;
+    inputs.calibration = &plan->calibration;
+    inputs.fused = &r.fused;
+    if (r.mesh.status == MeshResult::Status::kOk) inputs.mesh = &r.mesh.mesh;
+    for (int k = 0; k < n; ++k) {
+      DisparityView view;
+      view.index = k;
+      view.angle_deg = k * plan->step_deg;
+      view.min_disparity_px = processor.min_disparity();
+      view.max_disparity_px = processor.min_disparity() + processor.num_disparities() - 1;
+      if (session.LoadDisparity(k, &view.disparity_px, nullptr)) {
+        inputs.disparities.push_back(std::move(view));
+      }
+    }
+    ReportFiles files;
+    std::string why;
+    bool ok = MakeReportFiles(inputs, &files, &why);
+    for (std::size_t i = 0; ok && i < files.files.size(); ++i) {
+      ok = session.StoreOutput(files.files[i].name, files.files[i].bytes, &why);
+    }
+    if (!ok && log_) log_(drivers::LogLevel::kWarning, "session " + sid + ": report: " + why);
+    result["report_ms"] = files.render_ms;
   }
   if (sink_) sink_->Cloud(sid, -1, r.fused, cv::Matx44d::eye());
   session.SetState(SessionState::kDone, "fused " + std::to_string(r.fused.size()) + " points",

@@ -1,6 +1,7 @@
 #include "craftscan/drivers/serial_turntable/grbl_reply_parser.h"
 
 #include <charconv>
+#include <cmath>
 #include <cstdlib>
 
 namespace craftscan::serial_turntable {
@@ -17,11 +18,13 @@ bool ParseInt(std::string_view s, int* value) {
   return ec == std::errc() && ptr == s.data() + s.size();
 }
 
-// Parses a decimal number (GRBL prints "%.3f"); false on anything else.
+// Parses a decimal number (GRBL prints "%.3f"); false on anything else,
+// including the "nan" and "inf" from_chars accepts: a NaN position would
+// make every later position check pass (found by tests/fuzz).
 bool ParseDouble(std::string_view s, double* value) {
   if (s.empty() || s.size() > 64) return false;
   auto [ptr, ec] = std::from_chars(s.data(), s.data() + s.size(), *value);
-  return ec == std::errc() && ptr == s.data() + s.size();
+  return ec == std::errc() && ptr == s.data() + s.size() && std::isfinite(*value);
 }
 
 std::optional<double> FirstCoordinate(std::string_view list) {

@@ -38,6 +38,7 @@ inline constexpr const char* kAdminToken = "admin-token-0123456789abc";
 class DaemonFixture {
  public:
   // image_size of the sim camera, e.g. "1280x1024".
+  // extra_sim: more sim driver keys (", key: value…").
   explicit DaemonFixture(std::string image_size = "1280x1024", std::string extra_sim = "")
       : image_size_(std::move(image_size)), extra_sim_(std::move(extra_sim)) {
     std::random_device rd;
@@ -62,6 +63,10 @@ class DaemonFixture {
            dds::LoopbackOnlyConfigXml();
   }
   FakeNotifySocket& notify() { return notify_; }
+
+  // Appended inside the config's pipeline mapping by Prepare, e.g.
+  // ", mesh: false" for tests that need no mesh.
+  std::string pipeline_extra;
 
   // Writes tokens, config and the exact sim calibration. False with *error.
   bool Prepare(std::string* error, bool with_calibration = true) {
@@ -89,7 +94,8 @@ class DaemonFixture {
            << "scan: {settle_ms: 0}\n"
            // The carved box (80 x 60 x 50 mm) with a margin: the band the
            // matcher searches follows from this volume.
-           << "pipeline: {threads: 2, volume_radius_mm: 65, volume_max_height_mm: 70}\n";
+           << "pipeline: {threads: 2, volume_radius_mm: 65, volume_max_height_mm: 70"
+           << pipeline_extra << "}\n";
     config.close();
     if (!with_calibration) return true;
     sim::SimDriverOptions options;

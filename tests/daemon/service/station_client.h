@@ -1,24 +1,22 @@
-// A DDS client of one station for the daemon's tests: sends Commands and
-// waits for their Replies, and collects what the daemon publishes (progress,
-// captures, clouds, status) on background readers.
+// A DDS client of one station for the daemon's tests, over the client
+// library (craftscan/client/station_client.h): sends Commands and waits for
+// their Replies, and collects what the daemon publishes (progress, captures,
+// clouds, status) into vectors the tests read under Lock() or in WaitFor().
 #pragma once
 
-#include <atomic>
 #include <chrono>
 #include <condition_variable>
-#include <map>
+#include <cstdint>
+#include <memory>
 #include <mutex>
 #include <optional>
 #include <string>
-#include <thread>
+#include <utility>
 #include <vector>
 
 #include <nlohmann/json.hpp>
 
-#include "craftscan/dds/convert.h"
-#include "craftscan/dds/endpoint.h"
-#include "craftscan/dds/participant.h"
-#include "craftscan/dds/topics.h"
+#include "craftscan/client/station_client.h"
 #include "craftscan/pipeline/point_cloud.h"
 
 namespace craftscan::testing {
@@ -48,37 +46,52 @@ class StationClient {
   // `config`: the Cyclone configuration (see dds::ParticipantOptions).
   bool Start(std::uint32_t domain, const std::string& config, const std::string& station,
              std::string* error) {
-    dds::ParticipantOptions options;
+    client::ConnectOptions options;
+    options.station = station;
     options.domain_id = domain;
-    options.config = config;
-    participant_ = dds::Participant::Create(options, error);
-    if (!participant_) return false;
-    if (!(commands_ = dds::Writer<dds::msg::Command>::Create(participant_, dds::CommandTopic(station), error)) ||
-        !(replies_ = dds::Reader<dds::msg::Reply>::Create(participant_, dds::ReplyTopic(station), error)) ||
-        !(progress_ = dds::Reader<dds::msg::JobProgress>::Create(participant_, dds::ProgressTopic(station), error)) ||
-        !(clouds_ = dds::Reader<dds::msg::PointCloud>::Create(participant_, dds::CloudTopic(station), error)) ||
-        !(captures_ = dds::Reader<dds::msg::StereoCapture>::Create(participant_, dds::CaptureTopic(station), error)) ||
-        !(status_ = dds::Reader<dds::msg::StationStatus>::Create(participant_, dds::StatusTopic(station), error))) {
-      return false;
-    }
-    running_ = true;
-    threads_.emplace_back([this] { ReplyLoop(); });
-    threads_.emplace_back([this] { ProgressLoop(); });
-    threads_.emplace_back([this] { CloudLoop(); });
-    threads_.emplace_back([this] { CaptureLoop(); });
-    threads_.emplace_back([this] { StatusLoop(); });
-    return true;
+    options.dds_config = config;
+    options.client_name = "test";
+    client_ = client::StationClient::Connect(options, error);
+    if (!client_) return false;
+    return client_->SubscribeProgress(
+               [this](const client::ProgressUpdate& p) {
+                 Record([&] {
+                   progress.emplace_back(p.job_id, p.stage);
+                   progress_messages.push_back(p.message);
+                 });
+               },
+               error) &&
+           client_->SubscribeClouds(
+               [this](const client::CloudUpdate& c) {
+                 Record([&] { clouds.push_back({c.session, c.view_index, c.cloud}); });
+               },
+               error) &&
+           client_->SubscribeCaptures(
+               [this](const client::CaptureUpdate& c) {
+                 client::Fnv1a64Hasher hash;  // the clone is continuous: rows packed
+                 hash.Update(c.left.data, c.left.total() * c.left.elemSize());
+                 Record([&] {
+                   captures.push_back({c.session, c.view_index, c.angle_deg, c.left.cols,
+                                       c.left.rows, hash.value()});
+                 });
+               },
+               error) &&
+           client_->SubscribeStatus(
+               [this](const client::StatusUpdate& s) {
+                 Record([&] {
+                   last_status_state = s.state;
+                   last_job_state = s.job_state;
+                   last_job_id = s.job_id;
+                 });
+               },
+               error);
   }
 
-  ~StationClient() {
-    running_ = false;
-    for (std::thread& t : threads_) t.join();
-  }
+  // Stops the subscription threads before the records they fill go.
+  ~StationClient() { client_.reset(); }
 
-  // Waits until the daemon's command reader and status writer are matched.
-  bool WaitForDaemon(std::chrono::milliseconds timeout) {
-    return commands_->WaitForReaders(1, timeout) && replies_->WaitForWriters(1, timeout);
-  }
+  // Waits until the daemon's command reader and reply writer are matched.
+  bool WaitForDaemon(std::chrono::milliseconds timeout) { return client_->WaitForDaemon(timeout); }
 
   std::optional<ReplyRecord> Send(const std::string& verb, const nlohmann::json& args,
                                   const std::string& token,
@@ -89,22 +102,9 @@ class StationClient {
   std::optional<ReplyRecord> SendRaw(const std::string& verb, const std::string& arguments,
                                      const std::string& token,
                                      std::chrono::milliseconds timeout = std::chrono::seconds(20)) {
-    const std::string id = "req-" + std::to_string(++next_id_);
-    dds::Outgoing<dds::msg::Command> out;
-    out.msg().request_id = out.Keep(id);
-    out.msg().client = out.Keep("test");
-    out.msg().token = out.Keep(token);
-    out.msg().verb = out.Keep(verb);
-    out.msg().arguments = out.Keep(arguments);
-    std::string error;
-    if (!commands_->Write(out.msg(), &error)) return std::nullopt;
-    const auto deadline = std::chrono::steady_clock::now() + timeout;
-    std::unique_lock lock(mutex_);
-    while (std::chrono::steady_clock::now() < deadline) {
-      if (auto it = replies_by_id_.find(id); it != replies_by_id_.end()) return it->second;
-      changed_.wait_until(lock, deadline);
-    }
-    return std::nullopt;
+    const client::CallResult r = client_->CallRaw(verb, arguments, token, timeout);
+    if (r.status != client::CallStatus::kReplied) return std::nullopt;
+    return ReplyRecord{r.reply.code, r.reply.code_name, r.reply.message, r.reply.result};
   }
 
   // Waits until `predicate` (called under the lock) holds.
@@ -123,81 +123,16 @@ class StationClient {
   std::unique_lock<std::mutex> Lock() { return std::unique_lock(mutex_); }
 
  private:
-  template <typename Msg, typename Handle>
-  void Loop(dds::Reader<Msg>& reader, Handle handle) {
-    dds::Sample<Msg> sample;
-    std::string error;
-    while (running_) {
-      if (reader.Take(std::chrono::milliseconds(50), &sample, &error) != dds::TakeStatus::kOk) continue;
-      std::lock_guard lock(mutex_);
-      handle(*sample);
-      changed_.notify_all();
-    }
-  }
-  void ReplyLoop() {
-    Loop(*replies_, [this](const dds::msg::Reply& r) {
-      ReplyRecord record;
-      record.code = r.code;
-      record.code_name = std::string(dds::View(r.code_name));
-      record.message = std::string(dds::View(r.message));
-      const std::string_view result = dds::View(r.result);
-      record.result = result.empty() ? nlohmann::json::object()
-                                     : nlohmann::json::parse(result, nullptr, false);
-      replies_by_id_[std::string(dds::View(r.request_id))] = record;
-    });
-  }
-  void ProgressLoop() {
-    Loop(*progress_, [this](const dds::msg::JobProgress& p) {
-      progress.emplace_back(std::string(dds::View(p.job_id)), std::string(dds::View(p.stage)));
-      progress_messages.emplace_back(dds::View(p.message));
-    });
-  }
-  void CloudLoop() {
-    Loop(*clouds_, [this](const dds::msg::PointCloud& c) {
-      CloudRecord record;
-      record.session = std::string(dds::View(c.session));
-      record.view = c.view_index;
-      std::string error;
-      if (dds::CloudFromMessage(c, &record.cloud, nullptr, &error)) clouds.push_back(std::move(record));
-    });
-  }
-  void CaptureLoop() {
-    Loop(*captures_, [this](const dds::msg::StereoCapture& c) {
-      CaptureRecord record;
-      record.session = std::string(dds::View(c.session));
-      record.view = c.view_index;
-      record.angle_deg = c.angle_deg;
-      record.width = static_cast<int>(c.width);
-      record.height = static_cast<int>(c.height);
-      std::uint64_t h = 1469598103934665603ull;
-      for (std::uint32_t i = 0; i < c.left_data._length; ++i) {
-        h = (h ^ c.left_data._buffer[i]) * 1099511628211ull;
-      }
-      record.left_hash = h;
-      captures.push_back(record);
-    });
-  }
-  void StatusLoop() {
-    Loop(*status_, [this](const dds::msg::StationStatus& s) {
-      last_status_state = std::string(dds::View(s.state));
-      last_job_state = std::string(dds::View(s.job_state));
-      last_job_id = std::string(dds::View(s.job_id));
-    });
+  template <typename Update>
+  void Record(Update update) {
+    std::lock_guard lock(mutex_);
+    update();
+    changed_.notify_all();
   }
 
-  std::shared_ptr<dds::Participant> participant_;
-  std::unique_ptr<dds::Writer<dds::msg::Command>> commands_;
-  std::unique_ptr<dds::Reader<dds::msg::Reply>> replies_;
-  std::unique_ptr<dds::Reader<dds::msg::JobProgress>> progress_;
-  std::unique_ptr<dds::Reader<dds::msg::PointCloud>> clouds_;
-  std::unique_ptr<dds::Reader<dds::msg::StereoCapture>> captures_;
-  std::unique_ptr<dds::Reader<dds::msg::StationStatus>> status_;
-  std::atomic<bool> running_{false};
-  std::vector<std::thread> threads_;
   std::mutex mutex_;
   std::condition_variable changed_;
-  std::map<std::string, ReplyRecord> replies_by_id_;
-  int next_id_ = 0;
+  std::unique_ptr<client::StationClient> client_;
 };
 
 }  // namespace craftscan::testing

@@ -9,6 +9,7 @@
 //   craftscan/<station>/capture     StereoCapture  reliable, volatile, keep-last 1
 //   craftscan/<station>/disparity   Disparity      reliable, volatile, keep-last 1
 //   craftscan/<station>/cloud       PointCloud     reliable, volatile, keep-last 2
+//   craftscan/<station>/file        SessionFile    reliable, volatile, keep-last 64
 //   rt/craftscan/<station>/left/image_raw, right/image_raw   Image_      reliable, keep-last 1
 //   rt/craftscan/<station>/left/camera_info, right/...       CameraInfo_ reliable,
 //                                                            transient-local, keep-last 1
@@ -20,6 +21,7 @@
 // (ROS's sensor-data QoS), and a transient-local one serves volatile readers.
 #pragma once
 
+#include <cstddef>
 #include <cstdint>
 #include <string>
 #include <string_view>
@@ -27,6 +29,28 @@
 #include "craftscan/dds/messages.h"
 
 namespace craftscan::dds {
+
+// The file-transfer message (craftscan.idl SessionFile), declared here with
+// its topic rather than in messages.h.
+namespace msg {
+using SessionFile = craftscan_msg_SessionFile;
+}  // namespace msg
+template <>
+struct MessageTraits<msg::SessionFile> {
+  static const dds_topic_descriptor_t* descriptor() { return &craftscan_msg_SessionFile_desc; }
+  static const char* type_name() { return craftscan_msg_SessionFile_desc.m_typename; }
+};
+
+// SessionFile chunks carry at most this many bytes of data.
+inline constexpr std::size_t kMaxFileChunkBytes = std::size_t{4} << 20;
+// History of the file topic (samples): a reader's application may fall
+// this many chunks behind what its DDS threads received before the oldest
+// is overwritten; receivers see such a gap in the offsets and fail the
+// transfer rather than write a damaged file. A reader holds that much
+// (64 MiB in the default 1 MiB chunks) only while its application stops
+// taking and the network keeps delivering; the sender waits for
+// acknowledgements every 8 MiB.
+inline constexpr int32_t kFileTopicDepth = 64;
 
 struct TopicQos {
   bool reliable = true;
@@ -63,6 +87,7 @@ TopicSpec<msg::JobProgress> ProgressTopic(std::string_view station);
 TopicSpec<msg::StereoCapture> CaptureTopic(std::string_view station);
 TopicSpec<msg::Disparity> DisparityTopic(std::string_view station);
 TopicSpec<msg::PointCloud> CloudTopic(std::string_view station);
+TopicSpec<msg::SessionFile> FileTopic(std::string_view station);
 
 TopicSpec<ros::Image> RosImageTopic(std::string_view station, Side side);
 TopicSpec<ros::CameraInfo> RosCameraInfoTopic(std::string_view station, Side side);

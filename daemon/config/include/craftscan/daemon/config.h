@@ -60,6 +60,7 @@
 //     volume_min_height_mm: 1.5   [−1000, 10000] above the platter
 //     volume_max_height_mm: 200   (min, 10000]
 //     mesh: true                  Poisson mesh after fusion
+//     measure_box: true           also measure the object as a box (edges, faces)
 //   limits:
 //     max_command_bytes: 65536    1024..16777216 (serialized DDS command)
 //     queue_capacity: 2           1..16 items between capture, matching, registration
@@ -176,6 +177,9 @@ struct PipelineSettings {
   double volume_min_height_mm = 1.5;  // [−1000, 10000]
   double volume_max_height_mm = 200;  // > volume_min_height_mm, ≤ 10000
   bool mesh = true;                   // Poisson mesh after fusion
+  // Measure the object as a box (faces, edges, vertices) besides its
+  // oriented bounding box; objects that are not boxes report why not.
+  bool measure_box = true;
 };
 
 struct LimitSettings {

@@ -38,9 +38,10 @@ struct GrblStatusReport {
   std::string state_text;  // as sent, with any sub-state ("Hold:0")
   // X of the machine position (MPos, deg for a turntable), or of the work
   // position when the controller reports WPos ($10=0; then x_is_work = true).
+  // Always finite: a non-numeric or non-finite X leaves it empty.
   std::optional<double> x;
   bool x_is_work = false;
-  std::optional<double> work_offset_x;  // WCO:x when present
+  std::optional<double> work_offset_x;  // WCO:x when present (finite)
 };
 
 enum class GrblReplyKind { kOk, kError, kAlarm, kBanner, kStatus, kFeedback, kUnknown, kOverlong };

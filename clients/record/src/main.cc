@@ -1,0 +1,196 @@
+// craftscan-record: archives what one or more stations publish over DDS
+// (captures as PNG, clouds as PLY, disparity maps as PFM) with an optional
+// size/count limit; see craftscan/record/archive.h for the layout. Parses
+// arguments, opens the archive, runs the recorder until SIGINT/SIGTERM,
+// --duration, --count or a full archive, then prints a summary on stdout.
+//
+// Exit codes: 0 stopped cleanly (signal, duration, count, archive full);
+// 1 could not start, or an I/O error stopped the recording; 2 bad arguments.
+#include <pthread.h>
+#include <signal.h>
+#include <time.h>
+
+#include <algorithm>
+#include <chrono>
+#include <cstdio>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include <spdlog/fmt/fmt.h>
+#include <spdlog/sinks/stdout_color_sinks.h>
+#include <spdlog/spdlog.h>
+#include <CLI/CLI.hpp>
+
+#include "craftscan/record/archive.h"
+#include "craftscan/record/recorder.h"
+
+namespace {
+
+using namespace craftscan::record;
+
+constexpr int kExitOk = 0, kExitFailure = 1, kExitUsage = 2;
+
+void PrintSummary(const RecorderSummary& summary, const std::string& out_dir, double seconds) {
+  const auto row = [](const auto& station, const auto& files, const auto& bytes,
+                      const auto& captures, const auto& clouds, const auto& disparity,
+                      const auto& malformed, const auto& refused) {
+    return fmt::format("{:<16} {:>7} {:>12} {:>9} {:>7} {:>10} {:>10} {:>8}\n", station, files,
+                       bytes, captures, clouds, disparity, malformed, refused);
+  };
+  std::string text = fmt::format("craftscan-record: stopped after {:.1f} s ({}): {}\n", seconds,
+                                 ToString(summary.reason), summary.message);
+  text +=
+      row("station", "files", "bytes", "captures", "clouds", "disparity", "malformed", "refused");
+  StationStats total{.station = "total"};
+  for (const StationStats& s : summary.stations) {
+    text += row(s.station, s.files, s.bytes, s.captures, s.clouds, s.disparities, s.malformed,
+                s.refused + s.too_large);
+    total.files += s.files;
+    total.bytes += s.bytes;
+    total.captures += s.captures;
+    total.clouds += s.clouds;
+    total.disparities += s.disparities;
+    total.malformed += s.malformed;
+    total.refused += s.refused + s.too_large;
+  }
+  text += row(total.station, total.files, total.bytes, total.captures, total.clouds,
+              total.disparities, total.malformed, total.refused);
+  text += fmt::format("archive '{}': {} files, {} bytes; rotation deleted {} files, {} bytes\n",
+                      out_dir, summary.archive.files, summary.archive.bytes, summary.rotated_files,
+                      summary.rotated_bytes);
+  std::fputs(text.c_str(), stdout);
+  std::fflush(stdout);
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  CLI::App app{
+      "craftscan-record: archives the captures (PNG), clouds (PLY) and disparity maps (PFM) "
+      "that craftscan stations publish over DDS, as <out>/<station>/<session>/... with an "
+      "index.jsonl per session"};
+  RecorderOptions recorder_options;
+  ArchiveOptions archive_options;
+  std::vector<std::string> what = {"clouds", "captures"};
+  std::string max_bytes_text, log_level = "info";
+  bool rotate = false;
+  double duration_s = 0;
+  app.add_option("--station", recorder_options.stations,
+                 "station id to record (repeat for several stations)")
+      ->required();
+  app.add_option("--domain", recorder_options.domain_id, "DDS domain id (0..230)")
+      ->capture_default_str();
+  app.add_option("--dds-config", recorder_options.dds_config,
+                 "Cyclone DDS configuration: XML, a file (absolute path or file:// URI) or a "
+                 "comma-separated list (default: CYCLONEDDS_URI)");
+  app.add_option("--out", archive_options.out_dir, "archive folder (created if missing)")
+      ->required();
+  app.add_option("--what", what, "what to record, comma-separated")
+      ->delimiter(',')
+      ->check(CLI::IsMember({"clouds", "captures", "disparity"}))
+      ->capture_default_str();
+  app.add_option("--max-bytes", max_bytes_text,
+                 "limit on the archive's data files, N[K|M|G] (binary multiples)");
+  app.add_option("--max-files", archive_options.max_files, "limit on the number of data files")
+      ->check(CLI::PositiveNumber);
+  app.add_flag("--rotate", rotate,
+               "at a limit, delete the oldest recorded files (default: stop recording)");
+  app.add_option("--duration", duration_s, "stop after this many seconds")
+      ->check(CLI::PositiveNumber);
+  app.add_option("--count", recorder_options.max_items,
+                 "stop after this many items (a capture, a cloud or a disparity map)")
+      ->check(CLI::PositiveNumber);
+  app.add_option("--log-level", log_level, "debug, info, warn or error")
+      ->check(CLI::IsMember({"debug", "info", "warn", "error"}))
+      ->capture_default_str();
+  try {
+    app.parse(argc, argv);
+  } catch (const CLI::ParseError& e) {
+    return app.exit(e) == 0 ? kExitOk : kExitUsage;
+  }
+
+  std::string error;
+  const auto usage_error = [&](const std::string& message) {
+    std::fprintf(stderr, "craftscan-record: %s\nRun with --help for more information.\n",
+                 message.c_str());
+    return kExitUsage;
+  };
+  if (!max_bytes_text.empty() &&
+      !ParseByteSize(max_bytes_text, &archive_options.max_bytes, &error)) {
+    return usage_error("--max-bytes: " + error);
+  }
+  if (rotate && archive_options.max_bytes == 0 && archive_options.max_files == 0) {
+    return usage_error("--rotate needs --max-bytes or --max-files");
+  }
+  archive_options.on_limit = rotate ? LimitPolicy::kRotate : LimitPolicy::kStop;
+  recorder_options.what.clear();
+  for (const std::string& name : what) {
+    RecordKind kind;
+    RecordKindFromString(name, &kind);  // checked by CLI11
+    if (std::find(recorder_options.what.begin(), recorder_options.what.end(), kind) ==
+        recorder_options.what.end()) {
+      recorder_options.what.push_back(kind);
+    }
+  }
+  if (!recorder_options.IsValid(&error)) return usage_error(error);
+
+  auto logger = spdlog::stderr_color_mt("craftscan-record");
+  spdlog::set_default_logger(logger);
+  spdlog::set_pattern("%Y-%m-%dT%H:%M:%S.%e %^%l%$ %v");
+  spdlog::set_level(spdlog::level::from_str(log_level));
+
+  // Signals are taken by this thread (sigtimedwait); every thread created
+  // from here on (DDS, readers) inherits the blocked mask.
+  sigset_t signals;
+  sigemptyset(&signals);
+  sigaddset(&signals, SIGINT);
+  sigaddset(&signals, SIGTERM);
+  pthread_sigmask(SIG_BLOCK, &signals, nullptr);
+  signal(SIGPIPE, SIG_IGN);
+
+  std::shared_ptr<Archive> archive = Archive::Open(archive_options, &error);
+  if (!archive) {
+    spdlog::critical("cannot start: {}", error);
+    return kExitFailure;
+  }
+  std::unique_ptr<Recorder> recorder = Recorder::Create(recorder_options, archive, &error);
+  if (!recorder) {
+    spdlog::critical("cannot start: {}", error);
+    return kExitFailure;
+  }
+  const ArchiveTotals held = archive->totals();
+  spdlog::info("recording {} of {} on domain {} into '{}' (holds {} files, {} bytes)",
+               fmt::join(what, ","), fmt::join(recorder_options.stations, ", "),
+               recorder_options.domain_id, archive_options.out_dir, held.files, held.bytes);
+
+  const auto start = std::chrono::steady_clock::now();
+  const auto elapsed_s = [&] {
+    return std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  };
+  std::string stop_message;
+  while (!recorder->WaitUntilDone(std::chrono::milliseconds(0))) {
+    double wait_s = 0.1;
+    if (duration_s > 0) {
+      const double left_s = duration_s - elapsed_s();
+      if (left_s <= 0) {
+        stop_message = fmt::format("--duration {} s elapsed", duration_s);
+        break;
+      }
+      wait_s = std::min(wait_s, left_s);
+    }
+    timespec wait{};
+    wait.tv_nsec = static_cast<long>(wait_s * 1e9);
+    const int signal_number = sigtimedwait(&signals, nullptr, &wait);
+    if (signal_number == SIGINT || signal_number == SIGTERM) {
+      stop_message = signal_number == SIGINT ? "SIGINT" : "SIGTERM";
+      break;
+    }
+  }
+  if (!stop_message.empty()) spdlog::info("stopping: {}", stop_message);
+  recorder->Stop(stop_message.empty() ? "stop requested" : stop_message);
+  const RecorderSummary summary = recorder->Summary();
+  recorder.reset();  // leaves the DDS domain
+  PrintSummary(summary, archive_options.out_dir, elapsed_s());
+  return summary.reason == StopReason::kError ? kExitFailure : kExitOk;
+}

@@ -1,0 +1,357 @@
+#include "craftscan/record/recorder.h"
+
+#include <atomic>
+#include <condition_variable>
+#include <exception>
+#include <functional>
+#include <mutex>
+#include <set>
+#include <thread>
+#include <utility>
+
+#include <spdlog/spdlog.h>
+
+#include "craftscan/dds/convert.h"
+#include "craftscan/dds/endpoint.h"
+#include "craftscan/dds/participant.h"
+#include "craftscan/dds/topics.h"
+
+namespace craftscan::record {
+namespace {
+
+constexpr int32_t kMaxReaderHistory = 64;  // 64 unread 8 MB captures = 512 MB at most
+
+bool SetError(std::string* error, const std::string& message) {
+  if (error) *error = message;
+  return false;
+}
+
+// "capture of session 'x' view 3" for log lines (the session as received).
+std::string Describe(std::string_view what, const ItemInfo& item) {
+  return std::string(what) + " of session '" + PrintableForLog(item.session) + "' view " +
+         std::to_string(item.view_index);
+}
+
+}  // namespace
+
+std::string_view ToString(RecordKind kind) {
+  switch (kind) {
+    case RecordKind::kCaptures:
+      return "captures";
+    case RecordKind::kClouds:
+      return "clouds";
+    case RecordKind::kDisparity:
+      return "disparity";
+  }
+  return "unknown";
+}
+
+bool RecordKindFromString(std::string_view text, RecordKind* kind) {
+  for (RecordKind k : {RecordKind::kCaptures, RecordKind::kClouds, RecordKind::kDisparity}) {
+    if (text == ToString(k)) {
+      *kind = k;
+      return true;
+    }
+  }
+  return false;
+}
+
+std::string_view ToString(StopReason reason) {
+  switch (reason) {
+    case StopReason::kNone:
+      return "running";
+    case StopReason::kRequested:
+      return "requested";
+    case StopReason::kCountReached:
+      return "count_reached";
+    case StopReason::kLimitReached:
+      return "limit_reached";
+    case StopReason::kError:
+      return "error";
+  }
+  return "unknown";
+}
+
+bool RecorderOptions::IsValid(std::string* why) const {
+  if (stations.empty()) return SetError(why, "stations: at least one station is needed");
+  std::set<std::string> seen;
+  for (const std::string& station : stations) {
+    std::string reason;
+    if (!dds::IsValidStationId(station, &reason)) return SetError(why, "stations: " + reason);
+    if (!seen.insert(station).second) {
+      return SetError(why, "stations: '" + station + "' is given twice");
+    }
+  }
+  if (domain_id > dds::kMaxDomainId) {
+    return SetError(why, "domain_id " + std::to_string(domain_id) + " is above " +
+                             std::to_string(dds::kMaxDomainId));
+  }
+  if (what.empty()) return SetError(why, "what: nothing to record");
+  if (std::set<RecordKind>(what.begin(), what.end()).size() != what.size()) {
+    return SetError(why, "what: a kind is given twice");
+  }
+  if (reader_history < 1 || reader_history > kMaxReaderHistory) {
+    return SetError(why, "reader_history must be 1.." + std::to_string(kMaxReaderHistory));
+  }
+  if (poll_ms < 10 || poll_ms > 1000) return SetError(why, "poll_ms must be 10..1000");
+  return true;
+}
+
+struct Recorder::State {
+  RecorderOptions options;
+  std::shared_ptr<Archive> archive;
+  std::shared_ptr<dds::Participant> participant;
+  std::atomic<bool> stopping{false};
+
+  std::mutex join_mutex;  // one Stop() joins
+  std::vector<std::thread> threads;
+
+  mutable std::mutex mutex;  // guards everything below
+  std::condition_variable done;
+  std::vector<StationStats> stats;
+  uint64_t items = 0;
+  uint64_t reserved = 0;  // items stored or being stored, for max_items
+  uint64_t rotated_files = 0, rotated_bytes = 0;
+  StopReason reason = StopReason::kNone;
+  std::string message;
+
+  void FinishLocked(StopReason why, const std::string& text) {
+    if (reason == StopReason::kNone) {
+      reason = why;
+      message = text;
+    }
+    stopping = true;
+    done.notify_all();
+  }
+
+  void Finish(StopReason why, const std::string& text) {
+    std::lock_guard lock(mutex);
+    FinishLocked(why, text);
+  }
+
+  // A slot for one more item under max_items; false once all are taken.
+  bool Reserve() {
+    std::lock_guard lock(mutex);
+    if (options.max_items > 0 && reserved >= options.max_items) return false;
+    ++reserved;
+    return true;
+  }
+
+  void Malformed(std::size_t station, std::string_view what, const ItemInfo& item,
+                 const std::string& error) {
+    spdlog::warn("{}: skipped malformed {}: {}", item.station, Describe(what, item), error);
+    std::lock_guard lock(mutex);
+    stats[station].malformed += 1;
+  }
+
+  void Stored(std::size_t station, RecordKind kind, const ItemInfo& item,
+              const StoreResult& result) {
+    const std::string what = Describe(kind == RecordKind::kCaptures ? "capture"
+                                      : kind == RecordKind::kClouds ? "cloud"
+                                                                    : "disparity map",
+                                      item);
+    std::lock_guard lock(mutex);
+    StationStats& s = stats[station];
+    rotated_files += result.rotated_files;
+    rotated_bytes += result.rotated_bytes;
+    if (result.rotated_files > 0) {
+      spdlog::info("rotation deleted the {} oldest file(s) ({} bytes) to stay under the limit",
+                   result.rotated_files, result.rotated_bytes);
+    }
+    if (result.status != StoreStatus::kStored) reserved -= 1;
+    switch (result.status) {
+      case StoreStatus::kStored:
+        s.files += result.files;
+        s.bytes += result.bytes;
+        (kind == RecordKind::kCaptures ? s.captures
+         : kind == RecordKind::kClouds ? s.clouds
+                                       : s.disparities) += 1;
+        items += 1;
+        spdlog::info("{}: stored {}: {} file(s), {} bytes", item.station, what, result.files,
+                     result.bytes);
+        if (options.max_items > 0 && items >= options.max_items) {
+          FinishLocked(StopReason::kCountReached,
+                       std::to_string(items) + " item(s) stored (--count)");
+        }
+        break;
+      case StoreStatus::kRefused:
+        s.refused += 1;
+        spdlog::warn("{}: skipped {}: {}", item.station, what, result.message);
+        break;
+      case StoreStatus::kTooLarge:
+        s.too_large += 1;
+        spdlog::warn("{}: skipped {}: {}", item.station, what, result.message);
+        break;
+      case StoreStatus::kLimitReached:
+        if (reason == StopReason::kNone) spdlog::warn("stopping: {}", result.message);
+        FinishLocked(StopReason::kLimitReached, result.message);
+        break;
+      case StoreStatus::kFailed:
+        s.failed += 1;
+        spdlog::error("{}: could not store {}: {}", item.station, what, result.message);
+        FinishLocked(StopReason::kError, result.message);
+        break;
+    }
+  }
+
+  void OnCapture(std::size_t station, const dds::msg::StereoCapture& m) {
+    const ItemInfo item{options.stations[station], std::string(dds::View(m.session)), m.view_index,
+                        m.left_stamp_ns};
+    cv::Mat left, right;
+    std::string error;
+    if (!dds::StereoCaptureToMats(m, &left, &right, &error)) {
+      Malformed(station, "capture", item, error);
+    } else if (Reserve()) {
+      Stored(station, RecordKind::kCaptures, item,
+             archive->StoreCapture(item, left, right, m.angle_deg));
+    }
+  }
+
+  void OnCloud(std::size_t station, const dds::msg::PointCloud& m) {
+    const ItemInfo item{options.stations[station], std::string(dds::View(m.session)), m.view_index,
+                        m.stamp_ns};
+    PointCloud cloud;
+    dds::CloudMeta meta;
+    std::string error;
+    if (!dds::CloudFromMessage(m, &cloud, &meta, &error)) {
+      Malformed(station, "cloud", item, error);
+    } else if ((meta.kind == "fused") != (meta.view_index == -1) ||
+               (meta.kind != "fused" && meta.kind != "view")) {
+      Malformed(station, "cloud", item,
+                "kind '" + PrintableForLog(meta.kind) + "' does not fit view index " +
+                    std::to_string(meta.view_index) + " (fused clouds have view -1)");
+    } else if (Reserve()) {
+      Stored(station, RecordKind::kClouds, item,
+             archive->StoreCloud(item, cloud, meta.world_from_view));
+    }
+  }
+
+  void OnDisparity(std::size_t station, const dds::msg::Disparity& m) {
+    const ItemInfo item{options.stations[station], std::string(dds::View(m.session)), m.view_index,
+                        m.stamp_ns};
+    cv::Mat disparity;
+    std::string error;
+    if (!dds::DisparityToMat(m, &disparity, &error)) {
+      Malformed(station, "disparity map", item, error);
+    } else if (Reserve()) {
+      Stored(station, RecordKind::kDisparity, item, archive->StoreDisparity(item, disparity));
+    }
+  }
+
+  // Takes samples until stopping; an exception ends the recorder as an error
+  // rather than the process.
+  template <typename Msg>
+  void ReadLoop(std::shared_ptr<dds::Reader<Msg>> reader, std::function<void(const Msg&)> handle) {
+    try {
+      dds::Sample<Msg> sample;
+      std::string error;
+      bool error_logged = false;
+      while (!stopping) {
+        switch (reader->Take(std::chrono::milliseconds(options.poll_ms), &sample, &error)) {
+          case dds::TakeStatus::kOk:
+            handle(*sample);
+            break;
+          case dds::TakeStatus::kTimeout:
+            break;
+          case dds::TakeStatus::kError:
+            if (!error_logged) {
+              spdlog::warn("{}: {} (further errors of this topic not logged)", reader->topic_name(),
+                           error);
+              error_logged = true;
+            }
+            std::this_thread::sleep_for(std::chrono::milliseconds(options.poll_ms));
+            break;
+        }
+      }
+    } catch (const std::exception& e) {
+      spdlog::error("{}: {}", reader->topic_name(), e.what());
+      Finish(StopReason::kError, reader->topic_name() + ": " + e.what());
+    }
+  }
+};
+
+std::unique_ptr<Recorder> Recorder::Create(const RecorderOptions& options,
+                                           std::shared_ptr<Archive> archive, std::string* error) {
+  if (!options.IsValid(error)) return nullptr;
+  if (!archive) {
+    SetError(error, "no archive");
+    return nullptr;
+  }
+  auto state = std::make_shared<State>();
+  state->options = options;
+  state->archive = std::move(archive);
+  for (const std::string& station : options.stations) state->stats.push_back({.station = station});
+
+  dds::ParticipantOptions participant_options;
+  participant_options.domain_id = options.domain_id;
+  participant_options.config = options.dds_config;
+  std::string dds_error;
+  state->participant = dds::Participant::Create(participant_options, &dds_error);
+  if (!state->participant) {
+    SetError(error, "DDS: " + dds_error);
+    return nullptr;
+  }
+
+  // All readers first, so a failure leaves no thread to join.
+  std::vector<std::function<void()>> loops;
+  State* s = state.get();
+  const auto add = [&]<typename Msg>(dds::TopicSpec<Msg> topic,
+                                     void (State::*on)(std::size_t, const Msg&),
+                                     std::size_t station) {
+    topic.qos.history_depth = options.reader_history;
+    std::shared_ptr<dds::Reader<Msg>> reader =
+        dds::Reader<Msg>::Create(s->participant, topic, &dds_error);
+    if (!reader) return SetError(error, "DDS: " + dds_error);
+    loops.push_back([s, reader, on, station] {
+      s->ReadLoop<Msg>(reader, [s, on, station](const Msg& m) { (s->*on)(station, m); });
+    });
+    return true;
+  };
+  for (std::size_t i = 0; i < options.stations.size(); ++i) {
+    const std::string& station = options.stations[i];
+    for (RecordKind kind : options.what) {
+      const bool ok =
+          kind == RecordKind::kCaptures ? add(dds::CaptureTopic(station), &State::OnCapture, i)
+          : kind == RecordKind::kClouds ? add(dds::CloudTopic(station), &State::OnCloud, i)
+                                        : add(dds::DisparityTopic(station), &State::OnDisparity, i);
+      if (!ok) return nullptr;
+    }
+  }
+  // Stop() joins the threads before the state (participant, archive) goes.
+  for (auto& loop : loops) state->threads.emplace_back(std::move(loop));
+  return std::unique_ptr<Recorder>(new Recorder(std::move(state)));
+}
+
+Recorder::Recorder(std::shared_ptr<State> state) : state_(std::move(state)) {}
+
+Recorder::~Recorder() { Stop(); }
+
+bool Recorder::WaitUntilDone(std::chrono::milliseconds timeout) {
+  std::unique_lock lock(state_->mutex);
+  return state_->done.wait_for(lock, timeout, [&] { return state_->reason != StopReason::kNone; });
+}
+
+void Recorder::Stop(const std::string& message) {
+  state_->Finish(StopReason::kRequested, message);
+  std::lock_guard lock(state_->join_mutex);
+  for (std::thread& thread : state_->threads) {
+    if (thread.joinable()) thread.join();
+  }
+}
+
+RecorderSummary Recorder::Summary() const {
+  RecorderSummary summary;
+  {
+    std::lock_guard lock(state_->mutex);
+    summary.stations = state_->stats;
+    summary.items = state_->items;
+    summary.rotated_files = state_->rotated_files;
+    summary.rotated_bytes = state_->rotated_bytes;
+    summary.reason = state_->reason;
+    summary.message = state_->message;
+  }
+  summary.archive = state_->archive->totals();
+  return summary;
+}
+
+}  // namespace craftscan::record

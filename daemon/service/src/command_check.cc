@@ -1,0 +1,229 @@
+// The checks of a command before the daemon acts on it (CheckCommand) and the
+// reply codes' names. Pure: no jobs, devices or files, so the fuzzers and
+// tests can run it alone.
+#include <cmath>
+#include <map>
+#include <utility>
+
+#include "craftscan/daemon/commands.h"
+#include "craftscan/daemon/session_manifest.h"
+
+namespace craftscan::daemon {
+namespace {
+
+// kNames: the string "all" or a list of 1..256 strings of min..max bytes.
+enum class ArgType { kString, kInt, kNumber, kNames };
+
+struct ArgSpec {
+  ArgType type;
+  bool required;
+  double min, max;  // numbers: range; strings: length range
+};
+
+// The argument schema of every verb (see the table in commands.h).
+const std::map<std::string, std::map<std::string, ArgSpec>>& VerbArguments() {
+  static const std::map<std::string, std::map<std::string, ArgSpec>> table = {
+      {"status", {}},
+      {"devices", {}},
+      {"sessions", {}},
+      {"get",
+       {{"session", {ArgType::kString, true, 1, 128}},
+        {"files", {ArgType::kNames, false, 1, 200}},
+        {"chunk_bytes", {ArgType::kInt, false, static_cast<double>(kMinTransferChunkBytes),
+                         static_cast<double>(kMaxTransferChunkBytes)}}}},
+      {"capture", {{"object", {ArgType::kString, false, 1, 128}}}},
+      {"scan",
+       {{"object", {ArgType::kString, false, 1, 128}},
+        {"views", {ArgType::kInt, false, 2, 360}},
+        {"step_deg", {ArgType::kNumber, false, -360, 360}}}},
+      {"cancel", {}},
+      {"resume", {{"session", {ArgType::kString, true, 1, 128}}}},
+      {"turntable",
+       {{"action", {ArgType::kString, true, 1, 16}},
+        {"angle_deg", {ArgType::kNumber, false, -3600, 3600}}}},
+      {"camera",
+       {{"exposure_us", {ArgType::kNumber, false, 1, 10e6}},
+        {"gain_db", {ArgType::kNumber, false, 0, 48}}}},
+      {"calibrate", {}},
+      {"calibrate-turntable", {}},
+  };
+  return table;
+}
+
+bool CheckArguments(const std::map<std::string, ArgSpec>& spec, const nlohmann::json& args,
+                    std::string* why) {
+  for (const auto& [key, value] : args.items()) {
+    const auto it = spec.find(key);
+    if (it == spec.end()) {
+      std::string known;
+      for (const auto& [name, unused] : spec) known += (known.empty() ? "" : ", ") + name;
+      *why = "unknown argument '" + key + "'" +
+             (known.empty() ? " (this verb takes none)" : " (known: " + known + ")");
+      return false;
+    }
+    const ArgSpec& s = it->second;
+    switch (s.type) {
+      case ArgType::kString: {
+        if (!value.is_string()) {
+          *why = key + ": must be a string";
+          return false;
+        }
+        const std::size_t n = value.get_ref<const std::string&>().size();
+        if (n < s.min || n > s.max) {
+          *why = key + ": length must be " + std::to_string(static_cast<int>(s.min)) + ".." +
+                 std::to_string(static_cast<int>(s.max));
+          return false;
+        }
+        break;
+      }
+      case ArgType::kInt:
+        if (!value.is_number_integer() || value.get<double>() < s.min ||
+            value.get<double>() > s.max) {
+          *why = key + ": must be an integer in " + std::to_string(static_cast<int>(s.min)) +
+                 ".." + std::to_string(static_cast<int>(s.max));
+          return false;
+        }
+        break;
+      case ArgType::kNames: {
+        if (value.is_string() && value.get_ref<const std::string&>() == "all") break;
+        bool ok = value.is_array() && !value.empty() && value.size() <= 256;
+        for (std::size_t i = 0; ok && i < value.size(); ++i) {
+          ok = value[i].is_string() && value[i].get_ref<const std::string&>().size() >= s.min &&
+               value[i].get_ref<const std::string&>().size() <= s.max;
+        }
+        if (!ok) {
+          *why = key + ": must be \"all\" or a list of 1..256 names of " +
+                 std::to_string(static_cast<int>(s.min)) + ".." +
+                 std::to_string(static_cast<int>(s.max)) + " bytes";
+          return false;
+        }
+        break;
+      }
+      case ArgType::kNumber: {
+        const double v = value.is_number() ? value.get<double>() : NAN;
+        if (!std::isfinite(v) || v < s.min || v > s.max) {
+          *why = key + ": must be a number in [" + std::to_string(s.min) + ", " +
+                 std::to_string(s.max) + "]";
+          return false;
+        }
+        break;
+      }
+    }
+  }
+  for (const auto& [key, s] : spec) {
+    if (s.required && !args.contains(key)) {
+      *why = "missing argument '" + key + "'";
+      return false;
+    }
+  }
+  return true;
+}
+
+// The checks of argument values by shape, after CheckArguments has checked
+// their types and ranges.
+bool CheckValues(const std::string& verb, const nlohmann::json& args, std::string* why) {
+  if ((verb == "get" || verb == "resume") &&
+      !IsValidSessionId(args["session"].get_ref<const std::string&>())) {
+    *why = "session: not a session id";
+    return false;
+  }
+  if (verb == "get" && args.contains("files") && args["files"].is_array()) {
+    for (const nlohmann::json& name : args["files"]) {
+      if (!IsValidOutputName(name.get_ref<const std::string&>(), why)) {
+        *why = "files: '" + name.get<std::string>() + "': " + *why;
+        return false;
+      }
+    }
+  }
+  if (verb == "turntable") {
+    const std::string& action = args["action"].get_ref<const std::string&>();
+    if (action != "home" && action != "move") {
+      *why = "action: must be 'home' or 'move'";
+      return false;
+    }
+    if (action == "move" && !args.contains("angle_deg")) {
+      *why = "missing argument 'angle_deg'";
+      return false;
+    }
+  }
+  return true;
+}
+
+}  // namespace
+
+std::string_view ToString(ReplyCode code) {
+  switch (code) {
+    case ReplyCode::kOk: return "ok";
+    case ReplyCode::kBadRequest: return "bad_request";
+    case ReplyCode::kUnauthenticated: return "unauthenticated";
+    case ReplyCode::kUnknownVerb: return "unknown_verb";
+    case ReplyCode::kForbidden: return "forbidden";
+    case ReplyCode::kBadArgument: return "bad_argument";
+    case ReplyCode::kBusy: return "busy";
+    case ReplyCode::kNotFound: return "not_found";
+    case ReplyCode::kUnavailable: return "unavailable";
+    case ReplyCode::kFailed: return "failed";
+    case ReplyCode::kTooLarge: return "too_large";
+    case ReplyCode::kInternal: return "internal";
+  }
+  return "internal";
+}
+
+CommandCheck CheckCommand(const CommandRequest& request, const CommandLimits& limits,
+                          const TokenAuthority* tokens) {
+  CommandCheck check;
+  auto refuse = [&](ReplyCode code, std::string message) {
+    check.code = code;
+    check.message = std::move(message);
+    check.arguments = nlohmann::json::object();
+    check.identity.reset();
+    return check;
+  };
+  if (request.arguments.size() > limits.max_argument_bytes) {
+    return refuse(ReplyCode::kTooLarge, "arguments are " + std::to_string(request.arguments.size()) +
+                                            " bytes; the limit is " +
+                                            std::to_string(limits.max_argument_bytes));
+  }
+  for (const auto* field : {&request.request_id, &request.client, &request.verb, &request.token}) {
+    if (field->size() > limits.max_field_bytes) {
+      return refuse(ReplyCode::kTooLarge, "request_id, client, verb and token are limited to " +
+                                              std::to_string(limits.max_field_bytes) + " bytes");
+    }
+  }
+  if (request.request_id.empty()) return refuse(ReplyCode::kBadRequest, "request_id is empty");
+  if (!request.arguments.empty()) {
+    check.arguments = nlohmann::json::parse(request.arguments, nullptr, /*allow_exceptions=*/false);
+    if (check.arguments.is_discarded()) {
+      return refuse(ReplyCode::kBadRequest, "arguments are not valid JSON");
+    }
+    if (!check.arguments.is_object()) {
+      return refuse(ReplyCode::kBadRequest, "arguments must be a JSON object");
+    }
+  }
+  check.identity = tokens ? tokens->Authenticate(request.token) : std::nullopt;
+  if (!check.identity) return refuse(ReplyCode::kUnauthenticated, "unknown token");
+  const auto verb = VerbArguments().find(request.verb);
+  const std::optional<Role> needed = RequiredRole(request.verb);
+  if (verb == VerbArguments().end() || !needed) {
+    std::string known;
+    for (const auto& [name, unused] : VerbArguments()) known += (known.empty() ? "" : ", ") + name;
+    return refuse(ReplyCode::kUnknownVerb, "unknown verb '" +
+                                               request.verb.substr(0, limits.max_field_bytes) +
+                                               "' (known: " + known + ")");
+  }
+  if (!Satisfies(check.identity->role, *needed)) {
+    return refuse(ReplyCode::kForbidden, "'" + request.verb + "' needs role " +
+                                             std::string(ToString(*needed)) + "; " +
+                                             check.identity->name + " is " +
+                                             std::string(ToString(check.identity->role)));
+  }
+  std::string why;
+  if (!CheckArguments(verb->second, check.arguments, &why) ||
+      !CheckValues(request.verb, check.arguments, &why)) {
+    return refuse(ReplyCode::kBadArgument, why);
+  }
+  check.code = ReplyCode::kOk;
+  return check;
+}
+
+}  // namespace craftscan::daemon

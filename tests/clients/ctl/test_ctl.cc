@@ -1,0 +1,423 @@
+// craftscanctl end to end: the real binary against the real craftscand on
+// the simulated station (640x512 images), over loopback DDS on a private
+// domain. Each test reuses one daemon for several subcommands.
+#include <gtest/gtest.h>
+
+#include <chrono>
+#include <cstring>
+#include <filesystem>
+#include <fstream>
+#include <iterator>
+#include <random>
+#include <set>
+#include <string>
+#include <thread>
+#include <vector>
+
+#include <nlohmann/json.hpp>
+
+#include "craftscan/daemon/session_store.h"
+#include "ctl_runner.h"
+#include "daemon_fixture.h"
+
+namespace craftscan::testing {
+namespace {
+
+using namespace std::chrono_literals;
+using nlohmann::json;
+
+std::string ReadFile(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  return std::string(std::istreambuf_iterator<char>(in), {});
+}
+
+// A daemon on the sim station and the arguments that reach it.
+class Station {
+ public:
+  // `pipeline_extra`: see DaemonFixture::pipeline_extra.
+  explicit Station(std::string pipeline_extra = "") {
+    fixture_.pipeline_extra = std::move(pipeline_extra);
+  }
+  // Writes the configuration; Start may follow later.
+  bool Prepare(std::string* error) { return fixture_.Prepare(error); }
+  bool Launch(std::string* error) { return fixture_.Start(error); }
+  bool Start(std::string* error) {
+    if (!fixture_.Prepare(error) || !fixture_.Start(error)) return false;
+    return true;
+  }
+  DaemonFixture& fixture() { return fixture_; }
+  const std::string& dir() const { return fixture_.root(); }
+
+  // --station, --domain, --dds-config, --timeout and --token before `args`.
+  std::vector<std::string> Args(const std::string& token, std::vector<std::string> args,
+                                const std::string& timeout = "20") const {
+    std::vector<std::string> all = {"--station", fixture_.station(),
+                                    "--domain", std::to_string(fixture_.domain()),
+                                    "--dds-config", fixture_.dds_config(),
+                                    "--timeout", timeout};
+    if (!token.empty()) {
+      all.push_back("--token");
+      all.push_back(token);
+    }
+    all.insert(all.end(), args.begin(), args.end());
+    return all;
+  }
+
+  CtlRun Run(const std::string& token, const std::vector<std::string>& args,
+             std::chrono::seconds limit = 120s) {
+    CtlProcess process(dir(), "run" + std::to_string(++runs_), Args(token, args));
+    return process.Wait(limit);
+  }
+
+ private:
+  DaemonFixture fixture_{"640x512"};
+  int runs_ = 0;
+};
+
+std::string Describe(const CtlRun& r) {
+  return "exit " + std::to_string(r.exit_code) + "\nstdout:\n" + r.out + "\nstderr:\n" + r.err;
+}
+
+json ParseJson(const CtlRun& r) {
+  json value = json::parse(r.out, nullptr, false);
+  return value.is_discarded() ? json() : value;
+}
+
+TEST(Craftscanctl, StatusDevicesCaptureTurntableCameraAndRefusals) {
+  Station station;
+  std::string error;
+  ASSERT_TRUE(station.Start(&error)) << error;
+
+  // status waits for discovery (within --timeout) and reports the station.
+  CtlRun r = station.Run(kObserverToken, {"status", "--json"});
+  ASSERT_EQ(r.exit_code, 0) << Describe(r) << station.fixture().Log();
+  json status = ParseJson(r);
+  EXPECT_EQ(status.value("station", ""), station.fixture().station()) << r.out;
+  r = station.Run(kObserverToken, {"status"});
+  ASSERT_EQ(r.exit_code, 0) << Describe(r);
+  EXPECT_NE(r.out.find("calibration"), std::string::npos) << r.out;
+
+  r = station.Run(kObserverToken, {"devices", "--json"});
+  ASSERT_EQ(r.exit_code, 0) << Describe(r);
+  const json devices = ParseJson(r).value("devices", json::array());
+  std::set<std::string> names;
+  for (const json& d : devices) names.insert(d.value("name", ""));
+  EXPECT_EQ(names, (std::set<std::string>{"camera", "turntable"})) << r.out;
+  r = station.Run(kObserverToken, {"devices"});
+  ASSERT_EQ(r.exit_code, 0) << Describe(r);
+  EXPECT_NE(r.out.find("turntable"), std::string::npos) << r.out;
+
+  r = station.Run(kObserverToken, {"sessions"});
+  ASSERT_EQ(r.exit_code, 0) << Describe(r);
+  EXPECT_NE(r.out.find("no sessions"), std::string::npos) << r.out;
+
+  // Refused by the daemon: 3, with its reason.
+  r = station.Run(kObserverToken, {"scan", "--object", "box", "--views", "4", "--step", "90"});
+  EXPECT_EQ(r.exit_code, 3) << Describe(r);
+  EXPECT_NE(r.err.find("forbidden"), std::string::npos) << r.err;
+  r = station.Run("wrong-token-0123456789", {"status"});
+  EXPECT_EQ(r.exit_code, 3) << Describe(r);
+  EXPECT_NE(r.err.find("unauthenticated"), std::string::npos) << r.err;
+  r = station.Run(kOperatorToken, {"calibrate"});
+  EXPECT_EQ(r.exit_code, 3) << Describe(r);
+  r = station.Run(kOperatorToken, {"resume", "20260101-000000-nothing"});
+  EXPECT_EQ(r.exit_code, 3) << Describe(r);
+  EXPECT_NE(r.err.find("not_found"), std::string::npos) << r.err;
+  r = station.Run(kOperatorToken, {"cancel"});  // nothing runs
+  EXPECT_EQ(r.exit_code, 3) << Describe(r);
+
+  // Bad arguments, caught before the daemon is asked: 2.
+  const std::vector<std::vector<std::string>> usage_errors = {
+      {"scan", "--views", "4"},                       // --object missing
+      {"scan", "--object", "box", "--views", "1"},    // out of range
+      {"scan", "--object", "box", "--views", "six"},  // not a number
+      {"turntable", "spin"},
+      {"turntable", "move"},
+      {"camera", "set", "shutter=5"},
+      {"camera", "set", "exposure=-3"},
+      {"get", "20260101-000000-x"},  // --out missing
+      {"get", "20260101-000000-x", "--out", station.dir() + "/o", "--file", "../etc/passwd"},
+      {"frobnicate"},
+      {},
+  };
+  for (const auto& args : usage_errors) {
+    r = station.Run(kOperatorToken, args);
+    std::string joined;
+    for (const std::string& a : args) joined += a + " ";
+    EXPECT_EQ(r.exit_code, 2) << joined << "\n" << Describe(r);
+    EXPECT_FALSE(r.err.empty()) << joined;
+  }
+  {
+    CtlProcess no_token(station.dir(), "no-token", station.Args("", {"status"}));
+    r = no_token.Wait(60s);
+    EXPECT_EQ(r.exit_code, 2) << Describe(r);
+    EXPECT_NE(r.err.find("CRAFTSCAN_TOKEN"), std::string::npos) << r.err;
+  }
+  // The token from the environment and from a file.
+  {
+    CtlProcess env_token(station.dir(), "env-token", station.Args("", {"sessions", "--json"}),
+                         {std::string("CRAFTSCAN_TOKEN=") + kObserverToken});
+    r = env_token.Wait(60s);
+    EXPECT_EQ(r.exit_code, 0) << Describe(r);
+    std::ofstream(station.dir() + "/token.txt") << kObserverToken << "\n";
+    r = station.Run("", {"--token-file", station.dir() + "/token.txt", "status"});
+    EXPECT_EQ(r.exit_code, 0) << Describe(r);
+  }
+
+  // Turntable and camera.
+  r = station.Run(kOperatorToken, {"turntable", "home"});
+  EXPECT_EQ(r.exit_code, 0) << Describe(r);
+  r = station.Run(kOperatorToken, {"turntable", "move", "90", "--json"});
+  ASSERT_EQ(r.exit_code, 0) << Describe(r);
+  EXPECT_NEAR(ParseJson(r)["result"].value("angle_deg", -1.0), 90.0, 0.01) << r.out;
+  r = station.Run(kOperatorToken, {"turntable", "move", "-45"});
+  ASSERT_EQ(r.exit_code, 0) << Describe(r);
+  EXPECT_NE(r.out.find("-45.00"), std::string::npos) << r.out;
+  r = station.Run(kOperatorToken, {"camera", "set", "exposure=5000", "gain=2", "--json"});
+  ASSERT_EQ(r.exit_code, 0) << Describe(r);
+  EXPECT_DOUBLE_EQ(ParseJson(r)["result"].value("exposure_us", 0.0), 5000.0) << r.out;
+  EXPECT_DOUBLE_EQ(ParseJson(r)["result"].value("gain_db", -1.0), 2.0) << r.out;
+
+  // capture waits for the job, printing plain progress lines when piped,
+  // while `watch` follows status and progress until Ctrl-C.
+  CtlProcess watch(station.dir(), "watch",
+                   station.Args(kObserverToken, {"watch", "--json", "--duration", "300"}));
+  // Subscribed once it printed the current status.
+  for (int i = 0; i < 300 && watch.Output().empty() && watch.Running(); ++i) {
+    std::this_thread::sleep_for(100ms);
+  }
+  ASSERT_FALSE(watch.Output().empty()) << "watch printed no status";
+  r = station.Run(kOperatorToken, {"capture", "--object", "egg"});
+  ASSERT_EQ(r.exit_code, 0) << Describe(r) << station.fixture().Log();
+  EXPECT_NE(r.out.find("capture started as job-"), std::string::npos) << r.out;
+  EXPECT_NE(r.out.find("capture "), std::string::npos) << r.out;
+  EXPECT_NE(r.out.find(" done: "), std::string::npos) << r.out;
+  EXPECT_EQ(r.out.find("\x1b["), std::string::npos) << "no terminal codes when piped";
+  // watch saw the job end (its status line), then stops on SIGINT with 0.
+  bool saw_end = false;
+  for (int i = 0; i < 300 && !saw_end && watch.Running(); ++i) {
+    saw_end = watch.Output().find("\"state\":\"done\"") != std::string::npos;
+    if (!saw_end) std::this_thread::sleep_for(100ms);
+  }
+  watch.Signal(SIGINT);
+  const CtlRun watched = watch.Wait(30s);
+  EXPECT_EQ(watched.exit_code, 0) << Describe(watched);
+  EXPECT_TRUE(saw_end) << watched.out;
+  std::size_t start = 0;
+  int progress_lines = 0;
+  while (start < watched.out.size()) {
+    const std::size_t end = watched.out.find('\n', start);
+    const json line = json::parse(watched.out.substr(start, end - start), nullptr, false);
+    ASSERT_FALSE(line.is_discarded()) << watched.out.substr(start, end - start);
+    EXPECT_TRUE(line.value("type", "") == "status" || line.value("type", "") == "progress") << line;
+    if (line.value("type", "") == "progress") ++progress_lines;
+    start = end == std::string::npos ? watched.out.size() : end + 1;
+  }
+  EXPECT_GE(progress_lines, 1) << watched.out;
+
+  r = station.Run(kObserverToken, {"sessions", "--json"});
+  ASSERT_EQ(r.exit_code, 0) << Describe(r);
+  const json sessions = ParseJson(r).value("sessions", json::array());
+  ASSERT_EQ(sessions.size(), 1u) << r.out;
+  EXPECT_EQ(sessions[0].value("state", ""), "done");
+  EXPECT_EQ(sessions[0].value("job", ""), "capture");
+  // A capture has no outputs to fetch.
+  r = station.Run(kObserverToken, {"get", sessions[0].value("id", ""), "--out", station.dir() + "/o"});
+  EXPECT_EQ(r.exit_code, 3) << Describe(r);
+  EXPECT_NE(r.err.find("no outputs"), std::string::npos) << r.err;
+
+  // --no-wait returns at once with the started job.
+  r = station.Run(kOperatorToken, {"capture", "--no-wait", "--json"});
+  ASSERT_EQ(r.exit_code, 0) << Describe(r);
+  EXPECT_EQ(ParseJson(r).value("verb", ""), "capture") << r.out;
+  EXPECT_FALSE(ParseJson(r).value("id", "").empty()) << r.out;
+}
+
+TEST(Craftscanctl, ScanThenGetEveryOutputByteForByte) {
+  Station station;
+  std::string error;
+  ASSERT_TRUE(station.Start(&error)) << error;
+
+  // A full turn in 4 views closes the loop.
+  CtlRun r = station.Run(kOperatorToken,
+                         {"scan", "--object", "carved box", "--views", "4", "--step", "90", "--json"},
+                         300s);
+  ASSERT_EQ(r.exit_code, 0) << Describe(r) << station.fixture().Log();
+  const json job = ParseJson(r);
+  EXPECT_EQ(job.value("state", ""), "done") << r.out;
+  const std::string session = job.value("session", "");
+  ASSERT_FALSE(session.empty()) << r.out;
+  std::printf("4-view 640x512 scan through craftscanctl: %.1f s\n", r.seconds);
+
+  // get: every durable output, byte for byte.
+  auto store = daemon::SessionStore::Open(station.fixture().data_dir(), &error);
+  ASSERT_TRUE(store) << error;
+  auto opened = store->OpenSession(session, &error);
+  ASSERT_TRUE(opened) << error;
+  const daemon::Manifest manifest = opened->manifest();
+  opened.reset();
+  ASSERT_TRUE(manifest.outputs.count("fused.ply"));
+  const std::string out = station.dir() + "/fetched";
+  r = station.Run(kObserverToken, {"get", session, "--out", out});
+  ASSERT_EQ(r.exit_code, 0) << Describe(r) << station.fixture().Log();
+  EXPECT_NE(r.out.find("checksums verified"), std::string::npos) << r.out;
+  const std::string session_dir = station.fixture().data_dir() + "/sessions/" + session;
+  std::uint64_t bytes = 0;
+  for (const auto& [name, record] : manifest.outputs) {
+    const std::string fetched = ReadFile(out + "/" + name);
+    EXPECT_EQ(fetched.size(), record.size_bytes) << name;
+    EXPECT_TRUE(fetched == ReadFile(session_dir + "/" + name)) << name << " differs";
+    bytes += fetched.size();
+  }
+  std::size_t entries = 0;
+  for (const auto& entry : std::filesystem::recursive_directory_iterator(out)) {
+    if (entry.is_regular_file()) ++entries;
+    EXPECT_NE(entry.path().filename().string().front(), '.') << "temporary left: " << entry.path();
+  }
+  EXPECT_EQ(entries, manifest.outputs.size());
+  std::printf("get: %zu files, %llu bytes in %.2f s\n", manifest.outputs.size(),
+              static_cast<unsigned long long>(bytes), r.seconds);
+
+  // One file in small chunks (many chunks, several acknowledgement windows).
+  const std::string one = station.dir() + "/one";
+  r = station.Run(kObserverToken, {"get", session, "--out", one, "--file", "fused.ply",
+                                   "--chunk-kib", "16", "--json"});
+  ASSERT_EQ(r.exit_code, 0) << Describe(r);
+  EXPECT_TRUE(ReadFile(one + "/fused.ply") == ReadFile(session_dir + "/fused.ply"));
+  const json listed = ParseJson(r);
+  ASSERT_EQ(listed.value("files", json::array()).size(), 1u) << r.out;
+  EXPECT_EQ(listed["files"][0].value("fnv1a64", ""), [&] {
+    char hex[17];
+    std::snprintf(hex, sizeof hex, "%016llx",
+                  static_cast<unsigned long long>(manifest.outputs.at("fused.ply").fnv1a64));
+    return std::string(hex);
+  }());
+  r = station.Run(kObserverToken, {"get", session, "--out", one, "--file", "nothing.ply"});
+  EXPECT_EQ(r.exit_code, 3) << Describe(r);
+  EXPECT_NE(r.err.find("fused.ply"), std::string::npos) << "names what there is: " << r.err;
+  EXPECT_FALSE(std::filesystem::exists(one + "/nothing.ply"));
+}
+
+TEST(Craftscanctl, CancelOfARunningScanExitsFourAndResumeCompletesIt) {
+  Station station(", mesh: false");
+  std::string error;
+  ASSERT_TRUE(station.Start(&error)) << error;
+  // The waiting craftscanctl exits 4 once the scan is cancelled; the session
+  // is interrupted, and resume completes it.
+  CtlProcess scan(station.dir(), "scan",
+                  station.Args(kOperatorToken, {"scan", "--object", "egg", "--views", "4", "--step", "90"}));
+  // Wait until it runs (the status shows a running scan).
+  CtlRun r;
+  bool running = false;
+  for (int i = 0; i < 200 && !running && scan.Running(); ++i) {
+    const CtlRun s = station.Run(kObserverToken, {"status", "--json"});
+    const json st = ParseJson(s);
+    running = st.contains("job") && st["job"].value("verb", "") == "scan" &&
+              st["job"].value("state", "") == "running";
+    if (!running) std::this_thread::sleep_for(100ms);
+  }
+  ASSERT_TRUE(running) << "the scan never ran";
+  r = station.Run(kOperatorToken, {"cancel"});
+  ASSERT_EQ(r.exit_code, 0) << Describe(r);
+  const CtlRun cancelled = scan.Wait(120s);
+  EXPECT_EQ(cancelled.exit_code, 4) << Describe(cancelled);
+  EXPECT_NE(cancelled.out.find("cancelled"), std::string::npos) << cancelled.out;
+  r = station.Run(kObserverToken, {"sessions", "--json"});
+  ASSERT_EQ(r.exit_code, 0) << Describe(r);
+  std::string interrupted;
+  for (const json& s : ParseJson(r).value("sessions", json::array())) {
+    if (s.value("state", "") == "interrupted") interrupted = s.value("id", "");
+  }
+  ASSERT_FALSE(interrupted.empty()) << r.out;
+  r = station.Run(kOperatorToken, {"resume", interrupted}, 300s);
+  ASSERT_EQ(r.exit_code, 0) << Describe(r) << station.fixture().Log();
+  EXPECT_NE(r.out.find("resume done"), std::string::npos) << r.out;
+  r = station.Run(kObserverToken, {"sessions", "--json"});
+  const json sessions = ParseJson(r).value("sessions", json::array());
+  ASSERT_EQ(sessions.size(), 1u) << r.out;
+  EXPECT_EQ(sessions[0].value("id", ""), interrupted);
+  EXPECT_EQ(sessions[0].value("state", ""), "done") << r.out;
+  EXPECT_EQ(sessions[0].value("views_captured", 0), 4) << r.out;
+}
+
+// A session made on disk before the daemon starts: a 48 MiB output streams
+// intact; a file changed behind the manifest's back is refused.
+TEST(Craftscanctl, GetStreamsALargeOutputAndRefusesChangedFiles) {
+  Station station;
+  std::string error;
+  ASSERT_TRUE(station.Prepare(&error)) << error;
+  std::string big(48u << 20, '\0');
+  std::mt19937_64 random(7);
+  for (std::size_t i = 0; i + 8 <= big.size(); i += 8) {
+    const std::uint64_t v = random();
+    std::memcpy(&big[i], &v, 8);
+  }
+  std::string id;
+  {
+    auto store = daemon::SessionStore::Open(station.fixture().data_dir(), &error);
+    ASSERT_TRUE(store) << error;
+    auto session = store->Create("big", "scan", {{"views", 2}}, std::chrono::system_clock::now(), &error);
+    ASSERT_TRUE(session) << error;
+    id = session->id();
+    ASSERT_TRUE(session->SetState(daemon::SessionState::kReconstructing, "", &error)) << error;
+    ASSERT_TRUE(session->StoreOutput("fused.ply", big, &error)) << error;
+    ASSERT_TRUE(session->StoreOutput("report.json", "{\"ok\": true}", &error)) << error;
+    ASSERT_TRUE(session->StoreOutput("previews/top.png", std::string(5000, 'x'), &error)) << error;
+    ASSERT_TRUE(session->SetState(daemon::SessionState::kDone, "", &error)) << error;
+  }
+  ASSERT_TRUE(station.Launch(&error)) << error;
+
+  const std::string out = station.dir() + "/big";
+  for (const char* chunk_kib : {"1024", "4096"}) {  // 1024: the default
+    const std::string dir = out + chunk_kib;
+    const CtlRun r = station.Run(kObserverToken, {"get", id, "--out", dir, "--file", "fused.ply",
+                                                  "--chunk-kib", chunk_kib, "--json"});
+    ASSERT_EQ(r.exit_code, 0) << Describe(r) << station.fixture().Log();
+    EXPECT_TRUE(ReadFile(dir + "/fused.ply") == big);
+    const double seconds = ParseJson(r).value("transfer_seconds", 0.0);
+    std::printf("get of a 48 MiB output in %s KiB chunks (loopback): transfer %.2f s = %.0f MiB/s; "
+                "%.2f s with process start and discovery\n",
+                chunk_kib, seconds, seconds > 0 ? 48 / seconds : 0.0, r.seconds);
+  }
+
+  // Same size, other bytes: the client's checksum check refuses it.
+  const std::string session_dir = station.fixture().data_dir() + "/sessions/" + id;
+  std::ofstream(session_dir + "/report.json", std::ios::trunc) << "{\"ok\": 1234}";
+  CtlRun r = station.Run(kObserverToken, {"get", id, "--out", out, "--file", "report.json"});
+  EXPECT_EQ(r.exit_code, 4) << Describe(r);
+  EXPECT_NE(r.err.find("checksum"), std::string::npos) << r.err;
+  EXPECT_FALSE(std::filesystem::exists(out + "/report.json"));
+  // Another size: the station refuses to send it.
+  std::ofstream(session_dir + "/previews/top.png", std::ios::trunc) << "short";
+  r = station.Run(kObserverToken, {"get", id, "--out", out, "--file", "previews/top.png"});
+  EXPECT_EQ(r.exit_code, 4) << Describe(r);
+  EXPECT_NE(r.err.find("differs from the manifest"), std::string::npos) << r.err;
+  EXPECT_FALSE(std::filesystem::exists(out + "/previews/top.png"));
+}
+
+TEST(Craftscanctl, WithoutADaemonExitsFiveWithinTheTimeoutAndSaysWhatToCheck) {
+  char dir[] = "/tmp/craftscanctl-test-XXXXXX";
+  ASSERT_NE(::mkdtemp(dir), nullptr);
+  // A private domain nobody serves.
+  const std::string domain = std::to_string(200 + ::getpid() % 30);
+  const std::string config = dds::LoopbackOnlyConfigXml();
+  const std::vector<std::vector<std::string>> commands = {
+      {"status"}, {"watch", "--count", "1"}, {"get", "20260101-000000-x", "--out", std::string(dir) + "/o"}};
+  for (const auto& command : commands) {
+    std::vector<std::string> args = {"--station", "nobody", "--domain", domain, "--timeout", "2",
+                                     "--token", kObserverToken};
+    args.insert(args.end(), command.begin(), command.end());
+    CtlProcess process(dir, command[0], args, {"CYCLONEDDS_URI=" + config});
+    const CtlRun r = process.Wait(60s);
+    EXPECT_EQ(r.exit_code, 5) << command[0] << ": " << Describe(r);
+    EXPECT_LT(r.seconds, 2.0 + 8.0) << command[0] << " took too long beyond its 2 s timeout";
+    EXPECT_NE(r.err.find("craftscand"), std::string::npos) << r.err;
+    EXPECT_NE(r.err.find("domain " + domain), std::string::npos) << r.err;
+    EXPECT_NE(r.err.find("CYCLONEDDS_URI"), std::string::npos) << r.err;
+  }
+  std::error_code ignored;
+  std::filesystem::remove_all(dir, ignored);
+}
+
+}  // namespace
+}  // namespace craftscan::testing

@@ -9,6 +9,7 @@
 #include <algorithm>
 #include <chrono>
 #include <cstdio>
+#include <optional>
 #include <random>
 #include <set>
 #include <string>
@@ -98,13 +99,18 @@ TEST(DaemonCrash, TwentyScansKilledAtRandomMomentsLoseNothing) {
     ASSERT_TRUE(fixture.Start(&error)) << error;
     ASSERT_TRUE(client.WaitFor([](StationClient& c) { return c.last_status_state == "idle"; }, 60s))
         << fixture.Log();
-    const auto sessions = client.Send("get", {{"session", session_id}}, kObserverToken);
-    ASSERT_TRUE(sessions);
+    // The status seen may still be the killed daemon's (transient-local) and
+    // its endpoints linger until their lease ends: ask until the new one answers.
+    std::optional<ReplyRecord> sessions;
+    for (int attempt = 0; attempt < 9 && !sessions; ++attempt) {
+      sessions = client.Send("get", {{"session", session_id}}, kObserverToken, 10s);
+    }
+    ASSERT_TRUE(sessions) << fixture.Log();
     ASSERT_EQ(sessions->code_name, "ok") << sessions->message;
     const std::string state = sessions->result["manifest"]["state"];
     if (state == "done") continue;
     ASSERT_EQ(state, "interrupted") << "scan " << scan;
-    const auto resume = client.Send("resume", {{"session", session_id}}, kOperatorToken);
+    const auto resume = client.Send("resume", {{"session", session_id}}, kOperatorToken, 30s);
     ASSERT_TRUE(resume);
     ASSERT_EQ(resume->code_name, "ok") << resume->message;
     const nlohmann::json job = WaitForJobEnd(client, resume->result["id"], 120s);

@@ -37,9 +37,7 @@ nlohmann::json WaitForJobEnd(StationClient& client, const std::string& id, std::
   return {{"state", "still running after the timeout"}};
 }
 
-// Disabled in the default run until it has passed again after the restart-race fix
-// (run it with --gtest_also_run_disabled_tests).
-TEST(DaemonCrash, DISABLED_TwentyScansKilledAtRandomMomentsLoseNothing) {
+TEST(DaemonCrash, TwentyScansKilledAtRandomMomentsLoseNothing) {
   // No mesh: Poisson is the slowest stage and not what this test is about.
   DaemonFixture fixture("320x256");
   fixture.pipeline_extra = ", mesh: false";

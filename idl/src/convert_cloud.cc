@@ -272,6 +272,9 @@ bool CloudFromPointCloud2(const ros::PointCloud2& message, PointCloud* cloud, st
   cloud->normals.clear();
   cloud->colors_rgb.clear();
   const std::size_t total = static_cast<std::size_t>(message.width) * message.height;
+  // No points: done, however many empty rows the header claims (walking
+  // 2^31 of them took seconds; found by tests/fuzz).
+  if (total == 0) return true;
   cloud->points_mm.reserve(total);
   if (has_normals) cloud->normals.reserve(total);
   if (has_rgb) cloud->colors_rgb.reserve(total);

@@ -6,6 +6,7 @@
 #include <cerrno>
 #include <cmath>
 #include <cstring>
+#include <exception>
 #include <filesystem>
 #include <opencv2/core.hpp>
 #include <string>
@@ -355,6 +356,10 @@ bool LoadCalibration(const std::string& path, StereoCalibration* calibration, st
     if (!ReadCalibration(storage, in, &loaded)) return false;
   } catch (const cv::Exception& e) {
     return in.Fail(std::string("malformed YAML: ") + calib_internal::CvErrorText(e));
+  } catch (const std::exception& e) {
+    // OpenCV's parser lets std::length_error through on some malformed keys
+    // (found by tests/fuzz).
+    return in.Fail(std::string("malformed YAML: ") + e.what());
   }
   *calibration = std::move(loaded);
   return true;

@@ -14,12 +14,9 @@
 CRAFTSCAN_FUZZ_TARGET(auth) {
   const std::string yaml(reinterpret_cast<const char*>(data), size);
   std::string error;
-  const std::optional<daemon::TokenAuthority> authority = daemon::TokenAuthority::Parse(yaml, &error);
-  Report(authority.has_value(), error);
-  if (!authority) {
-    CRAFTSCAN_FUZZ_CHECK(!error.empty());
-    return 0;
-  }
+  const std::optional<daemon::TokenAuthority> authority =
+      daemon::TokenAuthority::Parse(yaml, &error);
+  if (!Outcome(authority.has_value(), error)) return 0;
   const std::size_t newline = yaml.rfind('\n');
   std::string token = newline == std::string::npos ? yaml : yaml.substr(newline + 1);
   if (!token.empty() && token.front() == '#') token.erase(0, 1);  // a YAML comment line

@@ -95,14 +95,11 @@ CRAFTSCAN_FUZZ_TARGET(commands) {
   daemon::CommandLimits limits;
   limits.max_argument_bytes = 4096;  // small enough for the fuzzer to reach too_large
   const daemon::CommandCheck check = daemon::CheckCommand(request, limits, &Tokens());
-  Report(check.ok(), std::string(daemon::ToString(check.code)) + ": " + check.message);
-  if (!check.ok()) {
-    CRAFTSCAN_FUZZ_CHECK(!check.message.empty());
-    CRAFTSCAN_FUZZ_CHECK(check.code == ReplyCode::kTooLarge || check.code == ReplyCode::kBadRequest ||
-                         check.code == ReplyCode::kUnauthenticated ||
-                         check.code == ReplyCode::kUnknownVerb ||
-                         check.code == ReplyCode::kForbidden ||
-                         check.code == ReplyCode::kBadArgument);
+  if (!Outcome(check.ok(), check.message)) {
+    CRAFTSCAN_FUZZ_CHECK(
+        check.code == ReplyCode::kTooLarge || check.code == ReplyCode::kBadRequest ||
+        check.code == ReplyCode::kUnauthenticated || check.code == ReplyCode::kUnknownVerb ||
+        check.code == ReplyCode::kForbidden || check.code == ReplyCode::kBadArgument);
     CRAFTSCAN_FUZZ_CHECK(check.code != ReplyCode::kUnauthenticated || who >= 3);
     return 0;
   }
@@ -116,9 +113,9 @@ CRAFTSCAN_FUZZ_TARGET(commands) {
   try {
     ReadLikeDispatch(request.verb, check.arguments);
   } catch (const std::exception& e) {
-    CheckFailed((std::string("an accepted command's arguments read without error: ") + e.what())
-                    .c_str(),
-                __FILE__, __LINE__);
+    CheckFailed(
+        (std::string("an accepted command's arguments read without error: ") + e.what()).c_str(),
+        __FILE__, __LINE__);
   }
   return 0;
 }

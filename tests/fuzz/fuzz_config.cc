@@ -33,10 +33,7 @@ CRAFTSCAN_FUZZ_TARGET(config) {
   config.station = "sentinel";  // must survive a failure
   config.scan.views = 77;
   std::string error;
-  const bool accepted = daemon::ParseDaemonConfig(yaml, env, &config, &error);
-  Report(accepted, error);
-  if (!accepted) {
-    CRAFTSCAN_FUZZ_CHECK(!error.empty());
+  if (!Outcome(daemon::ParseDaemonConfig(yaml, env, &config, &error), error)) {
     CRAFTSCAN_FUZZ_CHECK(config.station == "sentinel" && config.scan.views == 77);
     return 0;
   }

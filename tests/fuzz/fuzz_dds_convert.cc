@@ -103,12 +103,8 @@ void FuzzPointCloud2(FuzzInput& in) {
   craftscan::PointCloud cloud;
   cloud.points_mm.resize(2);  // must be replaced
   std::string error, why;
-  const bool accepted = craftscan::dds::CloudFromPointCloud2(m, &cloud, &error);
-  craftscan::fuzz::Report(accepted, error);
-  if (!accepted) {
-    CRAFTSCAN_FUZZ_CHECK(!error.empty());
+  if (!craftscan::fuzz::Outcome(craftscan::dds::CloudFromPointCloud2(m, &cloud, &error), error))
     return;
-  }
   CRAFTSCAN_FUZZ_CHECK(cloud.IsValid(&why));
   CRAFTSCAN_FUZZ_CHECK(cloud.size() <= static_cast<std::uint64_t>(m.width) * m.height);
 }
@@ -138,12 +134,8 @@ void FuzzCloudMessage(FuzzInput& in) {
   craftscan::PointCloud cloud;
   craftscan::dds::CloudMeta meta;
   std::string error, why;
-  const bool accepted = craftscan::dds::CloudFromMessage(m, &cloud, &meta, &error);
-  craftscan::fuzz::Report(accepted, error);
-  if (!accepted) {
-    CRAFTSCAN_FUZZ_CHECK(!error.empty());
+  if (!craftscan::fuzz::Outcome(craftscan::dds::CloudFromMessage(m, &cloud, &meta, &error), error))
     return;
-  }
   CRAFTSCAN_FUZZ_CHECK(cloud.IsValid(&why));
   CRAFTSCAN_FUZZ_CHECK(cloud.size() == m.point_count);
 }
@@ -168,13 +160,9 @@ void FuzzImage(FuzzInput& in) {
 
   cv::Mat mat;
   std::string error;
-  const bool accepted = craftscan::dds::ImageToMat(m, &mat, &error);
-  craftscan::fuzz::Report(accepted, error);
-  if (!accepted) {
-    CRAFTSCAN_FUZZ_CHECK(!error.empty());
-    return;
-  }
-  CRAFTSCAN_FUZZ_CHECK(mat.rows == static_cast<int>(m.height) && mat.cols == static_cast<int>(m.width));
+  if (!craftscan::fuzz::Outcome(craftscan::dds::ImageToMat(m, &mat, &error), error)) return;
+  CRAFTSCAN_FUZZ_CHECK(mat.rows == static_cast<int>(m.height) &&
+                       mat.cols == static_cast<int>(m.width));
   CRAFTSCAN_FUZZ_CHECK(static_cast<int>(mat.elemSize()) == EncodingBytes(m.encoding));
   TouchAll(mat);
 }
@@ -201,12 +189,9 @@ void FuzzStereoCapture(FuzzInput& in) {
 
   cv::Mat left_mat, right_mat;
   std::string error;
-  const bool accepted = craftscan::dds::StereoCaptureToMats(m, &left_mat, &right_mat, &error);
-  craftscan::fuzz::Report(accepted, error);
-  if (!accepted) {
-    CRAFTSCAN_FUZZ_CHECK(!error.empty());
+  if (!craftscan::fuzz::Outcome(
+          craftscan::dds::StereoCaptureToMats(m, &left_mat, &right_mat, &error), error))
     return;
-  }
   CRAFTSCAN_FUZZ_CHECK(left_mat.size() == right_mat.size() && left_mat.type() == right_mat.type());
   CRAFTSCAN_FUZZ_CHECK(left_mat.rows == static_cast<int>(m.height) &&
                        left_mat.cols == static_cast<int>(m.width));
@@ -229,12 +214,7 @@ void FuzzDisparity(FuzzInput& in) {
 
   cv::Mat mat;
   std::string error;
-  const bool accepted = craftscan::dds::DisparityToMat(m, &mat, &error);
-  craftscan::fuzz::Report(accepted, error);
-  if (!accepted) {
-    CRAFTSCAN_FUZZ_CHECK(!error.empty());
-    return;
-  }
+  if (!craftscan::fuzz::Outcome(craftscan::dds::DisparityToMat(m, &mat, &error), error)) return;
   CRAFTSCAN_FUZZ_CHECK(mat.type() == CV_32FC1 && mat.rows == static_cast<int>(m.height) &&
                        mat.cols == static_cast<int>(m.width));
   TouchAll(mat);
@@ -245,11 +225,21 @@ void FuzzDisparity(FuzzInput& in) {
 CRAFTSCAN_FUZZ_TARGET(dds_convert) {
   FuzzInput in(data, size);
   switch (in.Small(4)) {
-    case 0: FuzzPointCloud2(in); break;
-    case 1: FuzzCloudMessage(in); break;
-    case 2: FuzzImage(in); break;
-    case 3: FuzzStereoCapture(in); break;
-    default: FuzzDisparity(in); break;
+    case 0:
+      FuzzPointCloud2(in);
+      break;
+    case 1:
+      FuzzCloudMessage(in);
+      break;
+    case 2:
+      FuzzImage(in);
+      break;
+    case 3:
+      FuzzStereoCapture(in);
+      break;
+    default:
+      FuzzDisparity(in);
+      break;
   }
   return 0;
 }

@@ -49,8 +49,6 @@ CRAFTSCAN_FUZZ_TARGET(grbl) {
     pieces.Feed(bytes.substr(pos, chunk), &in_pieces);
     CRAFTSCAN_FUZZ_CHECK(pieces.pending_bytes() <= max_line);
   }
-  Report(true, "");
-
   for (const GrblReply& reply : at_once) {
     // Positions are numbers: "MPos:nan" must not become a NaN position.
     CRAFTSCAN_FUZZ_CHECK(!reply.status.x || std::isfinite(*reply.status.x));

@@ -12,19 +12,14 @@ CRAFTSCAN_FUZZ_TARGET(manifest) {
   const std::string_view text(reinterpret_cast<const char*>(data), size);
   daemon::Manifest manifest;
   std::string error;
-  const bool accepted = daemon::ManifestFromJson(text, &manifest, &error);
-  Report(accepted, error);
-  if (!accepted) {
-    CRAFTSCAN_FUZZ_CHECK(!error.empty());
-    return 0;
-  }
+  if (!Outcome(daemon::ManifestFromJson(text, &manifest, &error), error)) return 0;
   CRAFTSCAN_FUZZ_CHECK(daemon::IsValidSessionId(manifest.id));
   std::string json;
   try {
     json = daemon::ManifestToJson(manifest);
   } catch (const std::exception& e) {
-    CheckFailed((std::string("an accepted manifest can be written: ") + e.what()).c_str(),
-                __FILE__, __LINE__);
+    CheckFailed((std::string("an accepted manifest can be written: ") + e.what()).c_str(), __FILE__,
+                __LINE__);
   }
   daemon::Manifest again;
   if (!daemon::ManifestFromJson(json, &again, &error)) {

@@ -15,13 +15,7 @@ CRAFTSCAN_FUZZ_TARGET(pfm) {
       WriteTempFile("input.pfm", std::string_view(reinterpret_cast<const char*>(data), size));
   cv::Mat image;
   std::string error;
-  const bool accepted = ReadPfm(path, &image, &error);
-  Report(accepted, error);
-  if (!accepted) {
-    CRAFTSCAN_FUZZ_CHECK(!error.empty());
-    CRAFTSCAN_FUZZ_CHECK(!IsOutOfMemoryMessage(error));
-    return 0;
-  }
+  if (!Outcome(ReadPfm(path, &image, &error), error)) return 0;
   CRAFTSCAN_FUZZ_CHECK(!image.empty());
   CRAFTSCAN_FUZZ_CHECK(image.type() == CV_32FC1 || image.type() == CV_32FC3);
   CRAFTSCAN_FUZZ_CHECK(image.rows >= 1 && image.rows <= 32768 && image.cols >= 1 &&

@@ -8,6 +8,8 @@
 namespace craftscan::fuzz {
 namespace {
 
+std::string_view current_input;  // fuzz targets run one input at a time
+
 // The per-process temp folder; removed when the process exits normally.
 class TempFolder {
  public:
@@ -47,19 +49,25 @@ void CheckFailed(const char* what, const char* file, int line) {
   std::abort();
 }
 
-bool IsOutOfMemoryMessage(const std::string& error) {
-  return error.find("bad_alloc") != std::string::npos ||
-         error.find("Insufficient memory") != std::string::npos;
+void SetCurrentInput(const std::uint8_t* data, std::size_t size) {
+  current_input = std::string_view(reinterpret_cast<const char*>(data), size);
 }
 
-void Report(bool accepted, const std::string& error) {
+bool Outcome(bool accepted, const std::string& error) {
   static const bool verbose = std::getenv("CRAFTSCAN_FUZZ_VERBOSE") != nullptr;
-  if (!verbose) return;
-  if (accepted) {
-    std::fprintf(stderr, "accepted\n");
-  } else {
-    std::fprintf(stderr, "refused: %s\n", error.c_str());
+  if (verbose) {
+    std::fprintf(stderr, "%s%s\n",
+                 accepted ? "accepted" : "refused: ", accepted ? "" : error.c_str());
   }
+  if (accepted) return true;
+  CRAFTSCAN_FUZZ_CHECK(!error.empty());
+  for (const std::string_view marker : {"bad_alloc", "Insufficient memory"}) {
+    if (error.find(marker) != std::string::npos &&
+        current_input.find(marker) == std::string_view::npos) {
+      CheckFailed("the error is not a failed allocation", __FILE__, __LINE__);
+    }
+  }
+  return false;
 }
 
 std::string WriteTempFile(const std::string& name, std::string_view bytes) {
@@ -68,7 +76,8 @@ std::string WriteTempFile(const std::string& name, std::string_view bytes) {
   std::FILE* file = std::fopen(path.c_str(), "wb");
   if (file == nullptr) CheckFailed("the temp file can be opened", __FILE__, __LINE__);
   const bool written = std::fwrite(bytes.data(), 1, bytes.size(), file) == bytes.size();
-  if (std::fclose(file) != 0 || !written) CheckFailed("the temp file is written", __FILE__, __LINE__);
+  if (std::fclose(file) != 0 || !written)
+    CheckFailed("the temp file is written", __FILE__, __LINE__);
   return path;
 }
 

@@ -4,7 +4,8 @@
 //
 //   CRAFTSCAN_FUZZ_TARGET(ply) { ...; return 0; }
 //
-// which defines craftscan::fuzz::ply::TestOneInput(data, size). In a fuzzer
+// which defines craftscan::fuzz::ply::TestOneInput(data, size) running the
+// body. In a fuzzer
 // build (CRAFTSCAN_FUZZER defined, linked with -fsanitize=fuzzer) it also
 // defines libFuzzer's LLVMFuzzerTestOneInput; the replay test
 // (test_fuzz_replay, normal builds) links every target and calls the
@@ -26,17 +27,20 @@ namespace craftscan::fuzz {
 // Prints "fuzz check failed: <what> at <file>:<line>" and aborts.
 [[noreturn]] void CheckFailed(const char* what, const char* file, int line);
 
-// With CRAFTSCAN_FUZZ_VERBOSE set in the environment, prints what the parser
-// said about the input ("accepted" or its error) to stderr: a way to see
-// what a seed or a regression input exercises. Otherwise does nothing.
-void Report(bool accepted, const std::string& error);
+// Checks a parser's outcome: a refusal must come with a message that names
+// the problem and is not a failed allocation (std::bad_alloc, OpenCV's
+// "Insufficient memory"): a small input must never make a parser ask for
+// gigabytes (libFuzzer's malloc limit catches such requests directly;
+// test_fuzz_replay limits the address space so that they fail and show
+// here). With CRAFTSCAN_FUZZ_VERBOSE set in the environment, also prints
+// "accepted" or the message to stderr, to see what an input exercises.
+// (A message that only quotes the input, e.g. a keyword "bad_alloc" in a
+// PLY header, is no failed allocation: markers found in the input are
+// ignored.) Returns `accepted`.
+bool Outcome(bool accepted, const std::string& error);
 
-// Whether a parser's error message reports a failed allocation (std::bad_alloc,
-// OpenCV's "Insufficient memory") rather than something wrong with the input:
-// a small input must never make a parser ask for gigabytes. (libFuzzer's
-// malloc limit catches such requests directly; test_fuzz_replay limits the
-// process's memory so that they fail, and this shows it.)
-bool IsOutOfMemoryMessage(const std::string& error);
+// Records the input being run, for Outcome (CRAFTSCAN_FUZZ_TARGET does this).
+void SetCurrentInput(const std::uint8_t* data, std::size_t size);
 
 // A file path for parsers that take one: `bytes` are written to
 // <per-process temp folder>/<name> (replacing it) and its path returned. The
@@ -92,25 +96,30 @@ class FuzzInput {
 
 }  // namespace craftscan::fuzz
 
-#define CRAFTSCAN_FUZZ_CHECK(condition)                                       \
-  do {                                                                        \
+#define CRAFTSCAN_FUZZ_CHECK(condition)                                               \
+  do {                                                                                \
     if (!(condition)) ::craftscan::fuzz::CheckFailed(#condition, __FILE__, __LINE__); \
   } while (false)
 
 #ifdef CRAFTSCAN_FUZZER
-#define CRAFTSCAN_FUZZ_ENTRY_(name)                                                \
+#define CRAFTSCAN_FUZZ_ENTRY_(name)                                                   \
   extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size) { \
-    return ::craftscan::fuzz::name::TestOneInput(data, size);                      \
+    return ::craftscan::fuzz::name::TestOneInput(data, size);                         \
   }
 #else
 #define CRAFTSCAN_FUZZ_ENTRY_(name)
 #endif
 
-// Defines craftscan::fuzz::<name>::TestOneInput (body follows the macro) and,
-// in fuzzer builds, LLVMFuzzerTestOneInput calling it. The body returns 0.
-#define CRAFTSCAN_FUZZ_TARGET(name)                                         \
-  namespace craftscan::fuzz::name {                                         \
-  int TestOneInput(const std::uint8_t* data, std::size_t size);             \
-  }                                                                         \
-  CRAFTSCAN_FUZZ_ENTRY_(name)                                               \
-  int craftscan::fuzz::name::TestOneInput(const std::uint8_t* data, std::size_t size)
+// Defines craftscan::fuzz::<name>::TestOneInput, which records the input
+// (SetCurrentInput) and runs the body that follows the macro, and, in fuzzer
+// builds, LLVMFuzzerTestOneInput calling it. The body returns 0.
+#define CRAFTSCAN_FUZZ_TARGET(name)                              \
+  namespace craftscan::fuzz::name {                              \
+  int Body(const std::uint8_t* data, std::size_t size);          \
+  int TestOneInput(const std::uint8_t* data, std::size_t size) { \
+    ::craftscan::fuzz::SetCurrentInput(data, size);              \
+    return Body(data, size);                                     \
+  }                                                              \
+  }                                                              \
+  CRAFTSCAN_FUZZ_ENTRY_(name)                                    \
+  int craftscan::fuzz::name::Body(const std::uint8_t* data, std::size_t size)

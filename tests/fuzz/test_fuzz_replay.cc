@@ -18,8 +18,8 @@
 #include <string>
 #include <vector>
 
-#define CRAFTSCAN_DECLARE_FUZZ_TARGET(name) \
-  namespace craftscan::fuzz::name {         \
+#define CRAFTSCAN_DECLARE_FUZZ_TARGET(name)                     \
+  namespace craftscan::fuzz::name {                             \
   int TestOneInput(const std::uint8_t* data, std::size_t size); \
   }
 CRAFTSCAN_DECLARE_FUZZ_TARGET(ply)

@@ -5,8 +5,10 @@
 #include <unistd.h>
 
 #include <cerrno>
+#include <cstdlib>
 #include <cstring>
 #include <filesystem>
+#include <fstream>
 
 namespace craftscan {
 namespace {
@@ -33,6 +35,15 @@ bool WriteAll(int fd, std::string_view bytes) {
 
 }  // namespace
 
+unsigned ProcessUmask() {
+  std::ifstream status("/proc/self/status");
+  for (std::string line; std::getline(status, line);) {
+    if (line.rfind("Umask:", 0) == 0)
+      return static_cast<unsigned>(std::strtoul(line.c_str() + 6, nullptr, 8)) & 0777;
+  }
+  return 022;
+}
+
 bool WriteFileAtomically(const std::string& path, std::string_view bytes, std::string* error) {
   namespace fs = std::filesystem;
   if (path.empty()) {
@@ -54,7 +65,7 @@ bool WriteFileAtomically(const std::string& path, std::string_view bytes, std::s
   const char* failed = nullptr;
   if (!WriteAll(fd, bytes)) {
     failed = "cannot write";
-  } else if (::fchmod(fd, 0644) != 0) {  // mkstemp creates 0600
+  } else if (::fchmod(fd, 0666 & ~ProcessUmask()) != 0) {  // mkstemp creates 0600
     failed = "cannot set permissions";
   } else if (::fsync(fd) != 0) {
     failed = "cannot fsync";

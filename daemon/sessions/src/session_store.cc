@@ -108,7 +108,7 @@ std::unique_ptr<Session> SessionStore::Create(std::string_view object_name, std:
   }
   auto lock = std::make_unique<Session::Lock>();
   std::string why;
-  bool ok = ::chmod(tmp.c_str(), 0755) == 0;  // mkdtemp gives 0700
+  bool ok = ::chmod(tmp.c_str(), 0777 & ~ProcessUmask()) == 0;  // mkdtemp gives 0700
   if (!ok) why = "'" + tmp + "': cannot set permissions: " + std::strerror(errno);
   ok = ok && lock->dir.Acquire(tmp, nullptr, &why);
   std::string id;

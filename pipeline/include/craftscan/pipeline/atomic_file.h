@@ -7,11 +7,20 @@
 namespace craftscan {
 
 // Writes `bytes` to `path` atomically: a hidden temporary beside `path` (same
-// file system) is written, given mode 0644, fsync'ed and renamed over `path`;
+// file system) is written, given mode 0666 less the process umask (0644
+// under the usual 022, 0640 under craftscand.service's UMask=0027), fsync'ed
+// and renamed over `path`;
 // then the folder is fsync'ed so the rename is durable. On failure the
 // temporary is removed and any previous file at `path` is untouched. Returns
 // false and sets *error (may be null) to "'<path or temporary>': <what>:
 // <strerror>". Never throws. Thread-safe for distinct paths.
 bool WriteFileAtomically(const std::string& path, std::string_view bytes, std::string* error);
+
+// The process umask, read without changing it (umask() would, racing other
+// threads that create files): the "Umask:" line of /proc/self/status; 022
+// where that is missing (Linux < 4.7). For code that creates a file or
+// folder with a restrictive mode first (mkstemp, mkdtemp) and then widens
+// it: widen to 0666 / 0777 less this. Thread-safe.
+unsigned ProcessUmask();
 
 }  // namespace craftscan

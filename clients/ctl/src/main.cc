@@ -106,7 +106,7 @@ int main(int argc, char** argv) {
   }
   app.add_option("--station", g.station, "station id (craftscand's `station`)")->capture_default_str();
   app.add_option("--domain", g.domain, "DDS domain id (craftscand's `dds.domain`)")
-      ->check(CLI::Range(0, 230))
+      ->check(CLI::Range(0, 232))
       ->capture_default_str();
   app.add_option("--token", g.token, "authorisation token (else --token-file or CRAFTSCAN_TOKEN)");
   app.add_option("--token-file", g.token_file, "file whose first line is the token");

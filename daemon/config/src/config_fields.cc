@@ -186,7 +186,12 @@ bool IsIdentifier(std::string_view text, std::size_t max_length) {
            ch == '_';
   });
 }
-bool IsStationId(std::string_view text) { return IsIdentifier(text, 32); }
+// Starting with a letter: the station id is a token of DDS/ROS 2 topic names
+// (dds::IsValidStationId), where a leading digit is refused.
+bool IsStationId(std::string_view text) {
+  return IsIdentifier(text, 32) &&
+         ((text[0] >= 'a' && text[0] <= 'z') || (text[0] >= 'A' && text[0] <= 'Z'));
+}
 bool IsDriverName(std::string_view text) { return IsIdentifier(text, 64); }
 
 Field PluginPathField() {
@@ -290,7 +295,7 @@ std::vector<Field> MakeFields() {
   std::vector<Field> f;
   f.push_back(StringField(
       "station", [](DaemonConfig& c) -> std::string& { return c.station; }, IsStationId,
-      "1 to 32 characters of A-Z, a-z, 0-9, _"));
+      "1 to 32 characters of A-Z, a-z, 0-9, _, starting with a letter"));
   f.push_back(StringField(
       "data_dir", [](DaemonConfig& c) -> std::string& { return c.data_dir; }, IsAbsolutePath,
       "an absolute path"));
@@ -349,7 +354,7 @@ std::vector<Field> MakeFields() {
                         [](DaemonConfig& c) -> double& { return c.calibration.max_rms_px; },
                         {0, 10, true}));
   f.push_back(IntField(
-      "scan.views", [](DaemonConfig& c) -> int& { return c.scan.views; }, 1, 360));
+      "scan.views", [](DaemonConfig& c) -> int& { return c.scan.views; }, 2, 360));
   f.push_back(RealField("scan.step_deg", [](DaemonConfig& c) -> double& { return c.scan.step_deg; },
                         {0, 360, true}));
   f.push_back(IntField(
@@ -358,7 +363,7 @@ std::vector<Field> MakeFields() {
                         [](DaemonConfig& c) -> double& { return c.scan.exposure_us; },
                         {0, 1e7, true}));
   f.push_back(RealField("scan.gain_db", [](DaemonConfig& c) -> double& { return c.scan.gain_db; },
-                        {0, 60}));
+                        {0, 48}));
   f.push_back(IntField(
       "pipeline.threads", [](DaemonConfig& c) -> int& { return c.pipeline.threads; }, 1, 256));
   f.push_back(IntField(

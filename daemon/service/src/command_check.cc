@@ -1,6 +1,8 @@
-// The checks of a command before the daemon acts on it (CheckCommand) and the
-// reply codes' names. Pure: no jobs, devices or files, so the fuzzers and
+// The checks of a command before the daemon acts on it (CheckCommand), the
+// reply codes' names and the flood protection (CutCommandRequest,
+// CommandRateLimiter). Pure: no jobs, devices or files, so the fuzzers and
 // tests can run it alone.
+#include <algorithm>
 #include <cmath>
 #include <map>
 #include <utility>
@@ -179,8 +181,10 @@ CommandCheck CheckCommand(const CommandRequest& request, const CommandLimits& li
     check.identity.reset();
     return check;
   };
-  if (request.arguments.size() > limits.max_argument_bytes) {
-    return refuse(ReplyCode::kTooLarge, "arguments are " + std::to_string(request.arguments.size()) +
+  const std::size_t argument_bytes =
+      std::max(request.arguments.size(), request.received_arguments_bytes);
+  if (argument_bytes > limits.max_argument_bytes) {
+    return refuse(ReplyCode::kTooLarge, "arguments are " + std::to_string(argument_bytes) +
                                             " bytes; the limit is " +
                                             std::to_string(limits.max_argument_bytes));
   }
@@ -224,6 +228,64 @@ CommandCheck CheckCommand(const CommandRequest& request, const CommandLimits& li
   }
   check.code = ReplyCode::kOk;
   return check;
+}
+
+CommandRequest CutCommandRequest(std::string_view request_id, std::string_view client,
+                                 std::string_view token, std::string_view verb,
+                                 std::string_view arguments, const CommandLimits& limits) {
+  auto cut = [](std::string_view text, std::size_t limit) {
+    return std::string(text.size() > limit ? text.substr(0, limit + 1) : text);
+  };
+  CommandRequest request;
+  request.request_id = cut(request_id, limits.max_field_bytes);
+  request.client = cut(client, limits.max_field_bytes);
+  request.token = cut(token, limits.max_field_bytes);
+  request.verb = cut(verb, limits.max_field_bytes);
+  request.arguments = cut(arguments, limits.max_argument_bytes);
+  if (request.arguments.size() < arguments.size()) request.received_arguments_bytes = arguments.size();
+  return request;
+}
+
+bool IsQueryVerb(std::string_view verb) {
+  return verb == "status" || verb == "devices" || verb == "sessions" || verb == "get";
+}
+
+double TokenBucket::Level(Clock::time_point now) const {
+  const double elapsed_s = std::chrono::duration<double>(now - last_).count();
+  return std::min(burst_, tokens_ + std::max(0.0, elapsed_s) * rate_per_s_);
+}
+
+bool TokenBucket::Take(Clock::time_point now) {
+  tokens_ = Level(now);
+  last_ = std::max(last_, now);
+  if (tokens_ < 1) return false;
+  tokens_ -= 1;
+  return true;
+}
+
+bool TokenBucket::Full(Clock::time_point now) const { return Level(now) >= burst_; }
+
+bool CommandRateLimiter::Admit(std::string_view client, Clock::time_point now) {
+  const std::string name(client.substr(0, CommandLimits{}.max_field_bytes));
+  auto it = buckets_.find(name);
+  if (it == buckets_.end()) {
+    if (buckets_.size() >= kMaxRateLimitedClients) {
+      std::erase_if(buckets_, [&](const auto& entry) { return entry.second.Full(now); });
+    }
+    if (buckets_.size() >= kMaxRateLimitedClients) {
+      if (!shared_) shared_.emplace(kClientCommandsPerSecond, kClientCommandBurst, now);
+      return shared_->Take(now);
+    }
+    it = buckets_.emplace(name, TokenBucket(kClientCommandsPerSecond, kClientCommandBurst, now)).first;
+  }
+  return it->second.Take(now);
+}
+
+std::string CommandRateLimiter::RefusalMessage(std::string_view client) {
+  return "busy: too many commands from client '" +
+         std::string(client.substr(0, CommandLimits{}.max_field_bytes)) + "' (more than " +
+         std::to_string(static_cast<int>(kClientCommandsPerSecond)) + " a second, bursts of " +
+         std::to_string(static_cast<int>(kClientCommandBurst)) + "); slow down and retry";
 }
 
 }  // namespace craftscan::daemon

@@ -56,7 +56,12 @@ CommandHandler::CommandHandler(CommandLimits limits, const TokenAuthority* token
                                DeviceManager* devices, SessionStore* store,
                                std::function<nlohmann::json()> status)
     : limits_(limits), tokens_(tokens), jobs_(jobs), devices_(devices), store_(store),
-      status_(std::move(status)) {}
+      store_unavailable_("the session store is not open"), status_(std::move(status)) {}
+
+void CommandHandler::SetStore(SessionStore* store, std::string why_unavailable) {
+  store_ = store;
+  store_unavailable_ = std::move(why_unavailable);
+}
 
 CommandReply CommandHandler::Handle(const CommandRequest& request) {
   CommandReply reply;
@@ -100,6 +105,10 @@ CommandReply CommandHandler::Dispatch(const std::string& verb, const nlohmann::j
     return done(ReplyCode::kBusy, "busy: " + current.id + " (" + current.verb + ") is running",
                 JobJson(current));
   }
+  const bool needs_store = verb == "sessions" || verb == "get" || verb == "capture" ||
+                           verb == "scan" || verb == "resume" || verb == "calibrate" ||
+                           verb == "calibrate-turntable";
+  if (needs_store && !store_) return done(ReplyCode::kUnavailable, store_unavailable_);
   if (job_verb && !devices_->IsOpen()) {
     return done(ReplyCode::kUnavailable, "the devices are not open; see the status topic");
   }

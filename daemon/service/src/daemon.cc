@@ -1,6 +1,7 @@
 #include "craftscan/daemon/daemon.h"
 
 #include <fcntl.h>
+#include <malloc.h>
 #include <sys/stat.h>
 #include <unistd.h>
 
@@ -33,6 +34,9 @@ namespace craftscan::daemon {
 namespace {
 
 using Clock = std::chrono::steady_clock;
+
+// How often an unusable data directory is tried again (like the devices).
+constexpr std::chrono::seconds kStoreRetryInterval{10};
 
 std::int64_t WallNs() {
   return std::chrono::duration_cast<std::chrono::nanoseconds>(
@@ -402,11 +406,47 @@ struct Daemon::Impl {
   std::unique_ptr<CommandHandler> handler;
   std::atomic<bool> status_dirty{true};
   std::string last_error;
+  // Why the session store is not open ("" when it is): the station serves
+  // degraded (status, devices) and OpenStore() is retried.
+  std::string storage_error;
   std::string state = "starting";
 
   nlohmann::json StatusJson() const;
   void PublishStatus();
+  // last_error and storage_error, as the status shows them.
+  std::string Problems() const;
+  // Tries to open the session store; on success marks unfinished sessions
+  // interrupted and hands the store to the jobs and commands, else records
+  // why in storage_error and has the commands refuse what needs it.
+  bool OpenStore();
 };
+
+std::string Daemon::Impl::Problems() const {
+  if (storage_error.empty()) return last_error;
+  if (last_error.empty()) return storage_error;
+  return last_error + "; " + storage_error;
+}
+
+bool Daemon::Impl::OpenStore() {
+  std::string why;
+  store = SessionStore::Open(config.data_dir, &why);
+  if (!store) {
+    storage_error = "data_dir: " + why;
+    handler->SetStore(nullptr, "storage unavailable: " + why + " (craftscand retries every " +
+                                   std::to_string(kStoreRetryInterval.count()) + " s)");
+    jobs->SetStore(nullptr);
+    return false;
+  }
+  std::vector<std::string> problems;
+  for (const std::string& id : store->MarkInterrupted(&problems)) {
+    spdlog::warn("session {} was unfinished: marked interrupted", id);
+  }
+  for (const std::string& p : problems) spdlog::error("sessions: {}", p);
+  storage_error.clear();
+  jobs->SetStore(store.get());
+  handler->SetStore(store.get(), "");
+  return true;
+}
 
 nlohmann::json Daemon::Impl::StatusJson() const {
   nlohmann::json devices_json = nlohmann::json::array();
@@ -421,7 +461,10 @@ nlohmann::json Daemon::Impl::StatusJson() const {
           {"job", {{"id", job.id}, {"verb", job.verb}, {"state", ToString(job.state)},
                    {"session", job.session}, {"stage", job.stage}, {"progress", job.progress},
                    {"message", job.message}, {"result", job.result}}},
-          {"last_error", last_error},
+          {"last_error", Problems()},
+          {"storage", {{"data_dir", config.data_dir},
+                       {"ok", store != nullptr},
+                       {"error", storage_error}}},
           {"calibration_id", jobs->calibration_id()}};
 }
 
@@ -447,7 +490,7 @@ void Daemon::Impl::PublishStatus() {
   m.job_verb = out.Keep(job.verb);
   m.job_state = out.Keep(ToString(job.state));
   m.progress = job.progress;
-  m.last_error = out.Keep(last_error);
+  m.last_error = out.Keep(Problems());
   m.stamp_ns = WallNs();
   m.calibration_id = out.Keep(jobs->calibration_id());
   std::string error;
@@ -463,11 +506,6 @@ std::unique_ptr<Daemon> Daemon::Create(const DaemonConfig& config, std::string* 
   std::string why;
   if (!config.IsValid(&why)) {
     *error = "config: " + why;
-    return nullptr;
-  }
-  impl->store = SessionStore::Open(config.data_dir, &why);
-  if (!impl->store) {
-    *error = "data_dir: " + why;
     return nullptr;
   }
   impl->tokens = TokenAuthority::Load(config.auth.tokens_file, &why);
@@ -536,16 +574,18 @@ std::unique_ptr<Daemon> Daemon::Create(const DaemonConfig& config, std::string* 
   impl->handler = std::make_unique<CommandHandler>(
       limits, &*impl->tokens, impl->jobs.get(), impl->devices.get(), impl->store.get(),
       [raw] { return raw->StatusJson(); });
+  // An unusable data directory (read-only, missing, a disk not mounted yet)
+  // is not fatal: the station serves degraded and Run() retries.
+  if (!impl->OpenStore()) {
+    spdlog::error("{} (serving without sessions; retrying every {} s)", impl->storage_error,
+                  kStoreRetryInterval.count());
+  }
   return std::unique_ptr<Daemon>(new Daemon(std::move(impl)));
 }
 
 int Daemon::Run() {
   Impl& d = *impl_;
   std::string error;
-  std::vector<std::string> problems;
-  const std::vector<std::string> interrupted = d.store->MarkInterrupted(&problems);
-  for (const std::string& id : interrupted) spdlog::warn("session {} was unfinished: marked interrupted", id);
-  for (const std::string& p : problems) spdlog::error("sessions: {}", p);
   if (const auto c = d.jobs->calibration()) d.publisher.CalibrationChanged(*c);
 
   d.notifier.Status("opening devices");
@@ -556,11 +596,12 @@ int Daemon::Run() {
     d.state = "error";
     spdlog::error("devices: {} (retrying every 10 s)", error);
   } else {
-    d.state = "idle";
+    d.state = d.store ? "idle" : "degraded";
   }
-  // Ready once the devices were tried: a station without its hardware still
-  // serves status and sessions, and says why in STATUS= and StationStatus.
-  d.notifier.Ready(d.state == "idle" ? "ready: devices up" : "degraded: " + d.last_error);
+  // Ready once the devices were tried: a station without its hardware or
+  // its data directory still serves what it can, and says why in STATUS=
+  // and StationStatus.
+  d.notifier.Ready(d.state == "idle" ? "ready: devices up" : "degraded: " + d.Problems());
   spdlog::info("craftscand serving station '{}' on DDS domain {}", d.config.station,
                d.config.dds.domain);
 
@@ -568,19 +609,40 @@ int Daemon::Run() {
                                                        : std::chrono::microseconds(0);
   auto last_ping = Clock::time_point{};
   auto last_status = Clock::now();
+  auto last_store_try = Clock::now();
   std::string last_job_state, last_summary;
   dds::Sample<dds::msg::Command> command;
+  // Flood protection (commands.h, "Floods"): a rate per client name, at most
+  // kRefusalLogsPerSecond refusals logged one by one (the rest are counted
+  // and summed up every second), and the buffers of a sample above
+  // kReleaseAboveBytes handed back rather than kept for the next Take.
+  constexpr double kRefusalLogsPerSecond = 10;
+  constexpr std::size_t kReleaseAboveBytes = std::size_t{1} << 20;
+  CommandRateLimiter rate_limiter;
+  TokenBucket refusal_log(kRefusalLogsPerSecond, 2 * kRefusalLogsPerSecond, Clock::now());
+  std::size_t unlogged_refusals = 0;
+  auto last_refusal_summary = Clock::now();
+  bool was_busy = false;
   while (!stop_.load()) {
     const dds::TakeStatus taken =
         d.command_reader->Take(std::chrono::milliseconds(100), &command, &error);
     if (taken == dds::TakeStatus::kOk) {
-      CommandRequest request;
-      request.request_id = std::string(dds::View(command->request_id));
-      request.client = std::string(dds::View(command->client));
-      request.token = std::string(dds::View(command->token));
-      request.verb = std::string(dds::View(command->verb));
-      request.arguments = std::string(dds::View(command->arguments));
-      CommandReply reply = d.handler->Handle(request);
+      const auto received = Clock::now();
+      const std::string_view fields[] = {dds::View(command->request_id), dds::View(command->client),
+                                         dds::View(command->token), dds::View(command->verb),
+                                         dds::View(command->arguments)};
+      const CommandRequest request = CutCommandRequest(fields[0], fields[1], fields[2], fields[3],
+                                                       fields[4], d.handler->limits());
+      CommandReply reply;
+      if (rate_limiter.Admit(request.client, received)) {
+        reply = d.handler->Handle(request);
+      } else {
+        const std::size_t cut = d.handler->limits().max_field_bytes;
+        reply.request_id = request.request_id.substr(0, cut);
+        reply.client = request.client.substr(0, cut);
+        reply.code = ReplyCode::kBusy;
+        reply.message = CommandRateLimiter::RefusalMessage(request.client);
+      }
       if (reply.transfer && !d.files.HasRoom()) {
         reply.code = ReplyCode::kBusy;
         reply.message = "busy: " + std::to_string(kMaxQueuedTransfers) +
@@ -590,9 +652,11 @@ int Daemon::Run() {
       }
       spdlog::debug("command {} '{}' from '{}': {}", reply.request_id, request.verb.substr(0, 64),
                     reply.client, ToString(reply.code));
-      if (reply.code != ReplyCode::kOk) {
+      if (reply.code != ReplyCode::kOk && refusal_log.Take(received)) {
         spdlog::info("command {} '{}' from '{}': {}: {}", reply.request_id, request.verb.substr(0, 64),
                      reply.client, ToString(reply.code), reply.message);
+      } else if (reply.code != ReplyCode::kOk) {
+        ++unlogged_refusals;
       }
       dds::Outgoing<dds::msg::Reply> out;
       out.msg().request_id = out.Keep(reply.request_id);
@@ -608,10 +672,25 @@ int Daemon::Run() {
       if (reply.transfer) {
         d.files.Enqueue(reply.request_id, reply.client, std::move(*reply.transfer));
       }
-      d.status_dirty = true;
+      // A refusal or a query changes nothing the status shows (a started
+      // job is seen below); republishing for each would echo a flood.
+      if (reply.code == ReplyCode::kOk && !IsQueryVerb(request.verb)) d.status_dirty = true;
+      std::size_t received_bytes = 0;
+      for (const std::string_view field : fields) received_bytes += field.size();
+      if (received_bytes > kReleaseAboveBytes) {
+        command.Reset();
+        ::malloc_trim(0);
+      }
     } else if (taken == dds::TakeStatus::kError) {
       spdlog::warn("command topic: {}", error);
       std::this_thread::sleep_for(std::chrono::milliseconds(100));
+    }
+    if (unlogged_refusals > 0 && Clock::now() - last_refusal_summary >= std::chrono::seconds(1)) {
+      spdlog::warn("{} more commands refused in the last second(s), not logged one by one "
+                   "(is a client flooding?)",
+                   unlogged_refusals);
+      unlogged_refusals = 0;
+      last_refusal_summary = Clock::now();
     }
 
     const auto now = Clock::now();
@@ -619,11 +698,29 @@ int Daemon::Run() {
     if (!d.devices->IsOpen() && !d.jobs->Busy() && now - last_open_try > std::chrono::seconds(10)) {
       last_open_try = now;
       if (d.devices->Open(&error)) {
-        d.state = "idle";
+        d.state = d.store ? "idle" : "degraded";
         d.last_error.clear();
         d.notifier.Status("ready: devices up");
       } else {
         d.last_error = "devices: " + error;
+      }
+      d.status_dirty = true;
+    }
+    // So is a data directory that was not usable.
+    if (!d.store && now - last_store_try >= kStoreRetryInterval) {
+      last_store_try = now;
+      if (d.OpenStore()) {
+        spdlog::info("data directory '{}' is usable: serving sessions", d.config.data_dir);
+        if (!d.jobs->calibration()) {  // it may have been unreadable until now
+          if (!d.jobs->LoadCurrentCalibration(&error)) {
+            d.last_error = "calibration: " + error;
+          } else if (const auto c = d.jobs->calibration()) {
+            d.publisher.CalibrationChanged(*c);
+          }
+        }
+        if (d.devices->IsOpen()) d.state = d.jobs->Busy() ? "busy" : "idle";
+      } else {
+        spdlog::debug("{}", d.storage_error);
       }
       d.status_dirty = true;
     }
@@ -633,13 +730,21 @@ int Daemon::Run() {
       last_job_state = job_state;
       d.status_dirty = true;
       if (job.state == JobState::kFailed) d.last_error = job.message;
-      if (d.devices->IsOpen()) d.state = d.jobs->Busy() ? "busy" : "idle";
+      if (d.devices->IsOpen()) d.state = d.jobs->Busy() ? "busy" : d.store ? "idle" : "degraded";
     }
+    // A job's images and clouds were freed on its threads' malloc arenas,
+    // which glibc keeps for reuse; hand the free pages back when it ends, so
+    // that the daemon's RSS between jobs is what it holds (measured by
+    // test_daemon_soak), not the sum of what its threads once held.
+    const bool busy = d.jobs->Busy();
+    if (was_busy && !busy) ::malloc_trim(0);
+    was_busy = busy;
     // STATUS= when a job starts or ends (not per stage: each is a datagram
     // the service manager must read).
-    const std::string summary = d.jobs->Busy() ? "busy: " + job.id + " " + job.verb
-                                               : "idle; last job " + job.id + " " +
-                                                     std::string(ToString(job.state));
+    const std::string summary = !d.store         ? "degraded: " + d.storage_error
+                                : d.jobs->Busy() ? "busy: " + job.id + " " + job.verb
+                                                 : "idle; last job " + job.id + " " +
+                                                       std::string(ToString(job.state));
     if (summary != last_summary) {
       last_summary = summary;
       d.notifier.Status(summary);

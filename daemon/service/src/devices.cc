@@ -81,6 +81,7 @@ bool DeviceManager::OpenLocked(const DeviceSpec& camera_spec, const DeviceSpec& 
   if (s = turntable->Home(setup_.home_timeout); !s.ok())
     return Fail(error, "turntable: " + s.ToString());
   {
+    std::lock_guard devices_lock(devices_mutex_);
     std::lock_guard lock(mutex_);
     camera_ = std::move(camera);
     turntable_ = std::move(turntable);
@@ -96,7 +97,7 @@ void DeviceManager::Close() {
   std::unique_ptr<drivers::StereoCamera> camera;
   std::unique_ptr<drivers::Turntable> turntable;
   {
-    std::lock_guard lock(mutex_);
+    std::lock_guard lock(devices_mutex_);
     camera = std::move(camera_);
     turntable = std::move(turntable_);
   }
@@ -113,19 +114,16 @@ void DeviceManager::Close() {
 }
 
 std::vector<DeviceReport> DeviceManager::Reports() const {
-  std::lock_guard lock(mutex_);
-  std::vector<DeviceReport> out;
-  out.push_back({"camera", "stereo_camera", setup_.camera.driver,
-                 camera_ ? std::string(drivers::ToString(camera_->state())) : "absent",
-                 camera_message_});
-  std::string turntable_state = "absent";
-  if (turntable_) {
-    const drivers::TurntableStatus status = turntable_->Status();
-    turntable_state = std::string(drivers::ToString(status.state));
+  std::string camera_state = "absent", turntable_state = "absent";
+  {
+    std::lock_guard lock(devices_mutex_);
+    if (camera_) camera_state = std::string(drivers::ToString(camera_->state()));
+    if (turntable_) turntable_state = std::string(drivers::ToString(turntable_->Status().state));
   }
-  out.push_back({"turntable", "turntable", setup_.turntable.driver, turntable_state,
-                 turntable_message_});
-  return out;
+  std::lock_guard lock(mutex_);
+  return {{"camera", "stereo_camera", setup_.camera.driver, camera_state, camera_message_},
+          {"turntable", "turntable", setup_.turntable.driver, turntable_state,
+           turntable_message_}};
 }
 
 bool DeviceManager::IsSim() const { return setup_.camera.driver == "sim"; }
@@ -208,10 +206,23 @@ bool DeviceManager::Home(std::string* error) {
   return true;
 }
 
+bool DeviceManager::PrepareTurntable(std::string* error) {
+  if (!turntable_) return Fail(error, "turntable: not open");
+  const drivers::TurntableStatus status = turntable_->Status();
+  if (status.state == drivers::TurntableState::kReady) return true;
+  std::string why = "turntable is " + std::string(drivers::ToString(status.state));
+  if (!status.fault_reason.empty()) why += " (" + status.fault_reason + ")";
+  if (log_) log_(drivers::LogLevel::kInfo, why + ": homing it before the job");
+  Note("turntable", why + "; homing");
+  std::string home_error;
+  if (!Home(&home_error)) return Fail(error, why + "; homing failed: " + home_error);
+  return true;
+}
+
 bool DeviceManager::AbortMove() { return turntable_ && turntable_->Abort().ok(); }
 
 drivers::TurntableStatus DeviceManager::TurntableStatusNow() const {
-  std::lock_guard lock(mutex_);
+  std::lock_guard lock(devices_mutex_);
   return turntable_ ? turntable_->Status() : drivers::TurntableStatus{};
 }
 

@@ -1,6 +1,8 @@
 #include "craftscan/daemon/jobs.h"
 
+#include <fcntl.h>
 #include <sys/stat.h>
+#include <unistd.h>
 
 #include <cerrno>
 #include <cmath>
@@ -46,6 +48,32 @@ cv::Matx44d WorldFromView(const StereoCalibration& c, double angle_deg) {
   return rz * TurntableFromRig(c.turntable);
 }
 
+// The operator's next step after a storage error about a path below `dir`
+// (recognised by that path and the strerror text the store's messages end
+// with), as " (disk full: free space in ..., <then>)"; "" for other errors
+// (a device error may say "Permission denied" too).
+std::string StorageAdvice(const std::string& error, const std::string& dir,
+                          const std::string& data_dir, const std::string& then) {
+  if (dir.empty() || error.find(dir) == std::string::npos) return {};
+  const auto says = [&](int code) { return error.find(std::strerror(code)) != std::string::npos; };
+  std::string what;
+  if (says(ENOSPC) || says(EDQUOT)) {
+    what = "disk full: free space in the data directory '" + data_dir + "'";
+  } else if (says(EROFS)) {
+    what = "the data directory '" + data_dir + "' is read-only: make it writable";
+  } else if (says(EACCES) || says(EPERM)) {
+    what = "craftscand may not write in the data directory '" + data_dir + "': fix its permissions";
+  } else if (says(EIO)) {
+    what = "I/O error on the data disk '" + data_dir + "': check the disk";
+  } else {
+    return {};
+  }
+  return " (" + what + ", then " + then + ")";
+}
+
+// See JobEngine::kReserveBytes.
+std::string ReservePath(const std::string& data_dir) { return data_dir + "/.craftscand-reserve"; }
+
 nlohmann::json FrameMeta(const drivers::StereoFrame& frame, double angle_deg) {
   return {{"angle_deg", angle_deg},
           {"exposure_us", frame.settings.exposure_us},
@@ -83,6 +111,59 @@ JobEngine::JobEngine(JobEngineOptions options, DeviceManager* devices, SessionSt
       log_(std::move(log)) {}
 
 JobEngine::~JobEngine() { Shutdown(); }
+
+SessionStore* JobEngine::Store(std::string* error) const {
+  SessionStore* store = store_.load();
+  if (!store) {
+    Fail(error, "the session store is not open: the data directory '" + options_.data_dir +
+                    "' is not usable (see the status)");
+  }
+  return store;
+}
+
+void JobEngine::EnsureReserve() {
+  const std::string path = ReservePath(options_.data_dir);
+  struct stat st{};
+  if (::stat(path.c_str(), &st) == 0 &&
+      static_cast<std::size_t>(st.st_blocks) * 512 >= kReserveBytes) {
+    return;
+  }
+  const int fd = ::open(path.c_str(), O_WRONLY | O_CREAT | O_CLOEXEC | O_NOFOLLOW, 0600);
+  if (fd < 0) return;  // read-only or gone: the job's first write says so
+  const int rc = ::posix_fallocate(fd, 0, static_cast<off_t>(kReserveBytes));
+  ::close(fd);
+  if (rc != 0) {
+    ::unlink(path.c_str());
+    if (log_) {
+      log_(drivers::LogLevel::kWarning, "cannot reserve " + std::to_string(kReserveBytes) +
+                                            " bytes in '" + path + "': " + std::strerror(rc));
+    }
+  }
+}
+
+bool JobEngine::RecordState(Session& session, SessionState state, const std::string& detail,
+                            std::string* error) {
+  std::string why;
+  if (session.SetState(state, detail, &why)) return true;
+  const bool full = why.find(std::strerror(ENOSPC)) != std::string::npos ||
+                    why.find(std::strerror(EDQUOT)) != std::string::npos;
+  if (full && ::unlink(ReservePath(options_.data_dir).c_str()) == 0) {
+    if (log_) {
+      log_(drivers::LogLevel::kWarning, "disk full: freed the reserve to mark session " +
+                                            session.id() + " " + ToString(state));
+    }
+    if (session.SetState(state, detail, &why)) return true;
+  }
+  return Fail(error, why);
+}
+
+void JobEngine::JoinFinishedWorker() {
+  {
+    std::lock_guard lock(mutex_);
+    if (running_) return;
+  }
+  if (worker_.joinable()) worker_.join();
+}
 
 bool JobEngine::LoadCurrentCalibration(std::string* error) {
   const std::string path = options_.data_dir + "/calibration/current.yaml";
@@ -211,7 +292,11 @@ void JobEngine::Shutdown() {
 bool JobEngine::StartScan(const ScanRequest& request, JobInfo* info, std::string* error) {
   const int views = request.views > 0 ? request.views : options_.default_views;
   if (views < 2 || views > 360) return Fail(error, "views must be in 2..360");
-  const double step = request.step_deg != 0 ? request.step_deg : 360.0 / views;
+  // A step given wins; views without a step make one full turn; neither:
+  // the configured scan.views and scan.step_deg.
+  const double step = request.step_deg != 0 ? request.step_deg
+                      : request.views > 0   ? 360.0 / views
+                                            : options_.default_step_deg;
   if (!std::isfinite(step) || std::abs(step) < 0.1 || std::abs(step) * (views - 1) > 720) {
     return Fail(error, "step_deg must be finite, |step| >= 0.1 and span at most 720 degrees");
   }
@@ -221,6 +306,9 @@ bool JobEngine::StartScan(const ScanRequest& request, JobInfo* info, std::string
     return Fail(error, "the calibration has no turntable axis: run calibrate-turntable first");
   }
   if (Busy()) return Fail(error, "busy: " + Current().id + " (" + Current().verb + ") is running");
+  SessionStore* store = Store(error);
+  if (!store) return false;
+  EnsureReserve();
   auto plan = std::make_shared<ScanPlan>();
   plan->calibration = *calibration;
   plan->views = views;
@@ -229,11 +317,15 @@ bool JobEngine::StartScan(const ScanRequest& request, JobInfo* info, std::string
                                  {"client", request.client},
                                  {"calibration_id", calibration_id()}};
   plan->session =
-      store_->Create(request.object, "scan", params, std::chrono::system_clock::now(), error);
-  if (!plan->session) return false;
+      store->Create(request.object, "scan", params, std::chrono::system_clock::now(), error);
+  if (!plan->session) {
+    *error += StorageAdvice(*error, store->sessions_dir(), options_.data_dir, "try again");
+    return false;
+  }
   const std::string current = options_.data_dir + "/calibration/current.yaml";
   if (!plan->session->CopyCalibration(current, calibration_id(), error)) {
-    plan->session->SetState(SessionState::kFailed, *error, nullptr);
+    RecordState(*plan->session, SessionState::kFailed, *error, nullptr);
+    *error += StorageAdvice(*error, store->sessions_dir(), options_.data_dir, "try again");
     return false;
   }
   return Launch("scan", plan->session->id(), [this, plan] { RunScan(plan); }, info, error);
@@ -243,17 +335,24 @@ bool JobEngine::StartCapture(const std::string& object, JobInfo* info, std::stri
   const std::optional<StereoCalibration> calibration = this->calibration();
   if (!calibration) return Fail(error, "no calibration: run calibrate first");
   if (Busy()) return Fail(error, "busy: " + Current().id + " (" + Current().verb + ") is running");
+  SessionStore* store = Store(error);
+  if (!store) return false;
+  EnsureReserve();
   auto plan = std::make_shared<ScanPlan>();
   plan->calibration = *calibration;
   plan->views = 1;
   plan->step_deg = 0;
   plan->reconstruct = false;
-  plan->session = store_->Create(object, "capture", {{"views", 1}, {"step_deg", 0}},
-                                 std::chrono::system_clock::now(), error);
-  if (!plan->session) return false;
+  plan->session = store->Create(object, "capture", {{"views", 1}, {"step_deg", 0}},
+                                std::chrono::system_clock::now(), error);
+  if (!plan->session) {
+    *error += StorageAdvice(*error, store->sessions_dir(), options_.data_dir, "try again");
+    return false;
+  }
   if (!plan->session->CopyCalibration(options_.data_dir + "/calibration/current.yaml",
                                       calibration_id(), error)) {
-    plan->session->SetState(SessionState::kFailed, *error, nullptr);
+    RecordState(*plan->session, SessionState::kFailed, *error, nullptr);
+    *error += StorageAdvice(*error, store->sessions_dir(), options_.data_dir, "try again");
     return false;
   }
   return Launch("capture", plan->session->id(), [this, plan] { RunScan(plan); }, info, error);
@@ -261,14 +360,24 @@ bool JobEngine::StartCapture(const std::string& object, JobInfo* info, std::stri
 
 bool JobEngine::StartResume(const std::string& session_id, JobInfo* info, std::string* error) {
   if (Busy()) return Fail(error, "busy: " + Current().id + " (" + Current().verb + ") is running");
+  SessionStore* store = Store(error);
+  if (!store) return false;
+  JoinFinishedWorker();  // the last job's session lock goes with its thread
+  EnsureReserve();
   auto plan = std::make_shared<ScanPlan>();
-  plan->session = store_->OpenSession(session_id, error);
+  plan->session = store->OpenSession(session_id, error);
   if (!plan->session) return false;
   const SessionState state = plan->session->state();
   if (state == SessionState::kDone) return Fail(error, "session " + session_id + " is already done");
-  if (state != SessionState::kInterrupted && state != SessionState::kFailed) {
-    return Fail(error, "session " + session_id + " is " + std::string(ToString(state)) +
-                           "; only interrupted or failed sessions resume");
+  if (IsActive(state)) {
+    // Its lock is ours, so no job runs it: the one that did could not
+    // record its end (e.g. the disk was full).
+    if (!RecordState(*plan->session, SessionState::kInterrupted,
+                     std::string("found ") + ToString(state) + " with no job running it",
+                     error)) {
+      *error += StorageAdvice(*error, plan->session->dir(), options_.data_dir, "resume it");
+      return false;
+    }
   }
   const nlohmann::json params = plan->session->params();
   plan->views = params.value("views", 0);
@@ -290,12 +399,18 @@ void JobEngine::RunScan(const std::shared_ptr<ScanPlan>& plan) {
   ViewProcessor processor;
   ViewProcessorOptions view_options = options_.view;
   view_options.num_threads = options_.threads;
+  const auto advice = [&](const std::string& e) {
+    return StorageAdvice(e, session.dir(), options_.data_dir, "resume " + sid);
+  };
   if (!processor.Init(plan->calibration, view_options, &error)) {
-    session.SetState(SessionState::kFailed, error, nullptr);
+    RecordState(session, SessionState::kFailed, error, nullptr);
     Finish(JobState::kFailed, error);
     return;
   }
-  session.SetState(SessionState::kCapturing, "job " + Current().id, nullptr);
+  if (!session.SetState(SessionState::kCapturing, "job " + Current().id, &error)) {
+    Finish(JobState::kFailed, error + advice(error), {{"session", sid}});
+    return;
+  }
 
   struct Captured {
     int view;
@@ -378,6 +493,7 @@ void JobEngine::RunScan(const std::shared_ptr<ScanPlan>& plan) {
   });
 
   // Stage 1 on this thread: capture what is not durable yet, hand on the rest.
+  bool turntable_prepared = false;  // homed first if an earlier job left it faulted
   try {
     for (int k = 0; k < n && !cancel_; ++k) {
       const double angle = k * plan->step_deg;
@@ -400,6 +516,10 @@ void JobEngine::RunScan(const std::shared_ptr<ScanPlan>& plan) {
         const auto start = std::chrono::steady_clock::now();
         SetStage("capture", k, n, "moving to " + std::to_string(angle) + " deg");
         if (n > 1 || plan->step_deg != 0) {
+          if (!turntable_prepared && !(turntable_prepared = devices_->PrepareTurntable(&error))) {
+            fail("view " + std::to_string(k) + ": " + error, true);
+            break;
+          }
           if (!devices_->MoveTo(angle, &error)) {
             fail("view " + std::to_string(k) + ": " + error, true);
             break;
@@ -436,9 +556,15 @@ void JobEngine::RunScan(const std::shared_ptr<ScanPlan>& plan) {
   if (first_error.empty() && cancel_) fail("cancelled", true);
   if (!first_error.empty()) {
     const SessionState state = resumable ? SessionState::kInterrupted : SessionState::kFailed;
-    session.SetState(state, first_error, nullptr);
+    std::string message = first_error + advice(first_error);
+    std::string why;
+    const bool recorded = RecordState(session, state, first_error, &why);
+    if (!recorded) {
+      message += "; it could not be marked " + std::string(ToString(state)) + " (" + why +
+                 "): resume marks it";
+    }
     Finish(first_error == "cancelled" ? JobState::kCancelled : JobState::kFailed,
-           "session " + sid + " " + std::string(ToString(state)) + ": " + first_error,
+           "session " + sid + " " + (recorded ? ToString(state) : "stopped") + ": " + message,
            {{"session", sid}});
     return;
   }
@@ -446,12 +572,23 @@ void JobEngine::RunScan(const std::shared_ptr<ScanPlan>& plan) {
   nlohmann::json result = {{"session", sid}, {"views", n},
                            {"capture_ms", capture_ms}, {"match_ms", match_ms}};
   if (!plan->reconstruct) {
-    session.SetState(SessionState::kDone, "capture stored", nullptr);
+    if (!RecordState(session, SessionState::kDone, "capture stored", &error)) {
+      Finish(JobState::kFailed,
+             "session " + sid + ": the view is stored but the session could not be marked done: " +
+                 error + advice(error),
+             {{"session", sid}});
+      return;
+    }
     Finish(JobState::kDone, "session " + sid + ": 1 view captured", result);
     return;
   }
 
-  session.SetState(SessionState::kReconstructing, "registration, fusion, mesh", nullptr);
+  if (!session.SetState(SessionState::kReconstructing, "registration, fusion, mesh", &error)) {
+    RecordState(session, SessionState::kInterrupted, error, nullptr);
+    Finish(JobState::kFailed, "session " + sid + " interrupted: " + error + advice(error),
+           {{"session", sid}});
+    return;
+  }
   SetStage("register", 0, 1, "registering " + std::to_string(n) + " views");
   std::vector<ScanView> views;
   for (auto& c : clouds) {
@@ -467,7 +604,7 @@ void JobEngine::RunScan(const std::shared_ptr<ScanPlan>& plan) {
   const double reconstruct_ms =
       std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count();
   if (!r.IsUsable()) {
-    session.SetState(SessionState::kFailed, "reconstruction: " + r.message, nullptr);
+    RecordState(session, SessionState::kFailed, "reconstruction: " + r.message, nullptr);
     Finish(JobState::kFailed, "session " + sid + " failed: reconstruction: " + r.message,
            {{"session", sid}});
     return;
@@ -492,8 +629,14 @@ void JobEngine::RunScan(const std::shared_ptr<ScanPlan>& plan) {
   const std::string report = ScanReportJson(r);
   written = written && session.StoreOutput("report.json", report, &error);
   if (!written) {
-    session.SetState(SessionState::kFailed, "outputs: " + error, nullptr);
-    Finish(JobState::kFailed, "session " + sid + " failed: " + error, {{"session", sid}});
+    // Storage, not the pipeline: resumable like a capture that failed.
+    std::string message = error + advice(error);
+    std::string why;
+    const bool recorded = RecordState(session, SessionState::kInterrupted, "outputs: " + error, &why);
+    if (!recorded) message += "; it could not be marked interrupted (" + why + "): resume marks it";
+    Finish(JobState::kFailed,
+           "session " + sid + (recorded ? " interrupted: " : " stopped: ") + message,
+           {{"session", sid}});
     return;
   }
   // The page people look at: measurements, calibration, registration and
@@ -530,8 +673,14 @@ void JobEngine::RunScan(const std::shared_ptr<ScanPlan>& plan) {
     result["report_ms"] = files.render_ms;
   }
   if (sink_) sink_->Cloud(sid, -1, r.fused, cv::Matx44d::eye());
-  session.SetState(SessionState::kDone, "fused " + std::to_string(r.fused.size()) + " points",
-                   nullptr);
+  if (!RecordState(session, SessionState::kDone,
+                   "fused " + std::to_string(r.fused.size()) + " points", &error)) {
+    Finish(JobState::kFailed,
+           "session " + sid + ": the outputs are stored but the session could not be marked done: " +
+               error + advice(error),
+           {{"session", sid}});
+    return;
+  }
   result["fused_points"] = r.fused.size();
   result["mesh_vertices"] = r.mesh.mesh.vertices_mm.size();
   result["reconstruct_ms"] = reconstruct_ms;
@@ -691,6 +840,11 @@ void JobEngine::RunCalibrateTurntable() {
   }
   std::vector<TurntableStep> steps;
   const auto& angles = options_.turntable_angles_deg;
+  if (!devices_->PrepareTurntable(&error)) {
+    devices_->SwitchScene("object", nullptr, nullptr);
+    Finish(JobState::kFailed, "calibrate-turntable: " + error);
+    return;
+  }
   for (std::size_t i = 0; i < angles.size() && !cancel_; ++i) {
     drivers::StereoFrame frame;
     if (!devices_->MoveTo(angles[i], &error)) break;

@@ -379,10 +379,9 @@ class AravisCameraImpl final : public AravisStereoCamera {
     CloseLocked();
   }
 
-  CameraState state() const noexcept override {
-    std::lock_guard lock(mutex_);
-    return state_;
-  }
+  // Without the lock: a Capture or Reconnect holds it for seconds, and the
+  // host asks for the state meanwhile (status reports).
+  CameraState state() const noexcept override { return state_.load(); }
   CameraInfo info() const noexcept override {
     std::lock_guard lock(mutex_);
     return info_;
@@ -1125,7 +1124,7 @@ class AravisCameraImpl final : public AravisStereoCamera {
   const drivers::Reconnector reconnector_;
   const UsbSourceFactory usb_source_;
   Cam left_, right_;
-  CameraState state_ = CameraState::kClosed;
+  std::atomic<CameraState> state_{CameraState::kClosed};  // written under mutex_
   CameraState before_loss_ = CameraState::kClosed;
   std::string lost_message_;
   CameraInfo info_;

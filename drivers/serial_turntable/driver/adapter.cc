@@ -170,7 +170,10 @@ class SerialTurntable final : public drivers::Turntable {
         std::lock_guard lock(mutex_);
         if (state == GrblTurntable::State::kFault || state == GrblTurntable::State::kDeviceLost) {
           if (!result.ok()) {
-            fault_reason_ = (state == GrblTurntable::State::kDeviceLost ? "device lost: " : "") +
+            // "device lost: " unless the code already says it (a hang-up).
+            const bool say_lost = state == GrblTurntable::State::kDeviceLost &&
+                                  result.code != StatusCode::kDeviceLost;
+            fault_reason_ = (say_lost ? "device lost: " : "") +
                             std::string(ToString(result.code)) + ": " + result.message;
           }
         } else {

@@ -153,10 +153,14 @@ INSTANTIATE_TEST_SUITE_P(
     EveryField, BadValueTest,
     ::testing::Values(
         BadValue{"station: st-1\n",
-                 "station: must be 1 to 32 characters of A-Z, a-z, 0-9, _, got 'st-1'"},
+                 "station: must be 1 to 32 characters of A-Z, a-z, 0-9, _, starting with a letter, got "
+                 "'st-1'"},
+        BadValue{"station: 2nd_floor\n", "station: must be 1 to 32 characters of A-Z, a-z, 0-9, "
+                                         "_, starting with a letter, got '2nd_floor'"},
         BadValue{"station: abcdefghijklmnopqrstuvwxyz0123456\n", "station: must be 1 to 32"},
         BadValue{"station: \"\"\n",
-                 "station: must be 1 to 32 characters of A-Z, a-z, 0-9, _, got nothing"},
+                 "station: must be 1 to 32 characters of A-Z, a-z, 0-9, _, starting with a letter, "
+                 "got nothing"},
         BadValue{"data_dir: relative/dir\n",
                  "data_dir: must be an absolute path, got 'relative/dir'"},
         BadValue{"log_level: verbose\n",
@@ -215,8 +219,8 @@ INSTANTIATE_TEST_SUITE_P(
                  "calibration.max_rms_px: must be a number in (0, 10], got '0'"},
         BadValue{"calibration: {max_rms_px: nan}\n",
                  "calibration.max_rms_px: must be a number in (0, 10], got 'nan'"},
-        BadValue{"scan: {views: abc}\n", "scan.views: must be an integer in 1..360, got 'abc'"},
-        BadValue{"scan: {views: 0}\n", "scan.views: must be an integer in 1..360, got '0'"},
+        BadValue{"scan: {views: abc}\n", "scan.views: must be an integer in 2..360, got 'abc'"},
+        BadValue{"scan: {views: 1}\n", "scan.views: must be an integer in 2..360, got '1'"},
         BadValue{"scan: {views: 12}\n",
                  "scan.step_deg: 12 views × 60° = 720° is more than a full turn"},
         BadValue{"scan: {step_deg: 0}\n", "scan.step_deg: must be a number in (0, 360], got '0'"},
@@ -226,7 +230,7 @@ INSTANTIATE_TEST_SUITE_P(
                  "scan.settle_ms: must be an integer in 0..60000, got '60001'"},
         BadValue{"scan: {exposure_us: 0}\n",
                  "scan.exposure_us: must be a number in (0, 10000000], got '0'"},
-        BadValue{"scan: {gain_db: -3}\n", "scan.gain_db: must be a number in [0, 60], got '-3'"},
+        BadValue{"scan: {gain_db: -3}\n", "scan.gain_db: must be a number in [0, 48], got '-3'"},
         BadValue{"pipeline: {threads: 0}\n",
                  "pipeline.threads: must be an integer in 1..256, got '0'"},
         BadValue{"pipeline: {min_disparity: 5000}\n",
@@ -249,7 +253,7 @@ INSTANTIATE_TEST_SUITE_P(
         BadValue{"watchdog: {enabled: 2}\n", "watchdog.enabled: must be true or false, got '2'"},
         BadValue{"scan: {views: [6]}\n", "scan.views: must be a single value, not a list"},
         BadValue{"scan: {views: {n: 6}}\n", "scan.views: must be a single value, not a mapping"},
-        BadValue{"scan: {views: }\n", "scan.views: must be an integer in 1..360, got nothing"},
+        BadValue{"scan: {views: }\n", "scan.views: must be an integer in 2..360, got nothing"},
         BadValue{"scan: 6\n", "scan: must be a mapping of keys"},
         BadValue{"scan: {views: 6, views: 8}\n", "scan.views: given more than once"}));
 
@@ -257,7 +261,7 @@ TEST(DaemonConfig, ErrorGivesTheLine) {
   DaemonConfig config;
   std::string error;
   EXPECT_FALSE(Parse("version: 1\nstation: s\n\nscan:\n  views: abc\n", &config, &error));
-  EXPECT_EQ(error, "scan.views: must be an integer in 1..360, got 'abc' (line 5)");
+  EXPECT_EQ(error, "scan.views: must be an integer in 2..360, got 'abc' (line 5)");
 }
 
 TEST(DaemonConfig, UnknownKeysAreRefusedWithTheirPath) {
@@ -343,7 +347,7 @@ TEST(DaemonConfig, BadOverrideNamesTheVariable) {
   DaemonConfig c;
   std::string error;
   EXPECT_FALSE(Parse("version: 1\n", &c, &error, {{"CRAFTSCAN_SCAN_VIEWS", "abc"}}));
-  EXPECT_EQ(error, "CRAFTSCAN_SCAN_VIEWS: scan.views: must be an integer in 1..360, got 'abc'");
+  EXPECT_EQ(error, "CRAFTSCAN_SCAN_VIEWS: scan.views: must be an integer in 2..360, got 'abc'");
   EXPECT_FALSE(Parse("version: 1\n", &c, &error, {{"CRAFTSCAN_DDS_DOMAIN", " 3"}}));
   EXPECT_THAT(error, HasSubstr("CRAFTSCAN_DDS_DOMAIN: dds.domain: must be an integer"));
   EXPECT_FALSE(Parse("version: 1\n", &c, &error, {{"CRAFTSCAN_PLUGINS_PATH", "lib"}}));
@@ -402,7 +406,7 @@ TEST_F(DaemonConfigFile, LoadPrefixesThePathAndReadsTheEnvironment) {
 
   const std::string bad = WriteBytes("bad.yaml", "version: 1\nscan: {views: 999}\n");
   EXPECT_FALSE(LoadDaemonConfig(bad, &c, &error));
-  EXPECT_EQ(error, bad + ": scan.views: must be an integer in 1..360, got '999' (line 2)");
+  EXPECT_EQ(error, bad + ": scan.views: must be an integer in 2..360, got '999' (line 2)");
 
   EXPECT_FALSE(LoadDaemonConfig(Path("absent.yaml"), &c, &error));
   EXPECT_THAT(error, HasSubstr("absent.yaml: cannot open"));

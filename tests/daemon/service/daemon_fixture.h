@@ -67,6 +67,13 @@ class DaemonFixture {
   // Appended inside the config's pipeline mapping by Prepare, e.g.
   // ", mesh: false" for tests that need no mesh.
   std::string pipeline_extra;
+  // When not empty, replaces the devices Prepare writes (the sim station):
+  // the YAML lines under "devices:", e.g. "  camera: {driver: aravis, ...}\n".
+  std::string devices_yaml;
+  // When not empty, craftscand is started through this command prefix (a
+  // launcher that execs the rest, e.g. tests/tools/hardened-run and its
+  // options), so pid() stays the daemon's.
+  std::vector<std::string> launcher;
 
   // Writes tokens, config and the exact sim calibration. False with *error.
   bool Prepare(std::string* error, bool with_calibration = true) {
@@ -86,12 +93,16 @@ class DaemonFixture {
            << "dds: {domain: " << domain_ << "}\n"
            << "auth: {tokens_file: " << root_ << "/tokens.yaml}\n"
            << "plugins: {path: [" << CRAFTSCAN_PLUGIN_DIR << "]}\n"
-           << "devices:\n"
-           << "  camera: {driver: sim, config: {image_size: " << image_size_
-           << ", threads: 2" << extra_sim_ << "}}\n"
-           << "  turntable: {driver: sim, config: {image_size: " << image_size_
-           << ", threads: 2" << extra_sim_ << "}}\n"
-           << "scan: {settle_ms: 0}\n"
+           << "devices:\n";
+    if (devices_yaml.empty()) {
+      config << "  camera: {driver: sim, config: {image_size: " << image_size_
+             << ", threads: 2" << extra_sim_ << "}}\n"
+             << "  turntable: {driver: sim, config: {image_size: " << image_size_
+             << ", threads: 2" << extra_sim_ << "}}\n";
+    } else {
+      config << devices_yaml;
+    }
+    config << "scan: {settle_ms: 0}\n"
            // The carved box (80 x 60 x 50 mm) with a margin: the band the
            // matcher searches follows from this volume.
            << "pipeline: {threads: 2, volume_radius_mm: 65, volume_max_height_mm: 70"
@@ -125,7 +136,9 @@ class DaemonFixture {
     envp.push_back(nullptr);
     const std::string config = root_ + "/craftscand.yaml";
     const std::string log = root_ + "/craftscand.log";
-    std::vector<std::string> args = {CRAFTSCAND_PATH, "--config", config};
+    std::vector<std::string> args = launcher;
+    for (const char* a : {CRAFTSCAND_PATH, "--config"}) args.push_back(a);
+    args.push_back(config);
     std::vector<char*> argv;
     for (std::string& a : args) argv.push_back(a.data());
     argv.push_back(nullptr);
@@ -133,7 +146,7 @@ class DaemonFixture {
     posix_spawn_file_actions_init(&actions);
     posix_spawn_file_actions_addopen(&actions, 2, log.c_str(), O_WRONLY | O_CREAT | O_APPEND, 0644);
     posix_spawn_file_actions_addopen(&actions, 1, log.c_str(), O_WRONLY | O_CREAT | O_APPEND, 0644);
-    const int r = posix_spawn(&pid_, CRAFTSCAND_PATH, &actions, nullptr, argv.data(), envp.data());
+    const int r = posix_spawn(&pid_, args[0].c_str(), &actions, nullptr, argv.data(), envp.data());
     posix_spawn_file_actions_destroy(&actions);
     if (r != 0) {
       *error = std::string("posix_spawn craftscand: ") + std::strerror(r);

@@ -208,6 +208,37 @@ TEST(Daemon, BadCommandsGetClearErrorsAndTheDaemonKeepsServing) {
   EXPECT_EQ(sessions->result["sessions"].size(), 1u);
 }
 
+// Every verb, every role: a role below the verb's gets `forbidden`; a role
+// that suffices passes the role check and gets to argument checking (an
+// unknown key makes that `bad_argument`, so nothing runs). The expected table
+// is DESIGN's, written out here independently of the daemon's.
+TEST(Daemon, TokenRolesAreEnforcedOnEveryVerb) {
+  auto r = StartDaemon("320x256");
+  ASSERT_TRUE(r);
+  StationClient& c = r->client;
+  const std::vector<std::pair<std::string, int>> verbs = {  // 0 observer, 1 operator, 2 admin
+      {"status", 0},    {"sessions", 0}, {"devices", 0},   {"get", 0},
+      {"capture", 1},   {"scan", 1},     {"cancel", 1},    {"resume", 1},
+      {"turntable", 1}, {"camera", 1},   {"calibrate", 2}, {"calibrate-turntable", 2}};
+  const std::vector<std::string> tokens = {kObserverToken, kOperatorToken, kAdminToken};
+  int forbidden = 0, passed = 0;
+  for (const auto& [verb, needed] : verbs) {
+    for (int role = 0; role < 3; ++role) {
+      const auto reply = c.SendRaw(verb, "{\"no_such_key\": 1}", tokens[role]);
+      ASSERT_TRUE(reply) << verb << " as role " << role << ": no reply";
+      const std::string expected = role < needed ? "forbidden" : "bad_argument";
+      EXPECT_EQ(reply->code_name, expected) << verb << " as role " << role << ": " << reply->message;
+      (expected == "forbidden" ? forbidden : passed) += reply->code_name == expected;
+    }
+  }
+  EXPECT_EQ(forbidden, 4 * 0 + 6 * 1 + 2 * 2);  // observer verbs forbid nobody
+  EXPECT_EQ(passed, 4 * 3 + 6 * 2 + 2 * 1);
+  // Nothing ran.
+  const auto sessions = c.Send("sessions", nullptr, kObserverToken);
+  ASSERT_TRUE(sessions);
+  EXPECT_EQ(sessions->result["sessions"].size(), 0u);
+}
+
 TEST(Daemon, SigkillDuringAScanLosesNothingAndResumeCompletesItWithoutRecapturing) {
   auto r = StartDaemon("640x512");
   ASSERT_TRUE(r);

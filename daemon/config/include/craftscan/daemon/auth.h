@@ -8,8 +8,8 @@
 //   observer  status, sessions, devices, get          read state, list, fetch results
 //   operator  capture, scan, cancel, resume,          run jobs and move the hardware
 //             turntable, camera
-//   admin     calibrate, calibrate-turntable,         change what every later scan
-//             config-set, reload                      depends on (calibration, config)
+//   admin     calibrate, calibrate-turntable          change what every later scan
+//                                                     depends on (the calibration)
 // Any other verb is unknown (std::nullopt): the daemon refuses it as such.
 //
 // Tokens file (YAML; auth.tokens_file in the daemon config):
@@ -18,7 +18,7 @@
 //     - {name: archive, token: "…", role: observer}
 // Load checks: a regular file, owned by the effective uid, no permission
 // bits for group or others (mode & 077 == 0); names [A-Za-z0-9_.@-]{1,64}
-// and unique; tokens 16..1024 printable ASCII characters without spaces and
+// and unique; tokens 16..128 printable ASCII characters without spaces and
 // unique; role one of observer, operator, admin; no other keys. An empty list
 // is allowed (every command is then refused). Generate tokens with e.g.
 // `openssl rand -base64 24`.

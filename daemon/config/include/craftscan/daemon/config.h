@@ -45,11 +45,11 @@
 //     views: 15                   3..1000 board views per calibration
 //     max_rms_px: 0.5             (0, 10] reprojection RMS accept threshold
 //   scan:
-//     views: 6                    1..360 views per scan
+//     views: 6                    2..360 views per scan
 //     step_deg: 60                (0, 360] turntable step; views × step_deg ≤ 360
 //     settle_ms: 200              0..60000 wait after a move before triggering
 //     exposure_us: 10000          (0, 10000000]
-//     gain_db: 0                  [0, 60]
+//     gain_db: 0                  [0, 48] (as the camera command)
 //   pipeline:
 //     threads: 2                  1..256 worker threads per stage
 //     min_disparity: 0            px, −4096..4096
@@ -161,11 +161,11 @@ struct CalibrationSettings {
 };
 
 struct ScanSettings {
-  int views = 6;               // views per scan, 1..360
+  int views = 6;               // views per scan, 2..360
   double step_deg = 60;        // turntable step between views (°), (0, 360]
   int settle_ms = 200;         // wait after a move before triggering (ms), 0..60000
   double exposure_us = 10000;  // µs, (0, 10000000]
-  double gain_db = 0;          // dB, [0, 60]
+  double gain_db = 0;          // dB, [0, 48]
 };
 
 struct PipelineSettings {

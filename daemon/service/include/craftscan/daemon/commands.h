@@ -3,6 +3,8 @@
 // JSON result. Every command is checked in this order, and the first failure
 // is the reply:
 //
+//   busy             the client sent more than its share of commands
+//                    (CommandRateLimiter, below; the service checks it first)
 //   too_large        the arguments exceed limits.max_command_bytes, or an id
 //                    or name is longer than 128 bytes
 //   bad_request      request id missing, arguments not a JSON object
@@ -13,9 +15,24 @@
 //                    (the message names the key)
 //   busy             a job is running (for verbs that start one)
 //   not_found        unknown session
-//   unavailable      the devices are not open
+//   unavailable      the devices are not open, or the session store is not
+//                    (SetStore: sessions, get and every verb that starts a
+//                    job needing the data directory)
 //   failed           the action was tried and failed (message says why)
 //   ok
+//
+// Floods. The command topic's reader keeps the last 16 samples (topics.h),
+// so commands arriving faster than the service answers them are lost in DDS
+// before the service sees them; what the service takes it answers, one Reply
+// each. So that a flood costs little per sample: each client name gets
+// kClientCommandsPerSecond with bursts of kClientCommandBurst, and commands
+// beyond that are answered `busy` without being parsed or acted on
+// (CommandRateLimiter); refused and read-only commands (IsQueryVerb) do not
+// republish StationStatus; the service logs at most a few refusals a second
+// and counts the rest; a field longer than its limit is measured, never
+// copied (CutCommandRequest). The client name is the sender's own claim: a
+// flooder that changes it every time gets a bucket per name, up to
+// kMaxRateLimitedClients, then all new names share one.
 //
 // Verbs (role; arguments):
 //   status, devices, sessions            observer; none
@@ -50,12 +67,14 @@
 // time; beyond that get answers busy.
 #pragma once
 
+#include <chrono>
 #include <cstdint>
 #include <functional>
 #include <memory>
 #include <optional>
 #include <string>
 #include <string_view>
+#include <unordered_map>
 #include <vector>
 
 #include <nlohmann/json.hpp>
@@ -86,6 +105,9 @@ std::string_view ToString(ReplyCode code);  // "ok", "bad_request", ...
 
 struct CommandRequest {
   std::string request_id, client, token, verb, arguments;  // arguments: JSON text ("" = {})
+  // The arguments' size as received when `arguments` holds only their
+  // first bytes (CutCommandRequest); 0: arguments.size() is the size.
+  std::size_t received_arguments_bytes = 0;
 };
 
 // Bounds of a get file transfer (see the top of this header).
@@ -123,6 +145,61 @@ struct CommandLimits {
   std::size_t max_field_bytes = 128;  // request id, client, verb, token, names
 };
 
+// The request for received strings: each copied up to one byte past its
+// limit (arguments: max_argument_bytes, the others: max_field_bytes), which
+// CheckCommand refuses as too_large on the size alone; the arguments' full
+// size goes to received_arguments_bytes for the message. So a 16 MB string
+// is measured, never copied.
+CommandRequest CutCommandRequest(std::string_view request_id, std::string_view client,
+                                 std::string_view token, std::string_view verb,
+                                 std::string_view arguments, const CommandLimits& limits);
+
+// True for the verbs that only read (status, devices, sessions, get): an
+// answer to them changes no state worth republishing.
+bool IsQueryVerb(std::string_view verb);
+
+// Commands one client name may send (see "Floods" at the top).
+inline constexpr double kClientCommandsPerSecond = 50;
+inline constexpr double kClientCommandBurst = 100;
+inline constexpr std::size_t kMaxRateLimitedClients = 1024;
+
+// A token bucket: `rate_per_s` tokens a second, at most `burst`, full at
+// the start. Not thread-safe.
+class TokenBucket {
+ public:
+  using Clock = std::chrono::steady_clock;
+  TokenBucket(double rate_per_s, double burst, Clock::time_point now)
+      : rate_per_s_(rate_per_s), burst_(burst), tokens_(burst), last_(now) {}
+  // Takes a token: false (nothing taken) when the bucket is empty.
+  bool Take(Clock::time_point now);
+  // Whether it has refilled to `burst` (its owner has been quiet).
+  bool Full(Clock::time_point now) const;
+
+ private:
+  double Level(Clock::time_point now) const;
+  double rate_per_s_, burst_, tokens_;
+  Clock::time_point last_;
+};
+
+// Per-client-name admission of commands: a TokenBucket of
+// kClientCommandsPerSecond / kClientCommandBurst per name (names compared as
+// sent, cut to 128 bytes). At most kMaxRateLimitedClients names are tracked:
+// when full, names whose buckets have refilled are forgotten, and if none
+// has, new names share one bucket. Not thread-safe (the command loop's).
+class CommandRateLimiter {
+ public:
+  using Clock = TokenBucket::Clock;
+  // True if `client` may send a command at `now` (and counts it).
+  bool Admit(std::string_view client, Clock::time_point now);
+  // The `busy` reply's message for a refused `client`.
+  static std::string RefusalMessage(std::string_view client);
+  std::size_t tracked_clients() const { return buckets_.size(); }
+
+ private:
+  std::unordered_map<std::string, TokenBucket> buckets_;
+  std::optional<TokenBucket> shared_;  // for names beyond kMaxRateLimitedClients
+};
+
 // The result of CheckCommand: kOk with the parsed arguments and the caller's
 // identity, or the refusal (code and message) for the reply.
 struct CommandCheck {
@@ -153,6 +230,14 @@ class CommandHandler {
                  std::function<nlohmann::json()> status);
 
   CommandReply Handle(const CommandRequest& request);
+  const CommandLimits& limits() const { return limits_; }
+
+  // Replaces the session store (null while the data directory is not
+  // usable). With null, sessions, get, capture, scan, resume, calibrate and
+  // calibrate-turntable answer `unavailable` with `why_unavailable` (which
+  // should name the data directory and the error). Call from the thread
+  // that calls Handle.
+  void SetStore(SessionStore* store, std::string why_unavailable);
 
  private:
   CommandReply Dispatch(const std::string& verb, const nlohmann::json& args,
@@ -165,6 +250,7 @@ class CommandHandler {
   JobEngine* jobs_;
   DeviceManager* devices_;
   SessionStore* store_;
+  std::string store_unavailable_;  // the refusal while store_ is null
   std::function<nlohmann::json()> status_;
 };
 

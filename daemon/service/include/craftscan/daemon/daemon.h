@@ -7,6 +7,14 @@
 // Stopping (SIGTERM): the running job is cancelled at its next safe point —
 // every capture already acknowledged is on disk and its session is marked
 // interrupted, so `resume` continues it — then the devices are closed.
+//
+// Degraded storage: when the data directory cannot be used (read-only,
+// missing, not writable) the daemon still starts and serves status and
+// devices; READY=1 comes with STATUS=degraded: <reason>, StationStatus has
+// state "degraded" and the reason in last_error, and every verb that needs
+// the data directory is refused with `unavailable` naming it and the error.
+// The store is tried again every 10 s; once it opens, unfinished sessions
+// are marked interrupted and the station serves normally.
 #pragma once
 
 #include <atomic>
@@ -19,9 +27,11 @@ namespace craftscan::daemon {
 
 class Daemon {
  public:
-  // Checks what can be checked before serving: the data directory (sessions
-  // store), the tokens file, the DDS participant and topics. Null with
-  // *error naming the part and the problem. Devices are opened by Run().
+  // Checks what can be checked before serving: the config, the tokens file,
+  // the DDS participant and topics. Null with *error naming the part and the
+  // problem. Opens the session store (marking unfinished sessions
+  // interrupted); an unusable data directory is not an error (degraded
+  // storage, above). Devices are opened by Run().
   static std::unique_ptr<Daemon> Create(const DaemonConfig& config, std::string* error);
   ~Daemon();
 

@@ -47,7 +47,9 @@ struct DeviceReport {
 
 // Thread-safety: Open/Close/SwitchScene/ApplyCameraSettings from one thread
 // (the job thread or the service's start-up); Reports() from any thread;
-// Capture/MoveTo/Home from the job thread only.
+// Capture/MoveTo/Home/PrepareTurntable from the job thread only. Reports()
+// never waits for a device call in progress (a reconnect may take seconds)
+// as long as the drivers' state()/Status() do not.
 class DeviceManager {
  public:
   // `log` and `on_change` may be empty; on_change is called (from any thread)
@@ -77,6 +79,12 @@ class DeviceManager {
   bool Capture(drivers::StereoFrame* frame, const std::atomic<bool>& cancel, std::string* error);
   bool MoveTo(double angle_deg, std::string* error);
   bool Home(std::string* error);
+  // Before a job turns the table: homes it unless it is Ready, i.e. after a
+  // fault an earlier job left (alarm, timeout, position mismatch, a lost
+  // link: drivers reconnect in Home) or an abort. The operator asked for the
+  // new job; a fault in the middle of a job still ends that job. False with
+  // *error naming the turntable and why it is not ready.
+  bool PrepareTurntable(std::string* error);
   bool AbortMove();
   drivers::TurntableStatus TurntableStatusNow() const;
   // Stop, Configure with the new settings, Start; on failure the old ones are restored.
@@ -95,7 +103,10 @@ class DeviceManager {
   std::unique_ptr<drivers::Turntable> turntable_;
   std::atomic<bool> open_{false};
   std::string scene_ = "object";
-  mutable std::mutex mutex_;  // guards messages_, camera_settings_ and the device pointers' swap
+  // Two locks, so a driver's event callback (Note, from inside a device
+  // call) never waits behind Reports() asking the same driver for its state.
+  mutable std::mutex devices_mutex_;  // guards the device pointers' swap against Reports()
+  mutable std::mutex mutex_;          // guards the messages and camera_settings_
   std::string camera_message_, turntable_message_;
   drivers::CameraSettings camera_settings_;
 };

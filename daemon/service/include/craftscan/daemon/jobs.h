@@ -21,6 +21,14 @@
 // Cancel and shutdown close the queues; each stage finishes its item and
 // stops; the session is marked interrupted (resumable), never dropped.
 // An exception escaping a stage becomes a failed job.
+//
+// Storage errors (a full disk, a read-only or vanished data directory) fail
+// the job with the store's message (path and strerror) and a hint on what
+// to do; the session is interrupted and every acknowledged capture stays
+// intact. So that the session's end can be recorded even on a full disk,
+// the engine keeps kReserveBytes allocated in <data_dir>/.craftscand-reserve
+// (made before each job that stores a session, best effort) and frees it
+// when that last manifest write fails for lack of space.
 #pragma once
 
 #include <atomic>
@@ -113,9 +121,17 @@ struct ScanRequest {
 
 class JobEngine {
  public:
+  // `store` may be null while the data directory is unusable (SetStore).
   JobEngine(JobEngineOptions options, DeviceManager* devices, SessionStore* store, JobSink* sink,
             std::function<void(drivers::LogLevel, std::string_view)> log);
   ~JobEngine();
+
+  // Space kept allocated for recording a session's end on a full disk.
+  static constexpr std::size_t kReserveBytes = std::size_t{1} << 20;
+
+  // Replaces the session store (null: StartScan, StartCapture and
+  // StartResume fail). Thread-safe; call while no job runs.
+  void SetStore(SessionStore* store) { store_.store(store); }
 
   // Loads <data_dir>/calibration/current.yaml if present. False with *error
   // for a present but unreadable one (the daemon starts anyway, without it).
@@ -125,7 +141,10 @@ class JobEngine {
 
   // Each Start* returns false with *error when busy ("busy: job-3 (scan)
   // is running") or when the request is invalid; on success *info holds the
-  // new job's id (and session for scan/capture/resume).
+  // new job's id (and session for scan/capture/resume). StartResume takes an
+  // interrupted or failed session, or one left in an active state by a job
+  // that could not record its end (no job holds it: it is marked
+  // interrupted first).
   bool StartScan(const ScanRequest& request, JobInfo* info, std::string* error);
   bool StartCapture(const std::string& object, JobInfo* info, std::string* error);
   bool StartCalibrate(JobInfo* info, std::string* error);
@@ -153,10 +172,21 @@ class JobEngine {
   bool SetCurrentCalibration(const StereoCalibration& calibration, const std::string& id,
                              std::string* error);
   std::string NewCalibrationDir(std::string* id, std::string* error);
+  // The session store, or null with *error saying so.
+  SessionStore* Store(std::string* error) const;
+  // Makes the reserve file if it is missing (best effort).
+  void EnsureReserve();
+  // Session::SetState; when that fails, frees the reserve and tries once
+  // more. The end of a job is then recorded even on a full disk.
+  bool RecordState(Session& session, SessionState state, const std::string& detail,
+                   std::string* error);
+  // Joins the worker of the last job if it has finished (its session lock
+  // is released once its thread ends).
+  void JoinFinishedWorker();
 
   JobEngineOptions options_;
   DeviceManager* devices_;
-  SessionStore* store_;
+  std::atomic<SessionStore*> store_;
   JobSink* sink_;
   std::function<void(drivers::LogLevel, std::string_view)> log_;
 

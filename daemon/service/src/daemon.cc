@@ -622,7 +622,7 @@ int Daemon::Run() {
   TokenBucket refusal_log(kRefusalLogsPerSecond, 2 * kRefusalLogsPerSecond, Clock::now());
   std::size_t unlogged_refusals = 0;
   auto last_refusal_summary = Clock::now();
-  bool was_busy = false;
+  auto trim_at = Clock::time_point::max();  // see malloc_trim below
   while (!stop_.load()) {
     const dds::TakeStatus taken =
         d.command_reader->Take(std::chrono::milliseconds(100), &command, &error);
@@ -732,19 +732,25 @@ int Daemon::Run() {
       if (job.state == JobState::kFailed) d.last_error = job.message;
       if (d.devices->IsOpen()) d.state = d.jobs->Busy() ? "busy" : d.store ? "idle" : "degraded";
     }
-    // A job's images and clouds were freed on its threads' malloc arenas,
-    // which glibc keeps for reuse; hand the free pages back when it ends, so
-    // that the daemon's RSS between jobs is what it holds (measured by
-    // test_daemon_soak), not the sum of what its threads once held.
-    const bool busy = d.jobs->Busy();
-    if (was_busy && !busy) ::malloc_trim(0);
-    was_busy = busy;
+    // A job's images and clouds are freed on its threads' malloc arenas,
+    // which glibc keeps for reuse; hand the free pages back once it has
+    // ended (and its thread has let go of them), so that the daemon's RSS
+    // between jobs is what it holds (measured by test_daemon_soak), not the
+    // sum of what its threads once held.
+    if (d.jobs->Busy()) {
+      trim_at = now + std::chrono::milliseconds(250);
+    } else if (now >= trim_at) {
+      ::malloc_trim(0);
+      trim_at = Clock::time_point::max();
+    }
     // STATUS= when a job starts or ends (not per stage: each is a datagram
     // the service manager must read).
-    const std::string summary = !d.store         ? "degraded: " + d.storage_error
-                                : d.jobs->Busy() ? "busy: " + job.id + " " + job.verb
-                                                 : "idle; last job " + job.id + " " +
-                                                       std::string(ToString(job.state));
+    // Degraded (devices or storage) stays in STATUS= until it is over, so
+    // `systemctl status` shows a missing camera, not "idle".
+    const std::string summary = !d.store || !d.devices->IsOpen() ? "degraded: " + d.Problems()
+                                : d.jobs->Busy()                ? "busy: " + job.id + " " + job.verb
+                                                                : "idle; last job " + job.id + " " +
+                                                                      std::string(ToString(job.state));
     if (summary != last_summary) {
       last_summary = summary;
       d.notifier.Status(summary);

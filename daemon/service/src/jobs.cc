@@ -276,14 +276,20 @@ void JobEngine::Finish(JobState state, const std::string& message, nlohmann::jso
 }
 
 bool JobEngine::Cancel(std::string* error) {
-  std::lock_guard lock(mutex_);
-  if (!running_) return Fail(error, "no job is running");
-  cancel_ = true;
+  {
+    std::lock_guard lock(mutex_);
+    if (!running_) return Fail(error, "no job is running");
+    cancel_ = true;
+  }
+  // A move can take many seconds: stop the table (the driver's feed hold)
+  // instead of waiting for it. The job then ends "cancelled" at that view.
+  if (moving_) devices_->AbortMove();
   return true;
 }
 
 void JobEngine::Shutdown() {
   cancel_ = true;
+  if (moving_) devices_->AbortMove();
   if (worker_.joinable()) worker_.join();
 }
 
@@ -520,8 +526,11 @@ void JobEngine::RunScan(const std::shared_ptr<ScanPlan>& plan) {
             fail("view " + std::to_string(k) + ": " + error, true);
             break;
           }
-          if (!devices_->MoveTo(angle, &error)) {
-            fail("view " + std::to_string(k) + ": " + error, true);
+          moving_ = true;
+          const bool moved = devices_->MoveTo(angle, &error);
+          moving_ = false;
+          if (!moved) {
+            fail(cancel_ ? "cancelled" : "view " + std::to_string(k) + ": " + error, true);
             break;
           }
           std::this_thread::sleep_for(options_.settle);

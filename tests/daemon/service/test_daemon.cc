@@ -239,6 +239,52 @@ TEST(Daemon, TokenRolesAreEnforcedOnEveryVerb) {
   EXPECT_EQ(sessions->result["sessions"].size(), 0u);
 }
 
+// A cancel during a long turntable move stops the table (the driver's abort)
+// instead of waiting for the move: at 6 deg/s the 90-degree move to view 1
+// takes 15 s, and the job must end well before that. The session stays
+// resumable with view 0 intact.
+TEST(Daemon, CancelDuringAMoveAbortsTheMove) {
+  auto r = StartDaemon("320x256", 0, true, ", turntable_speed_deg_s: 6");
+  ASSERT_TRUE(r);
+  StationClient& c = r->client;
+  const auto scan = c.Send("scan", {{"object", "box"}, {"views", 4}, {"step_deg", 90}}, kOperatorToken);
+  ASSERT_TRUE(scan);
+  ASSERT_EQ(scan->code_name, "ok") << scan->message;
+  const std::string id = scan->result["id"];
+  // Wait until the move to view 1 has begun.
+  bool moving = false;
+  for (int i = 0; i < 600 && !moving; ++i) {
+    {
+      auto lock = c.Lock();
+      for (const std::string& message : c.progress_messages) {
+        moving = moving || message.find("moving to 90") != std::string::npos;
+      }
+    }
+    if (!moving) std::this_thread::sleep_for(100ms);
+  }
+  ASSERT_TRUE(moving) << "the scan never began its move to view 1\n" << r->fixture.Log();
+  std::this_thread::sleep_for(1s);
+  const auto move_started = std::chrono::steady_clock::now();
+  const auto cancel = c.Send("cancel", nullptr, kOperatorToken);
+  ASSERT_TRUE(cancel);
+  ASSERT_EQ(cancel->code_name, "ok") << cancel->message;
+  const nlohmann::json job = WaitForJob(c, id, 60s);
+  const double seconds =
+      std::chrono::duration<double>(std::chrono::steady_clock::now() - move_started).count();
+  EXPECT_NE(job.value("state", ""), "running");
+  EXPECT_NE(job.value("message", "").find("cancelled"), std::string::npos) << job.dump();
+  // The rest of the move would have taken about 14 s.
+  EXPECT_LT(seconds, 8.0) << "the cancel waited for the move to end";
+  const std::string session = scan->result["session"];
+  std::string error;
+  auto store = daemon::SessionStore::Open(r->fixture.data_dir(), &error);
+  ASSERT_TRUE(store) << error;
+  auto opened = store->OpenSession(session, &error);
+  ASSERT_TRUE(opened) << error;
+  EXPECT_EQ(opened->state(), SessionState::kInterrupted);
+  EXPECT_EQ(opened->DurableViews().size(), 1u);
+}
+
 TEST(Daemon, SigkillDuringAScanLosesNothingAndResumeCompletesItWithoutRecapturing) {
   auto r = StartDaemon("640x512");
   ASSERT_TRUE(r);

@@ -198,6 +198,7 @@ class JobEngine {
   std::optional<StereoCalibration> calibration_;
   std::string calibration_id_;
   std::atomic<bool> cancel_{false};
+  std::atomic<bool> moving_{false};  // a scan's turntable move is in progress (Cancel aborts it)
   std::thread worker_;
 };
 

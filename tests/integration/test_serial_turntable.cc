@@ -4,8 +4,11 @@
 #include "craftscan/drivers/serial_turntable/grbl_turntable.h"
 #include "turntable_emulator.h"
 
+#include <poll.h>
+#include <pty.h>
 #include <unistd.h>
 
+#include <atomic>
 #include <chrono>
 #include <cmath>
 #include <filesystem>
@@ -425,6 +428,99 @@ TEST_F(SerialTurntableTest, AbortDuringMoveStopsIt) {
   Status h = table_->Home();
   ASSERT_TRUE(h.ok()) << ToString(h);
   ASSERT_TRUE(table_->MoveTo(5).ok());
+}
+
+// A controller scripted on a raw PTY, so replies land exactly where a test
+// wants them: an ALARM:N arriving in the same read as the reply a call was
+// waiting for ("ok", a status report) must not be dropped with the rest of
+// that read, or only "Alarm state" is left without the reason.
+class ScriptedController {
+ public:
+  // `after_move`: what the controller sends, in one write, for the first '?'
+  // (status == true) or in place of the "ok" (status == false) once a G1
+  // line came.
+  ScriptedController(std::string after_move, bool status)
+      : after_move_(std::move(after_move)), status_(status) {
+    if (::openpty(&master_, &slave_, nullptr, nullptr, nullptr) != 0) return;
+    path_ = ::ttyname(slave_);
+    thread_ = std::thread([this] { Serve(); });
+  }
+  ~ScriptedController() {
+    stop_ = true;
+    if (thread_.joinable()) thread_.join();
+    if (master_ >= 0) ::close(master_);
+    if (slave_ >= 0) ::close(slave_);
+  }
+  const std::string& path() const { return path_; }
+
+ private:
+  void Send(const std::string& text) {
+    if (::write(master_, text.data(), text.size()) != static_cast<ssize_t>(text.size()))
+      stop_ = true;
+  }
+  void Serve() {
+    std::string line;
+    bool moving = false, sent = false;
+    while (!stop_) {
+      pollfd pfd{master_, POLLIN, 0};
+      if (::poll(&pfd, 1, 5) <= 0 || !(pfd.revents & POLLIN)) continue;
+      char buf[256];
+      const ssize_t n = ::read(master_, buf, sizeof(buf));
+      for (ssize_t k = 0; k < n; ++k) {
+        const char c = buf[k];
+        if (c == 0x18) {
+          Send("\r\nGrbl 1.1h ['$' for help]\r\n");
+        } else if (c == '?') {
+          const bool first = moving && status_ && !sent;
+          sent = sent || first;
+          Send(first ? after_move_
+                     : (moving ? "<Alarm|MPos:1.000,0.000,0.000|FS:0,0>\r\n"
+                               : "<Idle|MPos:0.000,0.000,0.000|FS:0,0>\r\n"));
+        } else if (c == '\n') {
+          const bool g1 = line.rfind("G90 G1", 0) == 0;
+          moving = moving || g1;
+          Send(g1 && !status_ ? after_move_ : "ok\r\n");
+          line.clear();
+        } else if (c != '\r') {
+          line.push_back(c);
+        }
+      }
+    }
+  }
+
+  std::string after_move_;
+  bool status_;
+  int master_ = -1, slave_ = -1;
+  std::string path_;
+  std::atomic<bool> stop_{false};
+  std::thread thread_;
+};
+
+TEST(GrblTurntableReplies, AnAlarmBehindTheAwaitedReplyIsNotLost) {
+  struct Case {
+    std::string bytes;
+    bool status;
+  };
+  for (const Case& c : {Case{"<Run|MPos:1.000,0.000,0.000|FS:3600,0>\r\nALARM:1\r\n", true},
+                        Case{"ok\r\nALARM:2\r\n", false}}) {
+    ScriptedController controller(c.bytes, c.status);
+    ASSERT_FALSE(controller.path().empty());
+    GrblTurntableOptions o;
+    o.port_path = controller.path();
+    o.homing_enabled = false;  // $X, G92 X0
+    o.banner_timeout = milliseconds(100);
+    o.command_timeout = milliseconds(300);
+    GrblTurntable table(o);
+    Status s = table.Connect();
+    ASSERT_TRUE(s.ok()) << ToString(s);
+    s = table.Home();
+    ASSERT_TRUE(s.ok()) << ToString(s);
+    s = table.MoveTo(10);
+    EXPECT_EQ(s.code, StatusCode::kAlarm) << ToString(s);
+    EXPECT_TRUE(Contains(s.message, c.status ? "ALARM:1 (hard limit" : "ALARM:2 (soft limit"))
+        << s.message;
+    EXPECT_EQ(table.state(), State::kFault);
+  }
 }
 
 }  // namespace

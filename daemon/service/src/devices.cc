@@ -122,8 +122,7 @@ std::vector<DeviceReport> DeviceManager::Reports() const {
   }
   std::lock_guard lock(mutex_);
   return {{"camera", "stereo_camera", setup_.camera.driver, camera_state, camera_message_},
-          {"turntable", "turntable", setup_.turntable.driver, turntable_state,
-           turntable_message_}};
+          {"turntable", "turntable", setup_.turntable.driver, turntable_state, turntable_message_}};
 }
 
 bool DeviceManager::IsSim() const { return setup_.camera.driver == "sim"; }

@@ -21,6 +21,21 @@ std::string Fixed(double value, int decimals) {
 
 std::string Ms(std::chrono::milliseconds ms) { return std::to_string(ms.count()) + " ms"; }
 
+// The first ALARM:N among replies[from..]: lines that came in the same read
+// as the reply a wait was for. The controller raised it after that reply;
+// dropping it would leave only "Alarm state" without the reason.
+const GrblReply* AlarmAmong(const std::vector<GrblReply>& replies, std::size_t from) {
+  for (std::size_t i = from; i < replies.size(); ++i) {
+    if (replies[i].kind == GrblReplyKind::kAlarm) return &replies[i];
+  }
+  return nullptr;
+}
+
+std::string AlarmText(const GrblReply& alarm) {
+  return "ALARM:" + std::to_string(alarm.code) + " (" + std::string(GrblAlarmMessage(alarm.code)) +
+         ")";
+}
+
 }  // namespace
 
 std::string_view ToString(GrblTurntable::State state) {
@@ -274,19 +289,21 @@ Status GrblTurntable::Command(const std::string& line, std::chrono::milliseconds
               "no reply to " + where + " within " + Ms(timeout) + UnknownSummary()};
     }
     if (!s.ok()) return s;
-    for (const GrblReply& reply : replies) {
+    for (std::size_t i = 0; i < replies.size(); ++i) {
+      const GrblReply& reply = replies[i];
       switch (reply.kind) {
         case GrblReplyKind::kOk:
           consecutive_timeouts_ = 0;
+          if (const GrblReply* alarm = AlarmAmong(replies, i + 1)) {
+            return {StatusCode::kAlarm, AlarmText(*alarm) + " right after the ok to " + where};
+          }
           return Status::Ok();
         case GrblReplyKind::kError:
           return {StatusCode::kDeviceError, "error:" + std::to_string(reply.code) + " (" +
                                                 std::string(GrblErrorMessage(reply.code)) +
                                                 ") in reply to " + where};
         case GrblReplyKind::kAlarm:
-          return {StatusCode::kAlarm, "ALARM:" + std::to_string(reply.code) + " (" +
-                                          std::string(GrblAlarmMessage(reply.code)) +
-                                          ") while waiting for " + where};
+          return {StatusCode::kAlarm, AlarmText(reply) + " while waiting for " + where};
         case GrblReplyKind::kBanner:
           return {StatusCode::kProtocolError,
                   "controller reset unexpectedly while waiting for " + where};
@@ -310,11 +327,10 @@ Status GrblTurntable::QueryStatus(std::chrono::milliseconds timeout, GrblStatusR
                                         Ms(timeout) + UnknownSummary()};
     }
     if (!s.ok()) return s;
-    for (const GrblReply& reply : replies) {
+    for (std::size_t i = 0; i < replies.size(); ++i) {
+      const GrblReply& reply = replies[i];
       if (reply.kind == GrblReplyKind::kAlarm) {
-        return {StatusCode::kAlarm, "ALARM:" + std::to_string(reply.code) + " (" +
-                                        std::string(GrblAlarmMessage(reply.code)) + ") on " +
-                                        options_.port_path};
+        return {StatusCode::kAlarm, AlarmText(reply) + " on " + options_.port_path};
       }
       if (reply.kind == GrblReplyKind::kError) {
         return {StatusCode::kDeviceError, "unexpected error:" + std::to_string(reply.code) + " (" +
@@ -331,6 +347,9 @@ Status GrblTurntable::QueryStatus(std::chrono::milliseconds timeout, GrblStatusR
                                                   "' on " + options_.port_path};
         }
         consecutive_timeouts_ = 0;
+        if (const GrblReply* alarm = AlarmAmong(replies, i + 1)) {
+          return {StatusCode::kAlarm, AlarmText(*alarm) + " on " + options_.port_path};
+        }
         *report = reply.status;
         return Status::Ok();
       }
@@ -496,9 +515,7 @@ Status GrblTurntable::MoveTo(double angle_deg, std::chrono::milliseconds timeout
     while (w.ok()) {
       for (const GrblReply& reply : replies) {
         if (reply.kind == GrblReplyKind::kAlarm) {
-          w = {StatusCode::kAlarm, "ALARM:" + std::to_string(reply.code) + " (" +
-                                       std::string(GrblAlarmMessage(reply.code)) +
-                                       ") during the move to " + target + " deg on " +
+          w = {StatusCode::kAlarm, AlarmText(reply) + " during the move to " + target + " deg on " +
                                        options_.port_path};
           break;
         }
@@ -527,10 +544,8 @@ Status GrblTurntable::MoveTo(double angle_deg, std::chrono::milliseconds timeout
       w = ReadReplies(settle_end, &replies);
       for (const GrblReply& reply : replies) {
         if (reply.kind == GrblReplyKind::kAlarm) {
-          w = {StatusCode::kAlarm, "ALARM:" + std::to_string(reply.code) + " (" +
-                                       std::string(GrblAlarmMessage(reply.code)) +
-                                       ") while settling at " + target + " deg on " +
-                                       options_.port_path};
+          w = {StatusCode::kAlarm,
+               AlarmText(reply) + " while settling at " + target + " deg on " + options_.port_path};
         }
       }
     } while (w.ok());

@@ -169,7 +169,8 @@ struct RunningDaemon {
   }
 
   // Waits until at least `count` captures of `session` were acknowledged.
-  bool WaitForCaptures(const std::string& session, std::size_t count, std::chrono::seconds timeout) {
+  bool WaitForCaptures(const std::string& session, std::size_t count,
+                       std::chrono::seconds timeout) {
     return client.WaitFor([&](StationClient& c) { return Captures(c, session).size() >= count; },
                           timeout);
   }
@@ -201,8 +202,8 @@ struct RunningDaemon {
       return {};
     }
     const daemon::VerifyResult verify = store->Verify(session);
-    EXPECT_TRUE(verify.IsIntact()) << session << ": "
-                                   << (verify.problems.empty() ? "manifest" : verify.problems[0]);
+    EXPECT_TRUE(verify.IsIntact())
+        << session << ": " << (verify.problems.empty() ? "manifest" : verify.problems[0]);
     auto opened = store->OpenSession(session, &error);
     if (!opened) {
       ADD_FAILURE() << error;
@@ -219,7 +220,8 @@ struct RunningDaemon {
       client::Fnv1a64Hasher hash;
       const cv::Mat packed = left.clone();
       hash.Update(packed.data, packed.total() * packed.elemSize());
-      EXPECT_EQ(hash.value(), ack.left_hash) << "view " << ack.view << ": stored left image differs";
+      EXPECT_EQ(hash.value(), ack.left_hash)
+          << "view " << ack.view << ": stored left image differs";
     }
     return durable;
   }

@@ -171,7 +171,8 @@ class DaemonAravis : public ::testing::Test {
       ADD_FAILURE() << "emulator: " << error;
       return false;
     }
-    left_ = std::make_unique<FakeView>("127.0.0.1", "LEFT01", &ViewRenders().left, turntable_.get());
+    left_ =
+        std::make_unique<FakeView>("127.0.0.1", "LEFT01", &ViewRenders().left, turntable_.get());
     right_ =
         std::make_unique<FakeView>("127.0.0.2", "RIGHT01", &ViewRenders().right, turntable_.get());
     if (!left_->Start() || !right_->Start()) {
@@ -190,7 +191,8 @@ class DaemonAravis : public ::testing::Test {
 
   // Starts the station, then a scan, and kills the right fake once view 0
   // is acknowledged. The scan's {id, session}, or null (the test failed).
-  nlohmann::json ScanAndKillTheRightCamera(const std::string& reconnect, const std::string& object) {
+  nlohmann::json ScanAndKillTheRightCamera(const std::string& reconnect,
+                                           const std::string& object) {
     if (!StartStation(reconnect)) return nullptr;
     start_ = std::chrono::steady_clock::now();
     nlohmann::json scan = daemon_.ScanUntilFirstCapture(object, kViews);
@@ -213,7 +215,8 @@ class DaemonAravis : public ::testing::Test {
       cv::Mat left, right;
       ASSERT_TRUE(opened->LoadCapture(k, &left, &right, nullptr, &error)) << error;
       EXPECT_TRUE(aravis::test::SameImage(left, ViewRenders().left[k])) << "view " << k << " left";
-      EXPECT_TRUE(aravis::test::SameImage(right, ViewRenders().right[k])) << "view " << k << " right";
+      EXPECT_TRUE(aravis::test::SameImage(right, ViewRenders().right[k]))
+          << "view " << k << " right";
     }
     EXPECT_EQ(left_->source().bad_formats.load(), 0);
   }
@@ -237,7 +240,8 @@ TEST_F(DaemonAravis, CameraKilledMidScanAndBackInTimeTheScanCompletes) {
   const std::string session = scan["session"];
   ASSERT_TRUE(daemon_.watcher.WaitFor(
       [](const client::StatusUpdate& s) { return CameraMessageHas(s, "lost"); }, 60s))
-      << "the loss never showed in StationStatus\n" << daemon_.fixture.Log();
+      << "the loss never showed in StationStatus\n"
+      << daemon_.fixture.Log();
   const double lost_s = SecondsSinceScan();
   // Still serving while the job waits for the camera.
   const auto asked = std::chrono::steady_clock::now();
@@ -258,10 +262,10 @@ TEST_F(DaemonAravis, CameraKilledMidScanAndBackInTimeTheScanCompletes) {
             static_cast<std::size_t>(kViews));
   ExpectCapturesAreTheRenders(session);
   EXPECT_GT(job["result"].value("fused_points", 0), 1000) << job.dump();
-  std::printf("camera killed after view 0: loss shown after %.1f s, status answered in %.0f ms "
-              "meanwhile, scan done after %.1f s; frames served %d left, %d right\n",
-              lost_s, answer_ms, total_s, left_->source().frames.load(),
-              right_->source().frames.load());
+  std::printf(
+      "camera killed after view 0: loss shown after %.1f s, status answered in %.0f ms "
+      "meanwhile, scan done after %.1f s; frames served %d left, %d right\n",
+      lost_s, answer_ms, total_s, left_->source().frames.load(), right_->source().frames.load());
 }
 
 // The fake stays away: the job fails naming the camera, the session is
@@ -283,9 +287,10 @@ TEST_F(DaemonAravis, CameraKilledForGoodFailsTheJobAndResumeFinishesOnceItIsBack
   ExpectCapturesAreTheRenders(session);
   daemon_.ExpectFailureReported(job, "camera", {"camera lost", "right camera '127.0.0.2'"});
   EXPECT_TRUE(daemon_.watcher.WaitForDeviceState("camera", "Lost"));
-  std::printf("camera killed for good after view 0: job failed after %.1f s with %zu of %d "
-              "captures acknowledged, all intact\n",
-              failed_s, acknowledged.size(), kViews);
+  std::printf(
+      "camera killed for good after view 0: job failed after %.1f s with %zu of %d "
+      "captures acknowledged, all intact\n",
+      failed_s, acknowledged.size(), kViews);
 
   ASSERT_TRUE(right_->Start());
   const nlohmann::json resume = daemon_.Resume(session);

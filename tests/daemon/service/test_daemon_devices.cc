@@ -13,6 +13,7 @@
 #include <gtest/gtest.h>
 
 #include <chrono>
+#include <cmath>
 #include <cstdio>
 #include <functional>
 #include <memory>
@@ -63,11 +64,13 @@ class SerialStation {
   nlohmann::json ScanUntilMidMove(const std::string& object) {
     nlohmann::json scan = daemon.ScanUntilFirstCapture(object, kViews);
     if (scan.is_null()) return scan;
+    // Mid-move: the platter has turned 15 of the 90 degrees (0.25 of the
+    // 1.5 s the step takes).
     const auto deadline = std::chrono::steady_clock::now() + 20s;
-    while (emu->state() != "Run") {
+    while (emu->state() != "Run" || std::fmod(emu->machine_position_deg(), 90) < 15) {
       if (std::chrono::steady_clock::now() > deadline) {
-        ADD_FAILURE() << "the platter never moved after view 0 (emulator " << emu->state()
-                      << " at " << emu->machine_position_deg() << " deg)";
+        ADD_FAILURE() << "the platter never moved after view 0 (emulator " << emu->state() << " at "
+                      << emu->machine_position_deg() << " deg)";
         return nullptr;
       }
       std::this_thread::sleep_for(std::chrono::milliseconds(2));
@@ -139,8 +142,8 @@ TEST(DaemonSerialTurntable, SilenceMidMoveTimesOutAndTheTableIsLeftStopped) {
     // Where the move in progress was going: the view after the last one
     // acknowledged.
     EXPECT_EQ(s.emu->state(), "Idle");
-    EXPECT_NEAR(s.emu->machine_position_deg(),
-                s.daemon.Acknowledged(scan["session"]).size() * 90.0, 0.01);
+    EXPECT_NEAR(s.emu->machine_position_deg(), s.daemon.Acknowledged(scan["session"]).size() * 90.0,
+                0.01);
     EXPECT_EQ(s.emu->lines_received(), lines_at_fault) << "the daemon went on driving the table";
     s.emu->SetSilent(false);
   });
@@ -158,8 +161,9 @@ TEST(DaemonSerialTurntable, LineNoiseAndGarbageLinesAreTolerated) {
   s.emu->InjectGarbage("#%garbage!\r\n");
   const nlohmann::json job = s.daemon.WaitForJob(scan["id"], 120s);
   ASSERT_EQ(job.value("state", ""), "done") << job.dump() << "\n" << s.daemon.fixture.Log();
-  EXPECT_EQ(s.daemon.ExpectNothingLost(scan["session"], s.daemon.Acknowledged(scan["session"])).size(),
-            static_cast<std::size_t>(kViews));
+  EXPECT_EQ(
+      s.daemon.ExpectNothingLost(scan["session"], s.daemon.Acknowledged(scan["session"])).size(),
+      static_cast<std::size_t>(kViews));
   EXPECT_NEAR(s.emu->machine_position_deg(), 270, 0.01);
 }
 

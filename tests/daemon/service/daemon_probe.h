@@ -20,6 +20,7 @@
 #include <cstdint>
 #include <filesystem>
 #include <fstream>
+#include <functional>
 #include <iterator>
 #include <map>
 #include <memory>
@@ -35,7 +36,24 @@
 #include "craftscan/dds/participant.h"
 #include "craftscan/dds/topics.h"
 
+#if defined(__SANITIZE_ADDRESS__) || defined(__SANITIZE_THREAD__)
+#define CRAFTSCAN_PROBE_SANITIZED 1
+#elif defined(__has_feature)
+#if __has_feature(address_sanitizer) || __has_feature(thread_sanitizer)
+#define CRAFTSCAN_PROBE_SANITIZED 1
+#endif
+#endif
+
 namespace craftscan::testing {
+
+// Whether this build (and so the daemon, built alike) runs under ASan or
+// TSan, whose allocators keep freed memory (quarantine) and shadow all of
+// it: bounds on the daemon's RSS do not apply there.
+#ifdef CRAFTSCAN_PROBE_SANITIZED
+inline constexpr bool kSanitizedBuild = true;
+#else
+inline constexpr bool kSanitizedBuild = false;
+#endif
 
 // What /proc says about a process: resident set now and at its peak (kB),
 // its threads, its open file descriptors and the CPU time it has used
@@ -147,6 +165,36 @@ class CommandPeer {
   std::unique_ptr<dds::Writer<dds::msg::Command>> writer_;
 };
 
+// A reader of Msg whose own thread hands every sample it takes to
+// `on_sample` until this object is destroyed.
+template <typename Msg>
+class ReaderThread {
+ public:
+  ReaderThread(std::unique_ptr<dds::Reader<Msg>> reader, std::function<void(const Msg&)> on_sample)
+      : reader_(std::move(reader)), on_sample_(std::move(on_sample)), thread_([this] { Loop(); }) {}
+  ~ReaderThread() {
+    running_ = false;
+    thread_.join();
+  }
+  dds::Reader<Msg>& reader() { return *reader_; }
+
+ private:
+  void Loop() {
+    dds::Sample<Msg> sample;
+    std::string error;
+    while (running_) {
+      if (reader_->Take(std::chrono::milliseconds(50), &sample, &error) == dds::TakeStatus::kOk) {
+        on_sample_(*sample);
+      }
+    }
+  }
+
+  std::unique_ptr<dds::Reader<Msg>> reader_;
+  std::function<void(const Msg&)> on_sample_;
+  std::atomic<bool> running_{true};
+  std::thread thread_;  // last: starts after the members it uses
+};
+
 // Takes every Reply of the station on its own thread and keeps them all.
 class ReplyCollector {
  public:
@@ -155,12 +203,10 @@ class ReplyCollector {
     auto reader = JoinWith<dds::Reader<dds::msg::Reply>>(domain_id, dds::ReplyTopic(station), error);
     return reader ? std::unique_ptr<ReplyCollector>(new ReplyCollector(std::move(reader))) : nullptr;
   }
-  ~ReplyCollector() {
-    running_ = false;
-    thread_.join();
-  }
 
-  bool WaitForDaemon(std::chrono::milliseconds timeout) { return reader_->WaitForWriters(1, timeout); }
+  bool WaitForDaemon(std::chrono::milliseconds timeout) {
+    return thread_.reader().WaitForWriters(1, timeout);
+  }
 
   // The first reply with this request id and client that arrives within
   // `timeout` (already arrived ones count).
@@ -175,38 +221,26 @@ class ReplyCollector {
     std::lock_guard lock(mutex_);
     return replies_;
   }
-  std::size_t Count() {
-    std::lock_guard lock(mutex_);
-    return replies_.size();
-  }
 
  private:
   explicit ReplyCollector(std::unique_ptr<dds::Reader<dds::msg::Reply>> reader)
-      : reader_(std::move(reader)), thread_([this] { Loop(); }) {}
+      : thread_(std::move(reader), [this](const dds::msg::Reply& m) { Keep(m); }) {}
 
-  void Loop() {
-    dds::Sample<dds::msg::Reply> sample;
-    std::string error;
-    while (running_) {
-      if (reader_->Take(std::chrono::milliseconds(50), &sample, &error) != dds::TakeStatus::kOk) continue;
-      RawReply r{std::string(dds::View(sample->request_id)), std::string(dds::View(sample->client)),
-                 sample->code, std::string(dds::View(sample->code_name)),
-                 std::string(dds::View(sample->message)), std::string(dds::View(sample->result)),
-                 std::chrono::steady_clock::now()};
-      std::lock_guard lock(mutex_);
-      index_.emplace(std::make_pair(r.request_id, r.client), replies_.size());
-      replies_.push_back(std::move(r));
-      changed_.notify_all();
-    }
+  void Keep(const dds::msg::Reply& m) {
+    RawReply r{std::string(dds::View(m.request_id)), std::string(dds::View(m.client)), m.code,
+               std::string(dds::View(m.code_name)), std::string(dds::View(m.message)),
+               std::string(dds::View(m.result)), std::chrono::steady_clock::now()};
+    std::lock_guard lock(mutex_);
+    index_.emplace(std::make_pair(r.request_id, r.client), replies_.size());
+    replies_.push_back(std::move(r));
+    changed_.notify_all();
   }
 
-  std::unique_ptr<dds::Reader<dds::msg::Reply>> reader_;
   std::mutex mutex_;
   std::condition_variable changed_;
   std::vector<RawReply> replies_;                                       // guarded by mutex_
   std::map<std::pair<std::string, std::string>, std::size_t> index_;  // first of each key
-  std::atomic<bool> running_{true};
-  std::thread thread_;  // last: starts after the members it uses
+  ReaderThread<dds::msg::Reply> thread_;  // last: starts after the members it uses
 };
 
 // Records when each StationStatus sample arrives (steady clock).
@@ -219,10 +253,6 @@ class StatusMonitor {
     auto reader =
         JoinWith<dds::Reader<dds::msg::StationStatus>>(domain_id, dds::StatusTopic(station), error);
     return reader ? std::unique_ptr<StatusMonitor>(new StatusMonitor(std::move(reader))) : nullptr;
-  }
-  ~StatusMonitor() {
-    running_ = false;
-    thread_.join();
   }
 
   // The longest time without a status sample within [from, to], counting
@@ -247,23 +277,14 @@ class StatusMonitor {
 
  private:
   explicit StatusMonitor(std::unique_ptr<dds::Reader<dds::msg::StationStatus>> reader)
-      : reader_(std::move(reader)), thread_([this] { Loop(); }) {}
+      : thread_(std::move(reader), [this](const dds::msg::StationStatus&) {
+          std::lock_guard lock(mutex_);
+          arrivals_.push_back(Clock::now());
+        }) {}
 
-  void Loop() {
-    dds::Sample<dds::msg::StationStatus> sample;
-    std::string error;
-    while (running_) {
-      if (reader_->Take(std::chrono::milliseconds(50), &sample, &error) != dds::TakeStatus::kOk) continue;
-      std::lock_guard lock(mutex_);
-      arrivals_.push_back(Clock::now());
-    }
-  }
-
-  std::unique_ptr<dds::Reader<dds::msg::StationStatus>> reader_;
   std::mutex mutex_;
-  std::vector<Clock::time_point> arrivals_;  // guarded by mutex_
-  std::atomic<bool> running_{true};
-  std::thread thread_;  // last: starts after the members it uses
+  std::vector<Clock::time_point> arrivals_;      // guarded by mutex_
+  ReaderThread<dds::msg::StationStatus> thread_;  // last: starts after the members it uses
 };
 
 }  // namespace craftscan::testing

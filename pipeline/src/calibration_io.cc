@@ -8,8 +8,10 @@
 #include <cstring>
 #include <exception>
 #include <filesystem>
+#include <fstream>
 #include <opencv2/core.hpp>
 #include <string>
+#include <string_view>
 #include <vector>
 
 #include "calibration_internal.h"
@@ -59,6 +61,38 @@ void WriteReport(cv::FileStorage& fs, const CalibrationReport& r) {
   }
   fs << "]";
   fs << "}";
+}
+
+// OpenCV's YAML reader (4.6) loops forever on some stream structures, e.g.
+// "%YAML:1.0\n---YAML:1.0\n---\n- 1\n" (found by tests/fuzz). A calibration
+// file is one document as SaveCalibration writes it: a "%" directive only on
+// the first line, and at most one "---" line with nothing after the marker.
+// Files of other shapes are refused before OpenCV sees them.
+bool HasOneDocumentShape(const std::string& text, std::string* why) {
+  int markers = 0;
+  std::size_t line_number = 0;
+  for (std::size_t begin = 0; begin < text.size();) {
+    std::size_t end = text.find('\n', begin);
+    if (end == std::string::npos) end = text.size();
+    const std::string_view line(text.data() + begin, end - begin);
+    ++line_number;
+    if (line.rfind("%", 0) == 0 && line_number != 1) {
+      *why = "line " + std::to_string(line_number) + ": a '%' directive after the first line";
+      return false;
+    }
+    if (line.rfind("---", 0) == 0) {
+      if (++markers > 1) {
+        *why = "line " + std::to_string(line_number) + ": a second document ('---')";
+        return false;
+      }
+      if (line.find_first_not_of(" \t\r", 3) != std::string_view::npos) {
+        *why = "line " + std::to_string(line_number) + ": text after the document marker '---'";
+        return false;
+      }
+    }
+    begin = end + 1;
+  }
+  return true;
 }
 
 std::string ToYaml(const StereoCalibration& c) {
@@ -348,6 +382,18 @@ bool LoadCalibration(const std::string& path, StereoCalibration* calibration, st
   if (fs::file_size(path, ec) == 0 && !ec) return Fail(error, "'" + path + "': empty file");
 
   Reader in(path, error);
+  {
+    // A calibration is a few kB; 16 MiB is far beyond any real one.
+    constexpr std::uintmax_t kMaxBytes = 16u << 20;
+    const std::uintmax_t size = fs::file_size(path, ec);
+    if (ec) return in.Fail("cannot read: " + ec.message());
+    if (size > kMaxBytes) return in.Fail("larger than 16 MiB: not a calibration file");
+    std::ifstream file(path, std::ios::binary);
+    std::string text(static_cast<std::size_t>(size), '\0');
+    if (!file.read(text.data(), static_cast<std::streamsize>(size))) return in.Fail("cannot read");
+    std::string why;
+    if (!HasOneDocumentShape(text, &why)) return in.Fail("not a calibration file: " + why);
+  }
   StereoCalibration loaded;
   try {
     // Always parse as YAML, whatever the extension.

@@ -36,12 +36,15 @@ bool WriteAll(int fd, std::string_view bytes) {
 }  // namespace
 
 unsigned ProcessUmask() {
-  std::ifstream status("/proc/self/status");
-  for (std::string line; std::getline(status, line);) {
-    if (line.rfind("Umask:", 0) == 0)
-      return static_cast<unsigned>(std::strtoul(line.c_str() + 6, nullptr, 8)) & 0777;
-  }
-  return 022;
+  static const unsigned umask = [] {
+    std::ifstream status("/proc/self/status");
+    for (std::string line; std::getline(status, line);) {
+      if (line.rfind("Umask:", 0) == 0)
+        return static_cast<unsigned>(std::strtoul(line.c_str() + 6, nullptr, 8)) & 0777;
+    }
+    return 022u;
+  }();
+  return umask;
 }
 
 bool WriteFileAtomically(const std::string& path, std::string_view bytes, std::string* error) {

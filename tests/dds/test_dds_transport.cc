@@ -32,6 +32,7 @@
 #include "craftscan/dds/endpoint.h"
 #include "craftscan/dds/participant.h"
 #include "craftscan/dds/topics.h"
+#include "dds_test_util.h"
 
 extern char** environ;
 
@@ -41,15 +42,9 @@ namespace {
 using std::chrono::milliseconds;
 constexpr milliseconds kTimeout{20000};  // generous: the machine is shared
 
-std::string TestConfig() {
-  return ConfigFileUri(CRAFTSCAN_CYCLONEDDS_XML) + "," + LoopbackOnlyConfigXml();
-}
-
-// One random domain per test process (1..230; 0 is the usual default).
-uint32_t ProcessDomainId() {
-  static const uint32_t id = 1 + std::random_device{}() % kMaxDomainId;
-  return id;
-}
+using ::craftscan::testing::ChildProcess;
+using ::craftscan::testing::ProcessDomainId;
+std::string TestConfig() { return ::craftscan::testing::TestDdsConfig(); }
 
 std::string UniqueStation() {
   static int counter = 0;
@@ -87,36 +82,18 @@ class Peer {
     std::vector<char*> argv;
     for (const std::string& arg : args) argv.push_back(const_cast<char*>(arg.c_str()));
     argv.push_back(nullptr);
-    if (posix_spawn(&pid_, CRAFTSCAN_DDS_PEER, nullptr, nullptr, argv.data(), environ) != 0) {
-      pid_ = -1;
+    if (posix_spawn(child_.pid_slot(), CRAFTSCAN_DDS_PEER, nullptr, nullptr, argv.data(),
+                    environ) != 0) {
+      *child_.pid_slot() = -1;
     }
   }
-  ~Peer() {
-    if (pid_ > 0) {
-      kill(pid_, SIGKILL);
-      waitpid(pid_, nullptr, 0);
-    }
-  }
-  bool started() const { return pid_ > 0; }
+  bool started() const { return child_.started(); }
 
   // The exit code, or −1 if it did not exit within `timeout` (then killed).
-  int Wait(milliseconds timeout) {
-    const auto deadline = std::chrono::steady_clock::now() + timeout;
-    while (pid_ > 0) {
-      int status = 0;
-      const pid_t done = waitpid(pid_, &status, WNOHANG);
-      if (done == pid_) {
-        pid_ = -1;
-        return WIFEXITED(status) ? WEXITSTATUS(status) : 128 + WTERMSIG(status);
-      }
-      if (std::chrono::steady_clock::now() > deadline) break;
-      std::this_thread::sleep_for(milliseconds(10));
-    }
-    return -1;
-  }
+  int Wait(milliseconds timeout) { return child_.Wait(timeout); }
 
  private:
-  pid_t pid_ = -1;
+  ChildProcess child_;
 };
 
 // A writer on topic(station) and a reader on topic(station + "_echo"), the

@@ -25,6 +25,7 @@
 #include <CLI/CLI.hpp>
 
 #include "craftscan/client/file_assembler.h"
+#include "craftscan/dds/participant.h"
 #include "ctl.h"
 
 namespace {
@@ -106,7 +107,7 @@ int main(int argc, char** argv) {
   }
   app.add_option("--station", g.station, "station id (craftscand's `station`)")->capture_default_str();
   app.add_option("--domain", g.domain, "DDS domain id (craftscand's `dds.domain`)")
-      ->check(CLI::Range(0, 232))
+      ->check(CLI::Range(0u, craftscan::dds::kMaxDomainId))
       ->capture_default_str();
   app.add_option("--token", g.token, "authorisation token (else --token-file or CRAFTSCAN_TOKEN)");
   app.add_option("--token-file", g.token_file, "file whose first line is the token");

@@ -79,7 +79,7 @@ int main(int argc, char** argv) {
   app.add_option("--station", recorder_options.stations,
                  "station id to record (repeat for several stations)")
       ->required();
-  app.add_option("--domain", recorder_options.domain_id, "DDS domain id (0..232)")
+  app.add_option("--domain", recorder_options.domain_id, "DDS domain id (0..230)")
       ->capture_default_str();
   app.add_option("--dds-config", recorder_options.dds_config,
                  "Cyclone DDS configuration: XML, a file (absolute path or file:// URI) or a "

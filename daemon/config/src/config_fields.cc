@@ -304,7 +304,8 @@ std::vector<Field> MakeFields() {
       LogLevelFromString,
       {LogLevel::kDebug, LogLevel::kInfo, LogLevel::kWarning, LogLevel::kError}));
   f.push_back(IntField(
-      "dds.domain", [](DaemonConfig& c) -> int& { return c.dds.domain; }, 0, 232));
+      "dds.domain", [](DaemonConfig& c) -> int& { return c.dds.domain; }, 0,
+      230));  // dds::kMaxDomainId: the participant refuses more
   f.push_back(StringField(
       "dds.config_file", [](DaemonConfig& c) -> std::string& { return c.dds.config_file; },
       IsEmptyOrAbsolutePath, "an absolute path or \"\""));

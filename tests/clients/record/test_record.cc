@@ -39,6 +39,7 @@
 #include "craftscan/dds/participant.h"
 #include "craftscan/dds/topics.h"
 #include "craftscan/pipeline/pfm.h"
+#include "dds_test_util.h"
 #include "craftscan/pipeline/point_cloud.h"
 #include "record_test_util.h"
 
@@ -53,15 +54,8 @@ using testing::ReadIndex;
 using testing::SameBytes;
 constexpr milliseconds kTimeout{20000};  // generous: the machine is shared
 
-std::string TestConfig() {
-  return ConfigFileUri(CRAFTSCAN_CYCLONEDDS_XML) + "," + LoopbackOnlyConfigXml();
-}
-
-// One random domain per test process (1..230; 0 is the usual default).
-uint32_t ProcessDomainId() {
-  static const uint32_t id = 1 + std::random_device{}() % kMaxDomainId;
-  return id;
-}
+using ::craftscan::testing::ProcessDomainId;
+std::string TestConfig() { return ::craftscan::testing::TestDdsConfig(); }
 
 // One participant per process: it creates the domain with the test config.
 std::shared_ptr<Participant> SharedParticipant() {

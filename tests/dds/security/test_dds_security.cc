@@ -52,6 +52,7 @@
 #include "craftscan/dds/endpoint.h"
 #include "craftscan/dds/participant.h"
 #include "craftscan/dds/topics.h"
+#include "dds_test_util.h"
 #include "security_test_util.h"
 
 extern char** environ;
@@ -67,11 +68,7 @@ constexpr milliseconds kTimeout{20000};  // for what must happen; generous (shar
 // work: at the daemon's 20 status samples/s, 60 samples they must not get.
 constexpr milliseconds kWindow{3000};
 
-// One random domain per test process (1..230; 0 is the usual default).
-uint32_t ProcessDomainId() {
-  static const uint32_t id = 1 + std::random_device{}() % kMaxDomainId;
-  return id;
-}
+using ::craftscan::testing::ProcessDomainId;
 
 std::string UniqueStation() {
   static int counter = 0;
@@ -109,13 +106,6 @@ class Process {
   Process() = default;
   Process(const Process&) = delete;
   Process& operator=(const Process&) = delete;
-  ~Process() {
-    if (pid_ > 0) {
-      kill(pid_, SIGKILL);
-      waitpid(pid_, nullptr, 0);
-    }
-  }
-
   bool Start(const std::vector<std::string>& args, const std::string& output, bool with_stderr) {
     std::vector<char*> argv;
     for (const std::string& arg : args) argv.push_back(const_cast<char*>(arg.c_str()));
@@ -125,34 +115,21 @@ class Process {
     posix_spawn_file_actions_addopen(&actions, STDOUT_FILENO, output.c_str(),
                                      O_WRONLY | O_CREAT | O_TRUNC, 0644);
     if (with_stderr) posix_spawn_file_actions_adddup2(&actions, STDOUT_FILENO, STDERR_FILENO);
-    const int rc = posix_spawn(&pid_, args[0].c_str(), &actions, nullptr, argv.data(), environ);
+    const int rc =
+        posix_spawn(child_.pid_slot(), args[0].c_str(), &actions, nullptr, argv.data(), environ);
     posix_spawn_file_actions_destroy(&actions);
-    if (rc != 0) pid_ = -1;
-    return pid_ > 0;
+    if (rc != 0) *child_.pid_slot() = -1;
+    return child_.started();
   }
 
-  void Terminate() {
-    if (pid_ > 0) kill(pid_, SIGTERM);
-  }
+  void Terminate() { child_.Signal(SIGTERM); }
 
   // The exit code (128 + signal if killed by one), or −1 if it did not exit
-  // within `timeout` (then it is killed).
-  int Wait(milliseconds timeout) {
-    const auto deadline = std::chrono::steady_clock::now() + timeout;
-    while (pid_ > 0) {
-      int status = 0;
-      if (waitpid(pid_, &status, WNOHANG) == pid_) {
-        pid_ = -1;
-        return WIFEXITED(status) ? WEXITSTATUS(status) : 128 + WTERMSIG(status);
-      }
-      if (std::chrono::steady_clock::now() > deadline) break;
-      std::this_thread::sleep_for(milliseconds(10));
-    }
-    return -1;
-  }
+  // within `timeout` (then it is killed on destruction).
+  int Wait(milliseconds timeout) { return child_.Wait(timeout); }
 
  private:
-  pid_t pid_ = -1;
+  ::craftscan::testing::ChildProcess child_;
 };
 
 struct ScriptRun {

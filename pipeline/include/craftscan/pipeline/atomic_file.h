@@ -20,7 +20,9 @@ bool WriteFileAtomically(const std::string& path, std::string_view bytes, std::s
 // threads that create files): the "Umask:" line of /proc/self/status; 022
 // where that is missing (Linux < 4.7). For code that creates a file or
 // folder with a restrictive mode first (mkstemp, mkdtemp) and then widens
-// it: widen to 0666 / 0777 less this. Thread-safe.
+// it: widen to 0666 / 0777 less this. Read once per process (craftscan sets
+// no umask of its own; the service manager's UMask= is in place before
+// exec), so calling it for every file costs nothing. Thread-safe.
 unsigned ProcessUmask();
 
 }  // namespace craftscan

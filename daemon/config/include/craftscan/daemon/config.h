@@ -12,7 +12,7 @@
 //   data_dir: /var/lib/craftscan  absolute; sessions/ and calibration/ live here
 //   log_level: info               debug | info | warning | error
 //   dds:
-//     domain: 0                   0..232 (Cyclone DDS's port mapping limit)
+//     domain: 0                   0..230 (Cyclone DDS's port mapping limit)
 //     config_file: ""             absolute path of a Cyclone DDS XML file, or
 //                                 "" (then CYCLONEDDS_URI or Cyclone's defaults)
 //   auth:
@@ -110,7 +110,7 @@ using LogLevel = drivers::LogLevel;
 bool LogLevelFromString(std::string_view text, LogLevel* level);
 
 struct DdsSettings {
-  int domain = 0;           // DDS domain id, 0..232
+  int domain = 0;           // DDS domain id, 0..230
   std::string config_file;  // absolute path of a Cyclone DDS XML file, or empty
 };
 

@@ -178,7 +178,10 @@ bool DeviceManager::Capture(drivers::StereoFrame* frame, const std::atomic<bool>
       if (!r.ok()) return Fail(error, "camera lost and not recovered: " + r.ToString());
       continue;
     }
-    if (s.code != drivers::StatusCode::kTimeout) return Fail(error, "camera: " + last);
+    if (s.code != drivers::StatusCode::kTimeout && s.code != drivers::StatusCode::kIoError) {
+      return Fail(error, "camera: " + last);
+    }
+    if (log_) log_(drivers::LogLevel::kWarning, "capture failed: " + last + "; trying again");
   }
   return Fail(error, "camera: " + std::to_string(setup_.capture_retries) +
                          " captures failed; last: " + last);

@@ -257,6 +257,10 @@ void JobEngine::SetStage(const std::string& stage, int current, int total,
 }
 
 void JobEngine::Finish(JobState state, const std::string& message, nlohmann::json result) {
+  if (defer_finish_) {  // RunScan finishes once the session is closed
+    deferred_finish_ = DeferredFinish{state, message, std::move(result)};
+    return;
+  }
   std::string job, stage;
   {
     std::lock_guard lock(mutex_);
@@ -397,6 +401,29 @@ bool JobEngine::StartResume(const std::string& session_id, JobInfo* info, std::s
 }
 
 void JobEngine::RunScan(const std::shared_ptr<ScanPlan>& plan) {
+  // The session is closed -- its lock released -- before the job is
+  // announced as ended, so a client told "done" or "failed" can open it at
+  // once (resume, craftscan-record, another process). ScanBody's Finish is
+  // held back until then.
+  defer_finish_ = true;
+  try {
+    ScanBody(plan);
+  } catch (...) {
+    defer_finish_ = false;
+    deferred_finish_.reset();
+    plan->session.reset();
+    throw;  // Launch reports it
+  }
+  defer_finish_ = false;
+  plan->session.reset();
+  if (deferred_finish_) {
+    DeferredFinish f = std::move(*deferred_finish_);
+    deferred_finish_.reset();
+    Finish(f.state, f.message, std::move(f.result));
+  }
+}
+
+void JobEngine::ScanBody(const std::shared_ptr<ScanPlan>& plan) {
   Session& session = *plan->session;
   const std::string sid = session.id();
   const int n = plan->views;

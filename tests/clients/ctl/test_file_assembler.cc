@@ -9,6 +9,7 @@
 #include <fstream>
 #include <iterator>
 #include <string>
+#include <string_view>
 #include <vector>
 
 #include "craftscan/client/file_assembler.h"
@@ -36,7 +37,10 @@ class FileAssemblerTest : public ::testing::Test {
     return h.value();
   }
   // The chunks of `content` as file `index` of `count`, `size` bytes each.
-  static std::vector<FileChunk> Chunks(const std::string& name, const std::string& content,
+  // The chunks point into `name` and `content`: views, so that a literal
+  // passed here outlives the loop (a std::string parameter made from one
+  // died before the range-for's body ran; ASan's stack-use-after-scope).
+  static std::vector<FileChunk> Chunks(std::string_view name, std::string_view content,
                                        std::uint32_t index, std::uint32_t count, std::size_t size) {
     std::vector<FileChunk> chunks;
     std::size_t offset = 0;

@@ -75,7 +75,9 @@ class DeviceManager {
   bool SwitchScene(const std::string& scene, const BoardSpec* board, std::string* error);
 
   // One stereo pair. Loss → Reconnect() (the driver's back-off) and retry;
-  // timeouts → up to capture_retries tries. `cancel` is polled between tries.
+  // timeouts and transport errors (kIoError: e.g. a GigE frame with missing
+  // packets, common just after a reconnect) → up to capture_retries tries.
+  // `cancel` is polled between tries.
   bool Capture(drivers::StereoFrame* frame, const std::atomic<bool>& cancel, std::string* error);
   bool MoveTo(double angle_deg, std::string* error);
   bool Home(std::string* error);

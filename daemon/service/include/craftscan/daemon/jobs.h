@@ -165,6 +165,7 @@ class JobEngine {
   bool Launch(const std::string& verb, const std::string& session, std::function<void()> body,
               JobInfo* info, std::string* error);
   void RunScan(const std::shared_ptr<ScanPlan>& plan);
+  void ScanBody(const std::shared_ptr<ScanPlan>& plan);
   void RunCalibrate();
   void RunCalibrateTurntable();
   void SetStage(const std::string& stage, int current, int total, const std::string& message);
@@ -183,6 +184,16 @@ class JobEngine {
   // Joins the worker of the last job if it has finished (its session lock
   // is released once its thread ends).
   void JoinFinishedWorker();
+
+  // Finish called by ScanBody, held until RunScan has closed the session
+  // (worker thread only).
+  struct DeferredFinish {
+    JobState state;
+    std::string message;
+    nlohmann::json result;
+  };
+  bool defer_finish_ = false;
+  std::optional<DeferredFinish> deferred_finish_;
 
   JobEngineOptions options_;
   DeviceManager* devices_;

@@ -35,6 +35,16 @@ inline constexpr const char* kObserverToken = "observer-token-0123456789";
 inline constexpr const char* kOperatorToken = "operator-token-0123456789";
 inline constexpr const char* kAdminToken = "admin-token-0123456789abc";
 
+// Threads of the sim renderer and the pipeline in the daemons these tests
+// start: 2, or CRAFTSCAN_TEST_THREADS. scripts/sanitize sets 1 under TSan:
+// TBB's scheduler synchronises inside libtbb, which is not instrumented,
+// so its worker threads make TSan report races that are not there.
+inline int TestThreads() {
+  const char* value = std::getenv("CRAFTSCAN_TEST_THREADS");
+  const int n = value != nullptr ? std::atoi(value) : 0;
+  return n >= 1 ? n : 2;
+}
+
 class DaemonFixture {
  public:
   // image_size of the sim camera, e.g. "1280x1024".
@@ -96,16 +106,17 @@ class DaemonFixture {
            << "devices:\n";
     if (devices_yaml.empty()) {
       config << "  camera: {driver: sim, config: {image_size: " << image_size_
-             << ", threads: 2" << extra_sim_ << "}}\n"
+             << ", threads: " << TestThreads() << extra_sim_ << "}}\n"
              << "  turntable: {driver: sim, config: {image_size: " << image_size_
-             << ", threads: 2" << extra_sim_ << "}}\n";
+             << ", threads: " << TestThreads() << extra_sim_ << "}}\n";
     } else {
       config << devices_yaml;
     }
     config << "scan: {settle_ms: 0}\n"
            // The carved box (80 x 60 x 50 mm) with a margin: the band the
            // matcher searches follows from this volume.
-           << "pipeline: {threads: 2, volume_radius_mm: 65, volume_max_height_mm: 70"
+           << "pipeline: {threads: " << TestThreads()
+           << ", volume_radius_mm: 65, volume_max_height_mm: 70"
            << pipeline_extra << "}\n";
     config.close();
     if (!with_calibration) return true;

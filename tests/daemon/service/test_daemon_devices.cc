@@ -40,7 +40,8 @@ class SerialStation {
     // 3600 deg/min: a 90-degree step takes 1.5 s, long enough to inject a
     // fault in the middle of it.
     return daemon.Start(
-        "  camera: {driver: sim, config: {image_size: 320x256, threads: 2}}\n"
+        "  camera: {driver: sim, config: {image_size: 320x256, threads: " +
+        std::to_string(TestThreads()) + "}}\n"
         "  turntable: {driver: serial_turntable, config: {port: " +
         link_ +
         ", feed_deg_min: 3600, command_timeout_ms: 500, banner_timeout_ms: 1000, "

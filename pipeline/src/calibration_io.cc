@@ -379,25 +379,27 @@ bool LoadCalibration(const std::string& path, StereoCalibration* calibration, st
   std::error_code ec;
   if (!fs::exists(path, ec)) return Fail(error, "'" + path + "': no such file");
   if (!fs::is_regular_file(path, ec)) return Fail(error, "'" + path + "': not a regular file");
-  if (fs::file_size(path, ec) == 0 && !ec) return Fail(error, "'" + path + "': empty file");
-
+  // A calibration is a few kB; 16 MiB is far beyond any real one.
+  constexpr std::uintmax_t kMaxBytes = 16u << 20;
+  const std::uintmax_t size = fs::file_size(path, ec);
   Reader in(path, error);
+  if (ec) return in.Fail("cannot read: " + ec.message());
+  if (size == 0) return Fail(error, "'" + path + "': empty file");
+  if (size > kMaxBytes) return in.Fail("larger than 16 MiB: not a calibration file");
+  // Read once: the bytes checked here are the bytes OpenCV parses.
+  std::string text(static_cast<std::size_t>(size), '\0');
   {
-    // A calibration is a few kB; 16 MiB is far beyond any real one.
-    constexpr std::uintmax_t kMaxBytes = 16u << 20;
-    const std::uintmax_t size = fs::file_size(path, ec);
-    if (ec) return in.Fail("cannot read: " + ec.message());
-    if (size > kMaxBytes) return in.Fail("larger than 16 MiB: not a calibration file");
     std::ifstream file(path, std::ios::binary);
-    std::string text(static_cast<std::size_t>(size), '\0');
     if (!file.read(text.data(), static_cast<std::streamsize>(size))) return in.Fail("cannot read");
-    std::string why;
-    if (!HasOneDocumentShape(text, &why)) return in.Fail("not a calibration file: " + why);
   }
+  std::string why;
+  if (!HasOneDocumentShape(text, &why)) return in.Fail("not a calibration file: " + why);
   StereoCalibration loaded;
   try {
     // Always parse as YAML, whatever the extension.
-    cv::FileStorage storage(path, cv::FileStorage::READ | cv::FileStorage::FORMAT_YAML);
+    cv::FileStorage storage(text,
+                            cv::FileStorage::READ | cv::FileStorage::MEMORY |
+                                cv::FileStorage::FORMAT_YAML);
     if (!storage.isOpened()) return in.Fail("cannot open or parse as OpenCV YAML");
     if (!ReadCalibration(storage, in, &loaded)) return false;
   } catch (const cv::Exception& e) {

@@ -33,7 +33,7 @@
 #include <vector>
 
 #include "command.h"
-#include "craftscan/pipeline/calibration.h"
+#include "craftscan/pipeline/calib/calibration.h"
 
 namespace craftscan::bench {
 namespace {

@@ -93,9 +93,9 @@
 #include <opencv2/core/utility.hpp>
 
 #include "command.h"
-#include "craftscan/pipeline/loop_closure.h"
-#include "craftscan/pipeline/registration.h"
-#include "craftscan/pipeline/scan_dataset.h"
+#include "craftscan/pipeline/registration/loop_closure.h"
+#include "craftscan/pipeline/registration/registration.h"
+#include "craftscan/pipeline/registration/scan_dataset.h"
 #include "pcl_baseline.h"
 
 namespace craftscan::bench {

@@ -40,7 +40,7 @@
 #include <opencv2/imgproc.hpp>
 
 #include "command.h"
-#include "craftscan/pipeline/adcensus.h"
+#include "craftscan/pipeline/stereo/adcensus.h"
 #include "craftscan/sim/station.h"
 
 namespace craftscan::bench {

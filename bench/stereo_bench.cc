@@ -37,8 +37,8 @@
 #include <opencv2/imgproc.hpp>
 
 #include "command.h"
-#include "craftscan/pipeline/adcensus.h"
-#include "craftscan/pipeline/pfm.h"
+#include "craftscan/pipeline/common/pfm.h"
+#include "craftscan/pipeline/stereo/adcensus.h"
 #include "stereo_scene.h"
 
 namespace craftscan::bench {

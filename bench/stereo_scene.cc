@@ -14,7 +14,7 @@
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 
-#include "craftscan/pipeline/pfm.h"
+#include "craftscan/pipeline/common/pfm.h"
 
 namespace craftscan {
 namespace {

@@ -156,8 +156,11 @@ std::vector<DriverProfile> Profiles() {
   DriverProfile aravis;
   aravis.name = "aravis";
   aravis.plugin = "aravis";
-  aravis.config = {{"left", "127.0.0.1"}, {"right", "127.0.0.2"}, {"packet_size", "8000"},
-                   {"reconnect_attempts", "3"}, {"reconnect_delay_ms", "100"}};
+  aravis.config = {{"left", "127.0.0.1"},
+                   {"right", "127.0.0.2"},
+                   {"packet_size", "8000"},
+                   {"reconnect_attempts", "3"},
+                   {"reconnect_delay_ms", "100"}};
   aravis.make_rig = AravisRig::Make;
   aravis.has_turntable = false;
 
@@ -651,17 +654,20 @@ TEST_F(SerialTurntablePlugin, MissingPortIsAClearError) {
   std::unique_ptr<DriverInstance> instance;
   const DriverStatus status = Create({{"baud", "115200"}}, &instance);
   EXPECT_EQ(status.code, StatusCode::kInvalidArgument) << status.ToString();
-  EXPECT_NE(status.message.find("missing config key 'port'"), std::string::npos)
-      << status.message;
+  EXPECT_NE(status.message.find("missing config key 'port'"), std::string::npos) << status.message;
   EXPECT_FALSE(instance);
 }
 
 TEST_F(SerialTurntablePlugin, BadConfigValuesNameTheKey) {
-  const std::vector<std::pair<std::string, std::string>> bad = {
-      {"baud", "fast"},         {"feed_deg_min", "-1"}, {"homing", "maybe"},
-      {"settle_ms", "-5"},      {"position_tolerance_deg", "x"},
-      {"command_timeout_ms", "0"}, {"no_such_key", "1"},
-      {"abort", "stop"},        {"hold_timeout_ms", "0"}};
+  const std::vector<std::pair<std::string, std::string>> bad = {{"baud", "fast"},
+                                                                {"feed_deg_min", "-1"},
+                                                                {"homing", "maybe"},
+                                                                {"settle_ms", "-5"},
+                                                                {"position_tolerance_deg", "x"},
+                                                                {"command_timeout_ms", "0"},
+                                                                {"no_such_key", "1"},
+                                                                {"abort", "stop"},
+                                                                {"hold_timeout_ms", "0"}};
   for (const auto& [key, value] : bad) {
     std::unique_ptr<DriverInstance> instance;
     const DriverStatus status = Create({{"port", "/dev/null"}, {key, value}}, &instance);

@@ -20,7 +20,7 @@
 #include <opencv2/core.hpp>
 
 #include "craftscan/drivers/plugin_loader.h"
-#include "craftscan/pipeline/calibration.h"
+#include "craftscan/pipeline/calib/calibration.h"
 #include "craftscan/sim/calibration_scenes.h"
 #include "craftscan/sim/driver_options.h"
 #include "craftscan/sim/station.h"

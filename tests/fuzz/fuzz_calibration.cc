@@ -4,7 +4,7 @@
 #include <string>
 #include <string_view>
 
-#include "craftscan/pipeline/calibration.h"
+#include "craftscan/pipeline/calib/calibration.h"
 #include "fuzz_target.h"
 
 CRAFTSCAN_FUZZ_TARGET(calibration) {

@@ -7,7 +7,7 @@
 
 #include <opencv2/core.hpp>
 
-#include "craftscan/pipeline/pfm.h"
+#include "craftscan/pipeline/common/pfm.h"
 #include "fuzz_target.h"
 
 CRAFTSCAN_FUZZ_TARGET(pfm) {

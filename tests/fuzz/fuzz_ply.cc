@@ -6,7 +6,7 @@
 #include <string>
 #include <string_view>
 
-#include "craftscan/pipeline/point_cloud.h"
+#include "craftscan/pipeline/common/point_cloud.h"
 #include "fuzz_target.h"
 
 namespace {

@@ -5,7 +5,7 @@
 
 #include <filesystem>
 
-#include "craftscan/pipeline/adcensus.h"
+#include "craftscan/pipeline/stereo/adcensus.h"
 #include "stereo_scene.h"
 
 namespace craftscan {

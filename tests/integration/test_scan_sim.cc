@@ -42,13 +42,13 @@
 #include <utility>
 #include <vector>
 
-#include "craftscan/pipeline/adcensus.h"
-#include "craftscan/pipeline/fusion.h"
-#include "craftscan/pipeline/measure.h"
-#include "craftscan/pipeline/point_cloud.h"
-#include "craftscan/pipeline/reproject.h"
-#include "craftscan/pipeline/scan_dataset.h"
-#include "craftscan/pipeline/scan_reconstruction.h"
+#include "craftscan/pipeline/common/point_cloud.h"
+#include "craftscan/pipeline/registration/scan_dataset.h"
+#include "craftscan/pipeline/stereo/adcensus.h"
+#include "craftscan/pipeline/stereo/reproject.h"
+#include "craftscan/pipeline/surface/fusion.h"
+#include "craftscan/pipeline/surface/measure.h"
+#include "craftscan/pipeline/surface/scan_reconstruction.h"
 #include "craftscan/sim/station.h"
 
 namespace craftscan {
@@ -200,7 +200,8 @@ bool RunSimScan(const sim::SceneOptions& scene_options, int num_views, double st
     info.render_ms = render.render_ms;
     if (k == 0) world_from_object0 = render.world_from_object;
     info.view0_from_view = render.rig_from_world * world_from_object0 *
-                           InvertRigid(render.world_from_object) * InvertRigid(render.rig_from_world);
+                           InvertRigid(render.world_from_object) *
+                           InvertRigid(render.rig_from_world);
 
     cv::Mat left, right;
     cv::remap(render.left, left, map_lx, map_ly, cv::INTER_LINEAR, cv::BORDER_CONSTANT);
@@ -216,9 +217,8 @@ bool RunSimScan(const sim::SceneOptions& scene_options, int num_views, double st
     cv::minMaxLoc(render.rectified_disparity, &info.gt_disparity_min, &info.gt_disparity_max,
                   nullptr, nullptr, band_mask & finite_disparity);
     info.min_disparity = static_cast<int>(std::floor(info.gt_disparity_min)) - kDisparityMarginPx;
-    info.num_disparities =
-        static_cast<int>(std::ceil(info.gt_disparity_max)) + kDisparityMarginPx -
-        info.min_disparity + 1;
+    info.num_disparities = static_cast<int>(std::ceil(info.gt_disparity_max)) + kDisparityMarginPx -
+                           info.min_disparity + 1;
 
     ADCensusOptions options;
     options.min_disparity = info.min_disparity;
@@ -281,8 +281,7 @@ bool RunSimScan(const sim::SceneOptions& scene_options, int num_views, double st
     // object: the background (its true disparity lies outside the band, so
     // any match there is false) and the platter.
     const cv::Matx44d turntable_from_rig = TurntableFromRig(c.turntable);
-    const cv::Mat textured =
-        TextureMask(left, reproject.texture_window, reproject.min_texture_std);
+    const cv::Mat textured = TextureMask(left, reproject.texture_window, reproject.min_texture_std);
     for (int v = 0; v < mask.rows; ++v) {
       const float* d = match.disparity.ptr<float>(v);
       const std::uint8_t* label = render.rectified_labels.ptr<std::uint8_t>(v);
@@ -351,12 +350,14 @@ void PrintViewErrors(const SimScan& scan, const ScanResult& result) {
     const PointCloud at_truth =
         TransformCloud(turntable_from_view0 * scan.info[k].view0_from_view, result.views[k].fine);
     const std::vector<double> dk = NearestDistances(truth_index, at_truth.points_mm);
-    std::printf("  view %zu fine cloud at the exact pose vs truth: mean %.3f mm, median %.3f mm, "
-                "p95 %.3f mm, %.1f %% beyond 2 mm\n",
-                k, Mean(dk), Quantile(dk, 0.5), Quantile(dk, 0.95),
-                100.0 * static_cast<double>(std::count_if(dk.begin(), dk.end(),
-                                                          [](double v) { return v > 2; })) /
-                    static_cast<double>(std::max<std::size_t>(1, dk.size())));
+    std::printf(
+        "  view %zu fine cloud at the exact pose vs truth: mean %.3f mm, median %.3f mm, "
+        "p95 %.3f mm, %.1f %% beyond 2 mm\n",
+        k, Mean(dk), Quantile(dk, 0.5), Quantile(dk, 0.95),
+        100.0 *
+            static_cast<double>(
+                std::count_if(dk.begin(), dk.end(), [](double v) { return v > 2; })) /
+            static_cast<double>(std::max<std::size_t>(1, dk.size())));
   }
 }
 
@@ -383,8 +384,9 @@ ScanFigures Evaluate(const SimScan& scan, const ScanResult& result, double min_h
     fig.max_rot_err_deg = std::max(fig.max_rot_err_deg, fig.rot_err_deg.back());
     fig.max_trans_err_mm = std::max(fig.max_trans_err_mm, fig.trans_err_mm.back());
     fig.max_point_err_mm = std::max(fig.max_point_err_mm, fig.point_err_mm.back());
-    std::printf("  pose %zu: rotation error %.4f deg, translation error %.3f mm, object RMS %.3f mm\n",
-                k, fig.rot_err_deg.back(), fig.trans_err_mm.back(), fig.point_err_mm.back());
+    std::printf(
+        "  pose %zu: rotation error %.4f deg, translation error %.3f mm, object RMS %.3f mm\n", k,
+        fig.rot_err_deg.back(), fig.trans_err_mm.back(), fig.point_err_mm.back());
   }
 
   // The truth in the fused cloud's frame.
@@ -416,20 +418,21 @@ ScanFigures Evaluate(const SimScan& scan, const ScanResult& result, double min_h
   fig.truth_grid_points = truth_grid.size();
   const NearestIndex fused_index(result.fused.points_mm);
   const std::vector<double> back = NearestDistances(fused_index, truth_grid.points_mm);
-  const auto covered = std::count_if(back.begin(), back.end(),
-                                     [](double v) { return v <= kCompletenessGateMm; });
-  fig.completeness_pct =
-      100.0 * static_cast<double>(covered) /
-      static_cast<double>(std::max<std::size_t>(1, truth_grid.size()));
+  const auto covered =
+      std::count_if(back.begin(), back.end(), [](double v) { return v <= kCompletenessGateMm; });
+  fig.completeness_pct = 100.0 * static_cast<double>(covered) /
+                         static_cast<double>(std::max<std::size_t>(1, truth_grid.size()));
   std::printf(
       "  fused %zu points vs truth %zu points: distance mean %.3f mm, median %.3f mm, p95 %.3f "
       "mm; completeness %.1f %% of %zu truth grid points (%.1f mm grid, z ≥ %.1f mm) within "
       "%.1f mm\n",
-      fig.fused_points, fig.truth_points, fig.fused_mean_mm, fig.fused_median_mm,
-      fig.fused_p95_mm, fig.completeness_pct, fig.truth_grid_points, kCompletenessGridMm,
-      min_height_mm, kCompletenessGateMm);
-  std::printf("  fused points within %.0f mm of the truth: %.1f %%, their distance mean %.3f mm, p95 %.3f mm\n",
-              kInlierMm, fig.inlier_pct, fig.inlier_mean_mm, fig.inlier_p95_mm);
+      fig.fused_points, fig.truth_points, fig.fused_mean_mm, fig.fused_median_mm, fig.fused_p95_mm,
+      fig.completeness_pct, fig.truth_grid_points, kCompletenessGridMm, min_height_mm,
+      kCompletenessGateMm);
+  std::printf(
+      "  fused points within %.0f mm of the truth: %.1f %%, their distance mean %.3f mm, p95 %.3f "
+      "mm\n",
+      kInlierMm, fig.inlier_pct, fig.inlier_mean_mm, fig.inlier_p95_mm);
   std::fflush(stdout);
   return fig;
 }
@@ -442,14 +445,15 @@ void PrintStages(const SimScan& scan, const ScanResult& r, double reconstruct_ms
       r.loop_ms, r.fuse_ms, r.mesh_ms, r.measure_ms);
   for (std::size_t k = 0; k < r.views.size(); ++k) {
     const ViewCloud& v = r.views[k];
-    std::printf("  view %zu conditioned: %zu input, %zu cropped, %zu outliers, %zu fine, %zu coarse\n",
-                k, v.input_points, v.cropped_points, v.outlier_points, v.fine.size(),
-                v.coarse.size());
+    std::printf(
+        "  view %zu conditioned: %zu input, %zu cropped, %zu outliers, %zu fine, %zu coarse\n", k,
+        v.input_points, v.cropped_points, v.outlier_points, v.fine.size(), v.coarse.size());
   }
   for (std::size_t k = 1; k < r.pairwise.size(); ++k) {
     const RegistrationResult& p = r.pairwise[k];
-    std::printf("  pair %zu→%zu: fitness %.3f, rmse %.3f mm, %d iterations, prior kept %d, %.0f ms\n",
-                k, k - 1, p.fitness, p.rmse_mm, p.iterations, p.prior_kept ? 1 : 0, p.time_ms);
+    std::printf(
+        "  pair %zu→%zu: fitness %.3f, rmse %.3f mm, %d iterations, prior kept %d, %.0f ms\n", k,
+        k - 1, p.fitness, p.rmse_mm, p.iterations, p.prior_kept ? 1 : 0, p.time_ms);
   }
   if (r.closing) {
     std::printf("  closing 0→%zu: %s fitness %.3f, rmse %.3f mm\n", r.pairwise.size() - 1,
@@ -580,8 +584,9 @@ TEST(ScanSimTest, CarvedBox) {
   for (const BoxEdge& e : box.edges) {
     errors.push_back(e.length_mm - truth[e.axis]);
     circle_errors.push_back(e.circle_length_mm - truth[e.axis]);
-    std::printf("  edge %d-%d (axis %d, truth %.0f mm): %.3f mm, error %+.3f mm (point circle %+.3f mm)\n",
-                e.a, e.b, e.axis, truth[e.axis], e.length_mm, errors.back(), circle_errors.back());
+    std::printf(
+        "  edge %d-%d (axis %d, truth %.0f mm): %.3f mm, error %+.3f mm (point circle %+.3f mm)\n",
+        e.a, e.b, e.axis, truth[e.axis], e.length_mm, errors.back(), circle_errors.back());
   }
   double max_abs = 0;
   for (double e : errors) max_abs = std::max(max_abs, std::abs(e));

@@ -26,8 +26,8 @@
 #include <utility>
 #include <vector>
 
-#include "craftscan/pipeline/calibration.h"
-#include "craftscan/pipeline/rectify.h"
+#include "craftscan/pipeline/calib/calibration.h"
+#include "craftscan/pipeline/calib/rectify.h"
 #include "craftscan/sim/calibration_scenes.h"
 #include "craftscan/sim/station.h"
 

@@ -11,7 +11,7 @@
 #include <string>
 #include <vector>
 
-#include "craftscan/pipeline/calibration.h"
+#include "craftscan/pipeline/calib/calibration.h"
 
 namespace craftscan::testing {
 

@@ -7,8 +7,8 @@
 #include <cstring>
 #include <opencv2/imgcodecs.hpp>
 
-#include "adcensus_internal.h"
-#include "craftscan/pipeline/adcensus.h"
+#include "craftscan/pipeline/stereo/adcensus.h"
+#include "stereo/adcensus_internal.h"
 #include "test_util.h"
 
 namespace craftscan {

@@ -5,7 +5,7 @@
 #include <fstream>
 #include <iterator>
 
-#include "craftscan/pipeline/atomic_file.h"
+#include "craftscan/pipeline/common/atomic_file.h"
 #include "test_util.h"
 
 namespace craftscan {

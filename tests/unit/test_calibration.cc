@@ -18,8 +18,8 @@
 #include <vector>
 
 #include "calibration_test_util.h"
-#include "craftscan/pipeline/calibration.h"
-#include "craftscan/pipeline/rectify.h"
+#include "craftscan/pipeline/calib/calibration.h"
+#include "craftscan/pipeline/calib/rectify.h"
 #include "test_util.h"
 
 namespace craftscan {

@@ -14,9 +14,9 @@
 #include <string>
 #include <vector>
 
-#include "craftscan/pipeline/fusion.h"
-#include "craftscan/pipeline/mesh.h"
-#include "craftscan/pipeline/point_cloud.h"
+#include "craftscan/pipeline/common/point_cloud.h"
+#include "craftscan/pipeline/surface/fusion.h"
+#include "craftscan/pipeline/surface/mesh.h"
 #include "test_util.h"
 
 namespace craftscan {
@@ -137,7 +137,8 @@ TEST(FusionTest, MultiViewSupportDropsSingleViewFloaters) {
   EXPECT_EQ(floaters(filtered), 0);
   EXPECT_GT(stats.single_view_voxels, 400u);
   // The plane seen by both views stays (all but a rim of single-view voxels).
-  EXPECT_GT(static_cast<double>(filtered.size()), 0.95 * static_cast<double>(all.size() - floaters(all)));
+  EXPECT_GT(static_cast<double>(filtered.size()),
+            0.95 * static_cast<double>(all.size() - floaters(all)));
   options.min_views = 0;
   EXPECT_FALSE(options.IsValid(&error));
   EXPECT_NE(error.find("min_views"), std::string::npos) << error;
@@ -275,10 +276,11 @@ TEST_F(MeshTest, PoissonSphere) {
     sum_error += e;
   }
   const double mean_error = sum_error / static_cast<double>(mesh.vertices_mm.size());
-  std::printf("Poisson sphere: %zu vertices, %zu faces (raw %zu/%zu), %.2f s; "
-              "|r − 30| mean %.4f max %.4f mm\n",
-              mesh.vertices_mm.size(), mesh.faces.size(), r.raw_vertices, r.raw_faces, r.seconds,
-              mean_error, max_error);
+  std::printf(
+      "Poisson sphere: %zu vertices, %zu faces (raw %zu/%zu), %.2f s; "
+      "|r − 30| mean %.4f max %.4f mm\n",
+      mesh.vertices_mm.size(), mesh.faces.size(), r.raw_vertices, r.raw_faces, r.seconds,
+      mean_error, max_error);
   EXPECT_GT(mesh.faces.size(), 10000u);
   EXPECT_LT(max_error, 0.3);
   EXPECT_LT(mean_error, 0.1);

@@ -16,9 +16,9 @@
 #include <string>
 #include <vector>
 
-#include "craftscan/pipeline/measure.h"
-#include "craftscan/pipeline/point_cloud.h"
-#include "craftscan/pipeline/scan_dataset.h"
+#include "craftscan/pipeline/common/point_cloud.h"
+#include "craftscan/pipeline/registration/scan_dataset.h"
+#include "craftscan/pipeline/surface/measure.h"
 #include "test_util.h"
 
 namespace craftscan {
@@ -31,13 +31,13 @@ namespace {
 struct SyntheticBox {
   double width_mm = 80, depth_mm = 60, height_mm = 50;  // object x, y, z; base at z = 0
   double density_per_mm2 = 1.5;
-  double noise_mm = 0.2;         // isotropic Gaussian σ on positions
-  double cut_depth_mm = 2.0;     // pyramidal chip-cut pockets on the top and sides
-  double cut_margin_mm = 4.0;    // pockets keep this far from the edges
-  bool base = false;             // sample the base face too
-  bool normals = true;           // provide (true) normals
-  int platter_points = 3000;     // noisy platter ring around the box, z ≈ 0
-  int outliers = 40;             // uniform junk around the box
+  double noise_mm = 0.2;       // isotropic Gaussian σ on positions
+  double cut_depth_mm = 2.0;   // pyramidal chip-cut pockets on the top and sides
+  double cut_margin_mm = 4.0;  // pockets keep this far from the edges
+  bool base = false;           // sample the base face too
+  bool normals = true;         // provide (true) normals
+  int platter_points = 3000;   // noisy platter ring around the box, z ≈ 0
+  int outliers = 40;           // uniform junk around the box
   cv::Matx44d world_from_object = cv::Matx44d::eye();
   unsigned seed = 1;
 };
@@ -63,7 +63,8 @@ double CutDepth(const SyntheticBox& box, double u, double v, double U, double V,
   const double lo_u = box.cut_margin_mm, hi_u = U - box.cut_margin_mm;
   const double lo_v = box.cut_margin_mm, hi_v = V - box.cut_margin_mm;
   if (u < lo_u || u > hi_u || v < lo_v || v > hi_v) return 0;
-  const int nu = static_cast<int>((hi_u - lo_u) / pitch), nv = static_cast<int>((hi_v - lo_v) / pitch);
+  const int nu = static_cast<int>((hi_u - lo_u) / pitch),
+            nv = static_cast<int>((hi_v - lo_v) / pitch);
   const double off_u = lo_u + 0.5 * ((hi_u - lo_u) - nu * pitch) + pitch / 2;
   const double off_v = lo_v + 0.5 * ((hi_v - lo_v) - nv * pitch) + pitch / 2;
   const double iu = std::round((u - off_u) / pitch), iv = std::round((v - off_v) / pitch);
@@ -93,11 +94,11 @@ PointCloud MakeBox(const SyntheticBox& box) {
     bool carved;
   };
   std::vector<Face> faces = {
-      {{-W / 2, -D / 2, H}, {1, 0, 0}, {0, 1, 0}, W, D, true},     // top (+z)
-      {{W / 2, -D / 2, 0}, {0, 1, 0}, {0, 0, 1}, D, H, true},      // +x
-      {{-W / 2, D / 2, 0}, {0, -1, 0}, {0, 0, 1}, D, H, true},     // −x
-      {{W / 2, D / 2, 0}, {-1, 0, 0}, {0, 0, 1}, W, H, true},      // +y
-      {{-W / 2, -D / 2, 0}, {1, 0, 0}, {0, 0, 1}, W, H, true},     // −y
+      {{-W / 2, -D / 2, H}, {1, 0, 0}, {0, 1, 0}, W, D, true},  // top (+z)
+      {{W / 2, -D / 2, 0}, {0, 1, 0}, {0, 0, 1}, D, H, true},   // +x
+      {{-W / 2, D / 2, 0}, {0, -1, 0}, {0, 0, 1}, D, H, true},  // −x
+      {{W / 2, D / 2, 0}, {-1, 0, 0}, {0, 0, 1}, W, H, true},   // +y
+      {{-W / 2, -D / 2, 0}, {1, 0, 0}, {0, 0, 1}, W, H, true},  // −y
   };
   if (box.base) faces.push_back({{-W / 2, D / 2, 0}, {1, 0, 0}, {0, -1, 0}, W, D, false});
   PointCloud cloud;
@@ -130,7 +131,8 @@ PointCloud MakeBox(const SyntheticBox& box) {
     ++i;
   }
   for (int i = 0; i < box.outliers; ++i) {
-    cloud.points_mm.emplace_back((uni(rng) - 0.5) * 2 * W, (uni(rng) - 0.5) * 2 * D, uni(rng) * 2 * H);
+    cloud.points_mm.emplace_back((uni(rng) - 0.5) * 2 * W, (uni(rng) - 0.5) * 2 * D,
+                                 uni(rng) * 2 * H);
     cloud.normals.emplace_back(0, 0, 1);
   }
   if (!box.normals) cloud.normals.clear();
@@ -304,9 +306,10 @@ TEST(MeasureBoxTest, CarvedBoxWithBasePlane) {
 
   const EdgeErrors plane = ErrorsOf(m, box, false);
   const EdgeErrors circle = ErrorsOf(m, box, true);
-  std::printf("edge errors [mm]: plane intersection max %.4f mean %+.4f std %.4f; "
-              "point circle max %.4f mean %+.4f std %.4f\n",
-              plane.max_abs, plane.mean, plane.std, circle.max_abs, circle.mean, circle.std);
+  std::printf(
+      "edge errors [mm]: plane intersection max %.4f mean %+.4f std %.4f; "
+      "point circle max %.4f mean %+.4f std %.4f\n",
+      plane.max_abs, plane.mean, plane.std, circle.max_abs, circle.mean, circle.std);
   for (const BoxEdge& e : m.edges) {
     const double truth = std::array<double, 3>{80, 60, 50}[static_cast<std::size_t>(e.axis)];
     EXPECT_NEAR(e.length_mm, truth, 0.1) << "edge " << e.a << "-" << e.b;
@@ -318,7 +321,8 @@ TEST(MeasureBoxTest, CarvedBoxWithBasePlane) {
   const std::vector<cv::Vec3d> corners = TrueCorners(box);
   for (int v = 0; v < 8; ++v) {
     EXPECT_LT(NearestCornerDistance(corners, m.vertices_mm[static_cast<std::size_t>(v)]), 0.1) << v;
-    EXPECT_LT(NearestCornerDistance(corners, m.refined_vertices_mm[static_cast<std::size_t>(v)]), 0.3)
+    EXPECT_LT(NearestCornerDistance(corners, m.refined_vertices_mm[static_cast<std::size_t>(v)]),
+              0.3)
         << v;
   }
   // Face quality: the noise level, not the cuts.
@@ -373,9 +377,10 @@ TEST(MeasureBoxTest, VertexMethodsCompared) {
     return std::sqrt(s / static_cast<double>(v.size()));
   };
   const double plane_rms = rms(plane_errors), circle_rms = rms(circle_errors);
-  std::printf("edge-length RMS error over %zu edges: plane intersection %.4f mm, "
-              "point circle %.4f mm\n",
-              plane_errors.size(), plane_rms, circle_rms);
+  std::printf(
+      "edge-length RMS error over %zu edges: plane intersection %.4f mm, "
+      "point circle %.4f mm\n",
+      plane_errors.size(), plane_rms, circle_rms);
   EXPECT_LT(plane_rms, 0.05);
   EXPECT_LT(circle_rms, 0.2);
   EXPECT_LT(plane_rms, circle_rms);

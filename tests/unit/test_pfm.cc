@@ -1,4 +1,4 @@
-#include "craftscan/pipeline/pfm.h"
+#include "craftscan/pipeline/common/pfm.h"
 #include "test_util.h"
 
 #include <cmath>

@@ -12,8 +12,8 @@
 #include <string>
 #include <vector>
 
-#include "craftscan/pipeline/point_cloud.h"
-#include "craftscan/pipeline/scan_dataset.h"
+#include "craftscan/pipeline/common/point_cloud.h"
+#include "craftscan/pipeline/registration/scan_dataset.h"
 #include "test_util.h"
 
 namespace craftscan {
@@ -27,7 +27,6 @@ namespace fs = std::filesystem;
 
 class PlyTest : public testing::TempDirTest {
  protected:
-
   // Expects ReadPly to fail with a message naming the file and containing
   // `what`, leaving the cloud empty.
   void ExpectReadFails(const std::string& path, const std::string& what) const {
@@ -39,7 +38,6 @@ class PlyTest : public testing::TempDirTest {
     EXPECT_CONTAINS(error, (what));
     EXPECT_TRUE(cloud.empty());
   }
-
 };
 
 // Binary encoder for hand-written PLY data in either byte order.

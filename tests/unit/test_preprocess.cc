@@ -3,7 +3,7 @@
 
 #include <opencv2/imgproc.hpp>
 
-#include "craftscan/pipeline/preprocess.h"
+#include "craftscan/pipeline/stereo/preprocess.h"
 #include "test_util.h"
 
 namespace craftscan {

@@ -6,9 +6,9 @@
 
 #include <opencv2/calib3d.hpp>
 
-#include "craftscan/pipeline/loop_closure.h"
-#include "craftscan/pipeline/registration.h"
-#include "craftscan/pipeline/scan_dataset.h"
+#include "craftscan/pipeline/registration/loop_closure.h"
+#include "craftscan/pipeline/registration/registration.h"
+#include "craftscan/pipeline/registration/scan_dataset.h"
 
 namespace craftscan {
 namespace {
@@ -24,7 +24,8 @@ PointCloud BumpySurface(unsigned seed, double width_mm = 100, double step_mm = 0
     double x, y, a, s;
   };
   std::vector<Bump> bumps;
-  for (int i = 0; i < (rough ? 120 : 14); ++i) bumps.push_back({pos(rng), pos(rng), amp(rng), size(rng)});
+  for (int i = 0; i < (rough ? 120 : 14); ++i)
+    bumps.push_back({pos(rng), pos(rng), amp(rng), size(rng)});
   PointCloud cloud;
   for (double y = -width_mm / 2; y <= width_mm / 2; y += step_mm) {
     for (double x = -width_mm / 2; x <= width_mm / 2; x += step_mm) {
@@ -144,7 +145,6 @@ TEST(RegistrationTest, CorrectPriorIsKeptAndWrongPriorReplaced) {
   EXPECT_TRUE(r.prior_kept);
   EXPECT_LT(RotationErrorDeg(r.target_from_source, truth), 0.05);
 
-
   // A prior 90° and 30 mm off (a wrong commanded angle, a moved object),
   // verified by RANSAC: fine registration from it ends in a poor local
   // minimum, so RANSAC's pose replaces it.
@@ -188,8 +188,8 @@ TEST(RegistrationTest, FlatPlaneFailsInsteadOfAWrongSuccess) {
     for (double x = -50; x <= 50; x += 0.7) plane.points_mm.emplace_back(x, y, 0);
   AddNoise(&plane, 0.05, 9);
   const ViewCloud a = ConditionCloud(plane, Conditioning());
-  const ViewCloud b = ConditionCloud(TransformCloud(Pose({0, 0, 0.3}, {5, 0, 0}), plane),
-                                     Conditioning());
+  const ViewCloud b =
+      ConditionCloud(TransformCloud(Pose({0, 0, 0.3}, {5, 0, 0}), plane), Conditioning());
   ASSERT_TRUE(a.ok() && b.ok());
   const RegistrationResult r = RegisterPair(a, b, RegistrationOptions{});
   EXPECT_FALSE(r.IsUsable());
@@ -285,7 +285,8 @@ Ring MakeRing(const cv::Vec3d& axis, const cv::Vec3d& point, unsigned seed, doub
     ring.edges.push_back({k, k - 1, noisy(InvertRigid(ring.truth[k - 1]) * ring.truth[k]), 1});
   ring.edges.push_back({0, n - 1, noisy(InvertRigid(ring.truth[n - 1]) * ring.truth[0]), 1});
   ring.chained.assign(n, cv::Matx44d::eye());
-  for (int k = 1; k < n; ++k) ring.chained[k] = ring.chained[k - 1] * ring.edges[k - 1].target_from_source;
+  for (int k = 1; k < n; ++k)
+    ring.chained[k] = ring.chained[k - 1] * ring.edges[k - 1].target_from_source;
   return ring;
 }
 
@@ -296,11 +297,14 @@ TEST(LoopClosureTest, TurntableAxisModelRemovesAccumulatedDrift) {
   double chained_worst = 0, chained_worst_rot = 0;
   for (int k = 0; k < 6; ++k) {
     chained_worst = std::max(chained_worst, TranslationErrorMm(ring.chained[k], ring.truth[k]));
-    chained_worst_rot = std::max(chained_worst_rot, RotationErrorDeg(ring.chained[k], ring.truth[k]));
+    chained_worst_rot =
+        std::max(chained_worst_rot, RotationErrorDeg(ring.chained[k], ring.truth[k]));
   }
   const LoopClosureResult r = CloseLoop(6, ring.edges, ring.chained, Samples(), {});
   ASSERT_TRUE(r.IsUsable()) << r.message;
-  EXPECT_EQ(r.model, LoopClosureResult::Model::kTurntableAxis) << r.message << " axis rms " << r.axis_rms_mm << " axis " << r.axis_direction << " point " << r.axis_point_mm << " open " << r.open_loop_rms_mm;
+  EXPECT_EQ(r.model, LoopClosureResult::Model::kTurntableAxis)
+      << r.message << " axis rms " << r.axis_rms_mm << " axis " << r.axis_direction << " point "
+      << r.axis_point_mm << " open " << r.open_loop_rms_mm;
   EXPECT_LT(std::acos(std::min(1.0, std::abs(r.axis_direction.dot(axis)))) * 180 / M_PI, 0.3);
   double worst_rot = 0, worst_mm = 0;
   for (int k = 0; k < 6; ++k) {

@@ -1,4 +1,4 @@
-#include "craftscan/pipeline/reproject.h"
+#include "craftscan/pipeline/stereo/reproject.h"
 
 #include <cmath>
 #include <limits>
@@ -9,7 +9,7 @@
 #include <opencv2/calib3d.hpp>
 #include <opencv2/core.hpp>
 
-#include "craftscan/pipeline/adcensus.h"
+#include "craftscan/pipeline/stereo/adcensus.h"
 
 namespace craftscan {
 namespace {

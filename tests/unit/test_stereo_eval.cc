@@ -12,7 +12,7 @@
 #include <opencv2/core.hpp>
 #include <opencv2/imgcodecs.hpp>
 
-#include "craftscan/pipeline/pfm.h"
+#include "craftscan/pipeline/common/pfm.h"
 
 namespace craftscan {
 namespace {

@@ -12,7 +12,7 @@
 #include <vector>
 
 #include "calibration_test_util.h"
-#include "craftscan/pipeline/calibration.h"
+#include "craftscan/pipeline/calib/calibration.h"
 
 namespace craftscan {
 namespace {

@@ -2,10 +2,10 @@
 // the path of the shared data set.
 #pragma once
 
+#include <gtest/gtest.h>
 #include <cmath>
 #include <filesystem>
 #include <fstream>
-#include <gtest/gtest.h>
 #include <opencv2/core.hpp>
 #include <opencv2/imgproc.hpp>
 #include <random>

@@ -142,7 +142,8 @@ bool FileAssembler::SetExpected(std::vector<ExpectedFile> files, std::string* er
   for (const ExpectedFile& f : files) {
     std::string why;
     if (!IsSafeFileName(f.name, &why)) return Fail("the station listed an unsafe " + why, error);
-    if (!names.insert(f.name).second) return Fail("the station listed '" + f.name + "' twice", error);
+    if (!names.insert(f.name).second)
+      return Fail("the station listed '" + f.name + "' twice", error);
   }
   if (file_count_ != 0 && file_count_ != files.size()) {
     return Fail("the station announced " + std::to_string(files.size()) +
@@ -171,7 +172,8 @@ bool FileAssembler::StartFile(const FileChunk& chunk, std::string* error) {
   std::string temp = (folder / temp_name).string();
   const int fd = ::mkstemp(temp.data());
   if (fd < 0) {
-    return FailLocally("cannot create a file in '" + folder.string() + "': " + std::strerror(errno), error);
+    return FailLocally("cannot create a file in '" + folder.string() + "': " + std::strerror(errno),
+                       error);
   }
   ::fcntl(fd, F_SETFD, FD_CLOEXEC);
   fd_ = fd;
@@ -188,9 +190,9 @@ bool FileAssembler::StartFile(const FileChunk& chunk, std::string* error) {
 bool FileAssembler::Accept(const FileChunk& chunk, std::string* error) {
   if (failed_) return Fail("the transfer already failed", error);
   if (!chunk.error.empty()) {
-    return Fail("the station could not send '" + std::string(chunk.name) +
-                    "': " + std::string(chunk.error),
-                error);
+    return Fail(
+        "the station could not send '" + std::string(chunk.name) + "': " + std::string(chunk.error),
+        error);
   }
   if (chunk.file_count == 0 || chunk.file_index >= chunk.file_count) {
     return Fail("malformed chunk: file " + std::to_string(chunk.file_index) + " of " +
@@ -203,23 +205,26 @@ bool FileAssembler::Accept(const FileChunk& chunk, std::string* error) {
   }
   // In order: continue the current file, or start the next one after the
   // current one ended.
-  const bool continues = !current_finished_ && chunk.file_index == index_ && chunk.offset == offset_;
+  const bool continues =
+      !current_finished_ && chunk.file_index == index_ && chunk.offset == offset_;
   const bool next = current_finished_ && chunk.file_index == index_ + 1 && chunk.offset == 0;
   if (!continues && !next) {
     const std::string want =
-        current_finished_ ? "file " + std::to_string(index_ + 1) + " from offset 0"
-                          : "file " + std::to_string(index_) + " at offset " + std::to_string(offset_);
+        current_finished_
+            ? "file " + std::to_string(index_ + 1) + " from offset 0"
+            : "file " + std::to_string(index_) + " at offset " + std::to_string(offset_);
     return Fail("chunks were lost: expected " + want + ", got file " +
-                    std::to_string(chunk.file_index) + " at offset " + std::to_string(chunk.offset) +
+                    std::to_string(chunk.file_index) + " at offset " +
+                    std::to_string(chunk.offset) +
                     " (the receiver fell behind or the network dropped data; try again)",
                 error);
   }
   if (expected_) {
     const ExpectedFile& e = (*expected_)[chunk.file_index];
     if (chunk.name != e.name || chunk.total_size != e.size_bytes) {
-      return Fail("chunk of '" + std::string(chunk.name) + "' (" + std::to_string(chunk.total_size) +
-                      " bytes) does not match the listed '" + e.name + "' (" +
-                      std::to_string(e.size_bytes) + " bytes)",
+      return Fail("chunk of '" + std::string(chunk.name) + "' (" +
+                      std::to_string(chunk.total_size) + " bytes) does not match the listed '" +
+                      e.name + "' (" + std::to_string(e.size_bytes) + " bytes)",
                   error);
     }
   }
@@ -252,8 +257,10 @@ bool FileAssembler::FinishFile(std::string* error) {
   }
   const int fd = fd_;
   fd_ = -1;
-  if (::close(fd) != 0) return FailLocally("cannot close '" + temp_path_ + "': " + std::strerror(errno), error);
-  pending_.push_back({static_cast<std::uint32_t>(index_), name_, temp_path_, total_, hash_.value()});
+  if (::close(fd) != 0)
+    return FailLocally("cannot close '" + temp_path_ + "': " + std::strerror(errno), error);
+  pending_.push_back(
+      {static_cast<std::uint32_t>(index_), name_, temp_path_, total_, hash_.value()});
   current_finished_ = true;
   temp_path_.clear();
   return Settle(error);
@@ -276,8 +283,8 @@ bool FileAssembler::Settle(std::string* error) {
                 " differs from the station's manifest (" + Hex64(e.fnv1a64) +
                 "): damaged in transit or on the station";
     } else if (::rename(p.temp_path.c_str(), final_path.c_str()) != 0) {
-      problem = "cannot rename '" + p.temp_path + "' to '" + final_path +
-                "': " + std::strerror(errno);
+      problem =
+          "cannot rename '" + p.temp_path + "' to '" + final_path + "': " + std::strerror(errno);
       local = true;
     }
     if (!problem.empty()) {

@@ -297,8 +297,9 @@ CallResult StationClient::CallRaw(std::string_view verb, std::string_view argume
   if (!reply) {
     result.status = CallStatus::kUnreachable;
     result.message = "station '" + impl_->options.station + "' (DDS domain " +
-                     std::to_string(impl_->options.domain_id) + ") was found but sent no reply to '" +
-                     std::string(verb) + "' within " + Seconds(timeout) +
+                     std::to_string(impl_->options.domain_id) +
+                     ") was found but sent no reply to '" + std::string(verb) + "' within " +
+                     Seconds(timeout) +
                      " s; it may be stopping or overloaded: retry with a longer timeout and "
                      "check its log (journalctl -u craftscand)";
     return result;
@@ -316,7 +317,8 @@ bool StationClient::SubscribeStatus(std::function<void(const StatusUpdate&)> han
     u.state = Str(s.state);
     for (std::uint32_t i = 0; i < s.devices._length; ++i) {
       const dds::msg::DeviceStatus& device = s.devices._buffer[i];
-      u.devices.push_back({Str(device.name), Str(device.kind), Str(device.state), Str(device.message)});
+      u.devices.push_back(
+          {Str(device.name), Str(device.kind), Str(device.state), Str(device.message)});
     }
     u.job_id = Str(s.job_id);
     u.job_verb = Str(s.job_verb);
@@ -420,8 +422,7 @@ FetchResult StationClient::Fetch(const FetchRequest& request) {
   // The file reader must be matched before `get` is sent, or the first
   // chunks would go by unseen.
   if (!d.WaitForDaemon(deadline)) {
-    return finish(FetchStatus::kUnreachable,
-                  d.UnreachableMessage(request.timeout));
+    return finish(FetchStatus::kUnreachable, d.UnreachableMessage(request.timeout));
   }
   if (!d.files->WaitForWriters(1, Remaining(deadline))) {
     return finish(FetchStatus::kUnreachable,
@@ -456,7 +457,8 @@ FetchResult StationClient::Fetch(const FetchRequest& request) {
   dds::Sample<dds::msg::SessionFile> sample;
   FetchProgress progress;
   for (;;) {
-    if (request.cancel && request.cancel->load()) return finish(FetchStatus::kLocalError, "cancelled");
+    if (request.cancel && request.cancel->load())
+      return finish(FetchStatus::kLocalError, "cancelled");
     if (!have_reply) {
       if (std::optional<Reply> reply = d.WaitReply(id, Clock::now())) {
         have_reply = true;
@@ -466,28 +468,30 @@ FetchResult StationClient::Fetch(const FetchRequest& request) {
           return finish(FetchStatus::kRefused, reply->code_name + ": " + reply->message);
         }
         std::vector<ExpectedFile> expected;
-        const nlohmann::json& list = reply->result.contains("files") ? reply->result["files"]
-                                                                     : nlohmann::json();
+        const nlohmann::json& list =
+            reply->result.contains("files") ? reply->result["files"] : nlohmann::json();
         for (const nlohmann::json& f : list.is_array() ? list : nlohmann::json::array()) {
           ExpectedFile e;
           e.name = f.value("name", "");
           e.size_bytes = f.value("size", std::uint64_t{0});
           const std::optional<std::uint64_t> hash = ParseHex64(f.value("fnv1a64", ""));
-          if (!hash) return finish(FetchStatus::kTransferFailed, "the reply lists a file without a checksum");
+          if (!hash)
+            return finish(FetchStatus::kTransferFailed,
+                          "the reply lists a file without a checksum");
           e.fnv1a64 = *hash;
           expected.push_back(std::move(e));
         }
         progress.bytes_total = 0;
         for (const ExpectedFile& e : expected) progress.bytes_total += e.size_bytes;
         if (!assembler.SetExpected(std::move(expected), &why)) {
-          return finish(assembler.failed_locally() ? FetchStatus::kLocalError
-                                                   : FetchStatus::kTransferFailed,
-                        why);
+          return finish(
+              assembler.failed_locally() ? FetchStatus::kLocalError : FetchStatus::kTransferFailed,
+              why);
         }
       } else if (Clock::now() >= deadline) {
-        return finish(FetchStatus::kUnreachable,
-                      "station '" + d.options.station + "' sent no reply to 'get' within " +
-                          Seconds(request.timeout) + " s");
+        return finish(FetchStatus::kUnreachable, "station '" + d.options.station +
+                                                     "' sent no reply to 'get' within " +
+                                                     Seconds(request.timeout) + " s");
       }
     }
     if (have_reply && assembler.Complete()) break;
@@ -509,9 +513,9 @@ FetchResult StationClient::Fetch(const FetchRequest& request) {
       chunk.error = dds::View(sample->error);
       if (!assembler.Accept(chunk, &why)) {
         result.files = assembler.files();
-        return finish(assembler.failed_locally() ? FetchStatus::kLocalError
-                                                 : FetchStatus::kTransferFailed,
-                      why);
+        return finish(
+            assembler.failed_locally() ? FetchStatus::kLocalError : FetchStatus::kTransferFailed,
+            why);
       }
       if (request.on_progress) {
         progress.name = std::string(chunk.name);

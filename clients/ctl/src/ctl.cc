@@ -27,7 +27,9 @@ std::chrono::milliseconds Ms(double seconds) {
   return std::chrono::milliseconds(static_cast<long long>(seconds * 1000.0 + 0.5));
 }
 
-void Error(const std::string& message) { std::fprintf(stderr, "craftscanctl: %s\n", message.c_str()); }
+void Error(const std::string& message) {
+  std::fprintf(stderr, "craftscanctl: %s\n", message.c_str());
+}
 
 // A string member of a JSON object, "" if absent or not a string.
 std::string Str(const json& object, const char* key) {
@@ -47,7 +49,8 @@ std::string ClientName() {
   char host[256] = {};
   if (::gethostname(host, sizeof host - 1) != 0 || host[0] == '\0') std::strcpy(host, "localhost");
   std::string name = "craftscanctl@";
-  for (const char* p = host; *p && name.size() < 60; ++p) name += (*p > ' ' && *p < 0x7f) ? *p : '_';
+  for (const char* p = host; *p && name.size() < 60; ++p)
+    name += (*p > ' ' && *p < 0x7f) ? *p : '_';
   return name;
 }
 
@@ -60,7 +63,9 @@ std::string LocalTime() {
   return text;
 }
 
-std::string Percent(double fraction) { return std::to_string(static_cast<int>(fraction * 100 + 0.5)) + "%"; }
+std::string Percent(double fraction) {
+  return std::to_string(static_cast<int>(fraction * 100 + 0.5)) + "%";
+}
 
 std::string HumanBytes(std::uint64_t bytes) {
   char text[32];
@@ -122,8 +127,9 @@ int Ctl::Init(const GlobalOptions& options) {
     if (const char* env = std::getenv("CRAFTSCAN_TOKEN")) token = Trim(env);
   }
   if (token.empty()) {
-    Error("no token: give --token TOKEN, --token-file FILE or set CRAFTSCAN_TOKEN (the station's "
-          "admin issues tokens; the daemon's tokens file lists them)");
+    Error(
+        "no token: give --token TOKEN, --token-file FILE or set CRAFTSCAN_TOKEN (the station's "
+        "admin issues tokens; the daemon's tokens file lists them)");
     return kExitUsage;
   }
   client::ConnectOptions connect;
@@ -134,7 +140,8 @@ int Ctl::Init(const GlobalOptions& options) {
   connect.dds_config = options.dds_config;
   if (connect.dds_config.empty()) {
     connect.dds_config = client::DefaultDdsConfig();
-  } else if (connect.dds_config.front() != '<' && connect.dds_config.find("://") == std::string::npos &&
+  } else if (connect.dds_config.front() != '<' &&
+             connect.dds_config.find("://") == std::string::npos &&
              connect.dds_config.find(',') == std::string::npos) {
     // A plain path: Cyclone wants a file:// URI.
     std::error_code ec;
@@ -176,8 +183,11 @@ int Ctl::Call(const std::string& verb, const json& args, client::Reply* reply) {
   }
   if (!r.reply.ok()) {
     if (options_.json) {
-      PrintJson({{"ok", false}, {"code", r.reply.code}, {"code_name", r.reply.code_name},
-                 {"message", r.reply.message}, {"result", r.reply.result}});
+      PrintJson({{"ok", false},
+                 {"code", r.reply.code},
+                 {"code_name", r.reply.code_name},
+                 {"message", r.reply.message},
+                 {"result", r.reply.result}});
     }
     Error(verb + " refused: " + r.reply.code_name + ": " + r.reply.message);
     return kExitRefused;
@@ -257,8 +267,8 @@ int Ctl::Sessions() {
 int Ctl::Job(const std::string& verb, const json& args, const WaitOptions& wait) {
   EventQueue<client::ProgressUpdate> events;
   std::string error;
-  if (wait.wait &&
-      !client_->SubscribeProgress([&](const client::ProgressUpdate& p) { events.Push(p); }, &error)) {
+  if (wait.wait && !client_->SubscribeProgress(
+                       [&](const client::ProgressUpdate& p) { events.Push(p); }, &error)) {
     Error("cannot subscribe to progress: " + error);
     return kExitLocalError;
   }
@@ -280,13 +290,14 @@ int Ctl::Job(const std::string& verb, const json& args, const WaitOptions& wait)
   ProgressView view(stdout, IsTerminal(stdout));
   const auto start = Clock::now();
   auto last_poll = start;
-  bool ended = false;  // a terminal progress update of this job was seen
+  bool ended = false;     // a terminal progress update of this job was seen
   int unknown_polls = 0;  // status polls that showed another job and no end of ours
   json final_job;
   for (;;) {
     if (Interrupted()) {
       view.Finish();
-      Error("stopped waiting; " + id + " goes on at the station (follow it with `craftscanctl "
+      Error("stopped waiting; " + id +
+            " goes on at the station (follow it with `craftscanctl "
             "watch`, stop it with `craftscanctl cancel`)");
       return kExitInterrupted;
     }
@@ -294,7 +305,10 @@ int Ctl::Job(const std::string& verb, const json& args, const WaitOptions& wait)
       if (p.job_id != id) continue;
       if (IsTerminalStage(p.stage)) {
         ended = true;
-        final_job = {{"id", id}, {"verb", verb}, {"state", p.stage}, {"session", session},
+        final_job = {{"id", id},
+                     {"verb", verb},
+                     {"state", p.stage},
+                     {"session", session},
                      {"message", p.message}};
       } else if (!options_.json) {
         view.Update(p.stage, p.current, p.total, p.message);
@@ -328,12 +342,17 @@ int Ctl::Job(const std::string& verb, const json& args, const WaitOptions& wait)
       // the session, if any, was marked interrupted) or the end was missed
       // while another job started. The session's state tells.
       if (Str(job, "id") != id && ++unknown_polls >= 3) {
-        final_job = {{"id", id}, {"verb", verb}, {"session", session}, {"state", "failed"},
-                     {"message", "the station no longer reports " + id + " (craftscand restarted?)"}};
+        final_job = {
+            {"id", id},
+            {"verb", verb},
+            {"session", session},
+            {"state", "failed"},
+            {"message", "the station no longer reports " + id + " (craftscand restarted?)"}};
         if (!session.empty()) {
-          const client::CallResult list = client_->Call("sessions", nullptr, Ms(options_.timeout_s));
-          for (const json& s : list.ok() ? list.reply.result.value("sessions", json::array())
-                                         : json::array()) {
+          const client::CallResult list =
+              client_->Call("sessions", nullptr, Ms(options_.timeout_s));
+          for (const json& s :
+               list.ok() ? list.reply.result.value("sessions", json::array()) : json::array()) {
             if (Str(s, "id") != session) continue;
             final_job["state"] = Str(s, "state") == "done" ? "done" : "failed";
             final_job["message"] = "the station no longer reports " + id + "; session " + session +
@@ -420,11 +439,14 @@ int Ctl::Get(const std::string& session, const std::string& out_dir,
   if (live) {
     request.on_progress = [&](const client::FetchProgress& p) {
       const int columns = TerminalColumns(stdout);
-      std::string line = "\r\x1b[2K" + p.name + " " + Bar(static_cast<std::int64_t>(p.bytes_done),
-                                                          static_cast<std::int64_t>(p.bytes_total), 24) +
-                         " " + HumanBytes(p.bytes_done) + " / " + HumanBytes(p.bytes_total) + " (file " +
-                         std::to_string(p.file_index + 1) + "/" + std::to_string(p.file_count) + ")";
-      if (static_cast<int>(line.size()) > columns + 4) line.resize(static_cast<std::size_t>(columns + 4));
+      std::string line = "\r\x1b[2K" + p.name + " " +
+                         Bar(static_cast<std::int64_t>(p.bytes_done),
+                             static_cast<std::int64_t>(p.bytes_total), 24) +
+                         " " + HumanBytes(p.bytes_done) + " / " + HumanBytes(p.bytes_total) +
+                         " (file " + std::to_string(p.file_index + 1) + "/" +
+                         std::to_string(p.file_count) + ")";
+      if (static_cast<int>(line.size()) > columns + 4)
+        line.resize(static_cast<std::size_t>(columns + 4));
       std::fputs(line.c_str(), stdout);
       std::fflush(stdout);
       drawn = true;
@@ -437,7 +459,9 @@ int Ctl::Get(const std::string& session, const std::string& out_dir,
       break;
     case client::FetchStatus::kRefused:
       if (options_.json) {
-        PrintJson({{"ok", false}, {"code", result.reply.code}, {"code_name", result.reply.code_name},
+        PrintJson({{"ok", false},
+                   {"code", result.reply.code},
+                   {"code_name", result.reply.code_name},
                    {"message", result.reply.message}});
       }
       Error("get refused: " + result.message);
@@ -445,7 +469,8 @@ int Ctl::Get(const std::string& session, const std::string& out_dir,
     case client::FetchStatus::kUnreachable:
       return Unreachable(result.message);
     case client::FetchStatus::kTransferFailed:
-      if (options_.json) PrintJson({{"ok", false}, {"error", "transfer_failed"}, {"message", result.message}});
+      if (options_.json)
+        PrintJson({{"ok", false}, {"error", "transfer_failed"}, {"message", result.message}});
       Error("get " + session + ": " + result.message + " (" + std::to_string(result.files.size()) +
             " files were written before)");
       return kExitJobFailed;
@@ -456,10 +481,15 @@ int Ctl::Get(const std::string& session, const std::string& out_dir,
   if (options_.json) {
     json list = json::array();
     for (const client::FetchedFile& f : result.files) {
-      list.push_back({{"name", f.name}, {"path", f.path}, {"size", f.size_bytes},
+      list.push_back({{"name", f.name},
+                      {"path", f.path},
+                      {"size", f.size_bytes},
                       {"fnv1a64", client::Hex64(f.fnv1a64)}});
     }
-    PrintJson({{"ok", true}, {"session", session}, {"out", out_dir}, {"files", list},
+    PrintJson({{"ok", true},
+               {"session", session},
+               {"out", out_dir},
+               {"files", list},
                {"transfer_seconds", result.transfer_seconds}});
   } else {
     std::uint64_t total = 0;
@@ -482,7 +512,8 @@ int Ctl::Watch(int count, double duration_s) {
   EventQueue<Event> events;
   std::string error;
   if (!client_->SubscribeStatus([&](const client::StatusUpdate& s) { events.Push(s); }, &error) ||
-      !client_->SubscribeProgress([&](const client::ProgressUpdate& p) { events.Push(p); }, &error)) {
+      !client_->SubscribeProgress([&](const client::ProgressUpdate& p) { events.Push(p); },
+                                  &error)) {
     Error("cannot subscribe: " + error);
     return kExitLocalError;
   }
@@ -500,21 +531,31 @@ int Ctl::Watch(int count, double duration_s) {
         json devices = json::array();
         std::string device_text;
         for (const client::DeviceState& d : s->devices) {
-          devices.push_back({{"name", d.name}, {"kind", d.kind}, {"state", d.state}, {"message", d.message}});
+          devices.push_back(
+              {{"name", d.name}, {"kind", d.kind}, {"state", d.state}, {"message", d.message}});
           device_text += " " + d.name + ":" + d.state;
         }
-        std::string summary = s->state + " | job " + (s->job_id.empty() ? "none" : s->job_id + " " +
-                              s->job_verb + " " + s->job_state + " " + Percent(s->progress)) +
+        std::string summary = s->state + " | job " +
+                              (s->job_id.empty() ? "none"
+                                                 : s->job_id + " " + s->job_verb + " " +
+                                                       s->job_state + " " + Percent(s->progress)) +
                               " |" + device_text;
         if (!s->last_error.empty()) summary += " | error: " + s->last_error;
         if (summary == last_summary) continue;  // published every second even when unchanged
         last_summary = summary;
         if (options_.json) {
-          std::printf("%s\n", json({{"type", "status"}, {"station", s->station}, {"state", s->state},
-                                    {"job", {{"id", s->job_id}, {"verb", s->job_verb},
-                                             {"state", s->job_state}, {"progress", s->progress}}},
-                                    {"devices", devices}, {"last_error", s->last_error},
-                                    {"calibration_id", s->calibration_id}, {"stamp_ns", s->stamp_ns}})
+          std::printf("%s\n", json({{"type", "status"},
+                                    {"station", s->station},
+                                    {"state", s->state},
+                                    {"job",
+                                     {{"id", s->job_id},
+                                      {"verb", s->job_verb},
+                                      {"state", s->job_state},
+                                      {"progress", s->progress}}},
+                                    {"devices", devices},
+                                    {"last_error", s->last_error},
+                                    {"calibration_id", s->calibration_id},
+                                    {"stamp_ns", s->stamp_ns}})
                                   .dump(-1, ' ', false, json::error_handler_t::replace)
                                   .c_str());
         } else {
@@ -523,9 +564,13 @@ int Ctl::Watch(int count, double duration_s) {
       } else {
         const auto& p = std::get<client::ProgressUpdate>(event);
         if (options_.json) {
-          std::printf("%s\n", json({{"type", "progress"}, {"job", p.job_id}, {"stage", p.stage},
-                                    {"current", p.current}, {"total", p.total},
-                                    {"message", p.message}, {"stamp_ns", p.stamp_ns}})
+          std::printf("%s\n", json({{"type", "progress"},
+                                    {"job", p.job_id},
+                                    {"stage", p.stage},
+                                    {"current", p.current},
+                                    {"total", p.total},
+                                    {"message", p.message},
+                                    {"stamp_ns", p.stamp_ns}})
                                   .dump(-1, ' ', false, json::error_handler_t::replace)
                                   .c_str());
         } else {
@@ -538,9 +583,10 @@ int Ctl::Watch(int count, double duration_s) {
       ++printed;
     }
     if (Clock::now() - last_status > silence) {
-      return Unreachable("no status from station '" + options_.station + "' for " +
-                         std::to_string(silence.count() / 1000) +
-                         " s (it publishes one every second): craftscand stopped or the network is down");
+      return Unreachable(
+          "no status from station '" + options_.station + "' for " +
+          std::to_string(silence.count() / 1000) +
+          " s (it publishes one every second): craftscand stopped or the network is down");
     }
   }
   return kExitOk;

@@ -19,21 +19,21 @@ namespace craftscan::ctl {
 // Exit codes (also in `craftscanctl --help`).
 enum ExitCode : int {
   kExitOk = 0,
-  kExitLocalError = 1,    // a local failure: cannot write --out, DDS would not start
-  kExitUsage = 2,         // bad command line (CLI11 errors, values checked locally)
-  kExitRefused = 3,       // the daemon answered with an error (bad_argument, forbidden, ...)
-  kExitJobFailed = 4,     // the job failed or was cancelled; get: a file could not be fetched
-  kExitUnreachable = 5,   // no daemon, or no reply within --timeout
-  kExitStillRunning = 6,  // --max-wait passed while the job still runs (it goes on)
-  kExitInterrupted = 130, // Ctrl-C while waiting for a job (it goes on)
+  kExitLocalError = 1,     // a local failure: cannot write --out, DDS would not start
+  kExitUsage = 2,          // bad command line (CLI11 errors, values checked locally)
+  kExitRefused = 3,        // the daemon answered with an error (bad_argument, forbidden, ...)
+  kExitJobFailed = 4,      // the job failed or was cancelled; get: a file could not be fetched
+  kExitUnreachable = 5,    // no daemon, or no reply within --timeout
+  kExitStillRunning = 6,   // --max-wait passed while the job still runs (it goes on)
+  kExitInterrupted = 130,  // Ctrl-C while waiting for a job (it goes on)
 };
 
 struct GlobalOptions {
-  std::string station;     // station id
+  std::string station;  // station id
   std::uint32_t domain = 0;
-  std::string dds_config;  // empty: client::DefaultDdsConfig()
+  std::string dds_config;         // empty: client::DefaultDdsConfig()
   std::string token, token_file;  // token: --token, else --token-file, else CRAFTSCAN_TOKEN
-  double timeout_s = 10;   // each exchange with the daemon
+  double timeout_s = 10;          // each exchange with the daemon
   bool json = false;
 };
 

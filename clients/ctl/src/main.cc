@@ -57,9 +57,10 @@ configuration when --dds-config is not given; without either,
 // "exposure=5000 gain=2" → {"exposure_us": 5000, "gain_db": 2}. False with *why.
 bool ParseCameraSettings(const std::vector<std::string>& items, nlohmann::json* args,
                          std::string* why) {
-  static const std::map<std::string, std::string> kKeys = {
-      {"exposure", "exposure_us"}, {"exposure_us", "exposure_us"},
-      {"gain", "gain_db"},         {"gain_db", "gain_db"}};
+  static const std::map<std::string, std::string> kKeys = {{"exposure", "exposure_us"},
+                                                           {"exposure_us", "exposure_us"},
+                                                           {"gain", "gain_db"},
+                                                           {"gain_db", "gain_db"}};
   *args = nlohmann::json::object();
   for (const std::string& item : items) {
     const std::size_t eq = item.find('=');
@@ -93,8 +94,9 @@ bool ParseCameraSettings(const std::vector<std::string>& items, nlohmann::json* 
 }  // namespace
 
 int main(int argc, char** argv) {
-  CLI::App app{"craftscanctl: operate a craftscan station (status, calibration, scans, "
-               "sessions, results) over DDS"};
+  CLI::App app{
+      "craftscanctl: operate a craftscan station (status, calibration, scans, "
+      "sessions, results) over DDS"};
   app.require_subcommand(1);
   app.fallthrough();  // global options may follow the subcommand
   app.footer(kFooter);
@@ -105,7 +107,8 @@ int main(int argc, char** argv) {
   if (const char* domain = std::getenv("CRAFTSCAN_DDS_DOMAIN")) {
     g.domain = static_cast<std::uint32_t>(std::strtoul(domain, nullptr, 10));
   }
-  app.add_option("--station", g.station, "station id (craftscand's `station`)")->capture_default_str();
+  app.add_option("--station", g.station, "station id (craftscand's `station`)")
+      ->capture_default_str();
   app.add_option("--domain", g.domain, "DDS domain id (craftscand's `dds.domain`)")
       ->check(CLI::Range(0u, craftscan::dds::kMaxDomainId))
       ->capture_default_str();
@@ -128,7 +131,8 @@ int main(int argc, char** argv) {
         ->check(CLI::NonNegativeNumber);
   };
 
-  CLI::App* status = app.add_subcommand("status", "the station's state, devices, job and calibration");
+  CLI::App* status =
+      app.add_subcommand("status", "the station's state, devices, job and calibration");
   CLI::App* devices = app.add_subcommand("devices", "the cameras and the turntable");
   CLI::App* sessions = app.add_subcommand("sessions", "the sessions on the station");
   CLI::App* calibrate = app.add_subcommand("calibrate", "calibrate the stereo cameras (admin)");
@@ -142,8 +146,9 @@ int main(int argc, char** argv) {
   add_wait(capture);
   int views = 0;
   double step_deg = 0;
-  CLI::App* scan = app.add_subcommand("scan", "scan an object: views around the turntable, "
-                                              "registration, fusion, mesh, measurements");
+  CLI::App* scan = app.add_subcommand("scan",
+                                      "scan an object: views around the turntable, "
+                                      "registration, fusion, mesh, measurements");
   scan->add_option("--object", object, "object name (names the session)")->required();
   scan->add_option("--views", views, "number of views (default: the station's)")
       ->check(CLI::Range(2, 360));
@@ -154,7 +159,8 @@ int main(int argc, char** argv) {
   CLI::App* resume = app.add_subcommand("resume", "continue an interrupted or failed session");
   resume->add_option("SESSION", session, "session id")->required();
   add_wait(resume);
-  CLI::App* cancel = app.add_subcommand("cancel", "cancel the running job (its session stays resumable)");
+  CLI::App* cancel =
+      app.add_subcommand("cancel", "cancel the running job (its session stays resumable)");
   std::string out_dir;
   std::vector<std::string> files;
   int chunk_kib = 1024;
@@ -177,7 +183,9 @@ int main(int argc, char** argv) {
   CLI::App* home = turntable->add_subcommand("home", "run the homing cycle");
   double angle_deg = 0;
   CLI::App* move = turntable->add_subcommand("move", "move to an absolute angle");
-  move->add_option("DEG", angle_deg, "angle, degrees")->required()->check(CLI::Range(-3600.0, 3600.0));
+  move->add_option("DEG", angle_deg, "angle, degrees")
+      ->required()
+      ->check(CLI::Range(-3600.0, 3600.0));
   CLI::App* camera = app.add_subcommand("camera", "camera settings");
   camera->require_subcommand(1);
   std::vector<std::string> settings;

@@ -35,7 +35,8 @@ void ProgressView::Update(const std::string& stage, std::int64_t current, std::i
     std::fflush(out_);
     return;
   }
-  auto it = std::find_if(lines_.begin(), lines_.end(), [&](const Line& l) { return l.stage == stage; });
+  auto it =
+      std::find_if(lines_.begin(), lines_.end(), [&](const Line& l) { return l.stage == stage; });
   if (it == lines_.end()) {
     lines_.push_back({stage, message, current, total});
   } else {
@@ -59,7 +60,8 @@ void ProgressView::Redraw() {
     line.resize(std::max<std::size_t>(line.size(), 10), ' ');
     line.append(" ").append(Bar(l.current, l.total, 24)).append(" ");
     line.append(l.total > 0 ? count : "         ").append(" ").append(l.message);
-    if (static_cast<int>(line.size()) > columns - 1) line.resize(static_cast<std::size_t>(columns - 1));
+    if (static_cast<int>(line.size()) > columns - 1)
+      line.resize(static_cast<std::size_t>(columns - 1));
     text.append("\x1b[2K").append(line);
     if (i + 1 < lines_.size()) text.append("\n");
   }

@@ -32,8 +32,8 @@
 #include <opencv2/core.hpp>
 #include <opencv2/imgcodecs.hpp>
 
-#include "craftscan/pipeline/atomic_file.h"
-#include "craftscan/pipeline/pfm.h"
+#include "craftscan/pipeline/common/atomic_file.h"
+#include "craftscan/pipeline/common/pfm.h"
 
 namespace craftscan::record {
 namespace {

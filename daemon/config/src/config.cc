@@ -371,13 +371,14 @@ bool DaemonConfig::IsValid(std::string* why) const {
     return Fail(why, "calibration." + (what.rfind("board", 0) == 0 ? what : "board: " + what));
   }
   if (!calibration.turntable_board.IsValid(&what)) {
-    return Fail(why, "calibration.turntable_" +
-                         (what.rfind("board", 0) == 0 ? what : "board: " + what));
+    return Fail(why,
+                "calibration.turntable_" + (what.rfind("board", 0) == 0 ? what : "board: " + what));
   }
   if (calibration.turntable_board.type == BoardSpec::Type::kChessboard &&
       (calibration.turntable_board.cols + calibration.turntable_board.rows) % 2 == 0) {
-    return Fail(why, "calibration.turntable_board: a chessboard needs cols + rows odd (not "
-                     "180-degree symmetric): the turntable axis fit needs its corner order");
+    return Fail(why,
+                "calibration.turntable_board: a chessboard needs cols + rows odd (not "
+                "180-degree symmetric): the turntable axis fit needs its corner order");
   }
   if (scan.views * scan.step_deg > 360 + 1e-9) {
     return Fail(why, "scan.step_deg: " + std::to_string(scan.views) + " views × " +
@@ -438,8 +439,8 @@ bool ParseDaemonConfig(const std::string& yaml_text, const std::map<std::string,
   try {
     const std::size_t documents = CountDocuments(yaml_text);
     if (documents > 1) {
-      return Fail(error, "the configuration must be one YAML document, found " +
-                             std::to_string(documents));
+      return Fail(
+          error, "the configuration must be one YAML document, found " + std::to_string(documents));
     }
     YamlReader reader(&parsed);
     if (!reader.ReadRoot(documents == 0 ? YAML::Node() : YAML::Load(yaml_text), error)) {

@@ -328,10 +328,10 @@ std::vector<Field> MakeFields() {
         prefix + ".type", [board](DaemonConfig& c) -> BoardSpec::Type& { return board(c).type; },
         craftscan::ToString, BoardTypeFromString,
         {BoardSpec::Type::kChessboard, BoardSpec::Type::kCharuco}));
-    f.push_back(IntField(prefix + ".cols", [board](DaemonConfig& c) -> int& { return board(c).cols; },
-                         2, 100));
-    f.push_back(IntField(prefix + ".rows", [board](DaemonConfig& c) -> int& { return board(c).rows; },
-                         2, 100));
+    f.push_back(IntField(
+        prefix + ".cols", [board](DaemonConfig& c) -> int& { return board(c).cols; }, 2, 100));
+    f.push_back(IntField(
+        prefix + ".rows", [board](DaemonConfig& c) -> int& { return board(c).rows; }, 2, 100));
     f.push_back(RealField(prefix + ".square_mm",
                           [board](DaemonConfig& c) -> double& { return board(c).square_mm; },
                           {0, 1000, true}));

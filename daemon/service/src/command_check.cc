@@ -31,8 +31,9 @@ const std::map<std::string, std::map<std::string, ArgSpec>>& VerbArguments() {
       {"get",
        {{"session", {ArgType::kString, true, 1, 128}},
         {"files", {ArgType::kNames, false, 1, 200}},
-        {"chunk_bytes", {ArgType::kInt, false, static_cast<double>(kMinTransferChunkBytes),
-                         static_cast<double>(kMaxTransferChunkBytes)}}}},
+        {"chunk_bytes",
+         {ArgType::kInt, false, static_cast<double>(kMinTransferChunkBytes),
+          static_cast<double>(kMaxTransferChunkBytes)}}}},
       {"capture", {{"object", {ArgType::kString, false, 1, 128}}}},
       {"scan",
        {{"object", {ArgType::kString, false, 1, 128}},
@@ -81,8 +82,8 @@ bool CheckArguments(const std::map<std::string, ArgSpec>& spec, const nlohmann::
       case ArgType::kInt:
         if (!value.is_number_integer() || value.get<double>() < s.min ||
             value.get<double>() > s.max) {
-          *why = key + ": must be an integer in " + std::to_string(static_cast<int>(s.min)) +
-                 ".." + std::to_string(static_cast<int>(s.max));
+          *why = key + ": must be an integer in " + std::to_string(static_cast<int>(s.min)) + ".." +
+                 std::to_string(static_cast<int>(s.max));
           return false;
         }
         break;
@@ -155,18 +156,30 @@ bool CheckValues(const std::string& verb, const nlohmann::json& args, std::strin
 
 std::string_view ToString(ReplyCode code) {
   switch (code) {
-    case ReplyCode::kOk: return "ok";
-    case ReplyCode::kBadRequest: return "bad_request";
-    case ReplyCode::kUnauthenticated: return "unauthenticated";
-    case ReplyCode::kUnknownVerb: return "unknown_verb";
-    case ReplyCode::kForbidden: return "forbidden";
-    case ReplyCode::kBadArgument: return "bad_argument";
-    case ReplyCode::kBusy: return "busy";
-    case ReplyCode::kNotFound: return "not_found";
-    case ReplyCode::kUnavailable: return "unavailable";
-    case ReplyCode::kFailed: return "failed";
-    case ReplyCode::kTooLarge: return "too_large";
-    case ReplyCode::kInternal: return "internal";
+    case ReplyCode::kOk:
+      return "ok";
+    case ReplyCode::kBadRequest:
+      return "bad_request";
+    case ReplyCode::kUnauthenticated:
+      return "unauthenticated";
+    case ReplyCode::kUnknownVerb:
+      return "unknown_verb";
+    case ReplyCode::kForbidden:
+      return "forbidden";
+    case ReplyCode::kBadArgument:
+      return "bad_argument";
+    case ReplyCode::kBusy:
+      return "busy";
+    case ReplyCode::kNotFound:
+      return "not_found";
+    case ReplyCode::kUnavailable:
+      return "unavailable";
+    case ReplyCode::kFailed:
+      return "failed";
+    case ReplyCode::kTooLarge:
+      return "too_large";
+    case ReplyCode::kInternal:
+      return "internal";
   }
   return "internal";
 }
@@ -216,10 +229,9 @@ CommandCheck CheckCommand(const CommandRequest& request, const CommandLimits& li
                                                "' (known: " + known + ")");
   }
   if (!Satisfies(check.identity->role, *needed)) {
-    return refuse(ReplyCode::kForbidden, "'" + request.verb + "' needs role " +
-                                             std::string(ToString(*needed)) + "; " +
-                                             check.identity->name + " is " +
-                                             std::string(ToString(check.identity->role)));
+    return refuse(ReplyCode::kForbidden,
+                  "'" + request.verb + "' needs role " + std::string(ToString(*needed)) + "; " +
+                      check.identity->name + " is " + std::string(ToString(check.identity->role)));
   }
   std::string why;
   if (!CheckArguments(verb->second, check.arguments, &why) ||
@@ -242,7 +254,8 @@ CommandRequest CutCommandRequest(std::string_view request_id, std::string_view c
   request.token = cut(token, limits.max_field_bytes);
   request.verb = cut(verb, limits.max_field_bytes);
   request.arguments = cut(arguments, limits.max_argument_bytes);
-  if (request.arguments.size() < arguments.size()) request.received_arguments_bytes = arguments.size();
+  if (request.arguments.size() < arguments.size())
+    request.received_arguments_bytes = arguments.size();
   return request;
 }
 
@@ -276,7 +289,8 @@ bool CommandRateLimiter::Admit(std::string_view client, Clock::time_point now) {
       if (!shared_) shared_.emplace(kClientCommandsPerSecond, kClientCommandBurst, now);
       return shared_->Take(now);
     }
-    it = buckets_.emplace(name, TokenBucket(kClientCommandsPerSecond, kClientCommandBurst, now)).first;
+    it = buckets_.emplace(name, TokenBucket(kClientCommandsPerSecond, kClientCommandBurst, now))
+             .first;
   }
   return it->second.Take(now);
 }

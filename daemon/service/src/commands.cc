@@ -17,8 +17,8 @@ namespace craftscan::daemon {
 namespace {
 
 nlohmann::json JobJson(const JobInfo& job) {
-  return {{"id", job.id},           {"verb", job.verb},         {"state", ToString(job.state)},
-          {"session", job.session}, {"stage", job.stage},       {"progress", job.progress},
+  return {{"id", job.id},           {"verb", job.verb},    {"state", ToString(job.state)},
+          {"session", job.session}, {"stage", job.stage},  {"progress", job.progress},
           {"message", job.message}, {"result", job.result}};
 }
 
@@ -55,8 +55,13 @@ std::string Hex64(std::uint64_t value) {
 CommandHandler::CommandHandler(CommandLimits limits, const TokenAuthority* tokens, JobEngine* jobs,
                                DeviceManager* devices, SessionStore* store,
                                std::function<nlohmann::json()> status)
-    : limits_(limits), tokens_(tokens), jobs_(jobs), devices_(devices), store_(store),
-      store_unavailable_("the session store is not open"), status_(std::move(status)) {}
+    : limits_(limits),
+      tokens_(tokens),
+      jobs_(jobs),
+      devices_(devices),
+      store_(store),
+      store_unavailable_("the session store is not open"),
+      status_(std::move(status)) {}
 
 void CommandHandler::SetStore(SessionStore* store, std::string why_unavailable) {
   store_ = store;
@@ -84,7 +89,8 @@ CommandReply CommandHandler::Handle(const CommandRequest& request) {
 
 CommandReply CommandHandler::Dispatch(const std::string& verb, const nlohmann::json& args,
                                       const Identity& who, CommandReply reply) {
-  auto done = [&](ReplyCode code, std::string message, nlohmann::json result = nlohmann::json::object()) {
+  auto done = [&](ReplyCode code, std::string message,
+                  nlohmann::json result = nlohmann::json::object()) {
     reply.code = code;
     reply.message = std::move(message);
     reply.result = std::move(result);
@@ -113,21 +119,29 @@ CommandReply CommandHandler::Dispatch(const std::string& verb, const nlohmann::j
     return done(ReplyCode::kUnavailable, "the devices are not open; see the status topic");
   }
 
-  if (verb == "status") return done(ReplyCode::kOk, "status", status_ ? status_() : nlohmann::json{});
+  if (verb == "status")
+    return done(ReplyCode::kOk, "status", status_ ? status_() : nlohmann::json{});
   if (verb == "devices") {
     nlohmann::json list = nlohmann::json::array();
     for (const DeviceReport& d : devices_->Reports()) {
-      list.push_back({{"name", d.name}, {"kind", d.kind}, {"driver", d.driver},
-                      {"state", d.state}, {"message", d.message}});
+      list.push_back({{"name", d.name},
+                      {"kind", d.kind},
+                      {"driver", d.driver},
+                      {"state", d.state},
+                      {"message", d.message}});
     }
     return done(ReplyCode::kOk, std::to_string(list.size()) + " devices", {{"devices", list}});
   }
   if (verb == "sessions") {
     nlohmann::json list = nlohmann::json::array();
     for (const SessionSummary& s : store_->List()) {
-      list.push_back({{"id", s.id}, {"object", s.object_name}, {"job", s.job},
-                      {"state", s.state}, {"problem", s.problem},
-                      {"views_captured", s.views_captured}, {"created", s.created_utc},
+      list.push_back({{"id", s.id},
+                      {"object", s.object_name},
+                      {"job", s.job},
+                      {"state", s.state},
+                      {"problem", s.problem},
+                      {"views_captured", s.views_captured},
+                      {"created", s.created_utc},
                       {"updated", s.updated_utc}});
     }
     return done(ReplyCode::kOk, std::to_string(list.size()) + " sessions", {{"sessions", list}});
@@ -137,7 +151,8 @@ CommandReply CommandHandler::Dispatch(const std::string& verb, const nlohmann::j
     if (args.contains("files")) return GetFiles(id, args, reply);
     const VerifyResult verify = store_->Verify(id);
     if (!verify.manifest_ok) {
-      return done(ReplyCode::kNotFound, verify.problems.empty() ? "unknown session" : verify.problems[0]);
+      return done(ReplyCode::kNotFound,
+                  verify.problems.empty() ? "unknown session" : verify.problems[0]);
     }
     std::string text;
     Manifest parsed;
@@ -145,9 +160,9 @@ CommandReply CommandHandler::Dispatch(const std::string& verb, const nlohmann::j
     if (ReadManifest(*store_, id, &text, &parsed, &error)) {
       manifest = nlohmann::json::parse(text, nullptr, false);
     }
-    return done(ReplyCode::kOk, verify.IsIntact() ? "intact" : "damaged",
-                {{"manifest", manifest}, {"intact", verify.IsIntact()},
-                 {"problems", verify.problems}});
+    return done(
+        ReplyCode::kOk, verify.IsIntact() ? "intact" : "damaged",
+        {{"manifest", manifest}, {"intact", verify.IsIntact()}, {"problems", verify.problems}});
   }
   if (verb == "cancel") {
     if (!jobs_->Cancel(&error)) return done(ReplyCode::kFailed, error);
@@ -210,14 +225,15 @@ CommandReply CommandHandler::GetFiles(const std::string& id, const nlohmann::jso
   if (!std::filesystem::is_directory(store_->sessions_dir() + "/" + id, ec)) {
     return refuse(ReplyCode::kNotFound, "unknown session " + id);
   }
-  if (!ReadManifest(*store_, id, &text, &manifest, &error)) return refuse(ReplyCode::kNotFound, error);
+  if (!ReadManifest(*store_, id, &text, &manifest, &error))
+    return refuse(ReplyCode::kNotFound, error);
   std::vector<std::string> names;
   const nlohmann::json& files = args["files"];  // "all" or valid names (CheckCommand)
   if (files.is_string()) {
     for (const auto& [name, unused] : manifest.outputs) names.push_back(name);
     if (names.empty()) {
-      return refuse(ReplyCode::kNotFound, "session " + id + " has no outputs (it is " +
-                                              ToString(manifest.state) + ")");
+      return refuse(ReplyCode::kNotFound,
+                    "session " + id + " has no outputs (it is " + ToString(manifest.state) + ")");
     }
   } else {
     std::set<std::string> seen;
@@ -228,9 +244,9 @@ CommandReply CommandHandler::GetFiles(const std::string& id, const nlohmann::jso
         for (const auto& [output, unused] : manifest.outputs) {
           available += (available.empty() ? "" : ", ") + output;
         }
-        return refuse(ReplyCode::kNotFound, "session " + id + " has no durable output '" + name +
-                                                "' (it has: " +
-                                                (available.empty() ? "none" : available) + ")");
+        return refuse(ReplyCode::kNotFound,
+                      "session " + id + " has no durable output '" + name +
+                          "' (it has: " + (available.empty() ? "none" : available) + ")");
       }
       if (seen.insert(name).second) names.push_back(name);
     }
@@ -244,12 +260,13 @@ CommandReply CommandHandler::GetFiles(const std::string& id, const nlohmann::jso
     const FileRecord& record = manifest.outputs.at(name);
     transfer.files.push_back(
         {name, store_->sessions_dir() + "/" + id + "/" + name, record.size_bytes, record.fnv1a64});
-    list.push_back({{"name", name}, {"size", record.size_bytes}, {"fnv1a64", Hex64(record.fnv1a64)}});
+    list.push_back(
+        {{"name", name}, {"size", record.size_bytes}, {"fnv1a64", Hex64(record.fnv1a64)}});
     total += record.size_bytes;
   }
   reply.code = ReplyCode::kOk;
-  reply.message = "sending " + std::to_string(names.size()) + " files, " + std::to_string(total) +
-                  " bytes";
+  reply.message =
+      "sending " + std::to_string(names.size()) + " files, " + std::to_string(total) + " bytes";
   reply.result = {{"session", id},
                   {"state", ToString(manifest.state)},
                   {"chunk_bytes", transfer.chunk_bytes},

@@ -46,10 +46,18 @@ std::int64_t WallNs() {
 
 void Log(drivers::LogLevel level, std::string_view message) {
   switch (level) {
-    case drivers::LogLevel::kDebug: spdlog::debug("{}", message); break;
-    case drivers::LogLevel::kInfo: spdlog::info("{}", message); break;
-    case drivers::LogLevel::kWarning: spdlog::warn("{}", message); break;
-    case drivers::LogLevel::kError: spdlog::error("{}", message); break;
+    case drivers::LogLevel::kDebug:
+      spdlog::debug("{}", message);
+      break;
+    case drivers::LogLevel::kInfo:
+      spdlog::info("{}", message);
+      break;
+    case drivers::LogLevel::kWarning:
+      spdlog::warn("{}", message);
+      break;
+    case drivers::LogLevel::kError:
+      spdlog::error("{}", message);
+      break;
   }
 }
 
@@ -62,16 +70,26 @@ class DdsPublisher : public JobSink {
               std::string* error) {
     station_ = station;
     using dds::Side;
-    return (progress_ = dds::Writer<dds::msg::JobProgress>::Create(p, dds::ProgressTopic(station), error)) &&
-           (capture_ = dds::Writer<dds::msg::StereoCapture>::Create(p, dds::CaptureTopic(station), error)) &&
-           (disparity_ = dds::Writer<dds::msg::Disparity>::Create(p, dds::DisparityTopic(station), error)) &&
-           (cloud_ = dds::Writer<dds::msg::PointCloud>::Create(p, dds::CloudTopic(station), error)) &&
-           (ros_left_ = dds::Writer<dds::ros::Image>::Create(p, dds::RosImageTopic(station, Side::kLeft), error)) &&
-           (ros_right_ = dds::Writer<dds::ros::Image>::Create(p, dds::RosImageTopic(station, Side::kRight), error)) &&
-           (ros_info_left_ = dds::Writer<dds::ros::CameraInfo>::Create(p, dds::RosCameraInfoTopic(station, Side::kLeft), error)) &&
-           (ros_info_right_ = dds::Writer<dds::ros::CameraInfo>::Create(p, dds::RosCameraInfoTopic(station, Side::kRight), error)) &&
-           (ros_disparity_ = dds::Writer<dds::ros::DisparityImage>::Create(p, dds::RosDisparityTopic(station), error)) &&
-           (ros_cloud_ = dds::Writer<dds::ros::PointCloud2>::Create(p, dds::RosCloudTopic(station), error));
+    return (progress_ = dds::Writer<dds::msg::JobProgress>::Create(p, dds::ProgressTopic(station),
+                                                                   error)) &&
+           (capture_ = dds::Writer<dds::msg::StereoCapture>::Create(p, dds::CaptureTopic(station),
+                                                                    error)) &&
+           (disparity_ =
+                dds::Writer<dds::msg::Disparity>::Create(p, dds::DisparityTopic(station), error)) &&
+           (cloud_ =
+                dds::Writer<dds::msg::PointCloud>::Create(p, dds::CloudTopic(station), error)) &&
+           (ros_left_ = dds::Writer<dds::ros::Image>::Create(
+                p, dds::RosImageTopic(station, Side::kLeft), error)) &&
+           (ros_right_ = dds::Writer<dds::ros::Image>::Create(
+                p, dds::RosImageTopic(station, Side::kRight), error)) &&
+           (ros_info_left_ = dds::Writer<dds::ros::CameraInfo>::Create(
+                p, dds::RosCameraInfoTopic(station, Side::kLeft), error)) &&
+           (ros_info_right_ = dds::Writer<dds::ros::CameraInfo>::Create(
+                p, dds::RosCameraInfoTopic(station, Side::kRight), error)) &&
+           (ros_disparity_ = dds::Writer<dds::ros::DisparityImage>::Create(
+                p, dds::RosDisparityTopic(station), error)) &&
+           (ros_cloud_ =
+                dds::Writer<dds::ros::PointCloud2>::Create(p, dds::RosCloudTopic(station), error));
   }
 
   Clock::time_point last_activity() const {
@@ -329,13 +347,15 @@ class FileSender {
   bool Send(const Job& job, std::string* error) {
     const std::size_t chunk = std::clamp(job.transfer.chunk_bytes, kMinTransferChunkBytes,
                                          std::min(kMaxTransferChunkBytes, dds::kMaxFileChunkBytes));
-    const std::size_t window = std::clamp<std::size_t>(kAckWindowBytes / chunk, 1, kMaxWindowChunks);
+    const std::size_t window =
+        std::clamp<std::size_t>(kAckWindowBytes / chunk, 1, kMaxWindowChunks);
     std::vector<std::uint8_t> buffer(chunk);
     std::size_t unacknowledged = 0;
     for (std::uint32_t index = 0; index < job.transfer.files.size(); ++index) {
       const TransferFile& file = job.transfer.files[index];
       const int fd = ::open(file.path.c_str(), O_RDONLY | O_CLOEXEC | O_NOCTTY);
-      if (fd < 0) return Abort(job, index, std::string("cannot open it: ") + std::strerror(errno), error);
+      if (fd < 0)
+        return Abort(job, index, std::string("cannot open it: ") + std::strerror(errno), error);
       struct Closer {
         int fd;
         ~Closer() { ::close(fd); }
@@ -358,7 +378,8 @@ class FileSender {
             static_cast<std::size_t>(std::min<std::uint64_t>(chunk, file.size_bytes - offset));
         std::size_t got = 0;
         while (got < n) {
-          const ssize_t r = ::pread(fd, buffer.data() + got, n - got, static_cast<off_t>(offset + got));
+          const ssize_t r =
+              ::pread(fd, buffer.data() + got, n - got, static_cast<off_t>(offset + got));
           if (r < 0 && errno == EINTR) continue;
           if (r <= 0) {
             return Abort(job, index,
@@ -451,20 +472,28 @@ bool Daemon::Impl::OpenStore() {
 nlohmann::json Daemon::Impl::StatusJson() const {
   nlohmann::json devices_json = nlohmann::json::array();
   for (const DeviceReport& d : devices->Reports()) {
-    devices_json.push_back({{"name", d.name}, {"kind", d.kind}, {"driver", d.driver},
-                            {"state", d.state}, {"message", d.message}});
+    devices_json.push_back({{"name", d.name},
+                            {"kind", d.kind},
+                            {"driver", d.driver},
+                            {"state", d.state},
+                            {"message", d.message}});
   }
   const JobInfo job = jobs->Current();
   return {{"station", config.station},
           {"state", state},
           {"devices", devices_json},
-          {"job", {{"id", job.id}, {"verb", job.verb}, {"state", ToString(job.state)},
-                   {"session", job.session}, {"stage", job.stage}, {"progress", job.progress},
-                   {"message", job.message}, {"result", job.result}}},
+          {"job",
+           {{"id", job.id},
+            {"verb", job.verb},
+            {"state", ToString(job.state)},
+            {"session", job.session},
+            {"stage", job.stage},
+            {"progress", job.progress},
+            {"message", job.message},
+            {"result", job.result}}},
           {"last_error", Problems()},
-          {"storage", {{"data_dir", config.data_dir},
-                       {"ok", store != nullptr},
-                       {"error", storage_error}}},
+          {"storage",
+           {{"data_dir", config.data_dir}, {"ok", store != nullptr}, {"error", storage_error}}},
           {"calibration_id", jobs->calibration_id()}};
 }
 
@@ -524,8 +553,8 @@ std::unique_ptr<Daemon> Daemon::Create(const DaemonConfig& config, std::string* 
   const std::string& station = config.station;
   if (!(impl->status_writer = dds::Writer<dds::msg::StationStatus>::Create(
             impl->participant, dds::StatusTopic(station), &why)) ||
-      !(impl->reply_writer =
-            dds::Writer<dds::msg::Reply>::Create(impl->participant, dds::ReplyTopic(station), &why)) ||
+      !(impl->reply_writer = dds::Writer<dds::msg::Reply>::Create(
+            impl->participant, dds::ReplyTopic(station), &why)) ||
       !(impl->command_reader = dds::Reader<dds::msg::Command>::Create(
             impl->participant, dds::CommandTopic(station), &why)) ||
       !impl->publisher.Create(impl->participant, station, &why) ||
@@ -571,9 +600,9 @@ std::unique_ptr<Daemon> Daemon::Create(const DaemonConfig& config, std::string* 
   }
   CommandLimits limits;
   limits.max_argument_bytes = static_cast<std::size_t>(config.limits.max_command_bytes);
-  impl->handler = std::make_unique<CommandHandler>(
-      limits, &*impl->tokens, impl->jobs.get(), impl->devices.get(), impl->store.get(),
-      [raw] { return raw->StatusJson(); });
+  impl->handler = std::make_unique<CommandHandler>(limits, &*impl->tokens, impl->jobs.get(),
+                                                   impl->devices.get(), impl->store.get(),
+                                                   [raw] { return raw->StatusJson(); });
   // An unusable data directory (read-only, missing, a disk not mounted yet)
   // is not fatal: the station serves degraded and Run() retries.
   if (!impl->OpenStore()) {
@@ -605,8 +634,8 @@ int Daemon::Run() {
   spdlog::info("craftscand serving station '{}' on DDS domain {}", d.config.station,
                d.config.dds.domain);
 
-  const auto ping_interval = d.config.watchdog.enabled ? d.notifier.WatchdogPingInterval()
-                                                       : std::chrono::microseconds(0);
+  const auto ping_interval =
+      d.config.watchdog.enabled ? d.notifier.WatchdogPingInterval() : std::chrono::microseconds(0);
   auto last_ping = Clock::time_point{};
   auto last_status = Clock::now();
   auto last_store_try = Clock::now();
@@ -653,8 +682,8 @@ int Daemon::Run() {
       spdlog::debug("command {} '{}' from '{}': {}", reply.request_id, request.verb.substr(0, 64),
                     reply.client, ToString(reply.code));
       if (reply.code != ReplyCode::kOk && refusal_log.Take(received)) {
-        spdlog::info("command {} '{}' from '{}': {}: {}", reply.request_id, request.verb.substr(0, 64),
-                     reply.client, ToString(reply.code), reply.message);
+        spdlog::info("command {} '{}' from '{}': {}: {}", reply.request_id,
+                     request.verb.substr(0, 64), reply.client, ToString(reply.code), reply.message);
       } else if (reply.code != ReplyCode::kOk) {
         ++unlogged_refusals;
       }
@@ -664,7 +693,8 @@ int Daemon::Run() {
       out.msg().code = static_cast<std::int32_t>(reply.code);
       out.msg().code_name = out.Keep(ToString(reply.code));
       out.msg().message = out.Keep(reply.message);
-      std::string result = reply.result.dump(-1, ' ', false, nlohmann::json::error_handler_t::replace);
+      std::string result =
+          reply.result.dump(-1, ' ', false, nlohmann::json::error_handler_t::replace);
       if (result.size() > dds::kMaxReplyResultBytes) result = "{\"truncated\":true}";
       out.msg().result = out.Keep(result);
       if (!d.reply_writer->Write(out.msg(), &error)) spdlog::warn("reply: {}", error);
@@ -686,9 +716,10 @@ int Daemon::Run() {
       std::this_thread::sleep_for(std::chrono::milliseconds(100));
     }
     if (unlogged_refusals > 0 && Clock::now() - last_refusal_summary >= std::chrono::seconds(1)) {
-      spdlog::warn("{} more commands refused in the last second(s), not logged one by one "
-                   "(is a client flooding?)",
-                   unlogged_refusals);
+      spdlog::warn(
+          "{} more commands refused in the last second(s), not logged one by one "
+          "(is a client flooding?)",
+          unlogged_refusals);
       unlogged_refusals = 0;
       last_refusal_summary = Clock::now();
     }
@@ -747,10 +778,10 @@ int Daemon::Run() {
     // the service manager must read).
     // Degraded (devices or storage) stays in STATUS= until it is over, so
     // `systemctl status` shows a missing camera, not "idle".
-    const std::string summary = !d.store || !d.devices->IsOpen() ? "degraded: " + d.Problems()
-                                : d.jobs->Busy()                ? "busy: " + job.id + " " + job.verb
-                                                                : "idle; last job " + job.id + " " +
-                                                                      std::string(ToString(job.state));
+    const std::string summary =
+        !d.store || !d.devices->IsOpen() ? "degraded: " + d.Problems()
+        : d.jobs->Busy()                 ? "busy: " + job.id + " " + job.verb
+                         : "idle; last job " + job.id + " " + std::string(ToString(job.state));
     if (summary != last_summary) {
       last_summary = summary;
       d.notifier.Status(summary);

@@ -17,7 +17,7 @@
 
 #include "craftscan/daemon/bounded_queue.h"
 #include "craftscan/daemon/report.h"
-#include "craftscan/pipeline/atomic_file.h"
+#include "craftscan/pipeline/common/atomic_file.h"
 
 namespace craftscan::daemon {
 namespace {
@@ -43,8 +43,8 @@ std::string UtcStamp() {
 cv::Matx44d WorldFromView(const StereoCalibration& c, double angle_deg) {
   if (!c.turntable.valid) return cv::Matx44d::eye();
   const double a = -angle_deg * kDegToRad;
-  const cv::Matx44d rz(std::cos(a), -std::sin(a), 0, 0, std::sin(a), std::cos(a), 0, 0, 0, 0, 1,
-                       0, 0, 0, 0, 1);
+  const cv::Matx44d rz(std::cos(a), -std::sin(a), 0, 0, std::sin(a), std::cos(a), 0, 0, 0, 0, 1, 0,
+                       0, 0, 0, 1);
   return rz * TurntableFromRig(c.turntable);
 }
 
@@ -75,24 +75,29 @@ std::string StorageAdvice(const std::string& error, const std::string& dir,
 std::string ReservePath(const std::string& data_dir) { return data_dir + "/.craftscand-reserve"; }
 
 nlohmann::json FrameMeta(const drivers::StereoFrame& frame, double angle_deg) {
-  return {{"angle_deg", angle_deg},
-          {"exposure_us", frame.settings.exposure_us},
-          {"gain_db", frame.settings.gain_db},
-          {"pixel_format", std::string(drivers::ToString(frame.settings.pixel_format))},
-          {"left", {{"timestamp_ns", frame.left.timestamp_ns}, {"frame_id", frame.left.frame_id}}},
-          {"right",
-           {{"timestamp_ns", frame.right.timestamp_ns}, {"frame_id", frame.right.frame_id}}}};
+  return {
+      {"angle_deg", angle_deg},
+      {"exposure_us", frame.settings.exposure_us},
+      {"gain_db", frame.settings.gain_db},
+      {"pixel_format", std::string(drivers::ToString(frame.settings.pixel_format))},
+      {"left", {{"timestamp_ns", frame.left.timestamp_ns}, {"frame_id", frame.left.frame_id}}},
+      {"right", {{"timestamp_ns", frame.right.timestamp_ns}, {"frame_id", frame.right.frame_id}}}};
 }
 
 }  // namespace
 
 std::string_view ToString(JobState state) {
   switch (state) {
-    case JobState::kIdle: return "idle";
-    case JobState::kRunning: return "running";
-    case JobState::kDone: return "done";
-    case JobState::kFailed: return "failed";
-    case JobState::kCancelled: return "cancelled";
+    case JobState::kIdle:
+      return "idle";
+    case JobState::kRunning:
+      return "running";
+    case JobState::kDone:
+      return "done";
+    case JobState::kFailed:
+      return "failed";
+    case JobState::kCancelled:
+      return "cancelled";
   }
   return "unknown";
 }
@@ -107,7 +112,10 @@ struct JobEngine::ScanPlan {
 
 JobEngine::JobEngine(JobEngineOptions options, DeviceManager* devices, SessionStore* store,
                      JobSink* sink, std::function<void(drivers::LogLevel, std::string_view)> log)
-    : options_(std::move(options)), devices_(devices), store_(store), sink_(sink),
+    : options_(std::move(options)),
+      devices_(devices),
+      store_(store),
+      sink_(sink),
       log_(std::move(log)) {}
 
 JobEngine::~JobEngine() { Shutdown(); }
@@ -123,7 +131,7 @@ SessionStore* JobEngine::Store(std::string* error) const {
 
 void JobEngine::EnsureReserve() {
   const std::string path = ReservePath(options_.data_dir);
-  struct stat st{};
+  struct stat st {};
   if (::stat(path.c_str(), &st) == 0 &&
       static_cast<std::size_t>(st.st_blocks) * 512 >= kReserveBytes) {
     return;
@@ -149,8 +157,8 @@ bool JobEngine::RecordState(Session& session, SessionState state, const std::str
                     why.find(std::strerror(EDQUOT)) != std::string::npos;
   if (full && ::unlink(ReservePath(options_.data_dir).c_str()) == 0) {
     if (log_) {
-      log_(drivers::LogLevel::kWarning, "disk full: freed the reserve to mark session " +
-                                            session.id() + " " + ToString(state));
+      log_(drivers::LogLevel::kWarning,
+           "disk full: freed the reserve to mark session " + session.id() + " " + ToString(state));
     }
     if (session.SetState(state, detail, &why)) return true;
   }
@@ -167,7 +175,7 @@ void JobEngine::JoinFinishedWorker() {
 
 bool JobEngine::LoadCurrentCalibration(std::string* error) {
   const std::string path = options_.data_dir + "/calibration/current.yaml";
-  struct stat st{};
+  struct stat st {};
   if (::stat(path.c_str(), &st) != 0) return true;  // none yet
   StereoCalibration calibration;
   if (!LoadCalibration(path, &calibration, error)) return false;
@@ -311,7 +319,8 @@ bool JobEngine::StartScan(const ScanRequest& request, JobInfo* info, std::string
     return Fail(error, "step_deg must be finite, |step| >= 0.1 and span at most 720 degrees");
   }
   const std::optional<StereoCalibration> calibration = this->calibration();
-  if (!calibration) return Fail(error, "no calibration: run calibrate and calibrate-turntable first");
+  if (!calibration)
+    return Fail(error, "no calibration: run calibrate and calibrate-turntable first");
   if (!calibration->turntable.valid) {
     return Fail(error, "the calibration has no turntable axis: run calibrate-turntable first");
   }
@@ -323,7 +332,8 @@ bool JobEngine::StartScan(const ScanRequest& request, JobInfo* info, std::string
   plan->calibration = *calibration;
   plan->views = views;
   plan->step_deg = step;
-  const nlohmann::json params = {{"views", views}, {"step_deg", step},
+  const nlohmann::json params = {{"views", views},
+                                 {"step_deg", step},
                                  {"client", request.client},
                                  {"calibration_id", calibration_id()}};
   plan->session =
@@ -338,7 +348,8 @@ bool JobEngine::StartScan(const ScanRequest& request, JobInfo* info, std::string
     *error += StorageAdvice(*error, store->sessions_dir(), options_.data_dir, "try again");
     return false;
   }
-  return Launch("scan", plan->session->id(), [this, plan] { RunScan(plan); }, info, error);
+  return Launch(
+      "scan", plan->session->id(), [this, plan] { RunScan(plan); }, info, error);
 }
 
 bool JobEngine::StartCapture(const std::string& object, JobInfo* info, std::string* error) {
@@ -365,7 +376,8 @@ bool JobEngine::StartCapture(const std::string& object, JobInfo* info, std::stri
     *error += StorageAdvice(*error, store->sessions_dir(), options_.data_dir, "try again");
     return false;
   }
-  return Launch("capture", plan->session->id(), [this, plan] { RunScan(plan); }, info, error);
+  return Launch(
+      "capture", plan->session->id(), [this, plan] { RunScan(plan); }, info, error);
 }
 
 bool JobEngine::StartResume(const std::string& session_id, JobInfo* info, std::string* error) {
@@ -378,13 +390,13 @@ bool JobEngine::StartResume(const std::string& session_id, JobInfo* info, std::s
   plan->session = store->OpenSession(session_id, error);
   if (!plan->session) return false;
   const SessionState state = plan->session->state();
-  if (state == SessionState::kDone) return Fail(error, "session " + session_id + " is already done");
+  if (state == SessionState::kDone)
+    return Fail(error, "session " + session_id + " is already done");
   if (IsActive(state)) {
     // Its lock is ours, so no job runs it: the one that did could not
     // record its end (e.g. the disk was full).
     if (!RecordState(*plan->session, SessionState::kInterrupted,
-                     std::string("found ") + ToString(state) + " with no job running it",
-                     error)) {
+                     std::string("found ") + ToString(state) + " with no job running it", error)) {
       *error += StorageAdvice(*error, plan->session->dir(), options_.data_dir, "resume it");
       return false;
     }
@@ -397,7 +409,8 @@ bool JobEngine::StartResume(const std::string& session_id, JobInfo* info, std::s
   if (!LoadCalibration(plan->session->dir() + "/calibration.yaml", &plan->calibration, error)) {
     return false;
   }
-  return Launch("resume", session_id, [this, plan] { RunScan(plan); }, info, error);
+  return Launch(
+      "resume", session_id, [this, plan] { RunScan(plan); }, info, error);
 }
 
 void JobEngine::RunScan(const std::shared_ptr<ScanPlan>& plan) {
@@ -498,8 +511,9 @@ void JobEngine::ScanBody(const std::shared_ptr<ScanPlan>& plan) {
             fail("view " + std::to_string(item->view) + ": " + why, true);
             break;
           }
-          match_ms += std::chrono::duration<double, std::milli>(
-                          std::chrono::steady_clock::now() - start).count();
+          match_ms +=
+              std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start)
+                  .count();
           if (sink_) {
             sink_->Disparity(sid, item->view, v.disparity, processor.focal_px(),
                              processor.baseline_mm(), v.min_disparity, v.num_disparities);
@@ -507,7 +521,8 @@ void JobEngine::ScanBody(const std::shared_ptr<ScanPlan>& plan) {
           out.cloud = std::move(v.cloud_in_rig);
         }
         if (sink_) {
-          sink_->Cloud(sid, item->view, out.cloud, WorldFromView(plan->calibration, item->angle_deg));
+          sink_->Cloud(sid, item->view, out.cloud,
+                       WorldFromView(plan->calibration, item->angle_deg));
         }
         SetStage("match", item->view + 1, n,
                  "view " + std::to_string(item->view) + ": " + std::to_string(out.cloud.size()) +
@@ -564,7 +579,8 @@ void JobEngine::ScanBody(const std::shared_ptr<ScanPlan>& plan) {
         }
         drivers::StereoFrame frame;
         if (!devices_->Capture(&frame, cancel_, &error)) {
-          fail(cancel_ && error == "cancelled" ? "cancelled" : "view " + std::to_string(k) + ": " + error,
+          fail(cancel_ && error == "cancelled" ? "cancelled"
+                                               : "view " + std::to_string(k) + ": " + error,
                true);
           break;
         }
@@ -573,8 +589,9 @@ void JobEngine::ScanBody(const std::shared_ptr<ScanPlan>& plan) {
           fail("view " + std::to_string(k) + ": " + error, true);
           break;
         }
-        capture_ms += std::chrono::duration<double, std::milli>(
-                          std::chrono::steady_clock::now() - start).count();
+        capture_ms +=
+            std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start)
+                .count();
         if (sink_) sink_->Capture(sid, k, angle, frame);  // durable: acknowledged
         SetStage("capture", k + 1, n, "view " + std::to_string(k) + " stored");
         item.left = frame.left.image;
@@ -605,8 +622,8 @@ void JobEngine::ScanBody(const std::shared_ptr<ScanPlan>& plan) {
     return;
   }
 
-  nlohmann::json result = {{"session", sid}, {"views", n},
-                           {"capture_ms", capture_ms}, {"match_ms", match_ms}};
+  nlohmann::json result = {
+      {"session", sid}, {"views", n}, {"capture_ms", capture_ms}, {"match_ms", match_ms}};
   if (!plan->reconstruct) {
     if (!RecordState(session, SessionState::kDone, "capture stored", &error)) {
       Finish(JobState::kFailed,
@@ -651,16 +668,18 @@ void JobEngine::ScanBody(const std::shared_ptr<ScanPlan>& plan) {
       [&](const std::string& path, std::string* why) { return WritePly(path, r.fused, true, why); },
       &error);
   if (written && r.mesh.status == MeshResult::Status::kOk) {
-    written = session.StoreOutputWith("mesh.ply",
-                                      [&](const std::string& path, std::string* why) {
-                                        return WriteMeshPly(path, r.mesh.mesh, true, why);
-                                      },
-                                      &error) &&
-              session.StoreOutputWith("mesh.obj",
-                                      [&](const std::string& path, std::string* why) {
-                                        return WriteMeshObj(path, r.mesh.mesh, why);
-                                      },
-                                      &error);
+    written = session.StoreOutputWith(
+                  "mesh.ply",
+                  [&](const std::string& path, std::string* why) {
+                    return WriteMeshPly(path, r.mesh.mesh, true, why);
+                  },
+                  &error) &&
+              session.StoreOutputWith(
+                  "mesh.obj",
+                  [&](const std::string& path, std::string* why) {
+                    return WriteMeshObj(path, r.mesh.mesh, why);
+                  },
+                  &error);
   }
   const std::string report = ScanReportJson(r);
   written = written && session.StoreOutput("report.json", report, &error);
@@ -668,7 +687,8 @@ void JobEngine::ScanBody(const std::shared_ptr<ScanPlan>& plan) {
     // Storage, not the pipeline: resumable like a capture that failed.
     std::string message = error + advice(error);
     std::string why;
-    const bool recorded = RecordState(session, SessionState::kInterrupted, "outputs: " + error, &why);
+    const bool recorded =
+        RecordState(session, SessionState::kInterrupted, "outputs: " + error, &why);
     if (!recorded) message += "; it could not be marked interrupted (" + why + "): resume marks it";
     Finish(JobState::kFailed,
            "session " + sid + (recorded ? " interrupted: " : " stopped: ") + message,
@@ -712,8 +732,9 @@ void JobEngine::ScanBody(const std::shared_ptr<ScanPlan>& plan) {
   if (!RecordState(session, SessionState::kDone,
                    "fused " + std::to_string(r.fused.size()) + " points", &error)) {
     Finish(JobState::kFailed,
-           "session " + sid + ": the outputs are stored but the session could not be marked done: " +
-               error + advice(error),
+           "session " + sid +
+               ": the outputs are stored but the session could not be marked done: " + error +
+               advice(error),
            {{"session", sid}});
     return;
   }
@@ -728,8 +749,9 @@ void JobEngine::ScanBody(const std::shared_ptr<ScanPlan>& plan) {
   if (report_json.is_object() && report_json.contains("measurement")) {
     result["measurement"] = report_json["measurement"];
   }
-  Finish(JobState::kDone, "session " + sid + ": " + std::to_string(n) + " views, " +
-                              std::to_string(r.fused.size()) + " fused points",
+  Finish(JobState::kDone,
+         "session " + sid + ": " + std::to_string(n) + " views, " + std::to_string(r.fused.size()) +
+             " fused points",
          result);
 }
 
@@ -770,12 +792,14 @@ bool JobEngine::SetCurrentCalibration(const StereoCalibration& calibration, cons
 }
 
 bool JobEngine::StartCalibrate(JobInfo* info, std::string* error) {
-  return Launch("calibrate", "", [this] { RunCalibrate(); }, info, error);
+  return Launch(
+      "calibrate", "", [this] { RunCalibrate(); }, info, error);
 }
 
 bool JobEngine::StartCalibrateTurntable(JobInfo* info, std::string* error) {
   if (!calibration()) return Fail(error, "no calibration: run calibrate first");
-  return Launch("calibrate-turntable", "", [this] { RunCalibrateTurntable(); }, info, error);
+  return Launch(
+      "calibrate-turntable", "", [this] { RunCalibrateTurntable(); }, info, error);
 }
 
 void JobEngine::RunCalibrate() {
@@ -828,22 +852,24 @@ void JobEngine::RunCalibrate() {
     return;
   }
   SetStage("calibrate", 0, 1, "solving");
-  StereoCalibrationResult r = CalibrateStereo(views, image_size, options_.board, options_.calibration);
+  StereoCalibrationResult r =
+      CalibrateStereo(views, image_size, options_.board, options_.calibration);
   if (r.status != StereoCalibrationResult::Status::kOk) {
     Finish(JobState::kFailed, "calibrate: " + r.message);
     return;
   }
   const CalibrationReport& report = r.report();
-  nlohmann::json result = {{"calibration_id", id},
-                           {"rms_stereo_px", report.rms_stereo_px},
-                           {"rms_left_px", report.rms_left_px},
-                           {"rms_right_px", report.rms_right_px},
-                           {"epipolar_mean_px", report.epipolar_mean_px},
-                           {"views_used", report.views_used},
-                           {"verdict", std::string(ToString(report.verdict))},
-                           {"verdict_reason", report.verdict_reason},
-                           {"focal_px", r.calibration.P1(0, 0)},
-                           {"baseline_mm", std::abs(r.calibration.P2(0, 3) / r.calibration.P2(0, 0))}};
+  nlohmann::json result = {
+      {"calibration_id", id},
+      {"rms_stereo_px", report.rms_stereo_px},
+      {"rms_left_px", report.rms_left_px},
+      {"rms_right_px", report.rms_right_px},
+      {"epipolar_mean_px", report.epipolar_mean_px},
+      {"views_used", report.views_used},
+      {"verdict", std::string(ToString(report.verdict))},
+      {"verdict_reason", report.verdict_reason},
+      {"focal_px", r.calibration.P1(0, 0)},
+      {"baseline_mm", std::abs(r.calibration.P2(0, 3) / r.calibration.P2(0, 0))}};
   if (!SaveCalibration(dir + "/calibration.yaml", r.calibration, &error) ||
       !WriteFileAtomically(dir + "/report.json", result.dump(2), &error)) {
     Finish(JobState::kFailed, "calibrate: " + error, result);
@@ -862,8 +888,9 @@ void JobEngine::RunCalibrate() {
     Finish(JobState::kFailed, "calibrate: " + error, result);
     return;
   }
-  Finish(JobState::kDone, "calibration " + id + " accepted and current (rms " +
-                              std::to_string(report.rms_stereo_px) + " px); run calibrate-turntable next",
+  Finish(JobState::kDone,
+         "calibration " + id + " accepted and current (rms " +
+             std::to_string(report.rms_stereo_px) + " px); run calibrate-turntable next",
          result);
 }
 
@@ -913,8 +940,8 @@ void JobEngine::RunCalibrateTurntable() {
                            {"verdict", std::string(ToString(r.verdict))},
                            {"verdict_reason", r.verdict_reason}};
   if (!r.IsUsable() || !ApplyTurntableAxis(r, &calibration)) {
-    Finish(JobState::kFailed, "calibrate-turntable: rejected: " +
-                                  (r.message.empty() ? r.verdict_reason : r.message),
+    Finish(JobState::kFailed,
+           "calibrate-turntable: rejected: " + (r.message.empty() ? r.verdict_reason : r.message),
            result);
     return;
   }
@@ -927,8 +954,9 @@ void JobEngine::RunCalibrateTurntable() {
     return;
   }
   result["calibration_id"] = id;
-  Finish(JobState::kDone, "turntable axis accepted (residual " + std::to_string(r.residual_mm) +
-                              " mm); calibration " + id + " is current",
+  Finish(JobState::kDone,
+         "turntable axis accepted (residual " + std::to_string(r.residual_mm) +
+             " mm); calibration " + id + " is current",
          result);
 }
 

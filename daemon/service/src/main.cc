@@ -7,9 +7,9 @@
 #include <string>
 #include <thread>
 
-#include <CLI/CLI.hpp>
 #include <spdlog/sinks/stdout_color_sinks.h>
 #include <spdlog/spdlog.h>
+#include <CLI/CLI.hpp>
 
 #include "craftscan/daemon/config.h"
 #include "craftscan/daemon/daemon.h"
@@ -42,10 +42,18 @@ int main(int argc, char** argv) {
   spdlog::set_default_logger(logger);
   spdlog::set_pattern("%Y-%m-%dT%H:%M:%S.%e %^%l%$ %v");
   switch (config.log_level) {
-    case craftscan::daemon::LogLevel::kDebug: spdlog::set_level(spdlog::level::debug); break;
-    case craftscan::daemon::LogLevel::kInfo: spdlog::set_level(spdlog::level::info); break;
-    case craftscan::daemon::LogLevel::kWarning: spdlog::set_level(spdlog::level::warn); break;
-    case craftscan::daemon::LogLevel::kError: spdlog::set_level(spdlog::level::err); break;
+    case craftscan::daemon::LogLevel::kDebug:
+      spdlog::set_level(spdlog::level::debug);
+      break;
+    case craftscan::daemon::LogLevel::kInfo:
+      spdlog::set_level(spdlog::level::info);
+      break;
+    case craftscan::daemon::LogLevel::kWarning:
+      spdlog::set_level(spdlog::level::warn);
+      break;
+    case craftscan::daemon::LogLevel::kError:
+      spdlog::set_level(spdlog::level::err);
+      break;
   }
 
   // Signals go to one thread (sigwait) before any other thread exists.
@@ -56,7 +64,8 @@ int main(int argc, char** argv) {
   pthread_sigmask(SIG_BLOCK, &signals, nullptr);
   signal(SIGPIPE, SIG_IGN);
 
-  std::unique_ptr<craftscan::daemon::Daemon> daemon = craftscan::daemon::Daemon::Create(config, &error);
+  std::unique_ptr<craftscan::daemon::Daemon> daemon =
+      craftscan::daemon::Daemon::Create(config, &error);
   if (!daemon) {
     spdlog::critical("cannot start: {}", error);
     return 1;

@@ -8,8 +8,8 @@
 #include <opencv2/core.hpp>
 #include <opencv2/imgcodecs.hpp>
 
-#include "craftscan/pipeline/atomic_file.h"
-#include "craftscan/pipeline/pfm.h"
+#include "craftscan/pipeline/common/atomic_file.h"
+#include "craftscan/pipeline/common/pfm.h"
 #include "session_internal.h"
 
 namespace craftscan::daemon {
@@ -51,7 +51,8 @@ bool CheckPngImage(const cv::Mat& image, const char* which, std::string* error) 
   const int depth = image.depth();
   const int channels = image.channels();
   if ((depth != CV_8U && depth != CV_16U) || (channels != 1 && channels != 3 && channels != 4)) {
-    return SetError(error, std::string(which) + " image has type " + cv::typeToString(image.type()) +
+    return SetError(error, std::string(which) + " image has type " +
+                               cv::typeToString(image.type()) +
                                "; PNG stores 8- or 16-bit images with 1, 3 or 4 channels");
   }
   return true;
@@ -74,8 +75,7 @@ bool EncodePng(const cv::Mat& image, std::string* bytes, std::string* error) {
 bool DecodePng(const std::string& bytes, cv::Mat* image, const std::string& path,
                std::string* error) {
   try {
-    const cv::Mat raw(1, static_cast<int>(bytes.size()), CV_8U,
-                      const_cast<char*>(bytes.data()));
+    const cv::Mat raw(1, static_cast<int>(bytes.size()), CV_8U, const_cast<char*>(bytes.data()));
     *image = cv::imdecode(raw, cv::IMREAD_UNCHANGED);
   } catch (const cv::Exception& e) {
     return SetError(error, "'" + path + "': cannot decode PNG: " + e.what());
@@ -133,7 +133,9 @@ void VerifyFiles(const std::string& dir, const Manifest& manifest, VerifyResult*
 }  // namespace internal
 
 Session::Session(std::string id, std::string dir, std::unique_ptr<Lock> lock, Manifest manifest)
-    : id_(std::move(id)), dir_(std::move(dir)), lock_(std::move(lock)),
+    : id_(std::move(id)),
+      dir_(std::move(dir)),
+      lock_(std::move(lock)),
       manifest_(std::move(manifest)) {}
 
 Session::~Session() = default;
@@ -184,8 +186,8 @@ bool Session::SetState(SessionState state, const std::string& detail, std::strin
   return Commit(
       [&](Manifest* m, std::string* why) {
         if (!IsAllowedTransition(m->state, state)) {
-          return SetError(why, Prefix() + "cannot go from " + ToString(m->state) + " to " +
-                                   ToString(state));
+          return SetError(
+              why, Prefix() + "cannot go from " + ToString(m->state) + " to " + ToString(state));
         }
         m->state = state;
         m->error = state == SessionState::kFailed || state == SessionState::kInterrupted
@@ -252,8 +254,8 @@ bool Session::CheckView(int view, const std::string& what, bool needs_capture,
   std::lock_guard lock(mutex_);
   const auto it = manifest_.views.find(view);
   return (it != manifest_.views.end() && it->second.HasCapture()) ||
-         SetError(error, Prefix() + what + ": view " + std::to_string(view) +
-                             " has no durable capture");
+         SetError(error,
+                  Prefix() + what + ": view " + std::to_string(view) + " has no durable capture");
 }
 
 bool Session::CopyCalibration(const std::string& source_path, const std::string& calibration_id,
@@ -341,7 +343,9 @@ bool Session::StoreViewFile(int view, const char* file, const OutputWriter& writ
     return (drops_cloud && it->second.files.erase(kCloudPly) > 0) || listed;
   };
   FileRecord record;
-  step.write = [&](std::string* e) { return writer(path, e) && RecordOf(path, &record, nullptr, e); };
+  step.write = [&](std::string* e) {
+    return writer(path, e) && RecordOf(path, &record, nullptr, e);
+  };
   step.list = [&](Manifest* m, std::string* e) {
     const auto it = m->views.find(view);
     if (it == m->views.end() || !it->second.HasCapture()) {  // a failed recapture meanwhile
@@ -530,7 +534,8 @@ ResumePoint Session::GetResumePoint(bool verify_files) const {
   }
   point.next_capture = 0;
   while (captured.count(point.next_capture) > 0) ++point.next_capture;
-  if (point.planned_views >= 0) point.next_capture = std::min(point.next_capture, point.planned_views);
+  if (point.planned_views >= 0)
+    point.next_capture = std::min(point.next_capture, point.planned_views);
   return point;
 }
 

@@ -148,7 +148,8 @@ void ParseManifest(const Json& j, Manifest* m) {
     view.angle_deg = angle.get<double>();
     view.captured_utc = String(v, "captured", where);
     for (const auto& [name, record] : Object(v, "files", where).items()) {
-      if (kViewFiles.count(name) == 0) throw ParseError{where + ".files has unknown file '" + name + "'"};
+      if (kViewFiles.count(name) == 0)
+        throw ParseError{where + ".files has unknown file '" + name + "'"};
       view.files[name] = Record(record, where + ".files." + name);
     }
     if (!m->views.emplace(view.index, std::move(view)).second) {
@@ -272,7 +273,8 @@ bool IsValidOutputName(std::string_view name, std::string* why) {
     const std::string_view part = name.substr(begin, end - begin);
     if (part.empty()) return fail("has an empty component");
     if (part == "." || part == "..") return fail("has a '.' or '..' component");
-    if (part.front() == '.' || part.front() == '-') return fail("has a component starting with '.' or '-'");
+    if (part.front() == '.' || part.front() == '-')
+      return fail("has a component starting with '.' or '-'");
     for (const char c : part) {
       if (!IsNameChar(c)) return fail("has a character outside [A-Za-z0-9._-/]");
     }
@@ -280,7 +282,8 @@ bool IsValidOutputName(std::string_view name, std::string* why) {
     begin = end + 1;
   }
   if (name == "manifest.json" || name == "calibration.yaml") return fail("is reserved");
-  if (name == "views" || name.substr(0, 6) == "views/") return fail("is inside the reserved views/");
+  if (name == "views" || name.substr(0, 6) == "views/")
+    return fail("is inside the reserved views/");
   return true;
 }
 

@@ -8,7 +8,7 @@
 #include <cstring>
 #include <filesystem>
 
-#include "craftscan/pipeline/atomic_file.h"
+#include "craftscan/pipeline/common/atomic_file.h"
 #include "session_internal.h"
 
 namespace craftscan::daemon {
@@ -26,13 +26,14 @@ bool SetError(std::string* error, const std::string& message) {
 
 // An id as a client sent it, quoted and escaped for an error message.
 std::string Quoted(const std::string& id) {
-  return nlohmann::json(id.substr(0, 100)).dump(-1, ' ', true,
-                                                nlohmann::json::error_handler_t::replace);
+  return nlohmann::json(id.substr(0, 100))
+      .dump(-1, ' ', true, nlohmann::json::error_handler_t::replace);
 }
 
 bool IsJobVerb(std::string_view job) {
-  return !job.empty() && job.size() <= 32 &&
-         std::all_of(job.begin(), job.end(), [](char c) { return (c >= 'a' && c <= 'z') || c == '_'; });
+  return !job.empty() && job.size() <= 32 && std::all_of(job.begin(), job.end(), [](char c) {
+    return (c >= 'a' && c <= 'z') || c == '_';
+  });
 }
 
 }  // namespace
@@ -102,8 +103,8 @@ std::unique_ptr<Session> SessionStore::Create(std::string_view object_name, std:
   // across processes).
   std::string tmp = sessions_dir_ + "/." + base + ".tmp-XXXXXX";
   if (::mkdtemp(tmp.data()) == nullptr) {
-    SetError(error, "cannot create a session folder in '" + sessions_dir_ +
-                        "': " + std::strerror(errno));
+    SetError(error,
+             "cannot create a session folder in '" + sessions_dir_ + "': " + std::strerror(errno));
     return nullptr;
   }
   auto lock = std::make_unique<Session::Lock>();
@@ -119,8 +120,8 @@ std::unique_ptr<Session> SessionStore::Create(std::string_view object_name, std:
     m.id = id;
     m.updated_utc = internal::IsoUtc(std::chrono::system_clock::now());
     m.journal = {{m.updated_utc, "created",
-                  m.job + " of '" + m.object_name + "' (" + params.dump(-1, ' ', false,
-                      nlohmann::json::error_handler_t::replace) + ")"}};
+                  m.job + " of '" + m.object_name + "' (" +
+                      params.dump(-1, ' ', false, nlohmann::json::error_handler_t::replace) + ")"}};
     ok = WriteFileAtomically(tmp + "/" + internal::kManifestJson, ManifestToJson(m), &why);
     if (!ok) break;
     if (::renameat2(AT_FDCWD, tmp.c_str(), AT_FDCWD, dir.c_str(), RENAME_NOREPLACE) == 0) {
@@ -133,7 +134,8 @@ std::unique_ptr<Session> SessionStore::Create(std::string_view object_name, std:
       ok = false;
     }
   }
-  if (ok) why = "all ids '" + base + "' to '" + base + "-" + std::to_string(kMaxIdSuffix) + "' are taken";
+  if (ok)
+    why = "all ids '" + base + "' to '" + base + "-" + std::to_string(kMaxIdSuffix) + "' are taken";
   std::error_code ec;
   fs::remove_all(tmp, ec);
   SetError(error, "cannot create a session for '" + m.object + "': " + why);
@@ -167,8 +169,9 @@ std::unique_ptr<Session> SessionStore::OpenSession(const std::string& id, std::s
   bool busy = false;
   std::string why;
   if (!lock->dir.Acquire(dir, &busy, &why)) {
-    SetError(error, busy ? "session " + id + " is open elsewhere (a job or another process holds it)"
-                         : "session " + id + ": " + why);
+    SetError(error, busy
+                        ? "session " + id + " is open elsewhere (a job or another process holds it)"
+                        : "session " + id + ": " + why);
     return nullptr;
   }
   return MakeSession(id, dir, std::move(lock), error);
@@ -210,10 +213,9 @@ std::vector<std::string> SessionStore::MarkInterrupted(std::vector<std::string>*
     }
     const SessionState state = session->state();
     if (!IsActive(state)) continue;
-    if (!session->SetState(SessionState::kInterrupted,
-                           std::string("craftscand stopped while the session was ") +
-                               ToString(state),
-                           &why)) {
+    if (!session->SetState(
+            SessionState::kInterrupted,
+            std::string("craftscand stopped while the session was ") + ToString(state), &why)) {
       if (problems) problems->push_back(why);
       continue;
     }

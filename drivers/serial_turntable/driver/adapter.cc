@@ -60,12 +60,17 @@ bool ParsePositive(const std::string& key, const std::string& text, double* valu
 
 TurntableState ToApiState(GrblTurntable::State state) {
   switch (state) {
-    case GrblTurntable::State::kClosed: return TurntableState::kClosed;
-    case GrblTurntable::State::kUnhomed: return TurntableState::kUnhomed;
-    case GrblTurntable::State::kReady: return TurntableState::kReady;
-    case GrblTurntable::State::kMoving: return TurntableState::kMoving;
+    case GrblTurntable::State::kClosed:
+      return TurntableState::kClosed;
+    case GrblTurntable::State::kUnhomed:
+      return TurntableState::kUnhomed;
+    case GrblTurntable::State::kReady:
+      return TurntableState::kReady;
+    case GrblTurntable::State::kMoving:
+      return TurntableState::kMoving;
     case GrblTurntable::State::kFault:
-    case GrblTurntable::State::kDeviceLost: return TurntableState::kFault;
+    case GrblTurntable::State::kDeviceLost:
+      return TurntableState::kFault;
   }
   return TurntableState::kFault;
 }
@@ -154,9 +159,9 @@ class SerialTurntable final : public drivers::Turntable {
 
  private:
   static DriverStatus BadTimeout(std::string_view call, std::chrono::milliseconds timeout) {
-    return DriverStatus::Error(Code::kInvalidArgument,
-                               std::string(call) + ": timeout must be > 0 ms, got " +
-                                   std::to_string(timeout.count()) + " ms");
+    return DriverStatus::Error(Code::kInvalidArgument, std::string(call) +
+                                                           ": timeout must be > 0 ms, got " +
+                                                           std::to_string(timeout.count()) + " ms");
   }
 
   // Converts the result of a driving call and records the angle, the fault
@@ -173,8 +178,8 @@ class SerialTurntable final : public drivers::Turntable {
             // "device lost: " unless the code already says it (a hang-up).
             const bool say_lost = state == GrblTurntable::State::kDeviceLost &&
                                   result.code != StatusCode::kDeviceLost;
-            fault_reason_ = (say_lost ? "device lost: " : "") +
-                            std::string(ToString(result.code)) + ": " + result.message;
+            fault_reason_ = (say_lost ? "device lost: " : "") + std::string(ToString(result.code)) +
+                            ": " + result.message;
           }
         } else {
           fault_reason_.clear();
@@ -200,9 +205,9 @@ class SerialTurntable final : public drivers::Turntable {
       info.message = std::move(message);
       if (host_.events) host_.events(info);
       if (host_.log) {
-        host_.log(event == DeviceEvent::kLost ? drivers::LogLevel::kWarning
-                                              : drivers::LogLevel::kInfo,
-                  info.device + ": " + std::string(drivers::ToString(event)) + ": " + info.message);
+        host_.log(
+            event == DeviceEvent::kLost ? drivers::LogLevel::kWarning : drivers::LogLevel::kInfo,
+            info.device + ": " + std::string(drivers::ToString(event)) + ": " + info.message);
       }
     } catch (...) {
       // A failing host callback must not break the driver.
@@ -211,8 +216,8 @@ class SerialTurntable final : public drivers::Turntable {
 
   GrblTurntable table_;
   drivers::HostServices host_;
-  std::mutex call_mutex_;      // Open/Home/MoveTo/Close, one at a time
-  mutable std::mutex mutex_;   // fault_reason_
+  std::mutex call_mutex_;     // Open/Home/MoveTo/Close, one at a time
+  mutable std::mutex mutex_;  // fault_reason_
   std::string fault_reason_;
   std::atomic<double> angle_deg_{0.0};
   bool lost_reported_ = false;  // call_mutex_
@@ -331,17 +336,26 @@ DriverStatus ToDriverStatus(const Status& status) {
     return DriverStatus::Error(code, std::string(ToString(status.code)) + ": " + status.message);
   };
   switch (status.code) {
-    case StatusCode::kOk: return DriverStatus::Ok();
-    case StatusCode::kInvalidArgument: return keep(Code::kInvalidArgument);
-    case StatusCode::kWrongState: return keep(Code::kWrongState);
-    case StatusCode::kIoError: return keep(Code::kIoError);
-    case StatusCode::kDeviceLost: return keep(Code::kDeviceLost);
-    case StatusCode::kTimeout: return keep(Code::kTimeout);
-    case StatusCode::kAborted: return keep(Code::kAborted);
-    case StatusCode::kProtocolError: return tagged(Code::kIoError);
+    case StatusCode::kOk:
+      return DriverStatus::Ok();
+    case StatusCode::kInvalidArgument:
+      return keep(Code::kInvalidArgument);
+    case StatusCode::kWrongState:
+      return keep(Code::kWrongState);
+    case StatusCode::kIoError:
+      return keep(Code::kIoError);
+    case StatusCode::kDeviceLost:
+      return keep(Code::kDeviceLost);
+    case StatusCode::kTimeout:
+      return keep(Code::kTimeout);
+    case StatusCode::kAborted:
+      return keep(Code::kAborted);
+    case StatusCode::kProtocolError:
+      return tagged(Code::kIoError);
     case StatusCode::kDeviceError:
     case StatusCode::kAlarm:
-    case StatusCode::kPositionMismatch: return tagged(Code::kFault);
+    case StatusCode::kPositionMismatch:
+      return tagged(Code::kFault);
   }
   return tagged(Code::kFault);
 }

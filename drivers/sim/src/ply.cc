@@ -1,6 +1,6 @@
 #include "craftscan/sim/ply.h"
 
-#include "craftscan/pipeline/atomic_file.h"
+#include "craftscan/pipeline/common/atomic_file.h"
 
 #include <charconv>
 #include <cmath>

@@ -8,7 +8,7 @@
 namespace craftscan::drivers {
 namespace {
 
-constexpr std::uint8_t kMiscClass = 0xEF;    // USB3 Vision control interface
+constexpr std::uint8_t kMiscClass = 0xEF;  // USB3 Vision control interface
 constexpr std::uint8_t kU3vSubclass = 0x05;
 constexpr std::uint8_t kU3vProtocol = 0x00;
 
@@ -35,14 +35,15 @@ class LibusbEventSource : public UsbEventSource {
   ~LibusbEventSource() override { Stop(); }
 
   DriverStatus Start(std::function<void(const UsbDeviceEvent&)> sink) override {
-    if (context_) return DriverStatus::Error(StatusCode::kWrongState, "USB hot-plug: already started");
+    if (context_)
+      return DriverStatus::Error(StatusCode::kWrongState, "USB hot-plug: already started");
     sink_ = std::move(sink);
     const int rc = libusb_init(&context_);
     if (rc != LIBUSB_SUCCESS) {
       context_ = nullptr;
-      return DriverStatus::Error(StatusCode::kUnsupported,
-                                 std::string("USB hot-plug: libusb_init failed: ") +
-                                     libusb_error_name(rc));
+      return DriverStatus::Error(
+          StatusCode::kUnsupported,
+          std::string("USB hot-plug: libusb_init failed: ") + libusb_error_name(rc));
     }
     if (!libusb_has_capability(LIBUSB_CAP_HAS_HOTPLUG)) {
       libusb_exit(context_);
@@ -59,9 +60,9 @@ class LibusbEventSource : public UsbEventSource {
     if (reg != LIBUSB_SUCCESS) {
       libusb_exit(context_);
       context_ = nullptr;
-      return DriverStatus::Error(StatusCode::kUnsupported,
-                                 std::string("USB hot-plug: cannot register a callback: ") +
-                                     libusb_error_name(reg));
+      return DriverStatus::Error(
+          StatusCode::kUnsupported,
+          std::string("USB hot-plug: cannot register a callback: ") + libusb_error_name(reg));
     }
     running_ = true;
     thread_ = std::thread([this] {
@@ -106,9 +107,10 @@ class LibusbEventSource : public UsbEventSource {
         if (e.is_usb3_vision && d.iSerialNumber != 0 &&
             libusb_open(device, &handle) == LIBUSB_SUCCESS) {
           unsigned char text[256] = {};
-          const int n = libusb_get_string_descriptor_ascii(handle, d.iSerialNumber, text,
-                                                           sizeof(text) - 1);
-          if (n > 0) e.serial.assign(reinterpret_cast<const char*>(text), static_cast<std::size_t>(n));
+          const int n =
+              libusb_get_string_descriptor_ascii(handle, d.iSerialNumber, text, sizeof(text) - 1);
+          if (n > 0)
+            e.serial.assign(reinterpret_cast<const char*>(text), static_cast<std::size_t>(n));
           libusb_close(handle);
         }
       }
@@ -137,8 +139,11 @@ UsbHotplugMonitor::~UsbHotplugMonitor() { Stop(); }
 DriverStatus UsbHotplugMonitor::Start() {
   {
     std::lock_guard<std::mutex> lock(mutex_);
-    if (started_) return DriverStatus::Error(StatusCode::kWrongState, "USB hot-plug monitor already started");
-    if (!source_) return DriverStatus::Error(StatusCode::kInvalidArgument, "USB hot-plug monitor has no event source");
+    if (started_)
+      return DriverStatus::Error(StatusCode::kWrongState, "USB hot-plug monitor already started");
+    if (!source_)
+      return DriverStatus::Error(StatusCode::kInvalidArgument,
+                                 "USB hot-plug monitor has no event source");
     started_ = true;
     stopped_ = false;
   }
@@ -169,9 +174,9 @@ void UsbHotplugMonitor::OnEvent(const UsbDeviceEvent& event) {
     if (event.kind == UsbDeviceEvent::Kind::kArrived) {
       if (!event.is_usb3_vision) return;
       // A device without a readable serial is tracked by its port.
-      const std::string key = event.serial.empty()
-                                  ? "usb:" + std::to_string(event.bus) + ":" + std::to_string(event.address)
-                                  : event.serial;
+      const std::string key = event.serial.empty() ? "usb:" + std::to_string(event.bus) + ":" +
+                                                         std::to_string(event.address)
+                                                   : event.serial;
       by_port_[port] = key;
       if (!present_.insert(key).second) return;  // already known
       report.serial = key;
@@ -199,7 +204,8 @@ bool UsbHotplugMonitor::IsPresent(const std::string& serial) const {
   return present_.count(serial) > 0;
 }
 
-bool UsbHotplugMonitor::WaitForArrival(const std::string& serial, std::chrono::milliseconds timeout) {
+bool UsbHotplugMonitor::WaitForArrival(const std::string& serial,
+                                       std::chrono::milliseconds timeout) {
   std::unique_lock<std::mutex> lock(mutex_);
   changed_.wait_for(lock, timeout, [&] { return stopped_ || present_.count(serial) > 0; });
   return !stopped_ && present_.count(serial) > 0;

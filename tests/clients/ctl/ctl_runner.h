@@ -53,8 +53,10 @@ class CtlProcess {
     posix_spawn_file_actions_t actions;
     posix_spawn_file_actions_init(&actions);
     posix_spawn_file_actions_addopen(&actions, 0, "/dev/null", O_RDONLY, 0);
-    posix_spawn_file_actions_addopen(&actions, 1, out_path_.c_str(), O_WRONLY | O_CREAT | O_TRUNC, 0644);
-    posix_spawn_file_actions_addopen(&actions, 2, err_path_.c_str(), O_WRONLY | O_CREAT | O_TRUNC, 0644);
+    posix_spawn_file_actions_addopen(&actions, 1, out_path_.c_str(), O_WRONLY | O_CREAT | O_TRUNC,
+                                     0644);
+    posix_spawn_file_actions_addopen(&actions, 2, err_path_.c_str(), O_WRONLY | O_CREAT | O_TRUNC,
+                                     0644);
     start_ = std::chrono::steady_clock::now();
     if (posix_spawn(&pid_, CRAFTSCANCTL_PATH, &actions, nullptr, argv.data(), envp.data()) != 0) {
       pid_ = -1;
@@ -114,8 +116,7 @@ class CtlProcess {
 
  private:
   void Collect(int status) {
-    run_.seconds =
-        std::chrono::duration<double>(std::chrono::steady_clock::now() - start_).count();
+    run_.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start_).count();
     run_.exit_code = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
     pid_ = -1;
   }

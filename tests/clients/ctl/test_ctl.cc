@@ -51,10 +51,9 @@ class Station {
   // --station, --domain, --dds-config, --timeout and --token before `args`.
   std::vector<std::string> Args(const std::string& token, std::vector<std::string> args,
                                 const std::string& timeout = "20") const {
-    std::vector<std::string> all = {"--station", fixture_.station(),
-                                    "--domain", std::to_string(fixture_.domain()),
-                                    "--dds-config", fixture_.dds_config(),
-                                    "--timeout", timeout};
+    std::vector<std::string> all = {
+        "--station",    fixture_.station(),    "--domain",  std::to_string(fixture_.domain()),
+        "--dds-config", fixture_.dds_config(), "--timeout", timeout};
     if (!token.empty()) {
       all.push_back("--token");
       all.push_back(token);
@@ -222,7 +221,8 @@ TEST(Craftscanctl, StatusDevicesCaptureTurntableCameraAndRefusals) {
   EXPECT_EQ(sessions[0].value("state", ""), "done");
   EXPECT_EQ(sessions[0].value("job", ""), "capture");
   // A capture has no outputs to fetch.
-  r = station.Run(kObserverToken, {"get", sessions[0].value("id", ""), "--out", station.dir() + "/o"});
+  r = station.Run(kObserverToken,
+                  {"get", sessions[0].value("id", ""), "--out", station.dir() + "/o"});
   EXPECT_EQ(r.exit_code, 3) << Describe(r);
   EXPECT_NE(r.err.find("no outputs"), std::string::npos) << r.err;
 
@@ -239,9 +239,9 @@ TEST(Craftscanctl, ScanThenGetEveryOutputByteForByte) {
   ASSERT_TRUE(station.Start(&error)) << error;
 
   // A full turn in 4 views closes the loop.
-  CtlRun r = station.Run(kOperatorToken,
-                         {"scan", "--object", "carved box", "--views", "4", "--step", "90", "--json"},
-                         300s);
+  CtlRun r = station.Run(
+      kOperatorToken, {"scan", "--object", "carved box", "--views", "4", "--step", "90", "--json"},
+      300s);
   ASSERT_EQ(r.exit_code, 0) << Describe(r) << station.fixture().Log();
   const json job = ParseJson(r);
   EXPECT_EQ(job.value("state", ""), "done") << r.out;
@@ -304,8 +304,9 @@ TEST(Craftscanctl, CancelOfARunningScanExitsFourAndResumeCompletesIt) {
   ASSERT_TRUE(station.Start(&error)) << error;
   // The waiting craftscanctl exits 4 once the scan is cancelled; the session
   // is interrupted, and resume completes it.
-  CtlProcess scan(station.dir(), "scan",
-                  station.Args(kOperatorToken, {"scan", "--object", "egg", "--views", "4", "--step", "90"}));
+  CtlProcess scan(
+      station.dir(), "scan",
+      station.Args(kOperatorToken, {"scan", "--object", "egg", "--views", "4", "--step", "90"}));
   // Wait until it runs (the status shows a running scan).
   CtlRun r;
   bool running = false;
@@ -356,7 +357,8 @@ TEST(Craftscanctl, GetStreamsALargeOutputAndRefusesChangedFiles) {
   {
     auto store = daemon::SessionStore::Open(station.fixture().data_dir(), &error);
     ASSERT_TRUE(store) << error;
-    auto session = store->Create("big", "scan", {{"views", 2}}, std::chrono::system_clock::now(), &error);
+    auto session =
+        store->Create("big", "scan", {{"views", 2}}, std::chrono::system_clock::now(), &error);
     ASSERT_TRUE(session) << error;
     id = session->id();
     ASSERT_TRUE(session->SetState(daemon::SessionState::kReconstructing, "", &error)) << error;
@@ -375,9 +377,10 @@ TEST(Craftscanctl, GetStreamsALargeOutputAndRefusesChangedFiles) {
     ASSERT_EQ(r.exit_code, 0) << Describe(r) << station.fixture().Log();
     EXPECT_TRUE(ReadFile(dir + "/fused.ply") == big);
     const double seconds = ParseJson(r).value("transfer_seconds", 0.0);
-    std::printf("get of a 48 MiB output in %s KiB chunks (loopback): transfer %.2f s = %.0f MiB/s; "
-                "%.2f s with process start and discovery\n",
-                chunk_kib, seconds, seconds > 0 ? 48 / seconds : 0.0, r.seconds);
+    std::printf(
+        "get of a 48 MiB output in %s KiB chunks (loopback): transfer %.2f s = %.0f MiB/s; "
+        "%.2f s with process start and discovery\n",
+        chunk_kib, seconds, seconds > 0 ? 48 / seconds : 0.0, r.seconds);
   }
 
   // Same size, other bytes: the client's checksum check refuses it.
@@ -402,10 +405,12 @@ TEST(Craftscanctl, WithoutADaemonExitsFiveWithinTheTimeoutAndSaysWhatToCheck) {
   const std::string domain = std::to_string(200 + ::getpid() % 30);
   const std::string config = dds::LoopbackOnlyConfigXml();
   const std::vector<std::vector<std::string>> commands = {
-      {"status"}, {"watch", "--count", "1"}, {"get", "20260101-000000-x", "--out", std::string(dir) + "/o"}};
+      {"status"},
+      {"watch", "--count", "1"},
+      {"get", "20260101-000000-x", "--out", std::string(dir) + "/o"}};
   for (const auto& command : commands) {
-    std::vector<std::string> args = {"--station", "nobody", "--domain", domain, "--timeout", "2",
-                                     "--token", kObserverToken};
+    std::vector<std::string> args = {"--station", "nobody", "--domain", domain,
+                                     "--timeout", "2",      "--token",  kObserverToken};
     args.insert(args.end(), command.begin(), command.end());
     CtlProcess process(dir, command[0], args, {"CYCLONEDDS_URI=" + config});
     const CtlRun r = process.Wait(60s);

@@ -38,9 +38,9 @@
 #include "craftscan/dds/endpoint.h"
 #include "craftscan/dds/participant.h"
 #include "craftscan/dds/topics.h"
-#include "craftscan/pipeline/pfm.h"
+#include "craftscan/pipeline/common/pfm.h"
+#include "craftscan/pipeline/common/point_cloud.h"
 #include "dds_test_util.h"
-#include "craftscan/pipeline/point_cloud.h"
 #include "record_test_util.h"
 
 extern char** environ;

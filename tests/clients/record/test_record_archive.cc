@@ -16,8 +16,8 @@
 #include <opencv2/core.hpp>
 #include <opencv2/imgcodecs.hpp>
 
-#include "craftscan/pipeline/pfm.h"
-#include "craftscan/pipeline/point_cloud.h"
+#include "craftscan/pipeline/common/pfm.h"
+#include "craftscan/pipeline/common/point_cloud.h"
 #include "craftscan/record/archive.h"
 #include "record_test_util.h"
 

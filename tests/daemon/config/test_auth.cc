@@ -215,7 +215,8 @@ TEST(Roles, VerbTable) {
     EXPECT_EQ(*required, role) << verb;
   }
   EXPECT_EQ(KnownVerbs().size(), table.size());
-  for (const char* unknown : {"", "Status", "status ", "shutdown", "calibrate_turntable", "reload", "config-set"}) {
+  for (const char* unknown :
+       {"", "Status", "status ", "shutdown", "calibrate_turntable", "reload", "config-set"}) {
     EXPECT_FALSE(RequiredRole(unknown)) << unknown;
   }
 }

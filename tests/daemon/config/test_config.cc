@@ -152,11 +152,13 @@ TEST_P(BadValueTest, ErrorNamesTheField) {
 INSTANTIATE_TEST_SUITE_P(
     EveryField, BadValueTest,
     ::testing::Values(
-        BadValue{"station: st-1\n",
-                 "station: must be 1 to 32 characters of A-Z, a-z, 0-9, _, starting with a letter, got "
-                 "'st-1'"},
-        BadValue{"station: 2nd_floor\n", "station: must be 1 to 32 characters of A-Z, a-z, 0-9, "
-                                         "_, starting with a letter, got '2nd_floor'"},
+        BadValue{
+            "station: st-1\n",
+            "station: must be 1 to 32 characters of A-Z, a-z, 0-9, _, starting with a letter, got "
+            "'st-1'"},
+        BadValue{"station: 2nd_floor\n",
+                 "station: must be 1 to 32 characters of A-Z, a-z, 0-9, "
+                 "_, starting with a letter, got '2nd_floor'"},
         BadValue{"station: abcdefghijklmnopqrstuvwxyz0123456\n", "station: must be 1 to 32"},
         BadValue{"station: \"\"\n",
                  "station: must be 1 to 32 characters of A-Z, a-z, 0-9, _, starting with a letter, "

@@ -8,8 +8,8 @@
 
 #include <opencv2/core.hpp>
 
-#include "craftscan/pipeline/mesh.h"
-#include "craftscan/pipeline/point_cloud.h"
+#include "craftscan/pipeline/common/point_cloud.h"
+#include "craftscan/pipeline/surface/mesh.h"
 
 namespace craftscan::testing {
 

@@ -17,7 +17,7 @@
 
 #include "craftscan/daemon/report.h"
 #include "craftscan/daemon/session_manifest.h"
-#include "craftscan/pipeline/scan_reconstruction.h"
+#include "craftscan/pipeline/surface/scan_reconstruction.h"
 #include "synthetic.h"
 
 namespace craftscan::daemon {

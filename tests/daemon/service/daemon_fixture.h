@@ -3,8 +3,8 @@
 // a private DDS domain kept on loopback; with a fake NOTIFY_SOCKET.
 #pragma once
 
-#include <signal.h>
 #include <fcntl.h>
+#include <signal.h>
 #include <spawn.h>
 #include <sys/stat.h>
 #include <sys/wait.h>
@@ -22,7 +22,7 @@
 #include <vector>
 
 #include "craftscan/dds/participant.h"
-#include "craftscan/pipeline/calibration.h"
+#include "craftscan/pipeline/calib/calibration.h"
 #include "craftscan/sim/driver_options.h"
 #include "craftscan/sim/station.h"
 #include "fake_notify_socket.h"
@@ -116,12 +116,12 @@ class DaemonFixture {
            // The carved box (80 x 60 x 50 mm) with a margin: the band the
            // matcher searches follows from this volume.
            << "pipeline: {threads: " << TestThreads()
-           << ", volume_radius_mm: 65, volume_max_height_mm: 70"
-           << pipeline_extra << "}\n";
+           << ", volume_radius_mm: 65, volume_max_height_mm: 70" << pipeline_extra << "}\n";
     config.close();
     if (!with_calibration) return true;
     sim::SimDriverOptions options;
-    if (!sim::SimDriverOptionsFromConfig({{"image_size", image_size_}}, &options, error)) return false;
+    if (!sim::SimDriverOptionsFromConfig({{"image_size", image_size_}}, &options, error))
+      return false;
     auto station = sim::SimStation::Create(sim::SimRigOptions(options), error);
     if (!station) return false;
     return SaveCalibration(data_dir() + "/calibration/current.yaml", station->calibration(), error);

@@ -86,7 +86,8 @@ inline ProcFigures ReadProcFigures(pid_t pid) {
       if (i == 14) utime = std::stoull(field);
       if (i == 15) stime = std::stoull(field);
     }
-    figures.cpu_s = static_cast<double>(utime + stime) / static_cast<double>(::sysconf(_SC_CLK_TCK));
+    figures.cpu_s =
+        static_cast<double>(utime + stime) / static_cast<double>(::sysconf(_SC_CLK_TCK));
   }
   std::error_code ec;
   int fds = 0;
@@ -123,7 +124,8 @@ inline std::shared_ptr<dds::Participant> JoinDomain(std::uint32_t domain_id, std
 // `topic` in a participant of its own that joins the domain. Null with
 // *error.
 template <typename Endpoint, typename Topic>
-std::unique_ptr<Endpoint> JoinWith(std::uint32_t domain_id, const Topic& topic, std::string* error) {
+std::unique_ptr<Endpoint> JoinWith(std::uint32_t domain_id, const Topic& topic,
+                                   std::string* error) {
   auto participant = JoinDomain(domain_id, error);
   return participant ? Endpoint::Create(participant, topic, error) : nullptr;
 }
@@ -133,12 +135,15 @@ class CommandPeer {
  public:
   static std::unique_ptr<CommandPeer> Create(std::uint32_t domain_id, const std::string& station,
                                              std::string* error) {
-    auto writer = JoinWith<dds::Writer<dds::msg::Command>>(domain_id, dds::CommandTopic(station), error);
+    auto writer =
+        JoinWith<dds::Writer<dds::msg::Command>>(domain_id, dds::CommandTopic(station), error);
     return writer ? std::unique_ptr<CommandPeer>(new CommandPeer(std::move(writer))) : nullptr;
   }
 
   // Waits until the daemon's command reader is matched.
-  bool WaitForDaemon(std::chrono::milliseconds timeout) { return writer_->WaitForReaders(1, timeout); }
+  bool WaitForDaemon(std::chrono::milliseconds timeout) {
+    return writer_->WaitForReaders(1, timeout);
+  }
 
   // Writes `command` (serialised during the call). Thread-safe.
   bool Write(const RawCommand& command, std::string* error) {
@@ -200,8 +205,10 @@ class ReplyCollector {
  public:
   static std::unique_ptr<ReplyCollector> Create(std::uint32_t domain_id, const std::string& station,
                                                 std::string* error) {
-    auto reader = JoinWith<dds::Reader<dds::msg::Reply>>(domain_id, dds::ReplyTopic(station), error);
-    return reader ? std::unique_ptr<ReplyCollector>(new ReplyCollector(std::move(reader))) : nullptr;
+    auto reader =
+        JoinWith<dds::Reader<dds::msg::Reply>>(domain_id, dds::ReplyTopic(station), error);
+    return reader ? std::unique_ptr<ReplyCollector>(new ReplyCollector(std::move(reader)))
+                  : nullptr;
   }
 
   bool WaitForDaemon(std::chrono::milliseconds timeout) {
@@ -214,7 +221,8 @@ class ReplyCollector {
                                   std::chrono::milliseconds timeout) {
     std::unique_lock lock(mutex_);
     const auto key = std::make_pair(request_id, client);
-    if (!changed_.wait_for(lock, timeout, [&] { return index_.count(key) > 0; })) return std::nullopt;
+    if (!changed_.wait_for(lock, timeout, [&] { return index_.count(key) > 0; }))
+      return std::nullopt;
     return replies_[index_.at(key)];
   }
   std::vector<RawReply> All() {
@@ -227,9 +235,13 @@ class ReplyCollector {
       : thread_(std::move(reader), [this](const dds::msg::Reply& m) { Keep(m); }) {}
 
   void Keep(const dds::msg::Reply& m) {
-    RawReply r{std::string(dds::View(m.request_id)), std::string(dds::View(m.client)), m.code,
-               std::string(dds::View(m.code_name)), std::string(dds::View(m.message)),
-               std::string(dds::View(m.result)), std::chrono::steady_clock::now()};
+    RawReply r{std::string(dds::View(m.request_id)),
+               std::string(dds::View(m.client)),
+               m.code,
+               std::string(dds::View(m.code_name)),
+               std::string(dds::View(m.message)),
+               std::string(dds::View(m.result)),
+               std::chrono::steady_clock::now()};
     std::lock_guard lock(mutex_);
     index_.emplace(std::make_pair(r.request_id, r.client), replies_.size());
     replies_.push_back(std::move(r));
@@ -238,7 +250,7 @@ class ReplyCollector {
 
   std::mutex mutex_;
   std::condition_variable changed_;
-  std::vector<RawReply> replies_;                                       // guarded by mutex_
+  std::vector<RawReply> replies_;                                     // guarded by mutex_
   std::map<std::pair<std::string, std::string>, std::size_t> index_;  // first of each key
   ReaderThread<dds::msg::Reply> thread_;  // last: starts after the members it uses
 };
@@ -271,8 +283,9 @@ class StatusMonitor {
   }
   std::size_t CountBetween(Clock::time_point from, Clock::time_point to) {
     std::lock_guard lock(mutex_);
-    return static_cast<std::size_t>(std::count_if(
-        arrivals_.begin(), arrivals_.end(), [&](Clock::time_point t) { return t >= from && t <= to; }));
+    return static_cast<std::size_t>(
+        std::count_if(arrivals_.begin(), arrivals_.end(),
+                      [&](Clock::time_point t) { return t >= from && t <= to; }));
   }
 
  private:
@@ -283,7 +296,7 @@ class StatusMonitor {
         }) {}
 
   std::mutex mutex_;
-  std::vector<Clock::time_point> arrivals_;      // guarded by mutex_
+  std::vector<Clock::time_point> arrivals_;       // guarded by mutex_
   ReaderThread<dds::msg::StationStatus> thread_;  // last: starts after the members it uses
 };
 

@@ -17,7 +17,7 @@
 #include <nlohmann/json.hpp>
 
 #include "craftscan/client/station_client.h"
-#include "craftscan/pipeline/point_cloud.h"
+#include "craftscan/pipeline/common/point_cloud.h"
 
 namespace craftscan::testing {
 

@@ -15,7 +15,7 @@
 #include <opencv2/core.hpp>
 
 #include "craftscan/daemon/session_store.h"
-#include "craftscan/pipeline/point_cloud.h"
+#include "craftscan/pipeline/common/point_cloud.h"
 #include "daemon_fixture.h"
 #include "station_client.h"
 
@@ -46,7 +46,8 @@ std::unique_ptr<Running> StartDaemon(const std::string& image_size, long watchdo
     ADD_FAILURE() << error;
     return nullptr;
   }
-  if (!r->client.Start(r->fixture.domain(), r->fixture.dds_config(), r->fixture.station(), &error)) {
+  if (!r->client.Start(r->fixture.domain(), r->fixture.dds_config(), r->fixture.station(),
+                       &error)) {
     ADD_FAILURE() << error;
     return nullptr;
   }
@@ -59,7 +60,8 @@ std::unique_ptr<Running> StartDaemon(const std::string& image_size, long watchdo
 
 // Waits until the job `id` leaves the running state; returns its final
 // state as reported by the status verb.
-nlohmann::json WaitForJob(StationClient& client, const std::string& id, std::chrono::seconds timeout) {
+nlohmann::json WaitForJob(StationClient& client, const std::string& id,
+                          std::chrono::seconds timeout) {
   const auto deadline = std::chrono::steady_clock::now() + timeout;
   std::string last = "no reply";
   while (std::chrono::steady_clock::now() < deadline) {
@@ -94,10 +96,11 @@ TEST(Daemon, ScanOfSixViewsPublishesEverythingAndStoresTheSession) {
       std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   ASSERT_EQ(job.value("state", ""), "done") << job.dump(2) << "\n" << r->fixture.Log();
   const nlohmann::json result = job["result"];
-  std::printf("6-view 1280x1024 scan: %.1f s end to end; capture %.0f ms, match %.0f ms (both "
-              "summed over views, overlapping), reconstruction %.0f ms: %s\n",
-              total_s, result.value("capture_ms", 0.0), result.value("match_ms", 0.0),
-              result.value("reconstruct_ms", 0.0), result["stage_ms"].dump().c_str());
+  std::printf(
+      "6-view 1280x1024 scan: %.1f s end to end; capture %.0f ms, match %.0f ms (both "
+      "summed over views, overlapping), reconstruction %.0f ms: %s\n",
+      total_s, result.value("capture_ms", 0.0), result.value("match_ms", 0.0),
+      result.value("reconstruct_ms", 0.0), result["stage_ms"].dump().c_str());
   RecordProperty("scan_seconds", std::to_string(total_s));
 
   // Clouds: 6 views and the fused one, all of this session.
@@ -180,8 +183,8 @@ TEST(Daemon, BadCommandsGetClearErrorsAndTheDaemonKeepsServing) {
   for (const Case& k : cases) {
     const auto reply = c.SendRaw(k.verb, k.arguments, k.token);
     ASSERT_TRUE(reply) << k.verb << " " << k.arguments.substr(0, 60) << ": no reply";
-    EXPECT_EQ(reply->code_name, k.code) << k.verb << " " << k.arguments.substr(0, 60) << ": "
-                                        << reply->message;
+    EXPECT_EQ(reply->code_name, k.code)
+        << k.verb << " " << k.arguments.substr(0, 60) << ": " << reply->message;
     EXPECT_FALSE(reply->message.empty());
   }
   // A scan with a traversal attempt in the object name stays in sessions/.
@@ -197,7 +200,8 @@ TEST(Daemon, BadCommandsGetClearErrorsAndTheDaemonKeepsServing) {
   EXPECT_EQ(busy->code_name, "busy") << busy->message;
   const nlohmann::json job = WaitForJob(c, scan->result["id"], 120s);
   EXPECT_EQ(job.value("state", ""), "done") << job.dump() << r->fixture.Log();
-  EXPECT_TRUE(std::filesystem::exists(r->fixture.data_dir() + "/sessions/" + session + "/views/000/left.png"));
+  EXPECT_TRUE(std::filesystem::exists(r->fixture.data_dir() + "/sessions/" + session +
+                                      "/views/000/left.png"));
   // Still serving.
   const auto status = c.Send("status", nullptr, kObserverToken);
   ASSERT_TRUE(status);
@@ -216,7 +220,8 @@ TEST(Daemon, TokenRolesAreEnforcedOnEveryVerb) {
   auto r = StartDaemon("320x256");
   ASSERT_TRUE(r);
   StationClient& c = r->client;
-  const std::vector<std::pair<std::string, int>> verbs = {  // 0 observer, 1 operator, 2 admin
+  const std::vector<std::pair<std::string, int>> verbs = {
+      // 0 observer, 1 operator, 2 admin
       {"status", 0},    {"sessions", 0}, {"devices", 0},   {"get", 0},
       {"capture", 1},   {"scan", 1},     {"cancel", 1},    {"resume", 1},
       {"turntable", 1}, {"camera", 1},   {"calibrate", 2}, {"calibrate-turntable", 2}};
@@ -227,7 +232,8 @@ TEST(Daemon, TokenRolesAreEnforcedOnEveryVerb) {
       const auto reply = c.SendRaw(verb, "{\"no_such_key\": 1}", tokens[role]);
       ASSERT_TRUE(reply) << verb << " as role " << role << ": no reply";
       const std::string expected = role < needed ? "forbidden" : "bad_argument";
-      EXPECT_EQ(reply->code_name, expected) << verb << " as role " << role << ": " << reply->message;
+      EXPECT_EQ(reply->code_name, expected)
+          << verb << " as role " << role << ": " << reply->message;
       (expected == "forbidden" ? forbidden : passed) += reply->code_name == expected;
     }
   }
@@ -247,7 +253,8 @@ TEST(Daemon, CancelDuringAMoveAbortsTheMove) {
   auto r = StartDaemon("320x256", 0, true, ", turntable_speed_deg_s: 6");
   ASSERT_TRUE(r);
   StationClient& c = r->client;
-  const auto scan = c.Send("scan", {{"object", "box"}, {"views", 4}, {"step_deg", 90}}, kOperatorToken);
+  const auto scan =
+      c.Send("scan", {{"object", "box"}, {"views", 4}, {"step_deg", 90}}, kOperatorToken);
   ASSERT_TRUE(scan);
   ASSERT_EQ(scan->code_name, "ok") << scan->message;
   const std::string id = scan->result["id"];
@@ -320,8 +327,9 @@ TEST(Daemon, SigkillDuringAScanLosesNothingAndResumeCompletesItWithoutRecapturin
 
   // Restart: the session is interrupted; resume completes it.
   ASSERT_TRUE(r->fixture.Start(&error)) << error;
-  ASSERT_TRUE(r->client.WaitFor(
-      [](StationClient& c) { return c.last_status_state == "idle"; }, 60s)) << r->fixture.Log();
+  ASSERT_TRUE(
+      r->client.WaitFor([](StationClient& c) { return c.last_status_state == "idle"; }, 60s))
+      << r->fixture.Log();
   const auto sessions = r->client.Send("sessions", nullptr, kObserverToken);
   ASSERT_TRUE(sessions);
   ASSERT_EQ(sessions->result["sessions"].size(), 1u);
@@ -335,8 +343,8 @@ TEST(Daemon, SigkillDuringAScanLosesNothingAndResumeCompletesItWithoutRecapturin
   ASSERT_TRUE(resume);
   ASSERT_EQ(resume->code_name, "ok") << resume->message;
   const nlohmann::json job = WaitForJob(r->client, resume->result["id"], 300s);
-  ASSERT_EQ(job.value("state", ""), "done") << job.dump() << r->fixture.Log()
-                                            << "\ndaemon alive: " << (::kill(r->fixture.pid(), 0) == 0);
+  ASSERT_EQ(job.value("state", ""), "done")
+      << job.dump() << r->fixture.Log() << "\ndaemon alive: " << (::kill(r->fixture.pid(), 0) == 0);
   {
     auto lock = r->client.Lock();
     std::set<int> recaptured;
@@ -387,7 +395,8 @@ TEST(Daemon, CalibratesTheStationFromBoardViews) {
   // The current calibration against the rig's exact one.
   std::string error;
   StereoCalibration measured;
-  ASSERT_TRUE(LoadCalibration(r->fixture.data_dir() + "/calibration/current.yaml", &measured, &error))
+  ASSERT_TRUE(
+      LoadCalibration(r->fixture.data_dir() + "/calibration/current.yaml", &measured, &error))
       << error;
   sim::SimDriverOptions options;
   ASSERT_TRUE(sim::SimDriverOptionsFromConfig({{"image_size", "1280x1024"}}, &options, &error));
@@ -399,7 +408,8 @@ TEST(Daemon, CalibratesTheStationFromBoardViews) {
   EXPECT_NEAR(cv::norm(measured.T), cv::norm(truth.T), 0.2);
   EXPECT_LT(stereo.value("rms_stereo_px", 1e9), 0.3);
   ASSERT_TRUE(measured.turntable.valid);
-  const double cos_angle = measured.turntable.direction_in_rig.dot(truth.turntable.direction_in_rig);
+  const double cos_angle =
+      measured.turntable.direction_in_rig.dot(truth.turntable.direction_in_rig);
   EXPECT_LT(std::acos(std::min(1.0, cos_angle)) * 180 / CV_PI, 0.2);
   const cv::Vec3d d = measured.turntable.point_in_rig_mm - truth.turntable.point_in_rig_mm;
   // The point may slide along the axis only with the platter height error.
@@ -472,7 +482,8 @@ TEST(DaemonFaults, CameraGoneForGoodInterruptsTheScanAndResumeFinishesIt) {
     std::ofstream(f.root() + "/craftscand.yaml") << text;
   }
   ASSERT_TRUE(f.Start(&error)) << error;
-  ASSERT_TRUE(r->client.WaitFor([](StationClient& c) { return c.last_status_state == "idle"; }, 60s));
+  ASSERT_TRUE(
+      r->client.WaitFor([](StationClient& c) { return c.last_status_state == "idle"; }, 60s));
   const auto resume = r->client.Send("resume", {{"session", session_id}}, kOperatorToken);
   ASSERT_TRUE(resume);
   ASSERT_EQ(resume->code_name, "ok") << resume->message;

@@ -49,7 +49,8 @@ std::unique_ptr<Station> StartStation() {
   s->fixture.pipeline_extra = ", mesh: false";
   std::string error;
   if (!s->fixture.Prepare(&error) || !s->fixture.Start(&error) ||
-      !s->client.Start(s->fixture.domain(), s->fixture.dds_config(), s->fixture.station(), &error) ||
+      !s->client.Start(s->fixture.domain(), s->fixture.dds_config(), s->fixture.station(),
+                       &error) ||
       !(s->peer = CommandPeer::Create(s->fixture.domain(), s->fixture.station(), &error)) ||
       !(s->replies = ReplyCollector::Create(s->fixture.domain(), s->fixture.station(), &error)) ||
       !(s->status = StatusMonitor::Create(s->fixture.domain(), s->fixture.station(), &error))) {
@@ -122,9 +123,10 @@ std::vector<Case> MalformedCases() {
       {"overflowing number", c(op, "scan", "{\"step_deg\": 1e999}"), ReplyCode::kBadRequest},
       {"bad escape", c(op, "scan", "{\"object\": \"\\x41\"}"), ReplyCode::kBadRequest},
       {"lone surrogate", c(op, "scan", "{\"object\": \"\\ud800\"}"), ReplyCode::kBadRequest},
-      {"60000 unclosed brackets", c(obs, "status", std::string(60000, '[')), ReplyCode::kBadRequest},
-      {"30000 nested arrays", c(obs, "status", "{\"a\":" + std::string(30000, '[') +
-                                                   std::string(30000, ']') + "}"),
+      {"60000 unclosed brackets", c(obs, "status", std::string(60000, '[')),
+       ReplyCode::kBadRequest},
+      {"30000 nested arrays",
+       c(obs, "status", "{\"a\":" + std::string(30000, '[') + std::string(30000, ']') + "}"),
        ReplyCode::kBadArgument, "'a'"},
       {"duplicate key", c(obs, "status", "{\"a\":1,\"a\":2}"), ReplyCode::kBadArgument},
       {"JSON before the token", c("no-such-token", "scan", "{"), ReplyCode::kBadRequest},
@@ -144,7 +146,8 @@ std::vector<Case> MalformedCases() {
       {"empty token", c("", "status", ""), ReplyCode::kUnauthenticated},
       {"empty token and verb", c("", "", ""), ReplyCode::kUnauthenticated},
       // Unknown tokens and verbs; roles.
-      {"random token", c("e3b0c44298fc1c149afbf4c8996fb924", "status", ""), ReplyCode::kUnauthenticated},
+      {"random token", c("e3b0c44298fc1c149afbf4c8996fb924", "status", ""),
+       ReplyCode::kUnauthenticated},
       {"token with a trailing space", c(obs + " ", "status", ""), ReplyCode::kUnauthenticated},
       {"token prefix", c(obs.substr(0, obs.size() - 1), "status", ""), ReplyCode::kUnauthenticated},
       {"token of 128 bytes", c(std::string(128, 'a'), "status", ""), ReplyCode::kUnauthenticated},
@@ -152,25 +155,34 @@ std::vector<Case> MalformedCases() {
       {"verb with a space", c(obs, "status ", ""), ReplyCode::kUnknownVerb},
       {"shell in the verb", c(adm, "scan;rm -rf /", ""), ReplyCode::kUnknownVerb},
       {"observer scans", c(obs, "scan", ""), ReplyCode::kForbidden, "operator"},
-      {"observer moves the turntable", c(obs, "turntable", Json({{"action", "home"}})), ReplyCode::kForbidden},
+      {"observer moves the turntable", c(obs, "turntable", Json({{"action", "home"}})),
+       ReplyCode::kForbidden},
       {"operator calibrates", c(op, "calibrate", ""), ReplyCode::kForbidden, "admin"},
       // Wrong types.
-      {"views as a string", c(op, "scan", Json({{"views", "six"}})), ReplyCode::kBadArgument, "views"},
-      {"views as a fraction", c(op, "scan", Json({{"views", 6.5}})), ReplyCode::kBadArgument, "views"},
+      {"views as a string", c(op, "scan", Json({{"views", "six"}})), ReplyCode::kBadArgument,
+       "views"},
+      {"views as a fraction", c(op, "scan", Json({{"views", 6.5}})), ReplyCode::kBadArgument,
+       "views"},
       {"views as a bool", c(op, "scan", Json({{"views", true}})), ReplyCode::kBadArgument, "views"},
       {"views null", c(op, "scan", Json({{"views", nullptr}})), ReplyCode::kBadArgument, "views"},
-      {"object as a number", c(op, "scan", Json({{"object", 5}})), ReplyCode::kBadArgument, "object"},
-      {"object as a list", c(op, "scan", Json({{"object", {"a"}}})), ReplyCode::kBadArgument, "object"},
-      {"step as a string", c(op, "scan", Json({{"step_deg", "60"}})), ReplyCode::kBadArgument, "step_deg"},
-      {"session as a number", c(obs, "get", Json({{"session", 7}})), ReplyCode::kBadArgument, "session"},
+      {"object as a number", c(op, "scan", Json({{"object", 5}})), ReplyCode::kBadArgument,
+       "object"},
+      {"object as a list", c(op, "scan", Json({{"object", {"a"}}})), ReplyCode::kBadArgument,
+       "object"},
+      {"step as a string", c(op, "scan", Json({{"step_deg", "60"}})), ReplyCode::kBadArgument,
+       "step_deg"},
+      {"session as a number", c(obs, "get", Json({{"session", 7}})), ReplyCode::kBadArgument,
+       "session"},
       {"files as a number", c(obs, "get", Json({{"session", session}, {"files", 5}})),
        ReplyCode::kBadArgument, "files"},
       {"files of numbers", c(obs, "get", Json({{"session", session}, {"files", {1, 2}}})),
        ReplyCode::kBadArgument, "files"},
       {"chunk as a string", c(obs, "get", Json({{"session", session}, {"chunk_bytes", "big"}})),
        ReplyCode::kBadArgument, "chunk_bytes"},
-      {"action as a bool", c(op, "turntable", Json({{"action", true}})), ReplyCode::kBadArgument, "action"},
-      {"gain as a string", c(op, "camera", Json({{"gain_db", "3"}})), ReplyCode::kBadArgument, "gain_db"},
+      {"action as a bool", c(op, "turntable", Json({{"action", true}})), ReplyCode::kBadArgument,
+       "action"},
+      {"gain as a string", c(op, "camera", Json({{"gain_db", "3"}})), ReplyCode::kBadArgument,
+       "gain_db"},
       {"unknown key", c(op, "scan", Json({{"colour", "red"}})), ReplyCode::kBadArgument, "colour"},
       {"arguments to a verb without any", c(obs, "status", Json({{"verbose", true}})),
        ReplyCode::kBadArgument, "verbose"},
@@ -178,46 +190,58 @@ std::vector<Case> MalformedCases() {
       {"get without session", c(obs, "get", "{}"), ReplyCode::kBadArgument, "session"},
       {"resume without session", c(op, "resume", ""), ReplyCode::kBadArgument, "session"},
       {"turntable without action", c(op, "turntable", "{}"), ReplyCode::kBadArgument, "action"},
-      {"move without angle", c(op, "turntable", Json({{"action", "move"}})), ReplyCode::kBadArgument,
-       "angle_deg"},
+      {"move without angle", c(op, "turntable", Json({{"action", "move"}})),
+       ReplyCode::kBadArgument, "angle_deg"},
       // Out of range.
       {"one view", c(op, "scan", Json({{"views", 1}})), ReplyCode::kBadArgument, "views"},
       {"zero views", c(op, "scan", Json({{"views", 0}})), ReplyCode::kBadArgument, "views"},
       {"negative views", c(op, "scan", Json({{"views", -6}})), ReplyCode::kBadArgument, "views"},
       {"361 views", c(op, "scan", Json({{"views", 361}})), ReplyCode::kBadArgument, "views"},
-      {"2^63 views", c(op, "scan", "{\"views\": 9223372036854775808}"), ReplyCode::kBadArgument, "views"},
+      {"2^63 views", c(op, "scan", "{\"views\": 9223372036854775808}"), ReplyCode::kBadArgument,
+       "views"},
       {"1e300 views", c(op, "scan", "{\"views\": 1e300}"), ReplyCode::kBadArgument, "views"},
-      {"step over a turn", c(op, "scan", Json({{"step_deg", 360.001}})), ReplyCode::kBadArgument, "step_deg"},
-      {"step -1e308", c(op, "scan", Json({{"step_deg", -1e308}})), ReplyCode::kBadArgument, "step_deg"},
-      {"zero exposure", c(op, "camera", Json({{"exposure_us", 0}})), ReplyCode::kBadArgument, "exposure_us"},
-      {"exposure over 10 s", c(op, "camera", Json({{"exposure_us", 10000001}})), ReplyCode::kBadArgument,
+      {"step over a turn", c(op, "scan", Json({{"step_deg", 360.001}})), ReplyCode::kBadArgument,
+       "step_deg"},
+      {"step -1e308", c(op, "scan", Json({{"step_deg", -1e308}})), ReplyCode::kBadArgument,
+       "step_deg"},
+      {"zero exposure", c(op, "camera", Json({{"exposure_us", 0}})), ReplyCode::kBadArgument,
        "exposure_us"},
-      {"negative gain", c(op, "camera", Json({{"gain_db", -0.5}})), ReplyCode::kBadArgument, "gain_db"},
-      {"gain over 48 dB", c(op, "camera", Json({{"gain_db", 48.5}})), ReplyCode::kBadArgument, "gain_db"},
+      {"exposure over 10 s", c(op, "camera", Json({{"exposure_us", 10000001}})),
+       ReplyCode::kBadArgument, "exposure_us"},
+      {"negative gain", c(op, "camera", Json({{"gain_db", -0.5}})), ReplyCode::kBadArgument,
+       "gain_db"},
+      {"gain over 48 dB", c(op, "camera", Json({{"gain_db", 48.5}})), ReplyCode::kBadArgument,
+       "gain_db"},
       {"chunk below 4 KiB", c(obs, "get", Json({{"session", session}, {"chunk_bytes", 4095}})),
        ReplyCode::kBadArgument, "chunk_bytes"},
       {"chunk above 4 MiB", c(obs, "get", Json({{"session", session}, {"chunk_bytes", 4194305}})),
        ReplyCode::kBadArgument, "chunk_bytes"},
-      {"angle past ten turns", c(op, "turntable", Json({{"action", "move"}, {"angle_deg", 3600.5}})),
+      {"angle past ten turns",
+       c(op, "turntable", Json({{"action", "move"}, {"angle_deg", 3600.5}})),
        ReplyCode::kBadArgument, "angle_deg"},
-      {"empty object name", c(op, "scan", Json({{"object", ""}})), ReplyCode::kBadArgument, "object"},
+      {"empty object name", c(op, "scan", Json({{"object", ""}})), ReplyCode::kBadArgument,
+       "object"},
       {"object name of 129 bytes", c(op, "scan", Json({{"object", std::string(129, 'o')}})),
        ReplyCode::kBadArgument, "object"},
       {"no files", c(obs, "get", Json({{"session", session}, {"files", nlohmann::json::array()}})),
        ReplyCode::kBadArgument, "files"},
-      {"257 files", c(obs, "get", Json({{"session", session},
-                                         {"files", std::vector<std::string>(257, "fused.ply")}})),
+      {"257 files",
+       c(obs, "get",
+         Json({{"session", session}, {"files", std::vector<std::string>(257, "fused.ply")}})),
        ReplyCode::kBadArgument, "files"},
-      {"file outside the session", c(obs, "get", Json({{"session", session}, {"files", {"../tokens.yaml"}}})),
+      {"file outside the session",
+       c(obs, "get", Json({{"session", session}, {"files", {"../tokens.yaml"}}})),
        ReplyCode::kBadArgument, "files"},
-      {"session traversal", c(op, "resume", Json({{"session", "../../etc"}})), ReplyCode::kBadArgument,
-       "session"},
-      {"unknown action", c(op, "turntable", Json({{"action", "spin"}})), ReplyCode::kBadArgument, "action"},
+      {"session traversal", c(op, "resume", Json({{"session", "../../etc"}})),
+       ReplyCode::kBadArgument, "session"},
+      {"unknown action", c(op, "turntable", Json({{"action", "spin"}})), ReplyCode::kBadArgument,
+       "action"},
       // Well formed, but nothing to act on.
       {"unknown session", c(obs, "get", Json({{"session", session}})), ReplyCode::kNotFound},
       {"files of an unknown session", c(obs, "get", Json({{"session", session}, {"files", "all"}})),
        ReplyCode::kNotFound},
-      {"resume an unknown session", c(op, "resume", Json({{"session", session}})), ReplyCode::kNotFound},
+      {"resume an unknown session", c(op, "resume", Json({{"session", session}})),
+       ReplyCode::kNotFound},
       {"cancel without a job", c(op, "cancel", ""), ReplyCode::kFailed},
       // Field sizes at and past the limit.
       {"verb of 129 bytes", c(obs, std::string(129, 'v'), ""), ReplyCode::kTooLarge, "128"},
@@ -234,14 +258,20 @@ std::vector<Case> MalformedCases() {
   }
   // Odd ids and client names: the daemon echoes them as they are.
   cases.push_back({"invalid UTF-8 request id and client",
-                   {"id-\xff\xfe", "client-\xc3\x28", obs, "status", ""}, ReplyCode::kOk});
-  cases.push_back({"request id of 128 bytes", {std::string(128, 'r'), "abuse-128", obs, "status", ""},
+                   {"id-\xff\xfe", "client-\xc3\x28", obs, "status", ""},
                    ReplyCode::kOk});
-  cases.push_back({"request id of 129 bytes", {std::string(129, 'q'), "abuse-129", obs, "status", ""},
+  cases.push_back({"request id of 128 bytes",
+                   {std::string(128, 'r'), "abuse-128", obs, "status", ""},
+                   ReplyCode::kOk});
+  cases.push_back({"request id of 129 bytes",
+                   {std::string(129, 'q'), "abuse-129", obs, "status", ""},
                    ReplyCode::kTooLarge});
-  cases.push_back({"client of 129 bytes", {"c129", std::string(129, 'c'), obs, "status", ""},
+  cases.push_back({"client of 129 bytes",
+                   {"c129", std::string(129, 'c'), obs, "status", ""},
                    ReplyCode::kTooLarge});
-  cases.push_back({"empty request id", {"", "abuse-empty-id", obs, "status", ""}, ReplyCode::kBadRequest,
+  cases.push_back({"empty request id",
+                   {"", "abuse-empty-id", obs, "status", ""},
+                   ReplyCode::kBadRequest,
                    "request_id"});
   return cases;
 }
@@ -292,7 +322,8 @@ TEST(DaemonAbuse, OversizedFieldsAreRefusedWithoutUnboundedMemory) {
   // The IDL's strings are unbounded, so each of these reaches the daemon:
   // first fields of up to 16 MB, then one sample of 5 x 16 MB.
   const std::vector<Big> cases = {
-      {"1 MB arguments", {"big-args-1", "abuse", kOperatorToken, "scan", "{\"object\": \"" + mb + "\"}"}},
+      {"1 MB arguments",
+       {"big-args-1", "abuse", kOperatorToken, "scan", "{\"object\": \"" + mb + "\"}"}},
       {"16 MB arguments", {"big-args-16", "abuse", kOperatorToken, "scan", mb16}},
       {"1 MB request id", {"big-id-" + mb, "abuse", kObserverToken, "status", ""}},
       {"16 MB client name", {"big-client", "big-client-" + mb16, kObserverToken, "status", ""}},
@@ -323,9 +354,10 @@ TEST(DaemonAbuse, OversizedFieldsAreRefusedWithoutUnboundedMemory) {
   const double peak_16mb = (after_16mb.hwm_kb - before.rss_kb) / 1024.0;
   const double peak_80mb = (after.hwm_kb - before.rss_kb) / 1024.0;
   const double kept_mb = (after.rss_kb - before.rss_kb) / 1024.0;
-  std::printf("FIGURE oversized rss before %.1f MB, after %.1f MB (kept %.1f MB); peak growth "
-              "%.1f MB with samples up to 16 MB, %.1f MB with one of 80 MB\n",
-              before.rss_kb / 1024.0, after.rss_kb / 1024.0, kept_mb, peak_16mb, peak_80mb);
+  std::printf(
+      "FIGURE oversized rss before %.1f MB, after %.1f MB (kept %.1f MB); peak growth "
+      "%.1f MB with samples up to 16 MB, %.1f MB with one of 80 MB\n",
+      before.rss_kb / 1024.0, after.rss_kb / 1024.0, kept_mb, peak_16mb, peak_80mb);
   if (kSanitizedBuild) return;  // memory bounds do not apply there
   // The daemon takes one Command at a time and copies no oversized field;
   // Cyclone holds a sample up to three times while it arrives (fragments,
@@ -399,7 +431,8 @@ TEST(DaemonAbuse, AChattyClientIsToldToSlowDownAndOthersAreServed) {
   int ok = 0, limited = 0;
   const auto start = Clock::now();
   for (int i = 0; i < 200; ++i) {
-    const auto reply = Call(*s, {"chat-" + std::to_string(i), "chatty", kObserverToken, "status", ""});
+    const auto reply =
+        Call(*s, {"chat-" + std::to_string(i), "chatty", kObserverToken, "status", ""});
     ASSERT_TRUE(reply) << i;
     if (reply->code_name == "ok") ++ok;
     if (reply->code_name == "busy") {
@@ -414,7 +447,8 @@ TEST(DaemonAbuse, AChattyClientIsToldToSlowDownAndOthersAreServed) {
   EXPECT_EQ(ok + limited, 200);
   EXPECT_GE(ok, static_cast<int>(daemon::kClientCommandBurst));
   EXPECT_LE(ok, static_cast<int>(daemon::kClientCommandBurst +
-                                 daemon::kClientCommandsPerSecond * elapsed_s) + 1);
+                                 daemon::kClientCommandsPerSecond * elapsed_s) +
+                    1);
   ExpectServing(*s, "another client");
 }
 
@@ -432,7 +466,8 @@ std::vector<FloodKind> FloodKinds() {
       {{"", "", kObserverToken, "explode", ""}, ReplyCode::kUnknownVerb},
       {{"", "", kOperatorToken, "scan", "{\"views\": 1000}"}, ReplyCode::kBadArgument},
       {{"", "", kObserverToken, "calibrate", ""}, ReplyCode::kForbidden},
-      {{"", "", kObserverToken, "get", "{\"session\": \"" + kUnknownSession + "\"}"}, ReplyCode::kNotFound},
+      {{"", "", kObserverToken, "get", "{\"session\": \"" + kUnknownSession + "\"}"},
+       ReplyCode::kNotFound},
       {{"", "", kObserverToken, std::string(200, 'v'), ""}, ReplyCode::kTooLarge},
   };
 }
@@ -478,7 +513,8 @@ TEST(DaemonAbuse, FloodFromThreeWritersNeitherStallsNorGrowsAndAScanFollows) {
   // Answered promptly once the flood is over.
   const auto probe_start = Clock::now();
   ExpectServing(*s, "after-flood", 5s);
-  const double probe_ms = std::chrono::duration<double, std::milli>(Clock::now() - probe_start).count();
+  const double probe_ms =
+      std::chrono::duration<double, std::milli>(Clock::now() - probe_start).count();
   std::this_thread::sleep_for(1500ms);  // replies in flight; one more periodic status
   const auto end = Clock::now();
   const ProcFigures after = ReadProcFigures(s->fixture.pid());
@@ -492,8 +528,8 @@ TEST(DaemonAbuse, FloodFromThreeWritersNeitherStallsNorGrowsAndAScanFollows) {
     const std::size_t k = r.request_id.find("-k");
     ASSERT_NE(k, std::string::npos) << r.request_id;
     const FloodKind& kind = kinds.at(std::stoul(r.request_id.substr(k + 2)));
-    const bool limited = r.code_name == "busy" &&
-                         r.message == daemon::CommandRateLimiter::RefusalMessage(r.client);
+    const bool limited =
+        r.code_name == "busy" && r.message == daemon::CommandRateLimiter::RefusalMessage(r.client);
     rate_limited += limited;
     if (!limited && r.code_name != daemon::ToString(kind.code) && ++wrong <= 5) {
       ADD_FAILURE() << r.request_id << ": " << r.code_name << ": " << r.message;
@@ -508,15 +544,19 @@ TEST(DaemonAbuse, FloodFromThreeWritersNeitherStallsNorGrowsAndAScanFollows) {
     first_reply = std::min(first_reply, r.arrived);
     last_reply = std::max(last_reply, r.arrived);
   }
-  const double reply_s = std::max(1e-3, std::chrono::duration<double>(last_reply - first_reply).count());
+  const double reply_s =
+      std::max(1e-3, std::chrono::duration<double>(last_reply - first_reply).count());
   const double gap_s = s->status->LongestGap(start, end).count();
   const double peak_growth_mb = (after.hwm_kb - before.rss_kb) / 1024.0;
-  std::printf("FIGURE flood %d commands from %d writers written in %.2f s (%.0f/s); %d answered "
-              "(%.0f%%) in %.2f s (%.0f/s), %d of them rate-limited; status answered %.0f ms after; longest "
-              "StationStatus gap %.2f s (%zu samples); rss %.1f -> %.1f MB, peak growth %.1f MB\n",
-              kCommands, kWriters, write_s, kCommands / write_s, answered, 100.0 * answered / kCommands,
-              reply_s, answered / reply_s, rate_limited, probe_ms, gap_s, s->status->CountBetween(start, end), before.rss_kb / 1024.0,
-              after.rss_kb / 1024.0, peak_growth_mb);
+  std::printf(
+      "FIGURE flood %d commands from %d writers written in %.2f s (%.0f/s); %d answered "
+      "(%.0f%%) in %.2f s (%.0f/s), %d of them rate-limited; status answered %.0f ms after; "
+      "longest "
+      "StationStatus gap %.2f s (%zu samples); rss %.1f -> %.1f MB, peak growth %.1f MB\n",
+      kCommands, kWriters, write_s, kCommands / write_s, answered, 100.0 * answered / kCommands,
+      reply_s, answered / reply_s, rate_limited, probe_ms, gap_s,
+      s->status->CountBetween(start, end), before.rss_kb / 1024.0, after.rss_kb / 1024.0,
+      peak_growth_mb);
   EXPECT_GT(answered, 0);
   EXPECT_LT(gap_s, 5.0);
   // Small commands: the daemon holds at most its reader's history of them
@@ -526,8 +566,8 @@ TEST(DaemonAbuse, FloodFromThreeWritersNeitherStallsNorGrowsAndAScanFollows) {
   }
 
   // A scan right after the flood completes.
-  const auto scan = s->client.Send("scan", {{"object", "after flood"}, {"views", 2}, {"step_deg", 90}},
-                                   kOperatorToken);
+  const auto scan = s->client.Send(
+      "scan", {{"object", "after flood"}, {"views", 2}, {"step_deg", 90}}, kOperatorToken);
   ASSERT_TRUE(scan);
   ASSERT_EQ(scan->code_name, "ok") << scan->message;
   const std::string job = scan->result["id"];
@@ -579,15 +619,17 @@ class CdrWriter {
   // gives the topic's serialisation and Cyclone's own bytes.
   bool Start(std::uint32_t domain, const std::string& station, std::string* error) {
     participant_ = dds_create_participant(domain, nullptr, nullptr);
-    const dds_entity_t topic = participant_ > 0
-        ? dds_create_topic(participant_, &craftscan_msg_Command_desc,
-                           dds::CommandTopic(station).name.c_str(), nullptr, nullptr)
-        : -1;
+    const dds_entity_t topic =
+        participant_ > 0
+            ? dds_create_topic(participant_, &craftscan_msg_Command_desc,
+                               dds::CommandTopic(station).name.c_str(), nullptr, nullptr)
+            : -1;
     dds_qos_t* qos = dds_create_qos();
     dds_qset_reliability(qos, DDS_RELIABILITY_RELIABLE, DDS_SECS(1));
     dds_qset_history(qos, DDS_HISTORY_KEEP_LAST, dds::CommandTopic(station).qos.history_depth);
     writer_ = topic > 0 ? dds_create_writer(participant_, topic, qos, nullptr) : -1;
-    const dds_entity_t reader = topic > 0 ? dds_create_reader(participant_, topic, qos, nullptr) : -1;
+    const dds_entity_t reader =
+        topic > 0 ? dds_create_reader(participant_, topic, qos, nullptr) : -1;
     dds_delete_qos(qos);
     if (writer_ < 0 || reader < 0) {
       *error = "cannot create the raw command writer";
@@ -664,7 +706,8 @@ class CdrWriter {
   bool WaitForReaders(std::uint32_t count) {
     for (int i = 0; i < 300; ++i) {
       dds_publication_matched_status_t status;
-      if (dds_get_publication_matched_status(writer_, &status) == 0 && status.current_count >= count) {
+      if (dds_get_publication_matched_status(writer_, &status) == 0 &&
+          status.current_count >= count) {
         return true;
       }
       std::this_thread::sleep_for(100ms);
@@ -688,7 +731,8 @@ TEST(DaemonAbuse, MalformedBytesOnTheWireAreDroppedAndOddValidOnesAnswered) {
   EXPECT_EQ(probe->code_name, "ok");
   // The builder writes what Cyclone writes.
   const std::string header = raw.probe_bytes().substr(0, 4);
-  ASSERT_EQ(CommandCdr(header, {"cdr-probe", "cdr", kObserverToken, "status", ""}), raw.probe_bytes())
+  ASSERT_EQ(CommandCdr(header, {"cdr-probe", "cdr", kObserverToken, "status", ""}),
+            raw.probe_bytes())
       << "this Cyclone does not write Command as 4-aligned XCDR2 with a DHEADER";
 
   // Valid on the wire, odd to the daemon.
@@ -700,17 +744,28 @@ TEST(DaemonAbuse, MalformedBytesOnTheWireAreDroppedAndOddValidOnesAnswered) {
   };
   const std::vector<Odd> odd = {
       // A NUL inside a string: the daemon's C strings end there.
-      {"NUL inside the verb", {std::string("cdr-nul\0tail", 12), "cdr", kObserverToken,
-                               std::string("sta\0tus", 7), ""}, "cdr-nul", ReplyCode::kUnknownVerb},
-      {"NUL after a valid token", {"cdr-nul-token", "cdr", kObserverToken + std::string(1, '\0') + "x",
-                                   "status", ""}, "cdr-nul-token", ReplyCode::kOk},
+      {"NUL inside the verb",
+       {std::string("cdr-nul\0tail", 12), "cdr", kObserverToken, std::string("sta\0tus", 7), ""},
+       "cdr-nul",
+       ReplyCode::kUnknownVerb},
+      {"NUL after a valid token",
+       {"cdr-nul-token", "cdr", kObserverToken + std::string(1, '\0') + "x", "status", ""},
+       "cdr-nul-token",
+       ReplyCode::kOk},
       // An older client's Command with only some members (appendable):
       // the rest are empty.
-      {"only request id and client", {"cdr-short", "cdr"}, "cdr-short", ReplyCode::kUnauthenticated},
-      {"no token, verb or arguments", {"cdr-short2", "cdr", kObserverToken}, "cdr-short2",
+      {"only request id and client",
+       {"cdr-short", "cdr"},
+       "cdr-short",
+       ReplyCode::kUnauthenticated},
+      {"no token, verb or arguments",
+       {"cdr-short2", "cdr", kObserverToken},
+       "cdr-short2",
        ReplyCode::kUnknownVerb},
       // A newer client's Command with a member this daemon does not know.
-      {"an extra member", {"cdr-long", "cdr", kObserverToken, "status", "", "future"}, "cdr-long",
+      {"an extra member",
+       {"cdr-long", "cdr", kObserverToken, "status", "", "future"},
+       "cdr-long",
        ReplyCode::kOk},
   };
   for (const Odd& k : odd) {
@@ -755,7 +810,8 @@ TEST(DaemonAbuse, MalformedBytesOnTheWireAreDroppedAndOddValidOnesAnswered) {
   // The path works: bytes swapped for other valid ones are answered.
   bool skip = false;
   ASSERT_TRUE(raw.WriteInvalid(
-      valid, CommandCdr(header, {"cdr-ok!", "cdr", kObserverToken, "status", "{\"pad\": 0}"}), &skip));
+      valid, CommandCdr(header, {"cdr-ok!", "cdr", kObserverToken, "status", "{\"pad\": 0}"}),
+      &skip));
   if (skip) GTEST_SKIP() << "this Cyclone's serdata layout differs; malformed bytes not sent";
   const auto swapped = s->replies->WaitFor("cdr-ok!", "cdr", 20s);
   ASSERT_TRUE(swapped) << "the swapped bytes were not answered";

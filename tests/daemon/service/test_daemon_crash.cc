@@ -24,7 +24,8 @@ namespace {
 
 using namespace std::chrono_literals;
 
-nlohmann::json WaitForJobEnd(StationClient& client, const std::string& id, std::chrono::seconds timeout) {
+nlohmann::json WaitForJobEnd(StationClient& client, const std::string& id,
+                             std::chrono::seconds timeout) {
   const auto deadline = std::chrono::steady_clock::now() + timeout;
   while (std::chrono::steady_clock::now() < deadline) {
     const auto reply = client.Send("status", nullptr, kObserverToken, 10s);
@@ -45,7 +46,8 @@ TEST(DaemonCrash, TwentyScansKilledAtRandomMomentsLoseNothing) {
   ASSERT_TRUE(fixture.Prepare(&error)) << error;
   ASSERT_TRUE(fixture.Start(&error)) << error;
   StationClient client;
-  ASSERT_TRUE(client.Start(fixture.domain(), fixture.dds_config(), fixture.station(), &error)) << error;
+  ASSERT_TRUE(client.Start(fixture.domain(), fixture.dds_config(), fixture.station(), &error))
+      << error;
   ASSERT_TRUE(client.WaitForDaemon(30s)) << fixture.Log();
 
   std::mt19937 random(20261129);
@@ -53,19 +55,21 @@ TEST(DaemonCrash, TwentyScansKilledAtRandomMomentsLoseNothing) {
   int killed_mid_capture = 0, killed_later = 0, acknowledged_total = 0;
   for (int scan = 0; scan < kScans; ++scan) {
     ASSERT_TRUE(client.WaitFor([](StationClient& c) { return c.last_status_state == "idle"; }, 60s))
-        << "scan " << scan << ": daemon not idle\n" << fixture.Log();
+        << "scan " << scan << ": daemon not idle\n"
+        << fixture.Log();
     std::size_t captures_before = 0;
     {
       auto lock = client.Lock();
       captures_before = client.captures.size();
     }
-    const auto reply = client.Send("scan", {{"object", "crash" + std::to_string(scan)}, {"views", 4}},
-                                   kOperatorToken);
+    const auto reply = client.Send(
+        "scan", {{"object", "crash" + std::to_string(scan)}, {"views", 4}}, kOperatorToken);
     ASSERT_TRUE(reply) << "scan " << scan;
     ASSERT_EQ(reply->code_name, "ok") << reply->message;
     const std::string session_id = reply->result["session"];
     // Kill after a random time within the scan's usual span.
-    std::this_thread::sleep_for(std::chrono::milliseconds(std::uniform_int_distribution<int>(0, 6000)(random)));
+    std::this_thread::sleep_for(
+        std::chrono::milliseconds(std::uniform_int_distribution<int>(0, 6000)(random)));
     ASSERT_TRUE(WIFSIGNALED(fixture.Stop(SIGKILL)));
     std::set<int> acknowledged;
     {
@@ -82,13 +86,14 @@ TEST(DaemonCrash, TwentyScansKilledAtRandomMomentsLoseNothing) {
       auto store = daemon::SessionStore::Open(fixture.data_dir(), &error);
       ASSERT_TRUE(store) << error;
       const daemon::VerifyResult verify = store->Verify(session_id);
-      ASSERT_TRUE(verify.IsIntact()) << "scan " << scan << ": "
-                                     << (verify.problems.empty() ? "manifest" : verify.problems[0]);
+      ASSERT_TRUE(verify.IsIntact())
+          << "scan " << scan << ": " << (verify.problems.empty() ? "manifest" : verify.problems[0]);
       auto session = store->OpenSession(session_id, &error);
       ASSERT_TRUE(session) << error;
       const std::vector<int> durable = session->DurableViews();
       for (int view : acknowledged) {
-        EXPECT_TRUE(std::count(durable.begin(), durable.end(), view)) << "scan " << scan << " view " << view;
+        EXPECT_TRUE(std::count(durable.begin(), durable.end(), view))
+            << "scan " << scan << " view " << view;
         cv::Mat left, right;
         EXPECT_TRUE(session->LoadCapture(view, &left, &right, nullptr, &error)) << error;
         EXPECT_EQ(left.size(), cv::Size(320, 256));
@@ -114,21 +119,23 @@ TEST(DaemonCrash, TwentyScansKilledAtRandomMomentsLoseNothing) {
     ASSERT_TRUE(resume);
     ASSERT_EQ(resume->code_name, "ok") << resume->message;
     const nlohmann::json job = WaitForJobEnd(client, resume->result["id"], 120s);
-    ASSERT_EQ(job.value("state", ""), "done") << "scan " << scan << ": " << job.dump() << fixture.Log();
+    ASSERT_EQ(job.value("state", ""), "done")
+        << "scan " << scan << ": " << job.dump() << fixture.Log();
     {
       auto lock = client.Lock();
       for (std::size_t i = captures_before; i < client.captures.size(); ++i) {
         const CaptureRecord& c = client.captures[i];
         // Resumed captures are only of views not acknowledged before the kill.
         if (c.session == session_id && i >= captures_before + acknowledged.size()) {
-          EXPECT_FALSE(acknowledged.count(c.view)) << "scan " << scan << ": view " << c.view
-                                                   << " captured again";
+          EXPECT_FALSE(acknowledged.count(c.view))
+              << "scan " << scan << ": view " << c.view << " captured again";
         }
       }
     }
   }
-  std::printf("20 scans killed: %d during capture, %d later; %d acknowledged captures, all intact\n",
-              killed_mid_capture, killed_later, acknowledged_total);
+  std::printf(
+      "20 scans killed: %d during capture, %d later; %d acknowledged captures, all intact\n",
+      killed_mid_capture, killed_later, acknowledged_total);
   auto store = daemon::SessionStore::Open(fixture.data_dir(), &error);
   ASSERT_TRUE(store);
   int done = 0;

@@ -39,13 +39,13 @@ class SerialStation {
     if (!StartEmulator()) return false;
     // 3600 deg/min: a 90-degree step takes 1.5 s, long enough to inject a
     // fault in the middle of it.
-    return daemon.Start(
-        "  camera: {driver: sim, config: {image_size: 320x256, threads: " +
-        std::to_string(TestThreads()) + "}}\n"
-        "  turntable: {driver: serial_turntable, config: {port: " +
-        link_ +
-        ", feed_deg_min: 3600, command_timeout_ms: 500, banner_timeout_ms: 1000, "
-        "homing_timeout_ms: 5000}}\n");
+    return daemon.Start("  camera: {driver: sim, config: {image_size: 320x256, threads: " +
+                        std::to_string(TestThreads()) +
+                        "}}\n"
+                        "  turntable: {driver: serial_turntable, config: {port: " +
+                        link_ +
+                        ", feed_deg_min: 3600, command_timeout_ms: 500, banner_timeout_ms: 1000, "
+                        "homing_timeout_ms: 5000}}\n");
   }
 
   // A new emulator on the same symlink (after a hang-up).

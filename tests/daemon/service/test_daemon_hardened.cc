@@ -57,7 +57,7 @@ struct Finished {
 // Runs argv to completion (killed after `timeout`), stdout and stderr to
 // files in `dir`.
 Finished RunToEnd(const std::vector<std::string>& argv, const std::string& dir,
-             std::chrono::seconds timeout = 30s) {
+                  std::chrono::seconds timeout = 30s) {
   const std::string out = dir + "/run.out", err = dir + "/run.err";
   posix_spawn_file_actions_t actions;
   posix_spawn_file_actions_init(&actions);
@@ -124,8 +124,9 @@ std::map<std::string, std::string> ProbeResults(const std::string& out) {
 // Skips (returns true) where the sandbox cannot be built here.
 bool SandboxUnavailable(const DaemonFixture& f, std::string* why) {
 #ifdef CRAFTSCAN_HARDENED_SANITIZED
-  *why = "sanitizer build: ASan/LSan/TSan runtimes need ptrace() and personality(), which the "
-         "unit's SystemCallFilter= and LockPersonality= refuse";
+  *why =
+      "sanitizer build: ASan/LSan/TSan runtimes need ptrace() and personality(), which the "
+      "unit's SystemCallFilter= and LockPersonality= refuse";
   return true;
 #else
   std::vector<std::string> argv = Launcher(f);
@@ -144,9 +145,10 @@ std::vector<std::string> RefusalLines(const std::string& log) {
   std::vector<std::string> found;
   std::istringstream in(log);
   for (std::string line; std::getline(in, line);) {
-    for (const char* sign : {"Operation not permitted", "Permission denied", "Read-only file system",
-                             "Address family not supported", "Function not implemented", "EPERM",
-                             "EACCES", "EROFS", "EAFNOSUPPORT", "ENOSYS", "SIGSYS"}) {
+    for (const char* sign :
+         {"Operation not permitted", "Permission denied", "Read-only file system",
+          "Address family not supported", "Function not implemented", "EPERM", "EACCES", "EROFS",
+          "EAFNOSUPPORT", "ENOSYS", "SIGSYS"}) {
       if (line.find(sign) != std::string::npos) {
         found.push_back(line);
         break;
@@ -174,29 +176,29 @@ TEST(HardenedService, TheUnitsSandboxIsInForce) {
 
   // Action → what the unit's sandbox answers.
   const std::vector<std::pair<std::string, std::string>> expected = {
-      {"write:" + data + "/probe", "OK"},                      // StateDirectory= writable
-      {"write:" + root + "/probe", "EROFS"},                   // ProtectSystem=strict
-      {"openw:" + root + "/craftscand.yaml", "EROFS"},         // config not writable
-      {"write:/etc/craftscan-hardened-probe", "EROFS"},        // ProtectSystem=strict
-      {"write:/var/lib/craftscan-hardened-probe", "EROFS"},    // only StateDirectory=
-      {"openw:/proc/sys/kernel/hostname", "EROFS"},            // ProtectKernelTunables=
-      {"write:" + private_name, "OK"},                         // PrivateTmp= (writable)
-      {"stat:" + host_marker, "ENOENT"},                       // PrivateTmp= (private)
-      {"socket:unix", "OK"},                                   // RestrictAddressFamilies=
+      {"write:" + data + "/probe", "OK"},                    // StateDirectory= writable
+      {"write:" + root + "/probe", "EROFS"},                 // ProtectSystem=strict
+      {"openw:" + root + "/craftscand.yaml", "EROFS"},       // config not writable
+      {"write:/etc/craftscan-hardened-probe", "EROFS"},      // ProtectSystem=strict
+      {"write:/var/lib/craftscan-hardened-probe", "EROFS"},  // only StateDirectory=
+      {"openw:/proc/sys/kernel/hostname", "EROFS"},          // ProtectKernelTunables=
+      {"write:" + private_name, "OK"},                       // PrivateTmp= (writable)
+      {"stat:" + host_marker, "ENOENT"},                     // PrivateTmp= (private)
+      {"socket:unix", "OK"},                                 // RestrictAddressFamilies=
       {"socket:inet", "OK"},
       {"socket:inet6", "OK"},
       {"socket:netlink", "OK"},
       {"socket:packet", "EAFNOSUPPORT"},
-      {"mmap-wx", "EPERM"},                                    // MemoryDenyWriteExecute=
+      {"mmap-wx", "EPERM"},  // MemoryDenyWriteExecute=
       {"mprotect-exec", "EPERM"},
-      {"setuid-self", "EPERM"},                                // ~@privileged
-      {"sethostname-same", "EPERM"},                           // ~@privileged, ProtectHostname=
-      {"syslog", "EPERM"},                                     // not @system-service
-      {"personality", "EPERM"},                                // LockPersonality=
-      {"sched-fifo", "EPERM"},                                 // RestrictRealtime=
-      {"chmod-suid:" + data + "/suid", "EPERM"},               // RestrictSUIDSGID=
-      {"unshare-user", "EPERM"},                               // RestrictNamespaces=
-      {"clone3", "ENOSYS"},                                    // RestrictNamespaces= (clone3)
+      {"setuid-self", "EPERM"},                   // ~@privileged
+      {"sethostname-same", "EPERM"},              // ~@privileged, ProtectHostname=
+      {"syslog", "EPERM"},                        // not @system-service
+      {"personality", "EPERM"},                   // LockPersonality=
+      {"sched-fifo", "EPERM"},                    // RestrictRealtime=
+      {"chmod-suid:" + data + "/suid", "EPERM"},  // RestrictSUIDSGID=
+      {"unshare-user", "EPERM"},                  // RestrictNamespaces=
+      {"clone3", "ENOSYS"},                       // RestrictNamespaces= (clone3)
   };
   std::vector<std::string> argv = Launcher(f);
   argv.insert(argv.end() - 1, "--explain");  // before the "--"
@@ -205,7 +207,8 @@ TEST(HardenedService, TheUnitsSandboxIsInForce) {
   for (const char* more : {"list:/home", "list:/root", "status"}) argv.push_back(more);
   const Finished run = RunToEnd(argv, root);
   ASSERT_TRUE(WIFEXITED(run.status) && WEXITSTATUS(run.status) == 0)
-      << "status " << run.status << "\n" << run.err << run.out;
+      << "status " << run.status << "\n"
+      << run.err << run.out;
   const auto results = ProbeResults(run.out);
   for (const auto& [action, result] : expected) {
     ASSERT_TRUE(results.count(action)) << action << " not run:\n" << run.out << run.err;
@@ -232,18 +235,19 @@ TEST(HardenedService, TheUnitsSandboxIsInForce) {
 
   // The same probe outside the sandbox: the confined operations go through
   // (or fail otherwise), so the answers above came from the sandbox.
-  const Finished control = RunToEnd({HARDENED_PROBE_PATH, "write:" + root + "/probe", "mmap-wx",
-                                "mprotect-exec", "setuid-self", "personality",
-                                "chmod-suid:" + data + "/suid", "unshare-user", "clone3",
-                                "socket:packet", "stat:" + host_marker + "-gone"},
-                               root);
+  const Finished control =
+      RunToEnd({HARDENED_PROBE_PATH, "write:" + root + "/probe", "mmap-wx", "mprotect-exec",
+                "setuid-self", "personality", "chmod-suid:" + data + "/suid", "unshare-user",
+                "clone3", "socket:packet", "stat:" + host_marker + "-gone"},
+               root);
   ASSERT_TRUE(WIFEXITED(control.status) && WEXITSTATUS(control.status) == 0) << control.err;
   const auto outside = ProbeResults(control.out);
-  for (const std::string& action : {"write:" + root + "/probe", std::string("mmap-wx"),
-                                    std::string("mprotect-exec"), std::string("setuid-self"),
-                                    std::string("personality"), "chmod-suid:" + data + "/suid",
-                                    std::string("unshare-user")}) {
-    EXPECT_EQ(outside.count(action) ? outside.at(action) : "", "OK") << action << "\n" << control.out;
+  for (const std::string& action :
+       {"write:" + root + "/probe", std::string("mmap-wx"), std::string("mprotect-exec"),
+        std::string("setuid-self"), std::string("personality"), "chmod-suid:" + data + "/suid",
+        std::string("unshare-user")}) {
+    EXPECT_EQ(outside.count(action) ? outside.at(action) : "", "OK") << action << "\n"
+                                                                     << control.out;
   }
   EXPECT_NE(outside.at("clone3"), "ENOSYS");
   EXPECT_NE(outside.at("socket:packet"), "EAFNOSUPPORT");
@@ -294,8 +298,8 @@ TEST(HardenedService, DaemonScansAndStopsCleanlyUnderTheUnitsSandbox) {
   ASSERT_EQ(status->code_name, "ok") << status->message;
   EXPECT_EQ(status->result["state"], "idle") << status->result.dump();
 
-  const auto scan = client.Send("scan", {{"object", "sandboxed box"}, {"views", 3}, {"step_deg", 120}},
-                                kOperatorToken);
+  const auto scan = client.Send(
+      "scan", {{"object", "sandboxed box"}, {"views", 3}, {"step_deg", 120}}, kOperatorToken);
   ASSERT_TRUE(scan) << f.Log();
   ASSERT_EQ(scan->code_name, "ok") << scan->message;
   const std::string session_id = scan->result["session"], job_id = scan->result["id"];
@@ -334,8 +338,10 @@ TEST(HardenedService, DaemonScansAndStopsCleanlyUnderTheUnitsSandbox) {
   for (const NotifyMessage& m : f.notify().Drain()) stopping = stopping || m.Has("STOPPING=1");
   EXPECT_TRUE(stopping) << "no STOPPING=1 over the notify socket";
   const std::vector<std::string> refused = RefusalLines(f.Log());
-  EXPECT_TRUE(refused.empty()) << refused.size() << " log lines tell of refused calls, first: "
-                               << refused.front() << "\n" << f.Log();
+  EXPECT_TRUE(refused.empty()) << refused.size()
+                               << " log lines tell of refused calls, first: " << refused.front()
+                               << "\n"
+                               << f.Log();
 }
 
 }  // namespace

@@ -118,7 +118,8 @@ TEST(DaemonSoak, FiftyScansBackToBackWithClientsComingAndGoingLeakNothing) {
   std::string error;
   ASSERT_TRUE(fixture.Prepare(&error)) << error;
   ASSERT_TRUE(fixture.Start(&error)) << error;
-  ASSERT_TRUE(client.Start(fixture.domain(), fixture.dds_config(), fixture.station(), &error)) << error;
+  ASSERT_TRUE(client.Start(fixture.domain(), fixture.dds_config(), fixture.station(), &error))
+      << error;
   ASSERT_TRUE(client.WaitForDaemon(30s)) << fixture.Log();
   auto churn = std::make_unique<ClientChurn>(fixture.domain(), fixture.station());
 
@@ -129,19 +130,21 @@ TEST(DaemonSoak, FiftyScansBackToBackWithClientsComingAndGoingLeakNothing) {
   std::vector<double> seconds;
   for (int i = 0; i < scans; ++i) {
     const auto scan_start = Clock::now();
-    const auto reply = client.Send("scan", {{"object", "soak " + std::to_string(i)}, {"views", 4},
-                                            {"step_deg", 90}},
-                                   kOperatorToken);
+    const auto reply = client.Send(
+        "scan", {{"object", "soak " + std::to_string(i)}, {"views", 4}, {"step_deg", 90}},
+        kOperatorToken);
     ASSERT_TRUE(reply) << "scan " << i << ": no reply\n" << fixture.Log();
     ASSERT_EQ(reply->code_name, "ok") << "scan " << i << ": " << reply->message;
     const std::string job = reply->result["id"];
     sessions.push_back(reply->result["session"]);
     ASSERT_TRUE(client.WaitFor(
         [&](StationClient& c) {
-          return c.last_job_id == job && c.last_job_state != "running" && c.last_job_state != "queued";
+          return c.last_job_id == job && c.last_job_state != "running" &&
+                 c.last_job_state != "queued";
         },
         120s))
-        << "scan " << i << " did not end\n" << fixture.Log();
+        << "scan " << i << " did not end\n"
+        << fixture.Log();
     {
       auto lock = client.Lock();
       ASSERT_EQ(client.last_job_state, "done") << "scan " << i << "\n" << fixture.Log();
@@ -153,25 +156,29 @@ TEST(DaemonSoak, FiftyScansBackToBackWithClientsComingAndGoingLeakNothing) {
       const auto status = client.Send("status", nullptr, kObserverToken);
       ASSERT_TRUE(status);
       const nlohmann::json& result = status->result["job"]["result"];
-      std::printf("FIGURE soak scan %d stages: capture %.0f ms, match %.0f ms, reconstruct %.0f ms: %s\n",
-                  i + 1, result.value("capture_ms", 0.0), result.value("match_ms", 0.0),
-                  result.value("reconstruct_ms", 0.0), result["stage_ms"].dump().c_str());
+      std::printf(
+          "FIGURE soak scan %d stages: capture %.0f ms, match %.0f ms, reconstruct %.0f ms: %s\n",
+          i + 1, result.value("capture_ms", 0.0), result.value("match_ms", 0.0),
+          result.value("reconstruct_ms", 0.0), result["stage_ms"].dump().c_str());
     }
     after.push_back(ReadProcFigures(fixture.pid()));
-    const double cpu_s = after.back().cpu_s - (i == 0 ? initial.cpu_s : after[after.size() - 2].cpu_s);
-    std::printf("FIGURE soak scan %d: %.2f s (daemon CPU %.2f s), rss %.1f MB, peak %.1f MB, "
-                "threads %d, fds %d\n",
-                i + 1, seconds.back(), cpu_s, after.back().rss_kb / 1024.0,
-                after.back().hwm_kb / 1024.0, after.back().threads, after.back().fds);
+    const double cpu_s =
+        after.back().cpu_s - (i == 0 ? initial.cpu_s : after[after.size() - 2].cpu_s);
+    std::printf(
+        "FIGURE soak scan %d: %.2f s (daemon CPU %.2f s), rss %.1f MB, peak %.1f MB, "
+        "threads %d, fds %d\n",
+        i + 1, seconds.back(), cpu_s, after.back().rss_kb / 1024.0, after.back().hwm_kb / 1024.0,
+        after.back().threads, after.back().fds);
     std::fflush(stdout);
   }
   const double total_s = std::chrono::duration<double>(Clock::now() - start).count();
   churn->Stop();
   EXPECT_EQ(churn->error(), "");
-  std::printf("FIGURE soak %d scans in %.0f s (%.2f s mean, %.2f s max; daemon CPU %.2f s a scan); "
-              "%d client rounds read %ld samples\n",
-              scans, total_s, total_s / scans, *std::max_element(seconds.begin(), seconds.end()),
-              (after.back().cpu_s - initial.cpu_s) / scans, churn->rounds(), churn->samples());
+  std::printf(
+      "FIGURE soak %d scans in %.0f s (%.2f s mean, %.2f s max; daemon CPU %.2f s a scan); "
+      "%d client rounds read %ld samples\n",
+      scans, total_s, total_s / scans, *std::max_element(seconds.begin(), seconds.end()),
+      (after.back().cpu_s - initial.cpu_s) / scans, churn->rounds(), churn->samples());
   EXPECT_GT(churn->rounds(), scans);  // clients came and went all along
 
   // Every session is on disk, done and intact.
@@ -182,7 +189,8 @@ TEST(DaemonSoak, FiftyScansBackToBackWithClientsComingAndGoingLeakNothing) {
   EXPECT_EQ(listed->result["sessions"].size(), static_cast<std::size_t>(scans));
   for (const std::string& id : sessions) {
     const daemon::VerifyResult verify = store->Verify(id);
-    EXPECT_TRUE(verify.IsIntact()) << id << ": " << (verify.problems.empty() ? "" : verify.problems[0]);
+    EXPECT_TRUE(verify.IsIntact())
+        << id << ": " << (verify.problems.empty() ? "" : verify.problems[0]);
     auto session = store->OpenSession(id, &error);
     ASSERT_TRUE(session) << error;
     EXPECT_EQ(session->state(), daemon::SessionState::kDone) << id;
@@ -199,10 +207,11 @@ TEST(DaemonSoak, FiftyScansBackToBackWithClientsComingAndGoingLeakNothing) {
     max_rss_kb = std::max(max_rss_kb, f.rss_kb);
     max_fds = std::max(max_fds, f.fds);
   }
-  std::printf("FIGURE soak daemon rss at start %.1f MB, max after a scan %.1f MB, peak %.1f MB; "
-              "threads at start %d, after the last scan %d; fds at start %d, max %d\n",
-              initial.rss_kb / 1024.0, max_rss_kb / 1024.0, after.back().hwm_kb / 1024.0,
-              initial.threads, after.back().threads, initial.fds, max_fds);
+  std::printf(
+      "FIGURE soak daemon rss at start %.1f MB, max after a scan %.1f MB, peak %.1f MB; "
+      "threads at start %d, after the last scan %d; fds at start %d, max %d\n",
+      initial.rss_kb / 1024.0, max_rss_kb / 1024.0, after.back().hwm_kb / 1024.0, initial.threads,
+      after.back().threads, initial.fds, max_fds);
   EXPECT_LT(max_rss_kb / 1024.0, 300.0);
   EXPECT_LT(max_fds, 64);
   if (scans < 20) GTEST_SKIP() << "trend checks need 20 scans or more";
@@ -216,9 +225,10 @@ TEST(DaemonSoak, FiftyScansBackToBackWithClientsComingAndGoingLeakNothing) {
   // give or take one being closed.
   const std::size_t n = after.size();
   const double early = MeanRssMb(after, 5, 14), late = MeanRssMb(after, n - 10, n - 1);
-  std::printf("FIGURE soak rss mean scans 6-15 %.1f MB, last 10 %.1f MB (%+.1f MB); fds after scan 5 "
-              "%d, after scan %zu %d\n",
-              early, late, late - early, after[4].fds, n, after[n - 1].fds);
+  std::printf(
+      "FIGURE soak rss mean scans 6-15 %.1f MB, last 10 %.1f MB (%+.1f MB); fds after scan 5 "
+      "%d, after scan %zu %d\n",
+      early, late, late - early, after[4].fds, n, after[n - 1].fds);
   EXPECT_LT(late - early, 30.0);
   EXPECT_EQ(after[n - 1].threads, after[4].threads);
   EXPECT_NEAR(after[n - 1].fds, after[4].fds, 2);

@@ -242,11 +242,10 @@ class StorageStation {
 
   // Runs craftscanctl with `args` against this station (observer token).
   CtlRun Ctl(const std::vector<std::string>& args) {
-    std::vector<std::string> all = {"--station", fixture_.station(),
-                                    "--domain", std::to_string(fixture_.domain()),
-                                    "--dds-config", fixture_.dds_config(),
-                                    "--timeout", "20",
-                                    "--token", kObserverToken};
+    std::vector<std::string> all = {
+        "--station",    fixture_.station(),    "--domain",  std::to_string(fixture_.domain()),
+        "--dds-config", fixture_.dds_config(), "--timeout", "20",
+        "--token",      kObserverToken};
     all.insert(all.end(), args.begin(), args.end());
     CtlProcess process(fixture_.root(), "ctl" + std::to_string(++ctl_runs_), all);
     return process.Wait(60s);
@@ -303,8 +302,8 @@ OnDisk Inspect(const std::string& data_dir, const std::string& id) {
   if (out.error.empty()) out.error = session->manifest().error;
   out.durable = session->DurableViews();
   std::error_code ec;
-  for (auto it = fs::recursive_directory_iterator(session->dir(), ec);
-       !ec && it != fs::end(it); it.increment(ec)) {
+  for (auto it = fs::recursive_directory_iterator(session->dir(), ec); !ec && it != fs::end(it);
+       it.increment(ec)) {
     const std::string name = it->path().filename().string();
     out.temporaries += name.size() > 12 && name[0] == '.' && Contains(name, ".tmp-");
   }
@@ -324,7 +323,8 @@ std::uint64_t AllocatedBytes(const std::string& dir) {
   for (auto it = fs::recursive_directory_iterator(dir, ec); !ec && it != fs::end(it);
        it.increment(ec)) {
     struct stat st {};
-    if (::lstat(it->path().c_str(), &st) == 0) total += static_cast<std::uint64_t>(st.st_blocks) * 512;
+    if (::lstat(it->path().c_str(), &st) == 0)
+      total += static_cast<std::uint64_t>(st.st_blocks) * 512;
   }
   return total;
 }
@@ -378,8 +378,7 @@ TEST(DaemonStorage, DiskFullInterruptsTheScanAndResumeCompletesItOnceSpaceIsFree
   EXPECT_TRUE(Contains(message, "disk full: free space in the data directory '" + data_dir + "'"))
       << message;
   EXPECT_TRUE(Contains(message, "resume " + id)) << message;
-  std::printf("the scan stopped with: %s\nthe reserve was %s to record its end\n",
-              message.c_str(),
+  std::printf("the scan stopped with: %s\nthe reserve was %s to record its end\n", message.c_str(),
               Contains(station.fixture().Log(), "freed the reserve") ? "freed" : "not needed");
   const std::set<int> acknowledged = station.Acknowledged(id);
   EXPECT_GE(acknowledged.size(), 1u) << "the budget should hold at least one view";
@@ -447,8 +446,8 @@ TEST(DaemonStorage, DiskFullInterruptsTheScanAndResumeCompletesItOnceSpaceIsFree
     auto lock = station.client().Lock();
     const auto& captures = station.client().captures;
     for (std::size_t i = captures_before; i < captures.size(); ++i) {
-      EXPECT_FALSE(acknowledged.count(captures[i].view)) << "view " << captures[i].view
-                                                         << " was captured again";
+      EXPECT_FALSE(acknowledged.count(captures[i].view))
+          << "view " << captures[i].view << " was captured again";
     }
   }
   const OnDisk done = Inspect(data_dir, id);
@@ -487,8 +486,8 @@ TEST(DaemonStorage, ACaptureOnACompletelyFullDiskIsStillRecordedInterrupted) {
   ASSERT_EQ(job.value("state", ""), "failed") << job.dump() << station.fixture().Log();
   EXPECT_TRUE(Contains(message, "session " + id + " interrupted: view 0: ")) << message;
   EXPECT_TRUE(Contains(message, kNoSpace)) << message;
-  EXPECT_TRUE(Contains(station.fixture().Log(), "disk full: freed the reserve to mark session " +
-                                                    id + " interrupted"))
+  EXPECT_TRUE(Contains(station.fixture().Log(),
+                       "disk full: freed the reserve to mark session " + id + " interrupted"))
       << station.fixture().Log();
   EXPECT_TRUE(station.Acknowledged(id).empty());
   ASSERT_EQ(::unlink(filler.c_str()), 0);
@@ -521,8 +520,7 @@ TEST(DaemonStorage, DataDirTurningReadOnlyStopsTheScanClearlyAndResumeCompletesI
   const std::string earlier_id = earlier["session"];
 
   // A 12-view scan; read-only once its first capture is acknowledged.
-  const ReplyRecord scan =
-      station.Send("scan", {{"object", "egg"}, {"views", 12}}, kOperatorToken);
+  const ReplyRecord scan = station.Send("scan", {{"object", "egg"}, {"views", 12}}, kOperatorToken);
   ASSERT_EQ(scan.code_name, "ok") << scan.message;
   const std::string id = scan.result["session"];
   ASSERT_TRUE(station.client().WaitFor(
@@ -691,7 +689,8 @@ TEST(DaemonStorage, StartsDegradedWithoutItsDataDirAndRecoversWhenItAppears) {
   EXPECT_EQ(refused.code_name, "unavailable") << refused.message;
   EXPECT_TRUE(Contains(refused.message, data_dir)) << refused.message;
   EXPECT_TRUE(Contains(refused.message, std::strerror(ENOENT))) << refused.message;
-  EXPECT_EQ(station.Send("status", nullptr, kObserverToken).result.value("calibration_id", "x"), "");
+  EXPECT_EQ(station.Send("status", nullptr, kObserverToken).result.value("calibration_id", "x"),
+            "");
 
   fs::rename(data_dir + ".later", data_dir);
   ASSERT_TRUE(station.watch().WaitFor(
@@ -716,7 +715,8 @@ TEST(DaemonStorage, ABadConfigIsStillRefusedAtStart) {
   const auto deadline = std::chrono::steady_clock::now() + 30s;
   while (std::chrono::steady_clock::now() < deadline) {
     info.si_pid = 0;
-    if (::waitid(P_PID, static_cast<id_t>(fixture.pid()), &info, WEXITED | WNOHANG | WNOWAIT) == 0 &&
+    if (::waitid(P_PID, static_cast<id_t>(fixture.pid()), &info, WEXITED | WNOHANG | WNOWAIT) ==
+            0 &&
         info.si_pid != 0) {
       break;
     }

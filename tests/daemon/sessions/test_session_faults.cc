@@ -61,9 +61,8 @@ std::string ReadOnlyScenario(SessionStore& store, const std::string& data_dir,
   auto session = store.OpenSession(id, &error);  // reading works
   f.Check(session != nullptr, "OpenSession failed: " + error);
   if (!session) return f.str();
-  const bool stored =
-      session->StoreCapture(1, 90.0, NoiseImage(32, 24, CV_8UC1, 5), NoiseImage(32, 24, CV_8UC1, 6),
-                            {{"view", 1}}, &error);
+  const bool stored = session->StoreCapture(1, 90.0, NoiseImage(32, 24, CV_8UC1, 5),
+                                            NoiseImage(32, 24, CV_8UC1, 6), {{"view", 1}}, &error);
   f.Check(!stored, "StoreCapture succeeded");
   f.Check(Contains(error, "capture of view 1") && Contains(error, "views/001") &&
               Contains(error, reason),
@@ -241,8 +240,8 @@ TEST_F(SessionTest, SigkillAtRandomMomentsNeverLosesAnAcknowledgedCapture) {
   SCOPED_TRACE("seed " + std::to_string(seed));
   std::mt19937 rng(seed);
   std::set<int> acked;
-  int killed_mid_write = 0;     // kills that left a temporary file behind
-  int killed_before_ack = 0;    // kills between a durable manifest entry and its ack
+  int killed_mid_write = 0;   // kills that left a temporary file behind
+  int killed_before_ack = 0;  // kills between a durable manifest entry and its ack
   bool finished = false;
   for (int round = 0; round < kRounds && !finished; ++round) {
     int fds[2];
@@ -278,8 +277,8 @@ TEST_F(SessionTest, SigkillAtRandomMomentsNeverLosesAnAcknowledgedCapture) {
     // What the daemon does on restart, then what resume does.
     store_->MarkInterrupted(nullptr);
     const VerifyResult verify = store_->Verify(id);
-    ASSERT_TRUE(verify.IsIntact()) << "round " << round << ": "
-                                   << ::testing::PrintToString(verify.problems);
+    ASSERT_TRUE(verify.IsIntact())
+        << "round " << round << ": " << ::testing::PrintToString(verify.problems);
     std::string error;
     auto s = store_->OpenSession(id, &error);
     ASSERT_NE(s, nullptr) << error;

@@ -41,9 +41,20 @@ TEST(SanitizeObjectNameTest, KeepsSafeNamesAndNeutralisesTraversal) {
 }
 
 TEST(SanitizeObjectNameTest, EveryResultMakesAValidIdThatIsOneFolderComponent) {
-  const std::string inputs[] = {"../../etc", "a/b", ".hidden", "-rf", "..", ".", "",
-                                std::string(300, '/'), "\xc3\x84\xc3\x84", "x/../../y",
-                                " -.- ", "~root", "$(rm -rf /)", "C:\\Windows"};
+  const std::string inputs[] = {"../../etc",
+                                "a/b",
+                                ".hidden",
+                                "-rf",
+                                "..",
+                                ".",
+                                "",
+                                std::string(300, '/'),
+                                "\xc3\x84\xc3\x84",
+                                "x/../../y",
+                                " -.- ",
+                                "~root",
+                                "$(rm -rf /)",
+                                "C:\\Windows"};
   for (const auto& input : inputs) {
     const std::string name = SanitizeObjectName(input);
     SCOPED_TRACE("input '" + input + "' -> '" + name + "'");
@@ -115,8 +126,8 @@ TEST(OutputNameTest, AcceptsOutputsAndRefusesEscapesAndReservedNames) {
 
 TEST(SessionStateTest, NamesRoundTripAndTransitionsFollowTheMachine) {
   using S = SessionState;
-  for (S s : {S::kCreated, S::kCapturing, S::kReconstructing, S::kDone, S::kInterrupted,
-              S::kFailed}) {
+  for (S s :
+       {S::kCreated, S::kCapturing, S::kReconstructing, S::kDone, S::kInterrupted, S::kFailed}) {
     S back = S::kDone;
     ASSERT_TRUE(SessionStateFromString(ToString(s), &back)) << ToString(s);
     EXPECT_EQ(back, s);

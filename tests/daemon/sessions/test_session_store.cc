@@ -16,8 +16,8 @@
 
 #include <nlohmann/json.hpp>
 
-#include "craftscan/pipeline/atomic_file.h"
-#include "craftscan/pipeline/point_cloud.h"
+#include "craftscan/pipeline/common/atomic_file.h"
+#include "craftscan/pipeline/common/point_cloud.h"
 #include "session_test_util.h"
 
 namespace craftscan::daemon {
@@ -54,8 +54,9 @@ TEST_F(SessionTest, OpenRefusesDataDirsThatAreMissingOrNotDirectories) {
 
 TEST_F(SessionTest, HostileObjectNamesStayInsideTheSessionsFolder) {
   const auto now = Clock::now();
-  const std::string names[] = {"../../etc", "a/b", ".hidden", "-rf", "\xc3\x84gg \xe5\xb5\x8c",
-                               std::string(300, 'n'), "", "/abs/path", "..", "x\\..\\y"};
+  const std::string names[] = {
+      "../../etc",           "a/b", ".hidden",   "-rf", "\xc3\x84gg \xe5\xb5\x8c",
+      std::string(300, 'n'), "",    "/abs/path", "..",  "x\\..\\y"};
   std::set<std::string> ids;
   for (const auto& name : names) {
     std::string error;
@@ -197,10 +198,10 @@ TEST_F(SessionTest, StoreAndLoadRoundTripBitExactly) {
   EXPECT_EQ(reopened->manifest().calibration_id, "rig-a");
   // The layout of DESIGN.md.
   const fs::path dir = reopened->dir();
-  for (const char* file : {"manifest.json", "calibration.yaml", "views/000/left.png",
-                           "views/000/right.png", "views/000/meta.json", "views/001/disparity.pfm",
-                           "views/001/cloud.ply", "fused.ply", "report.json",
-                           "previews/view001.png"}) {
+  for (const char* file :
+       {"manifest.json", "calibration.yaml", "views/000/left.png", "views/000/right.png",
+        "views/000/meta.json", "views/001/disparity.pfm", "views/001/cloud.ply", "fused.ply",
+        "report.json", "previews/view001.png"}) {
     EXPECT_TRUE(fs::is_regular_file(dir / file)) << file;
   }
   EXPECT_EQ(testing::CountTemporaries(dir), 0);
@@ -421,7 +422,8 @@ TEST_F(SessionTest, VerifyDetectsTruncatedModifiedAndMissingFiles) {
   // (same size), delete view 2's meta.json.
   fs::resize_file(dir / "views/000/left.png", fs::file_size(dir / "views/000/left.png") - 10);
   {
-    std::fstream f(dir / "views/001/disparity.pfm", std::ios::in | std::ios::out | std::ios::binary);
+    std::fstream f(dir / "views/001/disparity.pfm",
+                   std::ios::in | std::ios::out | std::ios::binary);
     f.seekg(-7, std::ios::end);
     const char c = static_cast<char>(f.get());
     f.seekp(-7, std::ios::end);

@@ -130,8 +130,9 @@ std::string SyscallGroupsListing(std::string* error) {
   int status = 0;
   if (r != 0 || ::waitpid(pid, &status, 0) != pid || !WIFEXITED(status) ||
       WEXITSTATUS(status) != 0) {
-    *error = "`systemd-analyze syscall-filter` failed (package systemd): needed for the unit's "
-             "syscall groups";
+    *error =
+        "`systemd-analyze syscall-filter` failed (package systemd): needed for the unit's "
+        "syscall groups";
     return "";
   }
   return text;
@@ -178,7 +179,8 @@ int main(int argc, char** argv) {
 
   std::ifstream in(unit_path);
   if (!in) {
-    std::fprintf(stderr, "hardened-run: cannot read %s: %s\n", unit_path.c_str(), std::strerror(errno));
+    std::fprintf(stderr, "hardened-run: cannot read %s: %s\n", unit_path.c_str(),
+                 std::strerror(errno));
     return kFailed;
   }
   std::stringstream text;
@@ -203,7 +205,8 @@ int main(int argc, char** argv) {
     return failure == SandboxFailure::kUnavailable ? kUnavailable : kFailed;
   }
   if (explain) {
-    for (const std::string& s : u.reproduced) std::fprintf(stderr, "hardened-run: reproduced %s\n", s.c_str());
+    for (const std::string& s : u.reproduced)
+      std::fprintf(stderr, "hardened-run: reproduced %s\n", s.c_str());
     for (const std::string& s : u.not_reproduced)
       std::fprintf(stderr, "hardened-run: not reproduced %s\n", s.c_str());
     for (const std::string& s : trace) std::fprintf(stderr, "hardened-run: step %s\n", s.c_str());

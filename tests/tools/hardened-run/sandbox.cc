@@ -172,8 +172,8 @@ bool SetUpMounts(const LaunchOptions& o, std::vector<std::string>* trace, std::s
   // configuration folder is attached and flagged after it.
   std::sort(kept.begin(), kept.end(), [](const Kept& a, const Kept& b) { return a.path < b.path; });
   for (Kept& k : kept) {
-    k.tree = ::open_tree(AT_FDCWD, k.path.c_str(),
-                         OPEN_TREE_CLONE | OPEN_TREE_CLOEXEC | AT_RECURSIVE);
+    k.tree =
+        ::open_tree(AT_FDCWD, k.path.c_str(), OPEN_TREE_CLONE | OPEN_TREE_CLOEXEC | AT_RECURSIVE);
     if (k.tree < 0) {
       *error = Errno("cloning the mount tree at " + k.path);
       return false;
@@ -301,8 +301,8 @@ struct Filter {
   bool Add(uint32_t action, const char* name, std::vector<scmp_arg_cmp> args, std::string* error) {
     const int nr = ::seccomp_syscall_resolve_name(name);
     if (nr == __NR_SCMP_ERROR || nr < 0) return true;
-    const int r = ::seccomp_rule_add_exact_array(ctx, action, nr, static_cast<unsigned>(args.size()),
-                                                 args.empty() ? nullptr : args.data());
+    const int r = ::seccomp_rule_add_exact_array(
+        ctx, action, nr, static_cast<unsigned>(args.size()), args.empty() ? nullptr : args.data());
     // -EACCES: the rule's action is the default action anyway.
     if (r == 0 || r == -EDOM || r == -EACCES) return true;
     *error = std::string("seccomp rule for ") + name + ": " + std::strerror(-r);
@@ -364,8 +364,8 @@ bool LoadRealtimeFilter(std::vector<std::string>* trace, std::string* error) {
   const uint32_t deny = SCMP_ACT_ERRNO(EPERM);
   for (int policy = 0; policy < SCHED_IDLE; ++policy)
     if (policy != SCHED_OTHER && policy != SCHED_BATCH &&
-        !f.Add(deny, "sched_setscheduler", {SCMP_A1(SCMP_CMP_EQ, static_cast<scmp_datum_t>(policy))},
-               error))
+        !f.Add(deny, "sched_setscheduler",
+               {SCMP_A1(SCMP_CMP_EQ, static_cast<scmp_datum_t>(policy))}, error))
       return false;
   return f.Add(deny, "sched_setscheduler", {SCMP_A1(SCMP_CMP_GT, SCHED_IDLE)}, error) &&
          f.Load("RestrictRealtime=", trace, error);
@@ -458,13 +458,14 @@ bool LoadSyscallFilter(const UnitSandbox& u, const SyscallGroups& groups,
   std::set<std::string> names;
   if (!ResolveSyscallFilter(u.syscall_filter, groups, &allow_list, &names, error)) return false;
   if (!allow_list && names.empty()) return true;
-  const uint32_t refuse =
-      u.syscall_error_number ? SCMP_ACT_ERRNO(static_cast<uint32_t>(*u.syscall_error_number))
-                             : SCMP_ACT_KILL_PROCESS;
+  const uint32_t refuse = u.syscall_error_number
+                              ? SCMP_ACT_ERRNO(static_cast<uint32_t>(*u.syscall_error_number))
+                              : SCMP_ACT_KILL_PROCESS;
   Filter f(allow_list ? refuse : SCMP_ACT_ALLOW);
   for (const std::string& name : names)
     if (!f.Add(allow_list ? SCMP_ACT_ALLOW : refuse, name.c_str(), {}, error)) return false;
-  return f.Load(std::string("SystemCallFilter= (") + (allow_list ? "allow list of " : "deny list of ") +
+  return f.Load(std::string("SystemCallFilter= (") +
+                    (allow_list ? "allow list of " : "deny list of ") +
                     std::to_string(names.size()) + " names)",
                 trace, error);
 }
@@ -490,7 +491,8 @@ SandboxFailure EnterSandbox(const LaunchOptions& o, std::vector<std::string>* tr
     return SandboxFailure::kError;
   }
   SyscallGroups groups;
-  const bool needs_groups = !u.syscall_filter.empty() || u.protect_kernel_modules || u.protect_clock;
+  const bool needs_groups =
+      !u.syscall_filter.empty() || u.protect_kernel_modules || u.protect_clock;
   if (needs_groups && !ParseSyscallGroups(o.syscall_groups_text, &groups, error))
     return SandboxFailure::kError;
   if (::prctl(PR_GET_SECCOMP, 0, 0, 0, 0) < 0) {
@@ -509,8 +511,10 @@ SandboxFailure EnterSandbox(const LaunchOptions& o, std::vector<std::string>* tr
   // The invoking user keeps its ids (root stays root, without capabilities
   // once they are dropped below).
   if (!WriteFile("/proc/self/setgroups", "deny", error) ||
-      !WriteFile("/proc/self/uid_map", std::to_string(uid) + " " + std::to_string(uid) + " 1", error) ||
-      !WriteFile("/proc/self/gid_map", std::to_string(gid) + " " + std::to_string(gid) + " 1", error))
+      !WriteFile("/proc/self/uid_map", std::to_string(uid) + " " + std::to_string(uid) + " 1",
+                 error) ||
+      !WriteFile("/proc/self/gid_map", std::to_string(gid) + " " + std::to_string(gid) + " 1",
+                 error))
     return SandboxFailure::kError;
   trace->push_back("user namespace (uid " + std::to_string(uid) + " mapped to itself), mount " +
                    "namespace" + (u.protect_hostname ? ", UTS namespace" : ""));
@@ -538,13 +542,15 @@ SandboxFailure EnterSandbox(const LaunchOptions& o, std::vector<std::string>* tr
     trace->push_back("no_new_privs");
   }
   // In systemd's order; the syscall filter last (it may refuse seccomp()).
-  if (u.address_families_set && !LoadAddressFamilyFilter(u, trace, error)) return SandboxFailure::kError;
+  if (u.address_families_set && !LoadAddressFamilyFilter(u, trace, error))
+    return SandboxFailure::kError;
   if (u.memory_deny_write_execute && !LoadMemoryDenyWriteExecuteFilter(trace, error))
     return SandboxFailure::kError;
   if (u.restrict_realtime && !LoadRealtimeFilter(trace, error)) return SandboxFailure::kError;
   if (u.restrict_suid_sgid && !LoadSuidSgidFilter(trace, error)) return SandboxFailure::kError;
   if (u.restrict_namespaces && !LoadNamespaceFilter(trace, error)) return SandboxFailure::kError;
-  if (u.protect_kernel_tunables && !LoadDenyFilter({"_sysctl"}, "ProtectKernelTunables=", trace, error))
+  if (u.protect_kernel_tunables &&
+      !LoadDenyFilter({"_sysctl"}, "ProtectKernelTunables=", trace, error))
     return SandboxFailure::kError;
   if (u.protect_kernel_modules &&
       !LoadGroupDenyFilter(groups, "@module", "ProtectKernelModules=", trace, error))

@@ -64,8 +64,9 @@ TEST(HardenedUnit, CraftscandServiceKeepsItsHardening) {
   ASSERT_TRUE(u.umask.has_value());
   EXPECT_EQ(*u.umask, 0027u);
   EXPECT_EQ(u.state_directory, "craftscan");
-  EXPECT_TRUE(std::count(u.environment.begin(), u.environment.end(),
-                         std::make_pair(std::string("OPENCV_OPENCL_DEVICE"), std::string("disabled"))));
+  EXPECT_TRUE(
+      std::count(u.environment.begin(), u.environment.end(),
+                 std::make_pair(std::string("OPENCV_OPENCL_DEVICE"), std::string("disabled"))));
   // What cannot be reproduced is said, with the reason.
   EXPECT_TRUE(Has(u.not_reproduced, "DevicePolicy=closed: "));
   EXPECT_TRUE(Has(u.not_reproduced, "ProtectProc=invisible: "));
@@ -100,9 +101,10 @@ TEST(HardenedUnit, RefusesWhatItCannotReproduceNamingTheLine) {
   // Outside [Service], and service management, nothing is judged.
   UnitSandbox u;
   std::string error;
-  EXPECT_TRUE(ParseUnit("[Unit]\nPrivateNetwork=yes\n[Service]\nType=notify\nRestart=always\n"
-                        "NoNewPrivileges=\\\n  yes\n",
-                        &u, &error))
+  EXPECT_TRUE(
+      ParseUnit("[Unit]\nPrivateNetwork=yes\n[Service]\nType=notify\nRestart=always\n"
+                "NoNewPrivileges=\\\n  yes\n",
+                &u, &error))
       << error;
   EXPECT_TRUE(u.no_new_privileges);
 }

@@ -59,11 +59,14 @@ int ErrnoFromName(const std::string& name) {
 }
 
 // [Service] settings that manage the service rather than confine it.
-const std::set<std::string> kNotSandboxing = {
-    "Type", "NotifyAccess", "ExecStart", "ExecStartPre", "ExecStartPost", "ExecReload",
-    "ExecStop", "ExecStopPost", "TimeoutStartSec", "TimeoutStopSec", "TimeoutSec",
-    "WatchdogSec", "Restart", "RestartSec", "KillMode", "KillSignal", "SendSIGKILL",
-    "RemainAfterExit", "StandardOutput", "StandardError", "SyslogIdentifier", "PIDFile"};
+const std::set<std::string> kNotSandboxing = {"Type",           "NotifyAccess",  "ExecStart",
+                                              "ExecStartPre",   "ExecStartPost", "ExecReload",
+                                              "ExecStop",       "ExecStopPost",  "TimeoutStartSec",
+                                              "TimeoutStopSec", "TimeoutSec",    "WatchdogSec",
+                                              "Restart",        "RestartSec",    "KillMode",
+                                              "KillSignal",     "SendSIGKILL",   "RemainAfterExit",
+                                              "StandardOutput", "StandardError", "SyslogIdentifier",
+                                              "PIDFile"};
 
 // Settings that confine the service but need systemd as PID 1 (or root on
 // the host) to reproduce, with the reason.
@@ -104,14 +107,30 @@ struct AddressFamilyName {
   int family;
 };
 const AddressFamilyName kAddressFamilies[] = {
-    {"AF_UNIX", AF_UNIX},         {"AF_LOCAL", AF_LOCAL},         {"AF_INET", AF_INET},
-    {"AF_INET6", AF_INET6},       {"AF_NETLINK", AF_NETLINK},     {"AF_PACKET", AF_PACKET},
-    {"AF_BLUETOOTH", AF_BLUETOOTH}, {"AF_CAN", AF_CAN},           {"AF_VSOCK", AF_VSOCK},
-    {"AF_XDP", AF_XDP},           {"AF_ALG", AF_ALG},             {"AF_KEY", AF_KEY},
-    {"AF_TIPC", AF_TIPC},         {"AF_RDS", AF_RDS},             {"AF_QIPCRTR", AF_QIPCRTR},
-    {"AF_APPLETALK", AF_APPLETALK}, {"AF_AX25", AF_AX25},         {"AF_IPX", AF_IPX},
-    {"AF_X25", AF_X25},           {"AF_NFC", AF_NFC},             {"AF_ATMPVC", AF_ATMPVC},
-    {"AF_LLC", AF_LLC},           {"AF_IEEE802154", AF_IEEE802154}, {"AF_MCTP", 45},
+    {"AF_UNIX", AF_UNIX},
+    {"AF_LOCAL", AF_LOCAL},
+    {"AF_INET", AF_INET},
+    {"AF_INET6", AF_INET6},
+    {"AF_NETLINK", AF_NETLINK},
+    {"AF_PACKET", AF_PACKET},
+    {"AF_BLUETOOTH", AF_BLUETOOTH},
+    {"AF_CAN", AF_CAN},
+    {"AF_VSOCK", AF_VSOCK},
+    {"AF_XDP", AF_XDP},
+    {"AF_ALG", AF_ALG},
+    {"AF_KEY", AF_KEY},
+    {"AF_TIPC", AF_TIPC},
+    {"AF_RDS", AF_RDS},
+    {"AF_QIPCRTR", AF_QIPCRTR},
+    {"AF_APPLETALK", AF_APPLETALK},
+    {"AF_AX25", AF_AX25},
+    {"AF_IPX", AF_IPX},
+    {"AF_X25", AF_X25},
+    {"AF_NFC", AF_NFC},
+    {"AF_ATMPVC", AF_ATMPVC},
+    {"AF_LLC", AF_LLC},
+    {"AF_IEEE802154", AF_IEEE802154},
+    {"AF_MCTP", 45},
 };
 
 }  // namespace
@@ -199,7 +218,8 @@ bool ParseUnit(const std::string& text, UnitSandbox* out, std::string* error) {
       }
       f.items = Words(v);
       for (const std::string& item : f.items)
-        if (item.find(':') != std::string::npos) return bad("per-call error numbers are not reproduced");
+        if (item.find(':') != std::string::npos)
+          return bad("per-call error numbers are not reproduced");
       u.syscall_filter.push_back(std::move(f));
     } else if (key == "SystemCallErrorNumber") {
       if (value == "kill") {
@@ -259,8 +279,9 @@ bool ParseUnit(const std::string& text, UnitSandbox* out, std::string* error) {
       if (names.size() > 1) return bad("only one state directory is reproduced");
       u.state_directory = names.empty() ? "" : names[0];
     } else {
-      return bad("hardened-run does not know this setting: teach it (reproduce it, or list it "
-                 "as not reproduced with the reason) before the unit uses it");
+      return bad(
+          "hardened-run does not know this setting: teach it (reproduce it, or list it "
+          "as not reproduced with the reason) before the unit uses it");
     }
     if (reproduced) u.reproduced.push_back(setting);
   }

@@ -50,7 +50,7 @@ struct UnitSandbox {
   bool protect_hostname = false;
   std::optional<mode_t> umask;
   std::vector<std::pair<std::string, std::string>> environment;  // Environment=
-  std::vector<std::string> read_write_paths, read_only_paths;     // absolute
+  std::vector<std::string> read_write_paths, read_only_paths;    // absolute
   std::string state_directory;  // StateDirectory= name (/var/lib/<name>)
 
   // "Key=value" of every setting this model applies (fully or as far as

@@ -29,8 +29,8 @@
 
 #include "craftscan/dds/messages.h"
 #include "craftscan/dds/topics.h"
-#include "craftscan/pipeline/calibration.h"
-#include "craftscan/pipeline/point_cloud.h"
+#include "craftscan/pipeline/calib/calibration.h"
+#include "craftscan/pipeline/common/point_cloud.h"
 
 namespace craftscan::dds {
 

@@ -30,7 +30,7 @@
 #include <opencv2/core/matx.hpp>
 
 #include "craftscan/client/file_assembler.h"
-#include "craftscan/pipeline/point_cloud.h"
+#include "craftscan/pipeline/common/point_cloud.h"
 
 namespace craftscan::client {
 
@@ -60,8 +60,8 @@ struct ConnectOptions {
 
 // A Reply as received.
 struct Reply {
-  std::int32_t code = -1;     // 0 = ok; otherwise the daemon's error code
-  std::string code_name;      // "ok", "forbidden", "busy", ...
+  std::int32_t code = -1;  // 0 = ok; otherwise the daemon's error code
+  std::string code_name;   // "ok", "forbidden", "busy", ...
   std::string message;
   nlohmann::json result = nlohmann::json::object();  // {} when the result is not JSON
   bool ok() const { return code == 0; }
@@ -108,8 +108,8 @@ struct ProgressUpdate {
 
 struct CloudUpdate {
   std::string session;
-  int view_index = -1;  // −1 = fused
-  std::string kind;     // "view" or "fused"
+  int view_index = -1;                               // −1 = fused
+  std::string kind;                                  // "view" or "fused"
   cv::Matx44d world_from_view = cv::Matx44d::eye();  // mm
   PointCloud cloud;                                  // mm
   std::int64_t stamp_ns = 0;
@@ -126,7 +126,7 @@ struct CaptureUpdate {
 
 // Progress of a Fetch, after each chunk.
 struct FetchProgress {
-  std::string name;                      // file being received
+  std::string name;  // file being received
   std::uint32_t file_index = 0, file_count = 0;
   std::uint64_t file_bytes = 0, file_size = 0;    // of this file
   std::uint64_t bytes_done = 0, bytes_total = 0;  // of the transfer
@@ -141,7 +141,7 @@ struct FetchRequest {
   // long as data keeps coming).
   std::chrono::milliseconds timeout{10000};
   std::function<void(const FetchProgress&)> on_progress;  // may be empty; caller's thread
-  const std::atomic<bool>* cancel = nullptr;               // may be null; checked every 50 ms
+  const std::atomic<bool>* cancel = nullptr;              // may be null; checked every 50 ms
 };
 
 enum class FetchStatus {

@@ -43,7 +43,7 @@
 #include <opencv2/core/mat.hpp>
 #include <opencv2/core/matx.hpp>
 
-#include "craftscan/pipeline/point_cloud.h"
+#include "craftscan/pipeline/common/point_cloud.h"
 
 namespace craftscan::record {
 

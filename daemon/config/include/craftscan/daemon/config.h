@@ -89,10 +89,10 @@
 #include <vector>
 
 #include "craftscan/drivers/host.h"
-#include "craftscan/pipeline/adcensus.h"
-#include "craftscan/pipeline/calibration.h"
-#include "craftscan/pipeline/reproject.h"
-#include "craftscan/pipeline/scan_reconstruction.h"
+#include "craftscan/pipeline/calib/calibration.h"
+#include "craftscan/pipeline/stereo/adcensus.h"
+#include "craftscan/pipeline/stereo/reproject.h"
+#include "craftscan/pipeline/surface/scan_reconstruction.h"
 
 namespace craftscan::daemon {
 
@@ -156,7 +156,7 @@ struct CalibrationSettings {
   // (a chessboard's cols + rows odd): the axis fit needs its corner order.
   BoardSpec turntable_board = DefaultBoard(12);
   double turntable_board_thickness_mm = 3;  // [0, 100]
-  int views = 15;           // board views captured per calibration, 3..1000
+  int views = 15;                           // board views captured per calibration, 3..1000
   double max_rms_px = 0.5;  // accept threshold on the reprojection RMS (px), (0, 10]
 };
 

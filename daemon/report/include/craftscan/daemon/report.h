@@ -29,9 +29,9 @@
 #include <opencv2/core/mat.hpp>
 
 #include "craftscan/daemon/preview.h"
-#include "craftscan/pipeline/calibration.h"
-#include "craftscan/pipeline/mesh.h"
-#include "craftscan/pipeline/point_cloud.h"
+#include "craftscan/pipeline/calib/calibration.h"
+#include "craftscan/pipeline/common/point_cloud.h"
+#include "craftscan/pipeline/surface/mesh.h"
 
 namespace craftscan::daemon {
 

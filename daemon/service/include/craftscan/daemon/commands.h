@@ -240,8 +240,8 @@ class CommandHandler {
   void SetStore(SessionStore* store, std::string why_unavailable);
 
  private:
-  CommandReply Dispatch(const std::string& verb, const nlohmann::json& args,
-                        const Identity& who, CommandReply reply);
+  CommandReply Dispatch(const std::string& verb, const nlohmann::json& args, const Identity& who,
+                        CommandReply reply);
   // get with "files" (arguments already checked): the reply and the transfer plan.
   CommandReply GetFiles(const std::string& id, const nlohmann::json& args, CommandReply reply);
 

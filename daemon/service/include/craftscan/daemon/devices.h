@@ -17,7 +17,7 @@
 #include "craftscan/drivers/host.h"
 #include "craftscan/drivers/plugin_loader.h"
 #include "craftscan/drivers/turntable.h"
-#include "craftscan/pipeline/calibration.h"
+#include "craftscan/pipeline/calib/calibration.h"
 
 namespace craftscan::daemon {
 
@@ -27,7 +27,7 @@ struct DeviceSpec {
 };
 
 struct DeviceSetup {
-  std::string plugin_path;  // directories separated by ':'
+  std::string plugin_path;       // directories separated by ':'
   DeviceSpec camera, turntable;  // same driver + same config → one shared instance
   drivers::CameraSettings camera_settings;
   std::chrono::milliseconds capture_timeout{5000};
@@ -38,10 +38,10 @@ struct DeviceSetup {
 
 // One device's line in StationStatus.
 struct DeviceReport {
-  std::string name;   // "camera", "turntable"
-  std::string kind;   // "stereo_camera", "turntable"
+  std::string name;  // "camera", "turntable"
+  std::string kind;  // "stereo_camera", "turntable"
   std::string driver;
-  std::string state;  // the driver state ("Streaming", "Ready", "Lost", ...) or "absent"
+  std::string state;    // the driver state ("Streaming", "Ready", "Lost", ...) or "absent"
   std::string message;  // last event or error
 };
 

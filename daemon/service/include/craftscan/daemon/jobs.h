@@ -48,11 +48,11 @@
 
 #include "craftscan/daemon/devices.h"
 #include "craftscan/daemon/session_store.h"
-#include "craftscan/daemon/view_processor.h"
 #include "craftscan/drivers/camera.h"
-#include "craftscan/pipeline/calibration.h"
-#include "craftscan/pipeline/point_cloud.h"
-#include "craftscan/pipeline/scan_reconstruction.h"
+#include "craftscan/pipeline/calib/calibration.h"
+#include "craftscan/pipeline/common/point_cloud.h"
+#include "craftscan/pipeline/stereo/view_processing.h"
+#include "craftscan/pipeline/surface/scan_reconstruction.h"
 
 namespace craftscan::daemon {
 
@@ -88,8 +88,8 @@ struct JobEngineOptions {
   ViewProcessorOptions view;
   ScanOptions scan;  // reconstruction options (num_threads overridden by threads)
   // Calibration.
-  BoardSpec board;              // held in front of the cameras
-  BoardSpec turntable_board;    // lying on the platter
+  BoardSpec board;            // held in front of the cameras
+  BoardSpec turntable_board;  // lying on the platter
   int calibration_views = 16;
   int calibration_max_attempts = 40;  // captures tried before giving up
   double max_rms_px = 0.5;
@@ -102,20 +102,20 @@ enum class JobState { kIdle, kRunning, kDone, kFailed, kCancelled };
 std::string_view ToString(JobState state);  // "idle", "running", ...
 
 struct JobInfo {
-  std::string id;       // "job-<n>", empty when none ran yet
-  std::string verb;     // "scan", "capture", ...
+  std::string id;    // "job-<n>", empty when none ran yet
+  std::string verb;  // "scan", "capture", ...
   JobState state = JobState::kIdle;
-  std::string session;  // the session it writes, if any
-  std::string stage;    // current stage
-  double progress = 0;  // 0…1
-  std::string message;  // result summary or error
+  std::string session;    // the session it writes, if any
+  std::string stage;      // current stage
+  double progress = 0;    // 0…1
+  std::string message;    // result summary or error
   nlohmann::json result;  // verb-specific result (measurements, calibration figures)
 };
 
 struct ScanRequest {
   std::string object = "object";
-  int views = 0;          // 0 = the default
-  double step_deg = 0;    // 0 = 360 / views
+  int views = 0;        // 0 = the default
+  double step_deg = 0;  // 0 = 360 / views
   std::string client;
 };
 

@@ -103,20 +103,20 @@ struct JournalEntry {
 struct Manifest {
   static constexpr int kFormatVersion = 1;
   int format_version = kFormatVersion;
-  std::string id;                           // folder name under sessions/
-  std::string object_name;                  // as the operator gave it
-  std::string object;                       // SanitizeObjectName(object_name)
-  std::string job;                          // job verb: "scan", "capture", ...
+  std::string id;                                    // folder name under sessions/
+  std::string object_name;                           // as the operator gave it
+  std::string object;                                // SanitizeObjectName(object_name)
+  std::string job;                                   // job verb: "scan", "capture", ...
   nlohmann::json params = nlohmann::json::object();  // job parameters: views, step_deg, ...
   SessionState state = SessionState::kCreated;
-  std::string error;                        // last failure/interruption reason; "" otherwise
-  std::string created_utc;                  // ISO 8601 UTC
-  std::string updated_utc;                  // ISO 8601 UTC, time of the last rewrite
-  std::string calibration_id;               // as given to CopyCalibration
-  std::optional<FileRecord> calibration;    // calibration.yaml, once durable
-  std::map<int, ViewRecord> views;          // by view index
+  std::string error;                          // last failure/interruption reason; "" otherwise
+  std::string created_utc;                    // ISO 8601 UTC
+  std::string updated_utc;                    // ISO 8601 UTC, time of the last rewrite
+  std::string calibration_id;                 // as given to CopyCalibration
+  std::optional<FileRecord> calibration;      // calibration.yaml, once durable
+  std::map<int, ViewRecord> views;            // by view index
   std::map<std::string, FileRecord> outputs;  // by relative name: "fused.ply", "previews/a.png"
-  std::vector<JournalEntry> journal;        // oldest first
+  std::vector<JournalEntry> journal;          // oldest first
 
   // Indices of views whose capture is durable, ascending.
   std::vector<int> CapturedViews() const;

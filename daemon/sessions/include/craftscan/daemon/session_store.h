@@ -44,7 +44,7 @@
 #include <opencv2/core/mat.hpp>
 
 #include "craftscan/daemon/session_manifest.h"
-#include "craftscan/pipeline/point_cloud.h"
+#include "craftscan/pipeline/common/point_cloud.h"
 
 namespace craftscan::daemon {
 
@@ -76,12 +76,12 @@ struct ResumePoint {
 // One line of SessionStore::List.
 struct SessionSummary {
   std::string id;
-  std::string object_name;    // as the operator gave it ("" when corrupt)
-  std::string job;            // job verb ("" when corrupt)
-  std::string state;          // ToString(SessionState) or "corrupt"
-  std::string problem;        // why it is corrupt; "" otherwise
-  int views_captured = 0;     // views with a durable capture
-  std::string created_utc;    // ISO 8601 UTC ("" when corrupt)
+  std::string object_name;  // as the operator gave it ("" when corrupt)
+  std::string job;          // job verb ("" when corrupt)
+  std::string state;        // ToString(SessionState) or "corrupt"
+  std::string problem;      // why it is corrupt; "" otherwise
+  int views_captured = 0;   // views with a durable capture
+  std::string created_utc;  // ISO 8601 UTC ("" when corrupt)
   std::string updated_utc;
 };
 
@@ -213,7 +213,7 @@ class Session {
   const std::string dir_;
   const std::unique_ptr<Lock> lock_;
   mutable std::mutex mutex_;
-  Manifest manifest_;          // guarded by mutex_
+  Manifest manifest_;           // guarded by mutex_
   std::set<std::string> busy_;  // guarded by mutex_: files being stored
 };
 

@@ -23,7 +23,7 @@
 
 #include <opencv2/core.hpp>
 
-#include "craftscan/pipeline/calibration.h"
+#include "craftscan/pipeline/calib/calibration.h"
 #include "craftscan/sim/station.h"
 
 namespace craftscan::sim {

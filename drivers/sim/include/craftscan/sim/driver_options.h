@@ -73,7 +73,7 @@
 #include "craftscan/drivers/camera.h"
 #include "craftscan/drivers/host.h"
 #include "craftscan/drivers/reconnect.h"
-#include "craftscan/pipeline/calibration.h"
+#include "craftscan/pipeline/calib/calibration.h"
 #include "craftscan/sim/calibration_scenes.h"
 #include "craftscan/sim/station.h"
 

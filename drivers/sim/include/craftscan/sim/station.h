@@ -43,7 +43,7 @@
 
 #include <opencv2/core.hpp>
 
-#include "craftscan/pipeline/calibration.h"
+#include "craftscan/pipeline/calib/calibration.h"
 
 namespace craftscan::sim {
 

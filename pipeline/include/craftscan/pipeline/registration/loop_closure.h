@@ -1,0 +1,78 @@
+// Loop closure for a full turn of the turntable: the pairwise registrations
+// of a closed ring of views are made consistent.
+//
+// First model: every view pose is a rotation about one turntable axis
+// (direction, point; 4 parameters) by its own angle (one per view, the first
+// fixed at 0). When that model fits the pairwise registrations poorly
+// (RMS residual above `max_axis_rms_mm`, e.g. an object that moved on the
+// platter), a general pose graph (6 parameters per view) is solved instead.
+// Both are nonlinear least squares over point residuals: for each edge
+// i → j, sample points p of view i must land where the measured
+// registration puts them, ‖T_j⁻¹·T_i·p − T_ij·p‖ (mm).
+#pragma once
+
+#include <string>
+#include <vector>
+
+#include <opencv2/core/matx.hpp>
+
+namespace craftscan {
+
+// One measured registration: points of view `source` mapped into view
+// `target` by target_from_source.
+struct PoseEdge {
+  int source = 0;
+  int target = 0;
+  cv::Matx44d target_from_source = cv::Matx44d::eye();
+  double weight = 1;  // relative confidence (e.g. fitness); > 0
+};
+
+struct LoopClosureOptions {
+  double max_axis_rms_mm = 0.5;  // above: fall back to the pose graph
+  bool allow_pose_graph = true;
+  int max_iterations = 50;  // Gauss–Newton / Levenberg–Marquardt iterations
+  bool IsValid(std::string* why) const;
+};
+
+struct LoopClosureResult {
+  enum class Status { kOk, kFailed };
+  enum class Model { kNone, kTurntableAxis, kPoseGraph };
+  Status status = Status::kFailed;
+  Model model = Model::kNone;
+  std::string message;
+
+  // view0_from_view[k]: pose of view k in the frame of view 0 (identity for k = 0).
+  std::vector<cv::Matx44d> view0_from_view;
+  // Turntable model only: the axis in the frame of view 0 and each view's
+  // angle about it (rad, view 0 = 0).
+  cv::Vec3d axis_direction{0, 0, 1};
+  cv::Vec3d axis_point_mm{0, 0, 0};
+  std::vector<double> angles_rad;
+
+  // Closure quality. Before: the chained pairwise poses around the ring
+  // compose to this error (identity expected), as rotation (deg) and the RMS
+  // displacement of the sample points (mm). After: the RMS and max residual
+  // of the fitted model over all edges (mm).
+  double open_loop_rot_deg = 0;
+  double open_loop_rms_mm = 0;
+  double axis_rms_mm = 0;  // the turntable model's fit (also when rejected)
+  double rms_mm = 0;
+  double max_mm = 0;
+
+  bool IsUsable() const { return status == Status::kOk; }
+};
+
+// `edges` must connect views 0..num_views−1 (e.g. the ring k → k−1 and
+// 0 → num_views−1); `initial_view0_from_view` (size num_views) starts the
+// solver (e.g. chained pairwise poses). `sample_points_mm` are points of a
+// typical view (e.g. the object's bounding box corners) used for the point
+// residuals; at least 3 not on one line. Fails with a reason on inconsistent
+// input. Never throws.
+LoopClosureResult CloseLoop(int num_views, const std::vector<PoseEdge>& edges,
+                            const std::vector<cv::Matx44d>& initial_view0_from_view,
+                            const std::vector<cv::Vec3d>& sample_points_mm,
+                            const LoopClosureOptions& options);
+
+const char* ToString(LoopClosureResult::Model model);  // "none", "turntable_axis", "pose_graph"
+
+}  // namespace craftscan

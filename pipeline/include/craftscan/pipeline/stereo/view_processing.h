@@ -1,0 +1,76 @@
+// One stereo view → disparity map → point cloud, as the daemon runs it for
+// every capture (DESIGN.md "Data flow of one scan"): rectify with cached
+// maps, match with AD-Census over the disparity band the working volume
+// spans, reproject with Q, drop textureless pixels, crop to the working
+// volume (a cylinder about the calibrated turntable axis).
+#pragma once
+
+#include <memory>
+#include <mutex>
+#include <string>
+
+#include <opencv2/core.hpp>
+
+#include "craftscan/pipeline/calib/calibration.h"
+#include "craftscan/pipeline/calib/rectify.h"
+#include "craftscan/pipeline/common/point_cloud.h"
+#include "craftscan/pipeline/stereo/adcensus.h"
+
+namespace craftscan {
+
+struct ViewProcessorOptions {
+  int num_threads = 2;                // matcher threads
+  double volume_radius_mm = 120;      // working volume: cylinder about the turntable axis
+  double volume_min_height_mm = 1.5;  // above the platter (drops the platter itself)
+  double volume_max_height_mm = 200;
+  // Disparity band: the volume's disparities (with the platter) widened by this
+  // margin on both sides, so calibration error cannot cut the object off.
+  int disparity_margin_px = 8;
+  int max_num_disparities = 1024;  // refuse absurd bands (a bad calibration)
+  // A fixed band instead of the working volume's (num_disparities > 0).
+  int min_disparity = 0, num_disparities = 0;
+  double min_texture_std = 2.5;  // ReprojectOptions::min_texture_std (grey levels)
+
+  bool IsValid(std::string* why) const;
+};
+
+struct ProcessedView {
+  bool ok = false;
+  std::string message;     // why not ok
+  cv::Mat rectified_left;  // CV_8UC1 or CV_8UC3 as captured
+  cv::Mat disparity;       // CV_32FC1, rectified left; NaN = invalid
+  int min_disparity = 0, num_disparities = 0;
+  PointCloud cloud_in_rig;  // mm, rig frame (rectified left camera), colours RGB
+  double rectify_ms = 0, match_ms = 0, reproject_ms = 0;
+};
+
+// Thread-safety: Init before use; Process may be called from one thread at a
+// time (the matcher keeps buffers); band() and calibration() are const.
+class ViewProcessor {
+ public:
+  // False with *error when the calibration is not usable (no rectification)
+  // or the options are invalid. The turntable axis may be invalid: then the
+  // band spans 300–1500 mm depth and there is no crop.
+  bool Init(const StereoCalibration& calibration, const ViewProcessorOptions& options,
+            std::string* error);
+
+  const StereoCalibration& calibration() const { return rectifier_.calibration(); }
+  int min_disparity() const { return min_disparity_; }
+  int num_disparities() const { return num_disparities_; }
+  // Rectified focal length (px) and baseline (mm) for the disparity topic.
+  double focal_px() const;
+  double baseline_mm() const;
+
+  // Never throws; images must be the calibration's size.
+  ProcessedView Process(const cv::Mat& left_raw, const cv::Mat& right_raw);
+
+ private:
+  Rectifier rectifier_;
+  ViewProcessorOptions options_;
+  int min_disparity_ = 0, num_disparities_ = 0;
+  cv::Matx44d turntable_from_rig_ = cv::Matx44d::eye();
+  bool crop_ = false;
+  std::unique_ptr<StereoMatcher> matcher_;
+};
+
+}  // namespace craftscan

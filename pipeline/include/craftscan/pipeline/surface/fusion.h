@@ -1,0 +1,82 @@
+// Fusion of registered view clouds into one cloud by voxel averaging.
+//
+//   std::vector<PointCloud> in_world = ...;  // every view mapped into one frame
+//   std::string error;
+//   PointCloud fused = FuseClouds(in_world, FusionOptions{}, &error);
+//   if (!error.empty()) { /* nothing fused; error says why */ }
+//
+// Units: millimetres. No PCL type appears here.
+#pragma once
+
+#include <cstddef>
+#include <string>
+#include <vector>
+
+#include "craftscan/pipeline/common/point_cloud.h"
+
+namespace craftscan {
+
+struct FusionOptions {
+  // Edge of the cubic voxels, mm (> 0). Voxels are aligned to the frame's
+  // origin: voxel (i, j, k) holds the points with floor(p / voxel_mm) = (i, j, k).
+  double voxel_mm = 0.5;
+  // A voxel with fewer input points than this is dropped (≥ 1; 1 keeps every
+  // occupied voxel). Raising it removes isolated outliers at the cost of thin,
+  // sparsely seen parts.
+  int min_points_per_voxel = 1;
+  // Normals of one voxel are summed after flipping each to agree with the
+  // running sum (views may orient them differently); a sum shorter than this
+  // fraction of the number of normals (they disagree: a thin wall seen from
+  // both sides, or noise) falls back to the first normal of the voxel. 0..1.
+  double min_normal_agreement = 0.1;
+  // Averaging within a voxel alone barely reduces noise along the surface
+  // normal once the noise is a fair part of the voxel: a voxel that the
+  // surface crosses near its wall collects one tail of the noise. With
+  // normals, each fused point is therefore moved along its normal onto the
+  // plane through the mean of the input points in its 3×3×3 voxel block
+  // (mean of the block ⟂ the normal; a first-order moving-least-squares step).
+  bool refine_along_normal = true;
+  // Multi-view consistency: a voxel is kept only when points of at least
+  // `min_views` different input clouds lie within `view_support_mm` of it
+  // (1 = off). Stereo leaves view-specific floaters (mismatches at
+  // silhouettes and occlusions, each at its own place in each view) while
+  // the surface is seen from several views. Clouds beyond the 64th count as
+  // the 64th. ≥ 1; view_support_mm > 0.
+  int min_views = 1;
+  double view_support_mm = 1.0;
+
+  // False with a reason naming the field (why may be null).
+  bool IsValid(std::string* why) const;
+};
+
+// Figures of one fusion (optional output of FuseClouds).
+struct FusionStats {
+  std::size_t input_points = 0;         // over all clouds
+  std::size_t nonfinite_points = 0;     // dropped: NaN/inf coordinates
+  std::size_t out_of_range_points = 0;  // dropped: beyond ±2^20 voxels from the origin
+  std::size_t sparse_voxel_points = 0;  // dropped: in voxels below min_points_per_voxel
+  std::size_t single_view_voxels = 0;   // dropped: supported by fewer than min_views clouds
+  std::size_t output_points = 0;        // = occupied voxels kept
+  double mean_points_per_voxel = 0;     // over the kept voxels
+};
+
+// Merges clouds that are already in one common frame. Each occupied voxel
+// becomes one output point: the mean of its input points (moved along the
+// normal when refine_along_normal is set and normals exist). The output has
+// normals only when every non-empty input has normals (the voxel's normals,
+// each flipped to agree with the running sum, summed and renormalised to unit
+// length) and colours only when every non-empty input has colours (the
+// rounded mean per channel). Non-finite input points are skipped; a
+// non-finite normal is skipped within its voxel (the first finite normal, or
+// +Z if none, stands in). Output points are ordered by voxel index (x, then y,
+// then z), so the result does not depend on the order of the inputs' points
+// beyond floating-point summation order.
+//
+// Returns an empty cloud and sets *error (may be null) for invalid options,
+// an input that fails PointCloud::IsValid, no finite input point, or no voxel
+// left after min_points_per_voxel; *error is cleared on success. *stats (may
+// be null) is filled in either way. Never throws. Thread-safe (reentrant).
+PointCloud FuseClouds(const std::vector<PointCloud>& clouds, const FusionOptions& options,
+                      std::string* error, FusionStats* stats = nullptr);
+
+}  // namespace craftscan

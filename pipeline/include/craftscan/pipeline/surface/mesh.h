@@ -1,0 +1,102 @@
+// Surface meshing of a fused cloud: Poisson reconstruction (PCL), trimmed
+// where the input gives it no support, and PLY/OBJ writers.
+//
+//   MeshResult r = PoissonMesh(fused_with_normals, PoissonOptions{});
+//   if (r.IsUsable()) WriteMeshPly(dir + "/mesh.ply", r.mesh, /*binary=*/true, &error);
+//
+// Units: millimetres. No PCL type appears here (only mesh.cc includes PCL).
+#pragma once
+
+#include <cstddef>
+#include <string>
+#include <vector>
+
+#include <opencv2/core/matx.hpp>
+
+#include "craftscan/pipeline/common/point_cloud.h"
+
+namespace craftscan {
+
+// An indexed triangle mesh. `normals` and `colors_rgb` are empty or have one
+// entry per vertex; faces index vertices (0-based) counter-clockwise seen
+// from outside (right-hand rule gives the outward normal).
+struct TriangleMesh {
+  std::vector<cv::Vec3f> vertices_mm;
+  std::vector<cv::Vec3f> normals;     // unit, per vertex
+  std::vector<cv::Vec3b> colors_rgb;  // 8-bit R, G, B per vertex
+  std::vector<cv::Vec3i> faces;
+
+  bool empty() const { return faces.empty(); }
+  // False with a reason (why may be null) for per-vertex arrays of the wrong
+  // size, a face index out of range, or a non-finite vertex.
+  bool IsValid(std::string* why) const;
+};
+
+struct PoissonOptions {
+  // Octree depth (resolution 2^depth over `scale` × the cloud's bounding
+  // cube): 8 gives ≈ 0.3 mm cells on a 70 mm object. 4..12.
+  int depth = 8;
+  double samples_per_node = 1.5;  // ≥ 1; more smooths noisy input
+  double point_weight = 4.0;      // screening weight (≥ 0; 0 = unscreened)
+  double scale = 1.1;             // reconstruction cube / bounding cube, ≥ 1
+  // Density trimming. Each vertex's support is the number of input points
+  // within support_radius_mm (0: 2.5 × the median nearest-neighbour spacing
+  // of the input). Vertices with no support are always removed (the
+  // surface Poisson invents over holes and unseen parts, e.g. a box's base);
+  // so are vertices whose support is below this quantile of all supports
+  // (0 disables the quantile; e.g. 0.02 also removes thinly supported fringes).
+  double trim_density_quantile = 0.0;  // 0 ≤ q < 1
+  double support_radius_mm = 0;        // ≥ 0
+  // Vertex colours from the nearest input point when the input has colours.
+  bool colors = true;
+  int num_threads = 1;  // ≥ 1, Poisson's solver threads
+
+  bool IsValid(std::string* why) const;  // names the offending field
+};
+
+struct MeshResult {
+  enum class Status { kOk, kFailed };
+  Status status = Status::kFailed;
+  std::string message;  // why it failed
+  TriangleMesh mesh;    // trimmed, with per-vertex normals (and colours)
+
+  std::size_t input_points = 0;  // finite points with finite normals used
+  std::size_t raw_vertices = 0;  // Poisson output, before trimming
+  std::size_t raw_faces = 0;
+  std::size_t trimmed_vertices = 0;  // removed by density trimming
+  double support_radius_mm = 0;      // the radius used
+  double support_threshold = 0;      // vertices with support below this were removed
+  double seconds = 0;                // wall time
+
+  bool IsUsable() const { return status == Status::kOk; }
+};
+
+// Poisson surface reconstruction (PCL, Kazhdan et al.) of an oriented point
+// cloud (normals required, pointing outwards; their length is ignored), then
+// density trimming (see PoissonOptions), then per-vertex normals (area-weighted
+// face normals) and colours. Faces are oriented outwards consistently with the
+// input normals. Points or normals that are not finite, and zero normals, are
+// skipped.
+//
+// Fails (status kFailed, message says why) for invalid options or cloud, a
+// cloud without normals, fewer than 100 usable points, a reconstruction that
+// produces no triangle, or one that trimming removes entirely. Never throws.
+// Thread-safe (reentrant).
+MeshResult PoissonMesh(const PointCloud& cloud_with_normals, const PoissonOptions& options);
+
+// Writes `mesh` as PLY: element vertex (float x y z; float nx ny nz if
+// present; uchar red green blue if present) and element face (list uchar int
+// vertex_indices). `binary` selects binary_little_endian, else ASCII. The
+// write is atomic (WriteFileAtomically). Returns false with *error (may be
+// null) for an invalid mesh or an I/O failure. Never throws. Thread-safe for
+// distinct paths.
+bool WriteMeshPly(const std::string& path, const TriangleMesh& mesh, bool binary,
+                  std::string* error);
+
+// Writes `mesh` as Wavefront OBJ: "v x y z" (with " r g b" in 0..1 when the
+// mesh has colours, the common vertex-colour extension), "vn" when it has
+// normals, and 1-based "f a b c" (or "f a//a b//b c//c" with normals).
+// Atomic write; errors as WriteMeshPly. Never throws.
+bool WriteMeshObj(const std::string& path, const TriangleMesh& mesh, std::string* error);
+
+}  // namespace craftscan

@@ -1,0 +1,113 @@
+// A turntable scan from view clouds to one measured model: conditioning,
+// sequential registration with the turntable prior, loop closure over a full
+// turn, fusion, Poisson meshing and measurement (method.md §6–§9).
+//
+//   std::vector<ScanView> views = ...;  // clouds in the rig frame + commanded angles
+//   ScanResult r = ReconstructScan(views, calibration.turntable, ScanOptions{});
+//   if (r.IsUsable()) { r.fused; r.mesh; r.box; }
+//
+// Frames: every view cloud is in the rig frame (rectified left camera) at its
+// own turntable angle; results are in the frame of view 0 (`view0_from_view`)
+// and, when the turntable axis is known, also in the turntable frame
+// (`turntable_from_view0`: origin on the axis at the platter surface, +Z up).
+#pragma once
+
+#include <optional>
+#include <string>
+#include <vector>
+
+#include <opencv2/core/matx.hpp>
+
+#include "craftscan/pipeline/calib/calibration.h"
+#include "craftscan/pipeline/common/point_cloud.h"
+#include "craftscan/pipeline/registration/loop_closure.h"
+#include "craftscan/pipeline/registration/registration.h"
+#include "craftscan/pipeline/surface/fusion.h"
+#include "craftscan/pipeline/surface/measure.h"
+#include "craftscan/pipeline/surface/mesh.h"
+
+namespace craftscan {
+
+struct ScanView {
+  PointCloud cloud_in_rig;         // reprojected stereo points (mm), colours optional
+  double commanded_angle_rad = 0;  // turntable angle at capture
+};
+
+struct ScanOptions {
+  // Conditioning; with a valid turntable axis the working volume is set from
+  // it (radius and heights below), and the viewpoint is the rig origin.
+  ConditioningOptions conditioning;
+  double volume_radius_mm = 120;
+  double volume_min_height_mm = 1.5;  // above the platter: drops the platter
+  double volume_max_height_mm = 200;
+  RegistrationOptions registration;
+  // Loop closure runs when the views cover a full turn (the commanded angles
+  // span ≥ 360° − one step, i.e. the last view overlaps the first).
+  LoopClosureOptions loop;
+  bool close_loop = true;
+  // Fusion; by default a voxel needs support from 2 views (floaters from
+  // stereo mismatches are view-specific, see FusionOptions::min_views).
+  FusionOptions fusion = [] {
+    FusionOptions f;
+    f.min_views = 2;
+    return f;
+  }();
+  bool mesh = true;
+  PoissonOptions poisson;
+  // Measurement: the oriented box always; the box faces when `measure_box`.
+  bool measure_box = false;
+  BoxMeasureOptions box;
+  int num_threads = 1;
+
+  bool IsValid(std::string* why) const;
+};
+
+struct ScanResult {
+  enum class Status { kOk, kFailed };
+  Status status = Status::kFailed;
+  std::string message;
+
+  std::vector<ViewCloud> views;               // conditioned, in each view's rig frame
+  std::vector<RegistrationResult> pairwise;   // [k]: view k → view k−1 (k ≥ 1); [0] unused
+  std::optional<RegistrationResult> closing;  // view 0 → last view, for a full turn
+  std::optional<LoopClosureResult> loop;
+  std::vector<cv::Matx44d> view0_from_view;  // final poses
+  std::optional<cv::Matx44d> turntable_from_view0;
+
+  PointCloud fused;  // in the turntable frame when known, else view 0's
+  MeshResult mesh;   // same frame; status kFailed with a message if not made
+  OrientedBox box;   // oriented bounding box of the fused cloud
+  std::optional<BoxMeasurement> box_measurement;
+
+  // Stage wall-clock times (ms).
+  double condition_ms = 0, register_ms = 0, loop_ms = 0, fuse_ms = 0, mesh_ms = 0, measure_ms = 0;
+
+  bool IsUsable() const { return status == Status::kOk; }
+};
+
+// Reconstructs one scan. `axis` may be invalid (no turntable calibration):
+// then there is no working-volume crop (the clouds must be cropped already),
+// no prior and no turntable frame. Fails with a reason when fewer than 2
+// views, a view conditions to nothing, or a registration fails (the result
+// keeps everything done up to there). Never throws.
+ScanResult ReconstructScan(const std::vector<ScanView>& views, const TurntableAxis& axis,
+                           const ScanOptions& options);
+
+// A JSON report (pretty-printed) of the scan: per-view conditioning and
+// registration quality (fitness, RMSE, iterations, converged, prior kept),
+// the loop closure (model, axis, open-loop and closed residuals), stage
+// times, the fused cloud and mesh sizes, and the measurement (the
+// MeasurementReportJson object under "measurement"). Never throws.
+std::string ScanReportJson(const ScanResult& result);
+
+// Writes the scan's products into the existing folder `dir`: fused.ply
+// (binary), mesh.ply (binary) and mesh.obj when a mesh was made, and
+// report.json; each atomically. Returns false with *error naming the file
+// on the first failure. Never throws.
+bool WriteScanOutputs(const std::string& dir, const ScanResult& result, std::string* error);
+
+// turntable_from_rig for a valid axis: origin at axis.point_in_rig_mm, +Z
+// along the axis, +X the rig's x axis made orthogonal to it.
+cv::Matx44d TurntableFromRig(const TurntableAxis& axis);
+
+}  // namespace craftscan

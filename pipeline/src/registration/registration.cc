@@ -1,0 +1,1233 @@
+// Conditioning, FPFH + RANSAC (Huber) coarse registration and weighted ICP.
+// The only PCL translation unit of the registration (its headers compile
+// slowly); PCL does the filters, normals and FPFH, the rest is Eigen + TBB.
+#include "craftscan/pipeline/registration/registration.h"
+
+#include "craftscan/pipeline/registration/scan_dataset.h"
+
+#include <algorithm>
+#include <array>
+#include <chrono>
+#include <cmath>
+#include <limits>
+#include <random>
+#include "common/eigen_cv.h"
+
+#include <pcl/features/fpfh_omp.h>
+#include <pcl/features/normal_3d_omp.h>
+#include <pcl/filters/statistical_outlier_removal.h>
+#include <pcl/filters/voxel_grid.h>
+#include <pcl/point_cloud.h>
+#include <pcl/point_types.h>
+#include <Eigen/Core>
+#include <Eigen/Eigenvalues>
+#include <Eigen/Geometry>
+#include <Eigen/SVD>
+#include <nanoflann.hpp>
+
+namespace craftscan {
+namespace {
+
+using Clock = std::chrono::steady_clock;
+double MsSince(Clock::time_point start) {
+  return std::chrono::duration<double, std::milli>(Clock::now() - start).count();
+}
+
+bool Fail(std::string* why, const std::string& message) {
+  if (why) *why = message;
+  return false;
+}
+
+Eigen::Vector3f V(const cv::Vec3f& p) { return {p[0], p[1], p[2]}; }
+
+pcl::PointCloud<pcl::PointXYZ>::Ptr ToPclXyz(const PointCloud& cloud) {
+  pcl::PointCloud<pcl::PointXYZ>::Ptr out(new pcl::PointCloud<pcl::PointXYZ>);
+  out->resize(cloud.size());
+  for (std::size_t i = 0; i < cloud.size(); ++i) {
+    const cv::Vec3f& p = cloud.points_mm[i];
+    (*out)[i] = pcl::PointXYZ(p[0], p[1], p[2]);
+  }
+  return out;
+}
+
+// Runs `body(begin, end)` over [0, n) in chunks on `threads` threads
+// (serially for 1). OpenMP, not TBB: PCL's estimators use OpenMP, and two
+// runtimes spinning on two cores slowed everything down by 2-3x.
+template <typename Body>
+void ParallelFor(std::size_t n, int threads, Body&& body) {
+  if (threads <= 1 || n < 512) {
+    body(std::size_t{0}, n);
+    return;
+  }
+  constexpr std::size_t kChunk = 256;
+  const long chunks = static_cast<long>((n + kChunk - 1) / kChunk);
+#pragma omp parallel for num_threads(threads) schedule(dynamic, 1)
+  for (long c = 0; c < chunks; ++c) {
+    const std::size_t b = static_cast<std::size_t>(c) * kChunk;
+    body(b, std::min(n, b + kChunk));
+  }
+}
+
+// PCL's VoxelGrid (average per voxel) on a cloud of PointT.
+template <typename PointT>
+pcl::PointCloud<PointT> VoxelGridFilter(const typename pcl::PointCloud<PointT>::Ptr& in,
+                                        double voxel_mm) {
+  pcl::VoxelGrid<PointT> grid;
+  grid.setInputCloud(in);
+  const float leaf = static_cast<float>(voxel_mm);
+  grid.setLeafSize(leaf, leaf, leaf);
+  pcl::PointCloud<PointT> filtered;
+  grid.filter(filtered);
+  return filtered;
+}
+
+// Voxel-grid average of points (and colours).
+PointCloud VoxelDownsample(const PointCloud& cloud, double voxel_mm) {
+  if (voxel_mm <= 0 || cloud.empty()) return cloud;
+  PointCloud out;
+  if (!cloud.HasColors()) {
+    for (const auto& q : VoxelGridFilter<pcl::PointXYZ>(ToPclXyz(cloud), voxel_mm))
+      out.points_mm.emplace_back(q.x, q.y, q.z);
+    return out;
+  }
+  pcl::PointCloud<pcl::PointXYZRGB>::Ptr in(new pcl::PointCloud<pcl::PointXYZRGB>);
+  in->resize(cloud.size());
+  for (std::size_t i = 0; i < cloud.size(); ++i) {
+    auto& q = (*in)[i];
+    const cv::Vec3f& p = cloud.points_mm[i];
+    const cv::Vec3b& c = cloud.colors_rgb[i];
+    q.x = p[0], q.y = p[1], q.z = p[2];
+    q.r = c[0], q.g = c[1], q.b = c[2];
+  }
+  for (const auto& q : VoxelGridFilter<pcl::PointXYZRGB>(in, voxel_mm)) {
+    out.points_mm.emplace_back(q.x, q.y, q.z);
+    out.colors_rgb.emplace_back(q.r, q.g, q.b);
+  }
+  return out;
+}
+
+// Unit normals of `cloud` from PCA over the k nearest points of `surface`,
+// oriented towards the viewpoint. Points without a usable normal get the
+// direction towards the viewpoint.
+void EstimateNormals(PointCloud* cloud, const pcl::PointCloud<pcl::PointXYZ>::Ptr& surface, int k,
+                     const cv::Vec3d& viewpoint, int threads) {
+  auto in = ToPclXyz(*cloud);
+  pcl::NormalEstimationOMP<pcl::PointXYZ, pcl::Normal> estimator(threads);
+  estimator.setInputCloud(in);
+  estimator.setSearchSurface(surface);
+  pcl::search::KdTree<pcl::PointXYZ>::Ptr tree(new pcl::search::KdTree<pcl::PointXYZ>);
+  estimator.setSearchMethod(tree);
+  estimator.setKSearch(k);
+  estimator.setViewPoint(static_cast<float>(viewpoint[0]), static_cast<float>(viewpoint[1]),
+                         static_cast<float>(viewpoint[2]));
+  pcl::PointCloud<pcl::Normal> normals;
+  estimator.compute(normals);
+  cloud->normals.resize(cloud->size());
+  for (std::size_t i = 0; i < cloud->size(); ++i) {
+    const auto& n = normals[i];
+    if (std::isfinite(n.normal_x) && std::isfinite(n.normal_y) && std::isfinite(n.normal_z)) {
+      cloud->normals[i] = cv::Vec3f(n.normal_x, n.normal_y, n.normal_z);
+    } else {
+      cv::Vec3d to_view = viewpoint - cv::Vec3d(cloud->points_mm[i]);
+      const double len = cv::norm(to_view);
+      cloud->normals[i] = len > 0 ? cv::Vec3f(to_view / len) : cv::Vec3f(0, 0, 1);
+    }
+  }
+}
+
+// PCA flatness of a cloud: eigenvalues of the covariance, ascending.
+Eigen::Vector3d CovarianceEigenvalues(const PointCloud& cloud) {
+  Eigen::Vector3d mean = Eigen::Vector3d::Zero();
+  for (const auto& p : cloud.points_mm) mean += V(p).cast<double>();
+  mean /= static_cast<double>(std::max<std::size_t>(1, cloud.size()));
+  Eigen::Matrix3d cov = Eigen::Matrix3d::Zero();
+  for (const auto& p : cloud.points_mm) {
+    const Eigen::Vector3d d = V(p).cast<double>() - mean;
+    cov += d * d.transpose();
+  }
+  cov /= static_cast<double>(std::max<std::size_t>(1, cloud.size()));
+  return Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d>(cov).eigenvalues();
+}
+
+// Nearest-neighbour index over a cloud's points (nanoflann k-d tree; queries
+// are const, allocation-free and run from many threads).
+class PointIndex {
+ public:
+  explicit PointIndex(const PointCloud& cloud)
+      : points_(&cloud.points_mm), tree_(3, *this, nanoflann::KDTreeSingleIndexAdaptorParams(10)) {
+    if (!points_->empty()) tree_.buildIndex();
+  }
+  // Index of the nearest point and its squared distance; false when empty.
+  bool Nearest(const Eigen::Vector3f& q, int* index, float* dist2) const {
+    if (points_->empty()) return false;
+    std::uint32_t i = 0;
+    float d2 = 0;
+    if (tree_.knnSearch(q.data(), 1, &i, &d2) != 1) return false;
+    *index = static_cast<int>(i);
+    *dist2 = d2;
+    return true;
+  }
+  // nanoflann's dataset adaptor interface.
+  std::size_t kdtree_get_point_count() const { return points_->size(); }
+  float kdtree_get_pt(std::size_t i, std::size_t dim) const { return (*points_)[i][dim]; }
+  template <class Box>
+  bool kdtree_get_bbox(Box&) const {
+    return false;
+  }
+
+ private:
+  const std::vector<cv::Vec3f>* points_;
+  nanoflann::KDTreeSingleIndexAdaptor<nanoflann::L2_Simple_Adaptor<float, PointIndex>, PointIndex,
+                                      3>
+      tree_;
+};
+
+// Fraction of `source` points (transformed) within `gate_mm` of `target`,
+// and the RMS distance over those.
+struct Overlap {
+  double fitness = 0;
+  double rmse = std::numeric_limits<double>::quiet_NaN();
+  std::size_t inliers = 0;
+};
+Overlap MeasureOverlap(const PointCloud& source, const PointIndex& target,
+                       const Eigen::Matrix4d& target_from_source, double gate_mm, int threads) {
+  const Eigen::Matrix3f R = target_from_source.topLeftCorner<3, 3>().cast<float>();
+  const Eigen::Vector3f t = target_from_source.topRightCorner<3, 1>().cast<float>();
+  std::vector<float> d2(source.size(), std::numeric_limits<float>::infinity());
+  ParallelFor(source.size(), threads, [&](std::size_t b, std::size_t e) {
+    for (std::size_t i = b; i < e; ++i) {
+      int idx;
+      float dd;
+      if (target.Nearest(R * V(source.points_mm[i]) + t, &idx, &dd)) d2[i] = dd;
+    }
+  });
+  Overlap o;
+  double sum = 0;
+  const double gate2 = gate_mm * gate_mm;
+  for (float dd : d2) {
+    if (dd <= gate2) {
+      ++o.inliers;
+      sum += dd;
+    }
+  }
+  if (!source.empty()) o.fitness = static_cast<double>(o.inliers) / source.size();
+  if (o.inliers > 0) o.rmse = std::sqrt(sum / o.inliers);
+  return o;
+}
+
+// Least-squares rigid transform (weighted Kabsch) mapping src onto dst.
+Eigen::Matrix4d RigidFromPairs(const std::vector<Eigen::Vector3d>& src,
+                               const std::vector<Eigen::Vector3d>& dst,
+                               const std::vector<double>* weights) {
+  Eigen::Vector3d cs = Eigen::Vector3d::Zero(), cd = Eigen::Vector3d::Zero();
+  double wsum = 0;
+  for (std::size_t i = 0; i < src.size(); ++i) {
+    const double w = weights ? (*weights)[i] : 1.0;
+    cs += w * src[i];
+    cd += w * dst[i];
+    wsum += w;
+  }
+  Eigen::Matrix4d T = Eigen::Matrix4d::Identity();
+  if (wsum <= 0) return T;
+  cs /= wsum;
+  cd /= wsum;
+  Eigen::Matrix3d H = Eigen::Matrix3d::Zero();
+  for (std::size_t i = 0; i < src.size(); ++i) {
+    const double w = weights ? (*weights)[i] : 1.0;
+    H += w * (src[i] - cs) * (dst[i] - cd).transpose();
+  }
+  Eigen::JacobiSVD<Eigen::Matrix3d> svd(H, Eigen::ComputeFullU | Eigen::ComputeFullV);
+  Eigen::Matrix3d D = Eigen::Matrix3d::Identity();
+  if ((svd.matrixV() * svd.matrixU().transpose()).determinant() < 0) D(2, 2) = -1;
+  const Eigen::Matrix3d R = svd.matrixV() * D * svd.matrixU().transpose();
+  T.topLeftCorner<3, 3>() = R;
+  T.topRightCorner<3, 1>() = cd - R * cs;
+  return T;
+}
+
+// The paper's Huber loss of a residual u (mm) with threshold w.
+inline double Huber(double u, double w) { return u <= w ? 0.5 * u * u : w * (u - 0.5 * w); }
+
+}  // namespace
+
+// --- Options ------------------------------------------------------------------
+
+bool WorkingVolume::IsValid(std::string* why) const {
+  if (!enabled) return true;
+  if (!(radius_mm > 0) || !std::isfinite(radius_mm))
+    return Fail(why, "volume.radius_mm must be > 0");
+  if (!std::isfinite(platter_band_mm) || !(platter_normal_deg >= 0 && platter_normal_deg <= 90))
+    return Fail(why, "volume.platter_band_mm must be finite and platter_normal_deg in [0, 90]");
+  if (!std::isfinite(min_height_mm) || !std::isfinite(max_height_mm) ||
+      !(max_height_mm > min_height_mm))
+    return Fail(why, "volume.max_height_mm must be finite and > volume.min_height_mm");
+  const cv::Matx33d R = turntable_from_cloud.get_minor<3, 3>(0, 0);
+  const cv::Matx33d should_be_eye = R.t() * R;
+  if (cv::norm(should_be_eye - cv::Matx33d::eye()) > 1e-6 ||
+      std::abs(cv::determinant(R) - 1) > 1e-6)
+    return Fail(why, "volume.turntable_from_cloud is not a rigid transform");
+  return true;
+}
+
+bool ConditioningOptions::IsValid(std::string* why) const {
+  if (!volume.IsValid(why)) return false;
+  if (outlier_neighbors < 0) return Fail(why, "outlier_neighbors must be ≥ 0");
+  if (outlier_neighbors > 0 && !(outlier_std_ratio > 0))
+    return Fail(why, "outlier_std_ratio must be > 0");
+  if (!(fine_voxel_mm >= 0) || !std::isfinite(fine_voxel_mm))
+    return Fail(why, "fine_voxel_mm must be ≥ 0");
+  if (!(coarse_voxel_mm > 0) || !std::isfinite(coarse_voxel_mm) || coarse_voxel_mm < fine_voxel_mm)
+    return Fail(why, "coarse_voxel_mm must be > 0 and ≥ fine_voxel_mm");
+  if (normal_neighbors < 3) return Fail(why, "normal_neighbors must be ≥ 3");
+  if (!std::isfinite(viewpoint_mm[0]) || !std::isfinite(viewpoint_mm[1]) ||
+      !std::isfinite(viewpoint_mm[2]))
+    return Fail(why, "viewpoint_mm must be finite");
+  if (num_threads < 1) return Fail(why, "num_threads must be ≥ 1");
+  return true;
+}
+
+bool CoarseOptions::IsValid(std::string* why) const {
+  if (!(feature_radius_mm > 0)) return Fail(why, "coarse.feature_radius_mm must be > 0");
+  if (max_iterations < 1) return Fail(why, "coarse.max_iterations must be ≥ 1");
+  if (!(confidence > 0 && confidence < 1)) return Fail(why, "coarse.confidence must be in (0, 1)");
+  if (!(inlier_distance_mm > 0)) return Fail(why, "coarse.inlier_distance_mm must be > 0");
+  if (!(edge_similarity > 0 && edge_similarity < 1))
+    return Fail(why, "coarse.edge_similarity must be in (0, 1)");
+  if (!(prior_accept_fitness >= 0 && prior_accept_fitness <= 1))
+    return Fail(why, "coarse.prior_accept_fitness must be in [0, 1]");
+  if (prior_target_from_source) {
+    const cv::Matx33d R = prior_target_from_source->get_minor<3, 3>(0, 0);
+    if (cv::norm(R.t() * R - cv::Matx33d::eye()) > 1e-6)
+      return Fail(why, "coarse.prior_target_from_source is not a rigid transform");
+  }
+  return true;
+}
+
+bool FineOptions::IsValid(std::string* why) const {
+  if (max_iterations < 1) return Fail(why, "fine.max_iterations must be ≥ 1");
+  if (!(max_correspondence_mm > 0)) return Fail(why, "fine.max_correspondence_mm must be > 0");
+  if (!(min_correspondence_mm > 0 && min_correspondence_mm <= max_correspondence_mm))
+    return Fail(why, "fine.min_correspondence_mm must be in (0, max_correspondence_mm]");
+  if (!(max_normal_angle_deg > 0 && max_normal_angle_deg <= 180))
+    return Fail(why, "fine.max_normal_angle_deg must be in (0, 180]");
+  if (!(stop_mean_distance_mm >= 0)) return Fail(why, "fine.stop_mean_distance_mm must be ≥ 0");
+  if (!(min_update_mm >= 0)) return Fail(why, "fine.min_update_mm must be ≥ 0");
+  if (!(outside_overlap_weight > 0 && outside_overlap_weight <= 1))
+    return Fail(why, "fine.outside_overlap_weight must be in (0, 1]");
+  if (max_source_points < 0) return Fail(why, "fine.max_source_points must be ≥ 0");
+  return true;
+}
+
+bool RegistrationOptions::IsValid(std::string* why) const {
+  if (!coarse.IsValid(why) || !fine.IsValid(why)) return false;
+  if (!(min_fitness >= 0 && min_fitness <= 1)) return Fail(why, "min_fitness must be in [0, 1]");
+  if (min_points < 3) return Fail(why, "min_points must be ≥ 3");
+  if (!(fitness_distance_mm > 0)) return Fail(why, "fitness_distance_mm must be > 0");
+  if (!(max_rmse_ratio > 0)) return Fail(why, "max_rmse_ratio must be > 0");
+  if (!(prior_slide_deg >= 0)) return Fail(why, "prior_slide_deg must be ≥ 0");
+  if (!(prior_slide_gain >= 0)) return Fail(why, "prior_slide_gain must be ≥ 0");
+  if (num_threads < 1) return Fail(why, "num_threads must be ≥ 1");
+  return true;
+}
+
+const char* ToString(FineMethod method) {
+  switch (method) {
+    case FineMethod::kWeightedIcp:
+      return "weighted";
+    case FineMethod::kPointToPlane:
+      return "point-to-plane";
+  }
+  return "unknown";
+}
+
+bool FineMethodFromString(const std::string& text, FineMethod* method) {
+  if (text == "weighted")
+    *method = FineMethod::kWeightedIcp;
+  else if (text == "point-to-plane")
+    *method = FineMethod::kPointToPlane;
+  else
+    return false;
+  return true;
+}
+
+cv::Matx44d RotationAboutAxis(const cv::Vec3d& direction, const cv::Vec3d& point_mm,
+                              double angle_rad) {
+  const Eigen::Vector3d a = Eigen::Vector3d(direction[0], direction[1], direction[2]).normalized();
+  const Eigen::Vector3d c(point_mm[0], point_mm[1], point_mm[2]);
+  const Eigen::Matrix3d R = Eigen::AngleAxisd(angle_rad, a).toRotationMatrix();
+  Eigen::Matrix4d T = Eigen::Matrix4d::Identity();
+  T.topLeftCorner<3, 3>() = R;
+  T.topRightCorner<3, 1>() = c - R * c;
+  return ToCv(T);
+}
+
+// --- Conditioning -------------------------------------------------------------
+
+ViewCloud ConditionCloud(const PointCloud& input, const ConditioningOptions& options) {
+  ViewCloud view;
+  view.viewpoint_mm = options.viewpoint_mm;
+  view.input_points = input.size();
+  std::string why;
+  if (!options.IsValid(&why)) {
+    view.error = "invalid conditioning options: " + why;
+    return view;
+  }
+  if (!input.IsValid(&why)) {
+    view.error = "invalid input cloud: " + why;
+    return view;
+  }
+  if (input.empty()) {
+    view.error = "the input cloud has no points";
+    return view;
+  }
+  // Finite points inside the working volume.
+  PointCloud kept;
+  kept.points_mm.reserve(input.size());
+  if (input.HasColors()) kept.colors_rgb.reserve(input.size());
+  const cv::Matx44d& T = options.volume.turntable_from_cloud;
+  const double r2 = options.volume.radius_mm * options.volume.radius_mm;
+  for (std::size_t i = 0; i < input.size(); ++i) {
+    const cv::Vec3f& p = input.points_mm[i];
+    if (!std::isfinite(p[0]) || !std::isfinite(p[1]) || !std::isfinite(p[2])) {
+      continue;
+    }
+    if (options.volume.enabled) {
+      const cv::Vec4d q = T * cv::Vec4d(p[0], p[1], p[2], 1);
+      if (q[0] * q[0] + q[1] * q[1] > r2 || q[2] < options.volume.min_height_mm ||
+          q[2] > options.volume.max_height_mm) {
+        ++view.cropped_points;
+        continue;
+      }
+    }
+    kept.points_mm.push_back(p);
+    if (input.HasColors()) kept.colors_rgb.push_back(input.colors_rgb[i]);
+  }
+  if (kept.empty()) {
+    view.error = options.volume.enabled ? "no points left inside the working volume"
+                                        : "the input cloud has no finite points";
+    return view;
+  }
+  // Downsample first: statistical filtering of a dense stereo cloud is slow
+  // and voxel averaging already halves the noise.
+  PointCloud fine = VoxelDownsample(kept, options.fine_voxel_mm);
+  if (options.outlier_neighbors > 0 &&
+      fine.size() > static_cast<std::size_t>(options.outlier_neighbors)) {
+    auto pcl_fine = ToPclXyz(fine);
+    pcl::StatisticalOutlierRemoval<pcl::PointXYZ> sor;
+    sor.setInputCloud(pcl_fine);
+    sor.setMeanK(options.outlier_neighbors);
+    sor.setStddevMulThresh(options.outlier_std_ratio);
+    pcl::Indices kept_indices;
+    sor.filter(kept_indices);
+    PointCloud filtered;
+    filtered.points_mm.reserve(kept_indices.size());
+    if (fine.HasColors()) filtered.colors_rgb.reserve(kept_indices.size());
+    for (int i : kept_indices) {
+      filtered.points_mm.push_back(fine.points_mm[i]);
+      if (fine.HasColors()) filtered.colors_rgb.push_back(fine.colors_rgb[i]);
+    }
+    view.outlier_points = fine.size() - filtered.size();
+    fine = std::move(filtered);
+  }
+  if (fine.size() < 3) {
+    view.error = "fewer than 3 points left after filtering";
+    return view;
+  }
+  auto surface = ToPclXyz(fine);
+  const int k = std::min<int>(options.normal_neighbors, static_cast<int>(fine.size()));
+  EstimateNormals(&fine, surface, k, options.viewpoint_mm, options.num_threads);
+  if (options.volume.enabled && options.volume.platter_band_mm > options.volume.min_height_mm) {
+    // Level surface just above the platter: the platter itself, lifted by
+    // matching errors (a few px of disparity lift it by a millimetre or two).
+    const double cos_level = std::cos(options.volume.platter_normal_deg * M_PI / 180.0);
+    const cv::Matx33d R = T.get_minor<3, 3>(0, 0);
+    PointCloud kept_level;
+    for (std::size_t i = 0; i < fine.size(); ++i) {
+      const cv::Vec3f& p = fine.points_mm[i];
+      const cv::Vec4d q = T * cv::Vec4d(p[0], p[1], p[2], 1);
+      const cv::Vec3d n = R * cv::Vec3d(fine.normals[i]);
+      if (q[2] < options.volume.platter_band_mm && std::abs(n[2]) >= cos_level) {
+        ++view.cropped_points;
+        continue;
+      }
+      kept_level.points_mm.push_back(p);
+      kept_level.normals.push_back(fine.normals[i]);
+      if (fine.HasColors()) kept_level.colors_rgb.push_back(fine.colors_rgb[i]);
+    }
+    fine = std::move(kept_level);
+    if (fine.size() < 3) {
+      view.error = "fewer than 3 points left after removing the platter";
+      return view;
+    }
+    surface = ToPclXyz(fine);
+  }
+  PointCloud coarse = VoxelDownsample(PointCloud{fine.points_mm, {}, {}}, options.coarse_voxel_mm);
+  EstimateNormals(&coarse, surface, k, options.viewpoint_mm, options.num_threads);
+  view.fine = std::move(fine);
+  view.coarse = std::move(coarse);
+  return view;
+}
+
+// --- Features -----------------------------------------------------------------
+
+std::vector<Fpfh> ComputeFpfh(const PointCloud& cloud, double radius_mm, int num_threads) {
+  std::vector<Fpfh> out;
+  if (!cloud.HasNormals() || cloud.empty() || !(radius_mm > 0)) return out;
+  pcl::PointCloud<pcl::PointNormal>::Ptr in(new pcl::PointCloud<pcl::PointNormal>);
+  in->resize(cloud.size());
+  for (std::size_t i = 0; i < cloud.size(); ++i) {
+    auto& q = (*in)[i];
+    const cv::Vec3f& p = cloud.points_mm[i];
+    const cv::Vec3f& n = cloud.normals[i];
+    q.x = p[0], q.y = p[1], q.z = p[2];
+    q.normal_x = n[0], q.normal_y = n[1], q.normal_z = n[2];
+  }
+  pcl::FPFHEstimationOMP<pcl::PointNormal, pcl::PointNormal, pcl::FPFHSignature33> fpfh(
+      std::max(1, num_threads));
+  fpfh.setInputCloud(in);
+  fpfh.setInputNormals(in);
+  pcl::search::KdTree<pcl::PointNormal>::Ptr tree(new pcl::search::KdTree<pcl::PointNormal>);
+  fpfh.setSearchMethod(tree);
+  fpfh.setRadiusSearch(radius_mm);
+  pcl::PointCloud<pcl::FPFHSignature33> features;
+  fpfh.compute(features);
+  out.resize(cloud.size());
+  for (std::size_t i = 0; i < cloud.size(); ++i) {
+    for (int b = 0; b < 33; ++b) {
+      const float v = features[i].histogram[b];
+      out[i][b] = std::isfinite(v) ? v : 0.f;
+    }
+  }
+  return out;
+}
+
+namespace {
+
+// Nearest feature (squared L2) of each row of `a` among the rows of `b`
+// and of each row of `b` among the rows of `a`, from one blocked matrix
+// product (exact and deterministic: ties go to the lowest index; FPFH is
+// 33-D, where k-d trees degrade to brute force anyway).
+struct NearestBothWays {
+  std::vector<int> a_to_b, b_to_a;
+};
+NearestBothWays FindNearestBothWays(const Eigen::MatrixXf& a, const Eigen::MatrixXf& b,
+                                    int threads) {
+  NearestBothWays out;
+  out.a_to_b.assign(a.rows(), -1);
+  out.b_to_a.assign(b.rows(), -1);
+  if (a.rows() == 0 || b.rows() == 0) return out;
+  const Eigen::VectorXf an = a.rowwise().squaredNorm();
+  const Eigen::VectorXf bn = b.rowwise().squaredNorm();
+  constexpr Eigen::Index kBlock = 256;
+  const long blocks = static_cast<long>((a.rows() + kBlock - 1) / kBlock);
+  // Per block: the best row of the block for every column of b.
+  std::vector<Eigen::VectorXf> col_best(blocks);
+  std::vector<std::vector<int>> col_arg(blocks);
+#pragma omp parallel for num_threads(std::max(1, threads)) schedule(dynamic, 1)
+  for (long blk = 0; blk < blocks; ++blk) {
+    const Eigen::Index r0 = blk * kBlock;
+    const Eigen::Index rows = std::min<Eigen::Index>(kBlock, a.rows() - r0);
+    Eigen::MatrixXf d = -2.f * a.middleRows(r0, rows) * b.transpose();
+    d.rowwise() += bn.transpose();
+    d.colwise() += an.segment(r0, rows);
+    for (Eigen::Index r = 0; r < rows; ++r) {
+      Eigen::Index best;
+      d.row(r).minCoeff(&best);
+      out.a_to_b[r0 + r] = static_cast<int>(best);
+    }
+    col_best[blk].resize(b.rows());
+    col_arg[blk].resize(b.rows());
+    for (Eigen::Index c = 0; c < b.rows(); ++c) {
+      Eigen::Index best;
+      col_best[blk][c] = d.col(c).minCoeff(&best);
+      col_arg[blk][c] = static_cast<int>(r0 + best);
+    }
+  }
+  for (Eigen::Index c = 0; c < b.rows(); ++c) {
+    float best = std::numeric_limits<float>::infinity();
+    for (long blk = 0; blk < blocks; ++blk) {
+      if (col_best[blk][c] < best) {
+        best = col_best[blk][c];
+        out.b_to_a[c] = col_arg[blk][c];
+      }
+    }
+  }
+  return out;
+}
+
+Eigen::MatrixXf FeatureMatrix(const std::vector<Fpfh>& f) {
+  Eigen::MatrixXf m(static_cast<Eigen::Index>(f.size()), 33);
+  for (std::size_t i = 0; i < f.size(); ++i)
+    for (int b = 0; b < 33; ++b) m(static_cast<Eigen::Index>(i), b) = f[i][b];
+  return m;
+}
+
+struct Hypothesis {
+  double score = std::numeric_limits<double>::infinity();
+  std::size_t inliers = 0;
+  Eigen::Matrix4d T = Eigen::Matrix4d::Identity();
+  long index = std::numeric_limits<long>::max();  // tie-break: lowest index wins
+};
+
+bool Better(const Hypothesis& a, const Hypothesis& b) {
+  if (a.score != b.score) return a.score < b.score;
+  return a.index < b.index;
+}
+
+// Scores T over the correspondences with the paper's Huber loss. Residuals
+// beyond `cap` cost as much as `cap` (an outlier correspondence then costs a
+// constant, as in MSAC, instead of growing with its distance, which would let
+// the far outliers decide between hypotheses).
+Hypothesis Score(const Eigen::Matrix4d& T, const std::vector<Eigen::Vector3d>& src,
+                 const std::vector<Eigen::Vector3d>& dst, double w, double cap) {
+  Hypothesis h;
+  h.T = T;
+  const Eigen::Matrix3d R = T.topLeftCorner<3, 3>();
+  const Eigen::Vector3d t = T.topRightCorner<3, 1>();
+  const double cap_loss = Huber(cap, w);
+  double score = 0;
+  std::size_t inliers = 0;
+  for (std::size_t i = 0; i < src.size(); ++i) {
+    const double u = (R * src[i] + t - dst[i]).norm();
+    if (u <= w) ++inliers;
+    score += u >= cap ? cap_loss : Huber(u, w);
+  }
+  h.score = score;
+  h.inliers = inliers;
+  return h;
+}
+
+std::uint64_t SplitMix(std::uint64_t x) {
+  x += 0x9e3779b97f4a7c15ULL;
+  x = (x ^ (x >> 30)) * 0xbf58476d1ce4e5b9ULL;
+  x = (x ^ (x >> 27)) * 0x94d049bb133111ebULL;
+  return x ^ (x >> 31);
+}
+
+}  // namespace
+
+RegistrationResult RegisterCoarse(const ViewCloud& source, const ViewCloud& target,
+                                  const CoarseOptions& options, int num_threads) {
+  const auto start = Clock::now();
+  RegistrationResult result;
+  std::string why;
+  if (!options.IsValid(&why)) {
+    result.message = "invalid options: " + why;
+    return result;
+  }
+  const PointCloud& s = source.coarse;
+  const PointCloud& t = target.coarse;
+  if (s.size() < 3 || t.size() < 3 || !s.HasNormals() || !t.HasNormals()) {
+    result.message = "coarse clouds need at least 3 points with normals";
+    return result;
+  }
+  const int threads = std::max(1, num_threads);
+  const std::vector<Fpfh> fs = ComputeFpfh(s, options.feature_radius_mm, threads);
+  const std::vector<Fpfh> ft = ComputeFpfh(t, options.feature_radius_mm, threads);
+  const Eigen::MatrixXf ms = FeatureMatrix(fs), mt = FeatureMatrix(ft);
+  const NearestBothWays nearest = FindNearestBothWays(ms, mt, threads);
+  const std::vector<int>& s_to_t = nearest.a_to_b;
+  std::vector<std::pair<int, int>> pairs;
+  if (options.mutual_filter) {
+    const std::vector<int>& t_to_s = nearest.b_to_a;
+    for (std::size_t i = 0; i < s_to_t.size(); ++i)
+      if (s_to_t[i] >= 0 && t_to_s[s_to_t[i]] == static_cast<int>(i))
+        pairs.emplace_back(static_cast<int>(i), s_to_t[i]);
+  }
+  // Too few mutual matches (tiny or repetitive clouds): use the one-way ones.
+  if (pairs.size() < 10) {
+    pairs.clear();
+    for (std::size_t i = 0; i < s_to_t.size(); ++i)
+      if (s_to_t[i] >= 0) pairs.emplace_back(static_cast<int>(i), s_to_t[i]);
+  }
+  result.correspondences = pairs.size();
+  std::vector<Eigen::Vector3d> src(pairs.size()), dst(pairs.size());
+  std::vector<Eigen::Vector3d> src_n(pairs.size()), dst_n(pairs.size());
+  for (std::size_t i = 0; i < pairs.size(); ++i) {
+    src[i] = V(s.points_mm[pairs[i].first]).cast<double>();
+    dst[i] = V(t.points_mm[pairs[i].second]).cast<double>();
+    src_n[i] = V(s.normals[pairs[i].first]).cast<double>();
+    dst_n[i] = V(t.normals[pairs[i].second]).cast<double>();
+  }
+  const double w = options.inlier_distance_mm;
+  const double cap = 2 * w;
+  PointIndex target_index(t);
+
+  Hypothesis best;
+  if (options.prior_target_from_source) {
+    best = Score(ToEigen(*options.prior_target_from_source), src, dst, w, cap);
+    best.index = -1;
+    if (options.prior_accept_fitness > 0) {
+      const Overlap o = MeasureOverlap(s, target_index, best.T, w, threads);
+      if (o.fitness >= options.prior_accept_fitness) {
+        result.status = RegistrationResult::Status::kOk;
+        result.target_from_source = ToCv(best.T);
+        result.fitness = o.fitness;
+        result.rmse_mm = o.rmse;
+        result.inliers = o.inliers;
+        result.prior_kept = true;
+        result.converged = true;
+        result.message = "prior accepted without RANSAC";
+        result.time_ms = MsSince(start);
+        return result;
+      }
+    }
+  }
+
+  const std::size_t n = pairs.size();
+  const double min_ratio = options.edge_similarity;
+  const double cos_normal = std::cos(60.0 * M_PI / 180.0);
+  long needed = options.max_iterations;
+  long done = 0;
+  constexpr long kBatch = 512;
+  while (n >= 3 && done < needed) {
+    const long batch = std::min<long>(kBatch, needed - done);
+    std::vector<Hypothesis> hyps(static_cast<std::size_t>(batch));
+    ParallelFor(static_cast<std::size_t>(batch), threads, [&](std::size_t b, std::size_t e) {
+      for (std::size_t k = b; k < e; ++k) {
+        const long index = done + static_cast<long>(k);
+        std::mt19937_64 rng(SplitMix(options.seed ^ SplitMix(static_cast<std::uint64_t>(index))));
+        std::uniform_int_distribution<std::size_t> pick(0, n - 1);
+        std::array<std::size_t, 3> id{pick(rng), pick(rng), pick(rng)};
+        if (id[0] == id[1] || id[0] == id[2] || id[1] == id[2]) continue;
+        bool ok = true;
+        for (int a = 0; a < 3 && ok; ++a) {
+          const int b2 = (a + 1) % 3;
+          const double ls = (src[id[a]] - src[id[b2]]).norm();
+          const double lt = (dst[id[a]] - dst[id[b2]]).norm();
+          if (ls < 2 * w || lt < 2 * w)
+            ok = false;  // too close: an ill-posed rotation
+          else if (std::min(ls, lt) < min_ratio * std::max(ls, lt))
+            ok = false;
+        }
+        if (!ok) continue;
+        std::vector<Eigen::Vector3d> a3{src[id[0]], src[id[1]], src[id[2]]};
+        std::vector<Eigen::Vector3d> b3{dst[id[0]], dst[id[1]], dst[id[2]]};
+        const Eigen::Matrix4d T = RigidFromPairs(a3, b3, nullptr);
+        const Eigen::Matrix3d R = T.topLeftCorner<3, 3>();
+        for (int a = 0; a < 3 && ok; ++a)
+          if ((R * src_n[id[a]]).dot(dst_n[id[a]]) < cos_normal) ok = false;
+        if (!ok) continue;
+        Hypothesis h = Score(T, src, dst, w, cap);
+        h.index = index;
+        hyps[k] = h;
+      }
+    });
+    for (const Hypothesis& h : hyps)
+      if (std::isfinite(h.score) && Better(h, best)) best = h;
+    done += batch;
+    // Early termination: enough samples for an all-inlier one with the
+    // confidence asked, at the best inlier ratio so far.
+    const double ratio = static_cast<double>(best.inliers) / static_cast<double>(n);
+    if (ratio > 0) {
+      const double p_good = ratio * ratio * ratio;
+      const double k = p_good >= 1 ? 1 : std::log(1 - options.confidence) / std::log(1 - p_good);
+      // Samples rejected by the pre-checks count too, so this is conservative.
+      needed = std::min<long>(options.max_iterations,
+                              std::max<long>(kBatch, static_cast<long>(std::ceil(k))));
+    }
+  }
+  result.iterations = static_cast<int>(done);
+  result.converged = done < options.max_iterations;
+  if (!std::isfinite(best.score)) {
+    result.message =
+        "RANSAC found no consistent hypothesis among " + std::to_string(n) + " feature matches";
+    result.time_ms = MsSince(start);
+    return result;
+  }
+  result.prior_kept = best.index == -1;
+  // Refit on the inliers (twice: the set may grow).
+  Eigen::Matrix4d T = best.T;
+  for (int round = 0; round < 2; ++round) {
+    std::vector<Eigen::Vector3d> a, b;
+    const Eigen::Matrix3d R = T.topLeftCorner<3, 3>();
+    const Eigen::Vector3d tt = T.topRightCorner<3, 1>();
+    for (std::size_t i = 0; i < n; ++i) {
+      if ((R * src[i] + tt - dst[i]).norm() <= w) {
+        a.push_back(src[i]);
+        b.push_back(dst[i]);
+      }
+    }
+    if (a.size() < 3) break;
+    T = RigidFromPairs(a, b, nullptr);
+  }
+  const Overlap o = MeasureOverlap(s, target_index, T, w, threads);
+  result.status = RegistrationResult::Status::kOk;
+  result.target_from_source = ToCv(T);
+  result.fitness = o.fitness;
+  result.rmse_mm = o.rmse;
+  result.inliers = o.inliers;
+  result.time_ms = MsSince(start);
+  return result;
+}
+
+// --- Fine ---------------------------------------------------------------------
+
+namespace {
+
+// The source points fine registration uses: an even stride through the fine
+// cloud down to `max_points` (0 = all). Returns `fine` itself when no
+// stride is needed, else fills and returns *strided.
+const PointCloud& StridedSource(const PointCloud& fine, int max_points, PointCloud* strided) {
+  const std::size_t cap = max_points > 0 ? static_cast<std::size_t>(max_points) : fine.size();
+  if (fine.size() <= cap) return fine;
+  const double stride = static_cast<double>(fine.size()) / static_cast<double>(cap);
+  for (std::size_t k = 0; k < cap; ++k) {
+    const std::size_t i = static_cast<std::size_t>(k * stride);
+    strided->points_mm.push_back(fine.points_mm[i]);
+    strided->normals.push_back(fine.normals[i]);
+  }
+  return *strided;
+}
+
+// The ICP iterations of the fine stage: source points `s` (with normals)
+// against `target` (indexed by `target_index`) from `initial_target_from_source`.
+// Sets the pose, iterations and converged flag (status kOk), or a failure;
+// leaves fitness and timing to the caller.
+RegistrationResult IterateFine(const PointCloud& s, const ViewCloud& target,
+                               const PointIndex& target_index,
+                               const Eigen::Matrix4d& initial_target_from_source,
+                               const FineOptions& options, int threads) {
+  RegistrationResult result;
+  const PointCloud& t = target.fine;
+  const Eigen::Vector3d view_t(target.viewpoint_mm[0], target.viewpoint_mm[1],
+                               target.viewpoint_mm[2]);
+  const double cos_max = std::cos(options.max_normal_angle_deg * M_PI / 180.0);
+  // Overlap test: the source point's normal faces the target's sensor.
+  constexpr double kFacingCos = 0.2;  // within ~78° of the line of sight
+
+  // The scale of rotations for the update test: the source's extent.
+  Eigen::Vector3d centroid = Eigen::Vector3d::Zero();
+  for (const auto& p : s.points_mm) centroid += V(p).cast<double>();
+  centroid /= static_cast<double>(s.size());
+  double radius = 0;
+  for (const auto& p : s.points_mm)
+    radius = std::max(radius, (V(p).cast<double>() - centroid).norm());
+
+  Eigen::Matrix4d T = initial_target_from_source;
+  double gate = options.max_correspondence_mm;
+  struct Pair {
+    float d2 = -1;  // < 0: rejected
+    int target = -1;
+    float b = 1;
+  };
+  std::vector<Pair> pairs(s.size());
+  int iteration = 0;
+  bool converged = false;
+  // Anderson acceleration (type II, as in AA-ICP / Fast and Robust ICP) of
+  // the fixed-point map T → ICP step(T), on x = (radius·rotation vector,
+  // translation). Weighted point-to-point ICP creeps along weakly
+  // constrained directions (hundreds of iterations on smooth surfaces);
+  // accelerated, it needs tens. A step that raises the mean distance is
+  // undone and the history cleared.
+  using Vec6 = Eigen::Matrix<double, 6, 1>;
+  const double rscale = std::max(1.0, radius);
+  auto log6 = [&](const Eigen::Matrix4d& M) {
+    const Eigen::AngleAxisd aa(Eigen::Matrix3d(M.topLeftCorner<3, 3>()));
+    Vec6 x;
+    x.head<3>() = aa.axis() * aa.angle() * rscale;
+    x.tail<3>() = M.topRightCorner<3, 1>();
+    return x;
+  };
+  auto exp6 = [&](const Vec6& x) {
+    Eigen::Matrix4d M = Eigen::Matrix4d::Identity();
+    const Eigen::Vector3d w = x.head<3>() / rscale;
+    const double angle = w.norm();
+    if (angle > 0) M.topLeftCorner<3, 3>() = Eigen::AngleAxisd(angle, w / angle).toRotationMatrix();
+    M.topRightCorner<3, 1>() = x.tail<3>();
+    return M;
+  };
+  constexpr std::size_t kHistory = 5;
+  std::vector<Vec6> hist_g, hist_f;  // G(x_i) and f_i = G(x_i) − x_i, newest last
+  bool accelerated = false;
+  Eigen::Matrix4d plain_step = T;
+  double accepted_mean = std::numeric_limits<double>::infinity();
+  for (; iteration < options.max_iterations; ++iteration) {
+    const Eigen::Matrix3f R = T.topLeftCorner<3, 3>().cast<float>();
+    const Eigen::Vector3f tt = T.topRightCorner<3, 1>().cast<float>();
+    const float gate2 = static_cast<float>(gate * gate);
+    ParallelFor(s.size(), threads, [&](std::size_t b, std::size_t e) {
+      for (std::size_t i = b; i < e; ++i) {
+        Pair& pr = pairs[i];
+        pr.d2 = -1;
+        const Eigen::Vector3f p = R * V(s.points_mm[i]) + tt;
+        int idx;
+        float d2;
+        if (!target_index.Nearest(p, &idx, &d2) || d2 > gate2) continue;
+        const Eigen::Vector3f n = R * V(s.normals[i]);
+        if (n.dot(V(t.normals[idx])) < cos_max) continue;
+        const Eigen::Vector3f to_view = view_t.cast<float>() - p;
+        const float facing = n.dot(to_view) / std::max(1e-6f, to_view.norm());
+        pr.d2 = d2;
+        pr.target = idx;
+        pr.b = facing >= kFacingCos ? 1.f : static_cast<float>(options.outside_overlap_weight);
+      }
+    });
+    std::vector<Eigen::Vector3d> a, bpts, bn;
+    std::vector<double> weights;
+    double sum_d2 = 0, sum_d = 0;
+    for (const Pair& pr : pairs) {
+      if (pr.d2 < 0) continue;
+      sum_d2 += pr.d2;
+      sum_d += std::sqrt(pr.d2);
+    }
+    const std::size_t z = static_cast<std::size_t>(
+        std::count_if(pairs.begin(), pairs.end(), [](const Pair& p) { return p.d2 >= 0; }));
+    if (z < 6) {
+      result.message = "fine registration lost its correspondences (" + std::to_string(z) +
+                       " pairs within " + std::to_string(gate) + " mm)";
+      result.iterations = iteration;
+      return result;
+    }
+    const double mean = sum_d / static_cast<double>(z);
+    if (accelerated && mean > accepted_mean) {
+      T = plain_step;  // the accelerated step made things worse: undo it
+      hist_g.clear();
+      hist_f.clear();
+      accelerated = false;
+      continue;
+    }
+    accepted_mean = mean;
+    if (mean < options.stop_mean_distance_mm) {
+      converged = true;
+      break;
+    }
+    // (reading of §8) σ = (2/z)·Σd with d the squared distance; the weight
+    // exp(−d/σ) is a Gaussian kernel whose variance follows the residuals
+    // (the literal exp(−d/σ²) is not dimensionless and collapses to zero
+    // weight for all but the closest pairs once residuals are below 1 mm).
+    const double sigma = 2.0 * sum_d2 / static_cast<double>(z);
+    a.reserve(z);
+    bpts.reserve(z);
+    weights.reserve(z);
+    const Eigen::Matrix3d Rd = T.topLeftCorner<3, 3>();
+    const Eigen::Vector3d td = T.topRightCorner<3, 1>();
+    for (std::size_t i = 0; i < pairs.size(); ++i) {
+      const Pair& pr = pairs[i];
+      if (pr.d2 < 0) continue;
+      a.push_back(Rd * V(s.points_mm[i]).cast<double>() + td);
+      const Eigen::Vector3d q = V(t.points_mm[pr.target]).cast<double>();
+      const Eigen::Vector3d nq = V(t.normals[pr.target]).cast<double>();
+      bn.push_back(nq);
+      // The target point on the target's tangent plane nearest the source
+      // point: tangential offsets between samples then cost nothing, so
+      // point-to-point least squares slides along the surface as fast as
+      // point-to-plane (the nearest sample alone converges slowly and
+      // sticks at sample spacing).
+      bpts.push_back(
+          options.tangent_projection ? Eigen::Vector3d(a.back() - (a.back() - q).dot(nq) * nq) : q);
+      weights.push_back(pr.b * (sigma > 0 ? std::exp(-pr.d2 / sigma) : 1.0));
+    }
+    Eigen::Matrix4d delta = Eigen::Matrix4d::Identity();
+    if (options.method == FineMethod::kWeightedIcp) {
+      delta = RigidFromPairs(a, bpts, &weights);
+    } else {
+      // Point-to-plane, linearised about the current pose (small angles).
+      Eigen::Matrix<double, 6, 6> H = Eigen::Matrix<double, 6, 6>::Zero();
+      Eigen::Matrix<double, 6, 1> g = Eigen::Matrix<double, 6, 1>::Zero();
+      for (std::size_t i = 0; i < a.size(); ++i) {
+        Eigen::Matrix<double, 6, 1> J;
+        J.head<3>() = a[i].cross(bn[i]);
+        J.tail<3>() = bn[i];
+        const double r = (a[i] - bpts[i]).dot(bn[i]);
+        H += weights[i] * J * J.transpose();
+        g += weights[i] * J * r;
+      }
+      const Eigen::Matrix<double, 6, 1> x = H.ldlt().solve(-g);
+      if (!x.allFinite()) {
+        result.message = "point-to-plane system is singular";
+        result.iterations = iteration;
+        return result;
+      }
+      const Eigen::Vector3d w(x[0], x[1], x[2]);
+      const double angle = w.norm();
+      if (angle > 0)
+        delta.topLeftCorner<3, 3>() = Eigen::AngleAxisd(angle, w / angle).toRotationMatrix();
+      delta.topRightCorner<3, 1>() = x.tail<3>();
+    }
+    const Eigen::Matrix4d G = delta * T;
+    {
+      const Vec6 x = log6(T), g = log6(G);
+      hist_g.push_back(g);
+      hist_f.push_back(g - x);
+      if (hist_g.size() > kHistory + 1) {
+        hist_g.erase(hist_g.begin());
+        hist_f.erase(hist_f.begin());
+      }
+      plain_step = G;
+      accelerated = false;
+      T = G;
+      const std::size_t m = hist_g.size() - 1;
+      if (m >= 1) {
+        Eigen::MatrixXd dF(6, m), dG(6, m);
+        for (std::size_t j = 0; j < m; ++j) {
+          dF.col(j) = hist_f[j + 1] - hist_f[j];
+          dG.col(j) = hist_g[j + 1] - hist_g[j];
+        }
+        const Eigen::VectorXd gamma = dF.colPivHouseholderQr().solve(hist_f.back());
+        const Vec6 next = hist_g.back() - dG * gamma;
+        if (gamma.allFinite() && next.allFinite()) {
+          T = exp6(next);
+          accelerated = true;
+        }
+      }
+    }
+    // How far the plain update moved the source: rotation at the cloud's
+    // radius plus the translation of its centroid.
+    const Eigen::Matrix3d dR = delta.topLeftCorner<3, 3>();
+    const double angle = Eigen::AngleAxisd(dR).angle();
+    const Eigen::Vector3d c = G.topLeftCorner<3, 3>() * centroid + G.topRightCorner<3, 1>();
+    const double moved = angle * radius + (dR * c + delta.topRightCorner<3, 1>() - c).norm();
+    // Shrink the gate towards the residual level (robust to the start).
+    const double rms = std::sqrt(sum_d2 / static_cast<double>(z));
+    gate = std::clamp(3.0 * rms, options.min_correspondence_mm, gate);
+    if (moved < options.min_update_mm) {
+      T = G;  // converged: the plain step, not an extrapolation
+      converged = true;
+      ++iteration;
+      break;
+    }
+  }
+  result.status = RegistrationResult::Status::kOk;
+  result.target_from_source = ToCv(T);
+  result.iterations = iteration;
+  result.converged = converged;
+  if (!converged) result.message = "stopped at max_iterations";
+  return result;
+}
+
+}  // namespace
+
+RegistrationResult RegisterFine(const ViewCloud& source, const ViewCloud& target,
+                                const cv::Matx44d& initial_target_from_source,
+                                const FineOptions& options, int num_threads) {
+  const auto start = Clock::now();
+  RegistrationResult result;
+  std::string why;
+  if (!options.IsValid(&why)) {
+    result.message = "invalid options: " + why;
+    return result;
+  }
+  const PointCloud& t = target.fine;
+  if (source.fine.size() < 3 || t.size() < 3 || !source.fine.HasNormals() || !t.HasNormals()) {
+    result.message = "fine clouds need at least 3 points with normals";
+    return result;
+  }
+  PointCloud strided;
+  const PointCloud& s = StridedSource(source.fine, options.max_source_points, &strided);
+  const int threads = std::max(1, num_threads);
+  const PointIndex target_index(t);
+  result =
+      IterateFine(s, target, target_index, ToEigen(initial_target_from_source), options, threads);
+  if (result.IsUsable()) {
+    const Overlap o = MeasureOverlap(s, target_index, ToEigen(result.target_from_source),
+                                     options.max_correspondence_mm, threads);
+    result.fitness = o.fitness;
+    result.rmse_mm = o.rmse;
+    result.inliers = o.inliers;
+  }
+  result.time_ms = MsSince(start);
+  return result;
+}
+
+// --- Both ---------------------------------------------------------------------
+
+namespace {
+
+// Smallest over largest eigenvalue of the point-to-plane information matrix
+// of `cloud` against itself (rotations scaled by the cloud's radius): near 0
+// when some motion leaves the surface on itself (a plane, a sphere, a
+// cylinder about its axis).
+double Constrainedness(const PointCloud& cloud) {
+  if (cloud.size() < 6 || !cloud.HasNormals()) return 0;
+  Eigen::Vector3d c = Eigen::Vector3d::Zero();
+  for (const auto& p : cloud.points_mm) c += V(p).cast<double>();
+  c /= static_cast<double>(cloud.size());
+  double radius = 0;
+  for (const auto& p : cloud.points_mm) radius = std::max(radius, (V(p).cast<double>() - c).norm());
+  if (!(radius > 0)) return 0;
+  Eigen::Matrix<double, 6, 6> H = Eigen::Matrix<double, 6, 6>::Zero();
+  for (std::size_t i = 0; i < cloud.size(); ++i) {
+    const Eigen::Vector3d p = (V(cloud.points_mm[i]).cast<double>() - c) / radius;
+    const Eigen::Vector3d n = V(cloud.normals[i]).cast<double>();
+    Eigen::Matrix<double, 6, 1> J;
+    J.head<3>() = p.cross(n);
+    J.tail<3>() = n;
+    H += J * J.transpose();
+  }
+  const auto ev = Eigen::SelfAdjointEigenSolver<Eigen::Matrix<double, 6, 6>>(H).eigenvalues();
+  return ev[5] > 0 ? ev[0] / ev[5] : 0;
+}
+
+}  // namespace
+
+RegistrationResult RegisterPair(const ViewCloud& source, const ViewCloud& target,
+                                const RegistrationOptions& options) {
+  const auto start = Clock::now();
+  RegistrationResult result;
+  std::string why;
+  if (!options.IsValid(&why)) {
+    result.message = "invalid options: " + why;
+    return result;
+  }
+  if (!source.ok() || !target.ok()) {
+    result.message = "conditioning failed: " + (source.ok() ? target.error : source.error);
+    return result;
+  }
+  const std::size_t need = static_cast<std::size_t>(options.min_points);
+  if (source.coarse.size() < need || target.coarse.size() < need) {
+    result.message = "too few points: " + std::to_string(source.coarse.size()) + " (source) and " +
+                     std::to_string(target.coarse.size()) + " (target) coarse points, need " +
+                     std::to_string(need);
+    return result;
+  }
+  for (const PointCloud* c : {&source.fine, &target.fine}) {
+    const Eigen::Vector3d ev = CovarianceEigenvalues(*c);
+    if (ev[2] <= 0 || ev[1] / ev[2] < 1e-4) {
+      result.message = std::string("degenerate ") + (c == &source.fine ? "source" : "target") +
+                       " cloud: its points lie on a line";
+      return result;
+    }
+    if (ev[0] / ev[2] < 1e-4) {
+      result.message = std::string("degenerate ") + (c == &source.fine ? "source" : "target") +
+                       " cloud: its points lie on a plane, which does not fix the pose";
+      return result;
+    }
+  }
+  const bool has_prior = options.coarse.prior_target_from_source.has_value();
+  const double constrained = std::min(Constrainedness(source.fine), Constrainedness(target.fine));
+  constexpr double kMinConstrainedness = 1e-3;
+  if (constrained < kMinConstrainedness && !has_prior) {
+    result.message =
+        "degenerate geometry: a motion leaves the surface on itself (plane, sphere or surface of "
+        "revolution) and there is no prior pose";
+    return result;
+  }
+  // One target index and one strided source for every fine run below.
+  const int threads = options.num_threads;
+  const PointIndex target_index(target.fine);
+  PointCloud strided;
+  const PointCloud& fine_source =
+      StridedSource(source.fine, options.fine.max_source_points, &strided);
+  auto refine = [&](const cv::Matx44d& initial) {
+    const auto fine_start = Clock::now();
+    RegistrationResult r =
+        IterateFine(fine_source, target, target_index, ToEigen(initial), options.fine, threads);
+    r.time_ms = MsSince(fine_start);
+    return r;
+  };
+  // Fitness and RMSE of a fine pose at the (tighter) fitness gate.
+  auto evaluate = [&](RegistrationResult* r) {
+    const Overlap o = MeasureOverlap(source.fine, target_index, ToEigen(r->target_from_source),
+                                     options.fitness_distance_mm, options.num_threads);
+    r->fitness = o.fitness;
+    r->rmse_mm = o.rmse;
+    r->inliers = o.inliers;
+  };
+  // With a prior (the turntable), fine registration from the prior is one
+  // candidate; RANSAC's pose replaces it only when it fits clearly better.
+  // On symmetric objects (a box turned by 180°, an egg) RANSAC's best
+  // hypothesis can score as well as the truth; the turntable settles it.
+  // RANSAC must beat the prior's fitness by both margins: a symmetric object
+  // (a box turned by 180°) lets a wrong pose fit nearly as well as the truth,
+  // while a wrong commanded angle or a moved object leaves the prior's
+  // fitness far below the true pose's.
+  constexpr double kReplaceGain = 0.1;   // absolute fitness gain
+  constexpr double kReplaceRatio = 1.5;  // relative fitness gain
+  std::optional<RegistrationResult> from_prior;
+  if (has_prior) {
+    from_prior = refine(*options.coarse.prior_target_from_source);
+    if (from_prior->IsUsable()) evaluate(&*from_prior);
+  }
+  const RegistrationResult coarse =
+      RegisterCoarse(source, target, options.coarse, options.num_threads);
+  std::optional<RegistrationResult> from_coarse;
+  if (coarse.IsUsable() && !(coarse.prior_kept && from_prior)) {
+    from_coarse = refine(coarse.target_from_source);
+    if (from_coarse->IsUsable()) evaluate(&*from_coarse);
+  }
+  const bool prior_ok = from_prior && from_prior->IsUsable();
+  const bool coarse_ok = from_coarse && from_coarse->IsUsable();
+  if (!prior_ok && !coarse_ok) {
+    result = coarse.IsUsable() ? (from_coarse ? *from_coarse : *from_prior) : coarse;
+    result.status = RegistrationResult::Status::kFailed;
+    result.message = !coarse.IsUsable() ? "coarse registration failed: " + coarse.message
+                                        : "fine registration failed: " + result.message;
+    result.time_ms = MsSince(start);
+    return result;
+  }
+  const bool use_prior =
+      prior_ok && (!coarse_ok || from_coarse->fitness < from_prior->fitness + kReplaceGain ||
+                   from_coarse->fitness < from_prior->fitness * kReplaceRatio);
+  RegistrationResult fine = use_prior ? *from_prior : *from_coarse;
+  fine.prior_kept = use_prior || coarse.prior_kept;
+  bool prior_pose_kept = false;
+  if (use_prior && options.prior_slide_deg > 0) {
+    // ICP that moves far from the prior without fitting better slid along
+    // a direction the geometry does not fix (a surface of revolution about
+    // the turntable axis): keep the turntable's own pose.
+    RegistrationResult at_prior = *from_prior;
+    at_prior.target_from_source = *options.coarse.prior_target_from_source;
+    evaluate(&at_prior);
+    const double moved_deg =
+        RotationErrorDeg(from_prior->target_from_source, at_prior.target_from_source);
+    if (moved_deg > options.prior_slide_deg &&
+        from_prior->fitness < at_prior.fitness + options.prior_slide_gain) {
+      fine.target_from_source = at_prior.target_from_source;
+      fine.fitness = at_prior.fitness;
+      fine.rmse_mm = at_prior.rmse_mm;
+      fine.inliers = at_prior.inliers;
+      prior_pose_kept = true;
+    }
+  }
+
+  fine.coarse_ms = coarse.time_ms;
+  fine.fine_ms = (from_prior ? from_prior->time_ms : 0) + (from_coarse ? from_coarse->time_ms : 0);
+  fine.correspondences = coarse.correspondences;
+  std::string notes = fine.message;
+  if (prior_ok && coarse_ok && !use_prior)
+    notes += std::string(notes.empty() ? "" : "; ") + "the prior was replaced (fitness " +
+             std::to_string(from_prior->fitness) + " → " + std::to_string(from_coarse->fitness) +
+             ")";
+  if (prior_pose_kept)
+    notes +=
+        std::string(notes.empty() ? "" : "; ") +
+        "fine registration slid away from the prior without fitting better: the prior pose is kept";
+  if (constrained < kMinConstrainedness && !prior_pose_kept)
+    notes += std::string(notes.empty() ? "" : "; ") +
+             "surface of revolution or similar: the unconstrained motion is kept from the prior";
+  // Does the result agree with the prior (then the turntable vouches for it)?
+  bool near_prior = false;
+  if (has_prior) {
+    Eigen::Vector3d c = Eigen::Vector3d::Zero();
+    for (const auto& p : source.fine.points_mm) c += V(p).cast<double>();
+    c /= static_cast<double>(source.fine.size());
+    const Eigen::Matrix4d A = ToEigen(fine.target_from_source);
+    const Eigen::Matrix4d B = ToEigen(*options.coarse.prior_target_from_source);
+    const double moved = ((A.topLeftCorner<3, 3>() - B.topLeftCorner<3, 3>()) * c +
+                          A.topRightCorner<3, 1>() - B.topRightCorner<3, 1>())
+                             .norm();
+    near_prior =
+        RotationErrorDeg(fine.target_from_source, *options.coarse.prior_target_from_source) < 3.0 &&
+        moved < 5.0;
+  }
+  if (!near_prior && fine.fitness >= options.min_fitness &&
+      fine.rmse_mm > options.max_rmse_ratio * options.fitness_distance_mm) {
+    fine.status = RegistrationResult::Status::kFailed;
+    fine.message = "no overlap: the residuals (RMSE " + std::to_string(fine.rmse_mm) +
+                   " mm within " + std::to_string(options.fitness_distance_mm) +
+                   " mm) are spread like those of unrelated surfaces";
+  } else if (fine.fitness < options.min_fitness) {
+    fine.status = RegistrationResult::Status::kFailed;
+    fine.message = "no overlap: only " +
+                   std::to_string(static_cast<int>(fine.fitness * 100 + 0.5)) +
+                   " % of the source lies on the target after registration (need " +
+                   std::to_string(static_cast<int>(options.min_fitness * 100 + 0.5)) + " %)";
+  } else {
+    fine.message = notes;
+  }
+  fine.time_ms = MsSince(start);
+  return fine;
+}
+
+}  // namespace craftscan

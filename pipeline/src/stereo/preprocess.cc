@@ -1,0 +1,98 @@
+#include "craftscan/pipeline/stereo/preprocess.h"
+
+#include <algorithm>
+#include <opencv2/imgproc.hpp>
+#include <stdexcept>
+
+namespace craftscan {
+
+bool PreprocessOptions::IsValid(std::string* why) const {
+  auto fail = [&](const char* msg) {
+    if (why) *why = msg;
+    return false;
+  };
+  if (!(canny_sigma > 0 && canny_sigma <= 1))
+    return fail("preprocess.canny_sigma must be in (0, 1]");
+  if (!(canny_min_threshold >= 0 && canny_min_threshold < 255))
+    return fail("preprocess.canny_min_threshold must be in [0, 255)");
+  if (canny_aperture != 3 && canny_aperture != 5 && canny_aperture != 7)
+    return fail("preprocess.canny_aperture must be 3, 5 or 7");
+  if (dilate_radius_px < 0 || dilate_radius_px > 15)
+    return fail("preprocess.dilate_radius_px must be in [0, 15]");
+  return true;
+}
+
+namespace {
+
+double Median8U(const cv::Mat& grey) {
+  int histogram[256] = {};
+  for (int y = 0; y < grey.rows; ++y) {
+    const std::uint8_t* row = grey.ptr<std::uint8_t>(y);
+    for (int x = 0; x < grey.cols; ++x) ++histogram[row[x]];
+  }
+  const long half = (static_cast<long>(grey.total()) + 1) / 2;
+  long seen = 0;
+  for (int v = 0; v < 256; ++v) {
+    seen += histogram[v];
+    if (seen >= half) return v;
+  }
+  return 255;
+}
+
+}  // namespace
+
+Preprocessed Preprocess(const cv::Mat& image, const PreprocessOptions& options,
+                        PreprocessParts parts) {
+  std::string why;
+  if (!options.IsValid(&why)) throw std::invalid_argument(why);
+  if (image.empty()) throw std::invalid_argument("Preprocess: empty image");
+  if (image.type() != CV_8UC1 && image.type() != CV_8UC3)
+    throw std::invalid_argument("Preprocess: image must be CV_8UC1 or CV_8UC3 (BGR)");
+
+  Preprocessed out;
+  if (image.channels() == 1) {
+    if (options.equalize) {
+      cv::equalizeHist(image, out.image);
+    } else {
+      out.image = image.clone();
+    }
+    out.grey = out.image;
+  } else {
+    if (options.equalize) {
+      cv::Mat ycrcb;
+      cv::cvtColor(image, ycrcb, cv::COLOR_BGR2YCrCb);
+      cv::Mat channels[3];
+      cv::split(ycrcb, channels);
+      cv::equalizeHist(channels[0], channels[0]);
+      cv::merge(channels, 3, ycrcb);
+      cv::cvtColor(ycrcb, out.image, cv::COLOR_YCrCb2BGR);
+      out.grey = channels[0];
+    } else {
+      out.image = image.clone();
+      cv::cvtColor(image, out.grey, cv::COLOR_BGR2GRAY);
+    }
+  }
+
+  if (parts == PreprocessParts::kEqualizedOnly) return out;
+
+  cv::Mat gx, gy;
+  cv::Sobel(out.grey, gx, CV_32F, 1, 0, 3, 1, 0, cv::BORDER_REPLICATE);
+  cv::Sobel(out.grey, gy, CV_32F, 0, 1, 3, 1, 0, cv::BORDER_REPLICATE);
+  cv::magnitude(gx, gy, out.gradient);
+
+  // Thresholds from the median: the common "auto Canny" rule. A median of an
+  // equalized image sits near 128, so this stays sensible for dark or bright
+  // scenes; the floor keeps sensor noise out of flat regions.
+  const double median = Median8U(out.grey);
+  out.canny_low = std::max(options.canny_min_threshold, (1.0 - options.canny_sigma) * median);
+  out.canny_high = std::min(255.0, (1.0 + options.canny_sigma) * median);
+  if (out.canny_high <= out.canny_low) out.canny_high = std::min(255.0, out.canny_low * 2 + 1);
+  cv::Canny(out.grey, out.edges, out.canny_low, out.canny_high, options.canny_aperture, true);
+  if (options.dilate_radius_px > 0) {
+    const int k = 2 * options.dilate_radius_px + 1;
+    cv::dilate(out.edges, out.edges, cv::getStructuringElement(cv::MORPH_RECT, {k, k}));
+  }
+  return out;
+}
+
+}  // namespace craftscan

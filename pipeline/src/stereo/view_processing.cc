@@ -1,0 +1,160 @@
+#include "craftscan/pipeline/stereo/view_processing.h"
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <exception>
+#include <vector>
+
+#include "craftscan/pipeline/stereo/reproject.h"
+#include "craftscan/pipeline/surface/scan_reconstruction.h"
+
+namespace craftscan {
+namespace {
+
+double MsSince(std::chrono::steady_clock::time_point start) {
+  return std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start)
+      .count();
+}
+
+bool Fail(std::string* error, std::string message) {
+  if (error) *error = std::move(message);
+  return false;
+}
+
+}  // namespace
+
+bool ViewProcessorOptions::IsValid(std::string* why) const {
+  if (num_threads < 1 || num_threads > 256) return Fail(why, "num_threads must be in 1..256");
+  if (!(volume_radius_mm > 0)) return Fail(why, "volume_radius_mm must be > 0");
+  if (!(volume_max_height_mm > volume_min_height_mm))
+    return Fail(why, "volume_max_height_mm must exceed volume_min_height_mm");
+  if (disparity_margin_px < 0 || disparity_margin_px > 64)
+    return Fail(why, "disparity_margin_px must be in 0..64");
+  if (max_num_disparities < 16) return Fail(why, "max_num_disparities must be >= 16");
+  if (!(min_texture_std >= 0)) return Fail(why, "min_texture_std must be >= 0");
+  return true;
+}
+
+bool ViewProcessor::Init(const StereoCalibration& calibration, const ViewProcessorOptions& options,
+                         std::string* error) {
+  std::string why;
+  if (!options.IsValid(&why)) return Fail(error, "view processing: " + why);
+  if (!rectifier_.Init(calibration, &why)) return Fail(error, "calibration: " + why);
+  options_ = options;
+  const StereoCalibration& c = rectifier_.calibration();
+
+  // The band: project points spread over the working volume (and the
+  // platter at height 0) into both rectified cameras; d = u_left − u_right.
+  std::vector<cv::Vec3d> samples_in_rig;
+  crop_ = c.turntable.valid;
+  if (crop_) {
+    turntable_from_rig_ = TurntableFromRig(c.turntable);
+    const cv::Matx44d rig_from_turntable = turntable_from_rig_.inv();
+    for (double z : {0.0, options.volume_max_height_mm}) {
+      for (double r : {0.0, options.volume_radius_mm}) {
+        for (int i = 0; i < 72; ++i) {
+          const double a = i * CV_PI / 36;
+          const cv::Vec4d p =
+              rig_from_turntable * cv::Vec4d(r * std::cos(a), r * std::sin(a), z, 1);
+          samples_in_rig.emplace_back(p[0], p[1], p[2]);
+        }
+      }
+    }
+  } else {
+    for (double z : {300.0, 1500.0}) samples_in_rig.emplace_back(0, 0, z);
+  }
+  double d_min = 1e9, d_max = -1e9;
+  for (const cv::Vec3d& p : samples_in_rig) {
+    if (!(p[2] > 1))
+      return Fail(error, "calibration: the working volume reaches behind the cameras");
+    const cv::Vec3d l = c.P1 * cv::Vec4d(p[0], p[1], p[2], 1);
+    const cv::Vec3d r = c.P2 * cv::Vec4d(p[0], p[1], p[2], 1);
+    const double d = l[0] / l[2] - r[0] / r[2];
+    d_min = std::min(d_min, d);
+    d_max = std::max(d_max, d);
+  }
+  min_disparity_ = static_cast<int>(std::floor(d_min)) - options.disparity_margin_px;
+  num_disparities_ =
+      static_cast<int>(std::ceil(d_max)) + options.disparity_margin_px - min_disparity_ + 1;
+  if (options.num_disparities > 0) {
+    min_disparity_ = options.min_disparity;
+    num_disparities_ = options.num_disparities;
+  }
+  if (num_disparities_ > options.max_num_disparities) {
+    return Fail(error, "calibration: the working volume spans " + std::to_string(num_disparities_) +
+                           " disparities (more than " +
+                           std::to_string(options.max_num_disparities) +
+                           "); make pipeline.volume_* smaller or set pipeline.num_disparities");
+  }
+  ADCensusOptions matcher;
+  matcher.min_disparity = min_disparity_;
+  matcher.num_disparities = num_disparities_;
+  matcher.num_threads = options.num_threads;
+  matcher.refinement.interpolate = false;  // a point cloud wants no invented surface
+  if (!matcher.IsValid(&why)) return Fail(error, "matcher: " + why);
+  matcher_ = std::make_unique<StereoMatcher>(matcher);
+  return true;
+}
+
+double ViewProcessor::focal_px() const { return rectifier_.calibration().P1(0, 0); }
+
+double ViewProcessor::baseline_mm() const {
+  const auto& P2 = rectifier_.calibration().P2;
+  return P2(0, 0) != 0 ? std::abs(P2(0, 3) / P2(0, 0)) : 0;
+}
+
+ProcessedView ViewProcessor::Process(const cv::Mat& left_raw, const cv::Mat& right_raw) {
+  ProcessedView out;
+  if (!matcher_) {
+    out.message = "view processor not initialised";
+    return out;
+  }
+  try {
+    auto start = std::chrono::steady_clock::now();
+    cv::Mat right;
+    std::string why;
+    if (!rectifier_.Rectify(left_raw, right_raw, &out.rectified_left, &right, &why)) {
+      out.message = "rectify: " + why;
+      return out;
+    }
+    out.rectify_ms = MsSince(start);
+    start = std::chrono::steady_clock::now();
+    DisparityResult match = matcher_->Compute(out.rectified_left, right);
+    out.match_ms = MsSince(start);
+    if (!match.IsUsable()) {
+      out.message = "matcher: " + match.message;
+      return out;
+    }
+    out.disparity = std::move(match.disparity);
+    out.min_disparity = min_disparity_;
+    out.num_disparities = num_disparities_;
+
+    start = std::chrono::steady_clock::now();
+    ReprojectOptions reproject;
+    reproject.min_texture_std = options_.min_texture_std;
+    const std::vector<ColoredPoint> points = ReprojectToPoints(
+        out.disparity, cv::Mat(rectifier_.calibration().Q), out.rectified_left, reproject);
+    PointCloud& cloud = out.cloud_in_rig;
+    cloud.points_mm.reserve(points.size());
+    cloud.colors_rgb.reserve(points.size());
+    const double r2 = options_.volume_radius_mm * options_.volume_radius_mm;
+    for (const ColoredPoint& p : points) {
+      if (crop_) {
+        const cv::Vec4d q = turntable_from_rig_ * cv::Vec4d(p.x, p.y, p.z, 1);
+        if (q[0] * q[0] + q[1] * q[1] > r2 || q[2] < options_.volume_min_height_mm ||
+            q[2] > options_.volume_max_height_mm)
+          continue;
+      }
+      cloud.points_mm.emplace_back(p.x, p.y, p.z);
+      cloud.colors_rgb.emplace_back(p.r, p.g, p.b);
+    }
+    out.reproject_ms = MsSince(start);
+    out.ok = true;
+  } catch (const std::exception& e) {
+    out.message = std::string("view processing: ") + e.what();
+  }
+  return out;
+}
+
+}  // namespace craftscan

@@ -1,0 +1,380 @@
+#include "craftscan/pipeline/surface/scan_reconstruction.h"
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <exception>
+
+#include <nlohmann/json.hpp>
+
+#include "craftscan/pipeline/common/atomic_file.h"
+#include "craftscan/pipeline/registration/scan_dataset.h"
+
+namespace craftscan {
+namespace {
+
+using Clock = std::chrono::steady_clock;
+double MsSince(Clock::time_point start) {
+  return std::chrono::duration<double, std::milli>(Clock::now() - start).count();
+}
+
+constexpr double kTwoPi = 2 * M_PI;
+
+// Angle wrapped to (−π, π].
+double Wrap(double a) {
+  a = std::fmod(a, kTwoPi);
+  if (a <= -M_PI) a += kTwoPi;
+  if (a > M_PI) a -= kTwoPi;
+  return a;
+}
+
+// Corners of the axis-aligned bounding box of a cloud (loop-closure samples).
+std::vector<cv::Vec3d> BoxCorners(const PointCloud& cloud) {
+  cv::Vec3d lo(1e300, 1e300, 1e300), hi(-1e300, -1e300, -1e300);
+  for (const auto& p : cloud.points_mm)
+    for (int i = 0; i < 3; ++i) {
+      lo[i] = std::min(lo[i], static_cast<double>(p[i]));
+      hi[i] = std::max(hi[i], static_cast<double>(p[i]));
+    }
+  std::vector<cv::Vec3d> corners;
+  for (int m = 0; m < 8; ++m)
+    corners.emplace_back(m & 1 ? hi[0] : lo[0], m & 2 ? hi[1] : lo[1], m & 4 ? hi[2] : lo[2]);
+  return corners;
+}
+
+ScanResult ReconstructImpl(const std::vector<ScanView>& views, const TurntableAxis& axis,
+                           const ScanOptions& options) {
+  ScanResult result;
+  std::string why;
+  if (!options.IsValid(&why)) {
+    result.message = "invalid scan options: " + why;
+    return result;
+  }
+  const int n = static_cast<int>(views.size());
+  if (n < 2) {
+    result.message = "a scan needs at least 2 views, got " + std::to_string(n);
+    return result;
+  }
+  for (int k = 0; k < n; ++k) {
+    if (!std::isfinite(views[k].commanded_angle_rad)) {
+      result.message = "view " + std::to_string(k) + ": the commanded angle is not finite";
+      return result;
+    }
+  }
+  const bool have_axis = axis.valid;
+  cv::Matx44d turntable_from_rig = cv::Matx44d::eye();
+  if (have_axis) turntable_from_rig = TurntableFromRig(axis);
+
+  // --- Conditioning ----------------------------------------------------------
+  auto start = Clock::now();
+  ConditioningOptions conditioning = options.conditioning;
+  conditioning.num_threads = options.num_threads;
+  if (have_axis) {
+    conditioning.volume.enabled = true;
+    conditioning.volume.turntable_from_cloud = turntable_from_rig;
+    conditioning.volume.radius_mm = options.volume_radius_mm;
+    conditioning.volume.min_height_mm = options.volume_min_height_mm;
+    conditioning.volume.max_height_mm = options.volume_max_height_mm;
+    conditioning.viewpoint_mm = cv::Vec3d(0, 0, 0);  // the rectified left camera
+  }
+  result.views.reserve(n);
+  for (int k = 0; k < n; ++k) {
+    result.views.push_back(ConditionCloud(views[k].cloud_in_rig, conditioning));
+    if (!result.views.back().ok()) {
+      result.message = "view " + std::to_string(k) + ": " + result.views.back().error;
+      result.condition_ms = MsSince(start);
+      return result;
+    }
+  }
+  result.condition_ms = MsSince(start);
+
+  // --- Sequential registration (view k onto view k − 1) ----------------------
+  start = Clock::now();
+  RegistrationOptions reg = options.registration;
+  reg.num_threads = options.num_threads;
+  // The object turned by +Δθ about the axis between two views, so view k − 1
+  // sees view k's points turned back by −Δθ.
+  auto prior = [&](double from_angle, double to_angle) {
+    return RotationAboutAxis(axis.direction_in_rig, axis.point_in_rig_mm,
+                             -Wrap(from_angle - to_angle));
+  };
+  result.pairwise.resize(n);
+  result.view0_from_view.assign(n, cv::Matx44d::eye());
+  for (int k = 1; k < n; ++k) {
+    RegistrationOptions pair = reg;
+    if (have_axis)
+      pair.coarse.prior_target_from_source =
+          prior(views[k].commanded_angle_rad, views[k - 1].commanded_angle_rad);
+    result.pairwise[k] = RegisterPair(result.views[k], result.views[k - 1], pair);
+    if (!result.pairwise[k].IsUsable()) {
+      result.message = "registration of view " + std::to_string(k) + " onto view " +
+                       std::to_string(k - 1) + " failed: " + result.pairwise[k].message;
+      result.register_ms = MsSince(start);
+      return result;
+    }
+    result.view0_from_view[k] =
+        result.view0_from_view[k - 1] * result.pairwise[k].target_from_source;
+  }
+  // A full turn: the first view overlaps the last.
+  double span = 0;
+  for (int k = 1; k < n; ++k)
+    span += std::abs(Wrap(views[k].commanded_angle_rad - views[k - 1].commanded_angle_rad));
+  const double step = n > 1 ? span / (n - 1) : 0;
+  const bool full_turn = n >= 3 && span + step >= kTwoPi - 1e-3;
+  if (full_turn && options.close_loop) {
+    RegistrationOptions pair = reg;
+    if (have_axis)
+      pair.coarse.prior_target_from_source =
+          prior(views[0].commanded_angle_rad, views[n - 1].commanded_angle_rad);
+    result.closing = RegisterPair(result.views[0], result.views[n - 1], pair);
+  }
+  result.register_ms = MsSince(start);
+
+  // --- Loop closure ----------------------------------------------------------
+  start = Clock::now();
+  if (result.closing && result.closing->IsUsable()) {
+    std::vector<PoseEdge> edges;
+    for (int k = 1; k < n; ++k)
+      edges.push_back({k, k - 1, result.pairwise[k].target_from_source, 1.0});
+    edges.push_back({0, n - 1, result.closing->target_from_source, 1.0});
+    result.loop =
+        CloseLoop(n, edges, result.view0_from_view, BoxCorners(result.views[0].fine), options.loop);
+    if (result.loop->IsUsable()) result.view0_from_view = result.loop->view0_from_view;
+  }
+  result.loop_ms = MsSince(start);
+
+  // --- Fusion ------------------------------------------------------------------
+  start = Clock::now();
+  // Everything into the turntable frame at view 0 (or view 0's rig frame).
+  const cv::Matx44d out_from_view0 = have_axis ? turntable_from_rig : cv::Matx44d::eye();
+  if (have_axis) result.turntable_from_view0 = turntable_from_rig;
+  std::vector<PointCloud> clouds;
+  clouds.reserve(n);
+  for (int k = 0; k < n; ++k)
+    clouds.push_back(
+        TransformCloud(out_from_view0 * result.view0_from_view[k], result.views[k].fine));
+  FusionOptions fusion = options.fusion;
+  result.fused = FuseClouds(clouds, fusion, &why);
+  result.fuse_ms = MsSince(start);
+  if (result.fused.empty()) {
+    result.message = "fusion failed: " + why;
+    return result;
+  }
+
+  // --- Mesh ----------------------------------------------------------------------
+  start = Clock::now();
+  if (options.mesh) {
+    PoissonOptions poisson = options.poisson;
+    poisson.num_threads = options.num_threads;
+    result.mesh = PoissonMesh(result.fused, poisson);
+  } else {
+    result.mesh.message = "meshing not requested";
+  }
+  result.mesh_ms = MsSince(start);
+
+  // --- Measurement -------------------------------------------------------------
+  start = Clock::now();
+  std::string box_error;
+  if (!ComputeOrientedBox(result.fused, &result.box, &box_error)) {
+    result.message = "oriented box: " + box_error;
+    result.measure_ms = MsSince(start);
+    return result;
+  }
+  if (options.measure_box) {
+    BoxMeasureOptions box = options.box;
+    if (have_axis && !box.base_plane) {
+      Plane platter;  // z = 0 in the turntable frame
+      platter.normal = cv::Vec3d(0, 0, 1);
+      platter.offset_mm = 0;
+      platter.given = true;
+      box.base_plane = platter;
+    }
+    result.box_measurement = MeasureBox(result.fused, box);
+  }
+  result.measure_ms = MsSince(start);
+  result.status = ScanResult::Status::kOk;
+  std::string notes;
+  if (full_turn && options.close_loop) {
+    if (!result.closing->IsUsable())
+      notes = "loop not closed: " + result.closing->message;
+    else if (!result.loop->IsUsable())
+      notes = "loop closure failed: " + result.loop->message;
+    else
+      notes = std::string("loop closed (") + ToString(result.loop->model) + ")";
+  }
+  if (options.mesh && !result.mesh.IsUsable())
+    notes += (notes.empty() ? "" : "; ") + std::string("mesh failed: ") + result.mesh.message;
+  if (result.box_measurement && !result.box_measurement->IsUsable())
+    notes += (notes.empty() ? "" : "; ") + std::string("box measurement failed: ") +
+             result.box_measurement->message;
+  result.message = notes;
+  return result;
+}
+
+using Json = nlohmann::ordered_json;
+
+Json Num(double v) { return std::isfinite(v) ? Json(v) : Json(nullptr); }
+
+Json PoseJson(const cv::Matx44d& T) {
+  Json rows = Json::array();
+  for (int r = 0; r < 4; ++r) rows.push_back({T(r, 0), T(r, 1), T(r, 2), T(r, 3)});
+  return rows;
+}
+
+Json RegistrationJson(const RegistrationResult& r) {
+  Json j;
+  j["ok"] = r.IsUsable();
+  j["message"] = r.message;
+  j["fitness"] = Num(r.fitness);
+  j["rmse_mm"] = Num(r.rmse_mm);
+  j["inliers"] = r.inliers;
+  j["iterations"] = r.iterations;
+  j["converged"] = r.converged;
+  j["prior_kept"] = r.prior_kept;
+  j["correspondences"] = r.correspondences;
+  j["coarse_ms"] = Num(r.coarse_ms);
+  j["fine_ms"] = Num(r.fine_ms);
+  j["target_from_source"] = PoseJson(r.target_from_source);
+  return j;
+}
+
+}  // namespace
+
+std::string ScanReportJson(const ScanResult& result) {
+  try {
+    Json j;
+    j["ok"] = result.IsUsable();
+    j["message"] = result.message;
+    j["views"] = Json::array();
+    for (std::size_t k = 0; k < result.views.size(); ++k) {
+      const ViewCloud& v = result.views[k];
+      Json view;
+      view["index"] = k;
+      view["input_points"] = v.input_points;
+      view["cropped_points"] = v.cropped_points;
+      view["outlier_points"] = v.outlier_points;
+      view["fine_points"] = v.fine.size();
+      view["coarse_points"] = v.coarse.size();
+      if (!v.ok()) view["error"] = v.error;
+      if (k >= 1 && k < result.pairwise.size())
+        view["registration_to_previous"] = RegistrationJson(result.pairwise[k]);
+      if (k < result.view0_from_view.size())
+        view["view0_from_view"] = PoseJson(result.view0_from_view[k]);
+      j["views"].push_back(view);
+    }
+    if (result.closing) j["closing_registration"] = RegistrationJson(*result.closing);
+    if (result.loop) {
+      const LoopClosureResult& l = *result.loop;
+      Json loop;
+      loop["ok"] = l.IsUsable();
+      loop["model"] = ToString(l.model);
+      loop["message"] = l.message;
+      loop["open_loop_rot_deg"] = Num(l.open_loop_rot_deg);
+      loop["open_loop_rms_mm"] = Num(l.open_loop_rms_mm);
+      loop["axis_rms_mm"] = Num(l.axis_rms_mm);
+      loop["rms_mm"] = Num(l.rms_mm);
+      loop["max_mm"] = Num(l.max_mm);
+      if (l.model == LoopClosureResult::Model::kTurntableAxis) {
+        loop["axis_direction"] = {l.axis_direction[0], l.axis_direction[1], l.axis_direction[2]};
+        loop["axis_point_mm"] = {l.axis_point_mm[0], l.axis_point_mm[1], l.axis_point_mm[2]};
+        Json angles = Json::array();
+        for (double a : l.angles_rad) angles.push_back(a * 180 / M_PI);
+        loop["angles_deg"] = angles;
+      }
+      j["loop_closure"] = loop;
+    }
+    j["frame"] = result.turntable_from_view0 ? "turntable" : "view0";
+    if (result.turntable_from_view0)
+      j["turntable_from_view0"] = PoseJson(*result.turntable_from_view0);
+    j["fused_points"] = result.fused.size();
+    Json mesh;
+    mesh["ok"] = result.mesh.IsUsable();
+    mesh["message"] = result.mesh.message;
+    mesh["vertices"] = result.mesh.mesh.vertices_mm.size();
+    mesh["faces"] = result.mesh.mesh.faces.size();
+    j["mesh"] = mesh;
+    Json times;
+    times["condition_ms"] = result.condition_ms;
+    times["register_ms"] = result.register_ms;
+    times["loop_ms"] = result.loop_ms;
+    times["fuse_ms"] = result.fuse_ms;
+    times["mesh_ms"] = result.mesh_ms;
+    times["measure_ms"] = result.measure_ms;
+    j["times"] = times;
+    if (!result.fused.empty()) {
+      const BoxMeasurement* box = result.box_measurement && result.box_measurement->IsUsable()
+                                      ? &*result.box_measurement
+                                      : nullptr;
+      j["measurement"] = Json::parse(MeasurementReportJson(result.box, box), nullptr, false);
+      if (result.box_measurement && !result.box_measurement->IsUsable())
+        j["box_measurement_error"] = result.box_measurement->message;
+    }
+    return j.dump(2);
+  } catch (const std::exception& e) {
+    return std::string("{\"ok\": false, \"message\": \"report failed\"}");
+  }
+}
+
+bool WriteScanOutputs(const std::string& dir, const ScanResult& result, std::string* error) {
+  const std::string base = dir.empty() || dir.back() == '/' ? dir : dir + "/";
+  if (!result.fused.empty() && !WritePly(base + "fused.ply", result.fused, true, error))
+    return false;
+  if (result.mesh.IsUsable()) {
+    if (!WriteMeshPly(base + "mesh.ply", result.mesh.mesh, true, error)) return false;
+    if (!WriteMeshObj(base + "mesh.obj", result.mesh.mesh, error)) return false;
+  }
+  return WriteFileAtomically(base + "report.json", ScanReportJson(result), error);
+}
+
+bool ScanOptions::IsValid(std::string* why) const {
+  auto fail = [&](const std::string& m) {
+    if (why) *why = m;
+    return false;
+  };
+  if (!(volume_radius_mm > 0)) return fail("volume_radius_mm must be > 0");
+  if (!(volume_max_height_mm > volume_min_height_mm))
+    return fail("volume_max_height_mm must be > volume_min_height_mm");
+  if (num_threads < 1) return fail("num_threads must be ≥ 1");
+  std::string sub;
+  if (!conditioning.IsValid(&sub)) return fail("conditioning: " + sub);
+  if (!registration.IsValid(&sub)) return fail("registration: " + sub);
+  if (!loop.IsValid(&sub)) return fail("loop: " + sub);
+  if (!fusion.IsValid(&sub)) return fail("fusion: " + sub);
+  if (mesh && !poisson.IsValid(&sub)) return fail("poisson: " + sub);
+  if (measure_box && !box.IsValid(&sub)) return fail("box: " + sub);
+  return true;
+}
+
+cv::Matx44d TurntableFromRig(const TurntableAxis& axis) {
+  cv::Vec3d z = axis.direction_in_rig;
+  z /= cv::norm(z);
+  cv::Vec3d x(1, 0, 0);
+  x -= z * z.dot(x);
+  if (cv::norm(x) < 1e-6) {  // the axis along the rig's x: use its y
+    x = cv::Vec3d(0, 1, 0) - z * z[1];
+  }
+  x /= cv::norm(x);
+  const cv::Vec3d y = z.cross(x);
+  // rig_from_turntable = [x y z | p]; invert.
+  cv::Matx44d rig_from_turntable = cv::Matx44d::eye();
+  for (int r = 0; r < 3; ++r) {
+    rig_from_turntable(r, 0) = x[r];
+    rig_from_turntable(r, 1) = y[r];
+    rig_from_turntable(r, 2) = z[r];
+    rig_from_turntable(r, 3) = axis.point_in_rig_mm[r];
+  }
+  return InvertRigid(rig_from_turntable);
+}
+
+ScanResult ReconstructScan(const std::vector<ScanView>& views, const TurntableAxis& axis,
+                           const ScanOptions& options) {
+  try {
+    return ReconstructImpl(views, axis, options);
+  } catch (const std::exception& e) {  // e.g. std::bad_alloc from a huge cloud
+    ScanResult result;
+    result.message = std::string("reconstruction failed: ") + e.what();
+    return result;
+  }
+}
+
+}  // namespace craftscan

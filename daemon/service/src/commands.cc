@@ -16,12 +16,6 @@
 namespace craftscan::daemon {
 namespace {
 
-nlohmann::json JobJson(const JobInfo& job) {
-  return {{"id", job.id},           {"verb", job.verb},    {"state", ToString(job.state)},
-          {"session", job.session}, {"stage", job.stage},  {"progress", job.progress},
-          {"message", job.message}, {"result", job.result}};
-}
-
 // Reads and parses <sessions>/<id>/manifest.json (id already checked with
 // IsValidSessionId). False with *error.
 bool ReadManifest(const SessionStore& store, const std::string& id, std::string* text,
@@ -50,7 +44,33 @@ std::string Hex64(std::uint64_t value) {
   return text;
 }
 
+// Whether session `id` (already checked with IsValidSessionId) has a folder
+// in the store: what tells an unknown session from one that is there but
+// cannot be opened, resumed or read.
+bool SessionFolderExists(const SessionStore& store, const std::string& id) {
+  std::error_code ec;
+  return std::filesystem::is_directory(store.sessions_dir() + "/" + id, ec);
+}
+
 }  // namespace
+
+nlohmann::json JobJson(const JobInfo& job) {
+  return {{"id", job.id},           {"verb", job.verb},    {"state", ToString(job.state)},
+          {"session", job.session}, {"stage", job.stage},  {"progress", job.progress},
+          {"message", job.message}, {"result", job.result}};
+}
+
+nlohmann::json DevicesJson(const std::vector<DeviceReport>& devices) {
+  nlohmann::json list = nlohmann::json::array();
+  for (const DeviceReport& d : devices) {
+    list.push_back({{"name", d.name},
+                    {"kind", d.kind},
+                    {"driver", d.driver},
+                    {"state", d.state},
+                    {"message", d.message}});
+  }
+  return list;
+}
 
 CommandHandler::CommandHandler(CommandLimits limits, const TokenAuthority* tokens, JobEngine* jobs,
                                DeviceManager* devices, SessionStore* store,
@@ -68,22 +88,24 @@ void CommandHandler::SetStore(SessionStore* store, std::string why_unavailable) 
   store_unavailable_ = std::move(why_unavailable);
 }
 
-CommandReply CommandHandler::Handle(const CommandRequest& request) {
+CommandReply CommandHandler::Refuse(const CommandRequest& request, ReplyCode code,
+                                    std::string message) const {
   CommandReply reply;
   reply.request_id = request.request_id.substr(0, limits_.max_field_bytes);
   reply.client = request.client.substr(0, limits_.max_field_bytes);
+  reply.code = code;
+  reply.message = std::move(message);
+  return reply;
+}
+
+CommandReply CommandHandler::Handle(const CommandRequest& request) {
   CommandCheck check = CheckCommand(request, limits_, tokens_);
-  if (!check.ok()) {
-    reply.code = check.code;
-    reply.message = std::move(check.message);
-    return reply;
-  }
+  if (!check.ok()) return Refuse(request, check.code, std::move(check.message));
   try {
-    return Dispatch(request.verb, check.arguments, *check.identity, reply);
+    return Dispatch(request.verb, check.arguments, *check.identity,
+                    Refuse(request, ReplyCode::kInternal, ""));
   } catch (const std::exception& e) {
-    reply.code = ReplyCode::kInternal;
-    reply.message = std::string("internal error: ") + e.what();
-    return reply;
+    return Refuse(request, ReplyCode::kInternal, std::string("internal error: ") + e.what());
   }
 }
 
@@ -100,8 +122,9 @@ CommandReply CommandHandler::Dispatch(const std::string& verb, const nlohmann::j
   JobInfo job;
   auto started = [&](bool ok) {
     if (ok) return done(ReplyCode::kOk, job.verb + " started as " + job.id, JobJson(job));
-    const ReplyCode code = error.rfind("busy", 0) == 0 ? ReplyCode::kBusy : ReplyCode::kFailed;
-    return done(code, error);
+    // Refused because a job runs (none did when Dispatch began, but the
+    // engine is the one to say), or tried and failed.
+    return done(jobs_->Busy() ? ReplyCode::kBusy : ReplyCode::kFailed, error);
   };
   const bool job_verb = verb == "capture" || verb == "scan" || verb == "resume" ||
                         verb == "calibrate" || verb == "calibrate-turntable" ||
@@ -122,14 +145,7 @@ CommandReply CommandHandler::Dispatch(const std::string& verb, const nlohmann::j
   if (verb == "status")
     return done(ReplyCode::kOk, "status", status_ ? status_() : nlohmann::json{});
   if (verb == "devices") {
-    nlohmann::json list = nlohmann::json::array();
-    for (const DeviceReport& d : devices_->Reports()) {
-      list.push_back({{"name", d.name},
-                      {"kind", d.kind},
-                      {"driver", d.driver},
-                      {"state", d.state},
-                      {"message", d.message}});
-    }
+    nlohmann::json list = DevicesJson(devices_->Reports());
     return done(ReplyCode::kOk, std::to_string(list.size()) + " devices", {{"devices", list}});
   }
   if (verb == "sessions") {
@@ -182,7 +198,7 @@ CommandReply CommandHandler::Dispatch(const std::string& verb, const nlohmann::j
   if (verb == "resume") {
     const std::string id = args["session"];  // IsValidSessionId (CheckCommand)
     const bool ok = jobs_->StartResume(id, &job, &error);
-    if (!ok && error.find("unknown") != std::string::npos) return done(ReplyCode::kNotFound, error);
+    if (!ok && !SessionFolderExists(*store_, id)) return done(ReplyCode::kNotFound, error);
     return started(ok);
   }
   if (verb == "calibrate") return started(jobs_->StartCalibrate(&job, &error));
@@ -221,10 +237,8 @@ CommandReply CommandHandler::GetFiles(const std::string& id, const nlohmann::jso
   };
   std::string text, error;
   Manifest manifest;
-  std::error_code ec;
-  if (!std::filesystem::is_directory(store_->sessions_dir() + "/" + id, ec)) {
+  if (!SessionFolderExists(*store_, id))
     return refuse(ReplyCode::kNotFound, "unknown session " + id);
-  }
   if (!ReadManifest(*store_, id, &text, &manifest, &error))
     return refuse(ReplyCode::kNotFound, error);
   std::vector<std::string> names;

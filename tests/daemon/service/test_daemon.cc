@@ -245,6 +245,30 @@ TEST(Daemon, TokenRolesAreEnforcedOnEveryVerb) {
   EXPECT_EQ(sessions->result["sessions"].size(), 0u);
 }
 
+// resume answers not_found only for a session that is not there: a session
+// whose id holds "unknown" (its object's name) and cannot be resumed
+// because it is done is `failed`, saying why. (The answer was once guessed
+// from the error's text, so this one was not_found.)
+TEST(Daemon, ResumeOfADoneSessionNamedUnknownIsFailedNotNotFound) {
+  auto r = StartDaemon("320x256");
+  ASSERT_TRUE(r);
+  StationClient& c = r->client;
+  const auto capture = c.Send("capture", {{"object", "unknown"}}, kOperatorToken);
+  ASSERT_TRUE(capture);
+  ASSERT_EQ(capture->code_name, "ok") << capture->message;
+  const std::string session = capture->result["session"];
+  ASSERT_NE(session.find("unknown"), std::string::npos) << session;
+  const nlohmann::json job = WaitForJob(c, capture->result["id"], 120s);
+  ASSERT_EQ(job.value("state", ""), "done") << job.dump() << r->fixture.Log();
+  const auto resume = c.Send("resume", {{"session", session}}, kOperatorToken);
+  ASSERT_TRUE(resume);
+  EXPECT_EQ(resume->code_name, "failed") << resume->message;
+  EXPECT_NE(resume->message.find("already done"), std::string::npos) << resume->message;
+  const auto missing = c.Send("resume", {{"session", "20260101-000000-unknown"}}, kOperatorToken);
+  ASSERT_TRUE(missing);
+  EXPECT_EQ(missing->code_name, "not_found") << missing->message;
+}
+
 // A cancel during a long turntable move stops the table (the driver's abort)
 // instead of waiting for the move: at 6 deg/s the 90-degree move to view 1
 // takes 15 s, and the job must end well before that. The session stays

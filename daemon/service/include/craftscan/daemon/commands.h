@@ -86,6 +86,8 @@ namespace craftscan::daemon {
 class DeviceManager;
 class JobEngine;
 class SessionStore;
+struct DeviceReport;
+struct JobInfo;
 
 enum class ReplyCode : std::int32_t {
   kOk = 0,
@@ -153,6 +155,13 @@ struct CommandLimits {
 CommandRequest CutCommandRequest(std::string_view request_id, std::string_view client,
                                  std::string_view token, std::string_view verb,
                                  std::string_view arguments, const CommandLimits& limits);
+
+// The JSON the status and devices verbs (and the job verbs' results) show
+// for a job: {"id", "verb", "state", "session", "stage", "progress",
+// "message", "result"}; and for devices: [{"name", "kind", "driver",
+// "state", "message"}, ...].
+nlohmann::json JobJson(const JobInfo& job);
+nlohmann::json DevicesJson(const std::vector<DeviceReport>& devices);
 
 // True for the verbs that only read (status, devices, sessions, get): an
 // answer to them changes no state worth republishing.
@@ -230,6 +239,11 @@ class CommandHandler {
                  std::function<nlohmann::json()> status);
 
   CommandReply Handle(const CommandRequest& request);
+  // The reply refusing `request` with `code` and `message` (its request id
+  // and client cut to limits().max_field_bytes, an empty result): what
+  // Handle answers to a command it refuses, and the service to one it does
+  // not hand to Handle (CommandRateLimiter).
+  CommandReply Refuse(const CommandRequest& request, ReplyCode code, std::string message) const;
   const CommandLimits& limits() const { return limits_; }
 
   // Replaces the session store (null while the data directory is not

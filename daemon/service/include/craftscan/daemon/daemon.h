@@ -20,10 +20,35 @@
 #include <atomic>
 #include <memory>
 #include <string>
+#include <string_view>
 
 #include "craftscan/daemon/config.h"
 
 namespace craftscan::daemon {
+
+// The station's state, as StationStatus.state and the status verb's "state"
+// carry it (ToString; clients compare these strings):
+//   starting   the devices have not been tried yet
+//   idle       devices open, the session store open, no job running
+//   busy       a job is running
+//   degraded   devices open, the data directory unusable (degraded storage)
+//   error      the devices are not open (start-up failed, or a job ended
+//              with them closed); they are retried every 10 s
+//   stopping   SIGTERM: the running job is being checkpointed
+enum class StationState { kStarting, kIdle, kBusy, kDegraded, kError, kStopping };
+std::string_view ToString(StationState state);  // "starting", "idle", ...
+
+// What the station's state follows from.
+struct StationFacts {
+  bool stopping = false;       // RequestStop() was seen
+  bool devices_tried = false;  // the first Open of the devices has returned
+  bool devices_open = false;
+  bool job_running = false;
+  bool store_open = false;
+};
+// The state for `facts`, in this order: stopping, starting, busy (a job owns
+// the devices, even while it reopens them), error, degraded, idle.
+StationState StationStateFrom(const StationFacts& facts);
 
 class Daemon {
  public:

@@ -88,13 +88,11 @@ CalibrationOutcome CalibrateStage::Run() {
   std::vector<StereoBoardView> views;
   cv::Size image_size;
   const int wanted = options_.views;
-  static const std::atomic<bool> kNever{false};
   for (int attempt = 0; attempt < options_.max_attempts &&
                         static_cast<int>(views.size()) < wanted && !context_.Stopping();
        ++attempt) {
     drivers::StereoFrame frame;
-    const drivers::DriverStatus s =
-        devices_->Capture(&frame, context_.stop ? *context_.stop : kNever);
+    const drivers::DriverStatus s = devices_->Capture(&frame, context_.StopFlag());
     if (!s.ok()) {
       error = s.message;
       break;
@@ -177,7 +175,6 @@ CalibrationOutcome CalibrateTurntableStage::Run() {
   std::vector<TurntableStep> steps;
   std::string error;
   const auto& angles = options_.angles_deg;
-  static const std::atomic<bool> kNever{false};
   for (std::size_t i = 0; i < angles.size() && !context_.Stopping(); ++i) {
     if (moving_) *moving_ = true;
     const drivers::DriverStatus moved = devices_->MoveTo(angles[i]);
@@ -188,8 +185,7 @@ CalibrationOutcome CalibrateTurntableStage::Run() {
     }
     std::this_thread::sleep_for(options_.settle);
     drivers::StereoFrame frame;
-    const drivers::DriverStatus captured =
-        devices_->Capture(&frame, context_.stop ? *context_.stop : kNever);
+    const drivers::DriverStatus captured = devices_->Capture(&frame, context_.StopFlag());
     if (!captured.ok()) {
       error = captured.message;
       break;

@@ -122,9 +122,7 @@ StageOutcome CaptureStage::CaptureView(int k, double angle, CapturedView* item) 
     std::this_thread::sleep_for(options_.settle);
   }
   drivers::StereoFrame frame;
-  static const std::atomic<bool> kNever{false};
-  const drivers::DriverStatus captured =
-      devices_->Capture(&frame, context_.stop ? *context_.stop : kNever);
+  const drivers::DriverStatus captured = devices_->Capture(&frame, context_.StopFlag());
   if (!captured.ok()) return device_error(captured);
   std::string why;
   if (!context_.session->StoreCapture(k, angle, frame.left.image, frame.right.image,

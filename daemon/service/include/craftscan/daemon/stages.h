@@ -92,6 +92,11 @@ struct StageContext {
   const std::atomic<bool>* stop = nullptr;  // may be null: never stopped
 
   bool Stopping() const { return stop && stop->load(); }
+  // The flag to poll (DeviceManager::Capture): `stop`, or one never set.
+  const std::atomic<bool>& StopFlag() const {
+    static const std::atomic<bool> never{false};
+    return stop ? *stop : never;
+  }
   void Progress(const std::string& stage, int current, int total,
                 const std::string& message) const {
     if (progress) progress(stage, current, total, message);

@@ -14,6 +14,7 @@
 #include "craftscan/daemon/devices.h"
 #include "craftscan/daemon/jobs.h"
 #include "craftscan/daemon/notify.h"
+#include "craftscan/daemon/report.h"
 #include "craftscan/daemon/session_store.h"
 #include "dds_bridge.h"
 
@@ -316,7 +317,7 @@ std::unique_ptr<Daemon> Daemon::Create(const DaemonConfig& config, std::string* 
   jobs.max_rms_px = config.calibration.max_rms_px;
   jobs.calibration.rectification.zero_disparity = false;
   impl->jobs = std::make_unique<JobEngine>(jobs, impl->devices.get(), impl->store.get(),
-                                           &impl->publisher, Log);
+                                           &impl->publisher, Log, MakeReportFiles);
   if (!impl->jobs->LoadCurrentCalibration(&why)) {
     spdlog::error("calibration: {} (starting without one; run calibrate)", why);
     impl->last_error = "calibration: " + why;

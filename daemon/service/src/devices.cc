@@ -11,6 +11,10 @@ bool Fail(std::string* error, std::string message) {
   return false;
 }
 
+drivers::DriverStatus Error(drivers::StatusCode code, std::string message) {
+  return drivers::DriverStatus::Error(code, std::move(message));
+}
+
 }  // namespace
 
 DeviceManager::DeviceManager(DeviceSetup setup,
@@ -132,9 +136,16 @@ drivers::CameraSettings DeviceManager::camera_settings() const {
   return camera_settings_;
 }
 
-bool DeviceManager::SwitchScene(const std::string& scene, const BoardSpec* board,
-                                std::string* error) {
-  if (!IsSim() || (scene == scene_ && scene == "object")) return true;
+drivers::DriverStatus DeviceManager::ShowCalibrationTarget(CalibrationTarget target,
+                                                           const BoardSpec& board) {
+  return SwitchScene(target == CalibrationTarget::kHeldBoard ? "held_board" : "platter_board",
+                     &board);
+}
+
+drivers::DriverStatus DeviceManager::ShowObject() { return SwitchScene("object", nullptr); }
+
+drivers::DriverStatus DeviceManager::SwitchScene(const std::string& scene, const BoardSpec* board) {
+  if (!IsSim() || (scene == scene_ && scene == "object")) return drivers::DriverStatus::Ok();
   DeviceSpec camera = setup_.camera, turntable = setup_.turntable;
   const bool shared = camera.driver == turntable.driver && camera.config == turntable.config;
   if (scene != "object") {
@@ -151,74 +162,90 @@ bool DeviceManager::SwitchScene(const std::string& scene, const BoardSpec* board
     }
   }
   if (shared) turntable = camera;
-  if (!OpenLocked(camera, turntable, error)) {
+  std::string error;
+  if (!OpenLocked(camera, turntable, &error)) {
     std::string ignored;
     OpenLocked(setup_.camera, setup_.turntable, &ignored);  // back to the object scene
     scene_ = "object";
-    return false;
+    return Error(drivers::StatusCode::kIoError, error);
   }
   scene_ = scene;
-  return true;
+  return drivers::DriverStatus::Ok();
 }
 
-bool DeviceManager::Capture(drivers::StereoFrame* frame, const std::atomic<bool>& cancel,
-                            std::string* error) {
-  if (!camera_) return Fail(error, "camera: not open");
+drivers::DriverStatus DeviceManager::Capture(drivers::StereoFrame* frame,
+                                             const std::atomic<bool>& cancel) {
+  if (!camera_) return Error(drivers::StatusCode::kWrongState, "camera: not open");
   std::string last;
+  drivers::StatusCode last_code = drivers::StatusCode::kTimeout;
   for (int attempt = 0; attempt < setup_.capture_retries; ++attempt) {
-    if (cancel) return Fail(error, "cancelled");
+    if (cancel) return Error(drivers::StatusCode::kAborted, "camera: capture cancelled");
     drivers::DriverStatus s = camera_->Capture(setup_.capture_timeout, frame);
-    if (s.ok()) return true;
+    if (s.ok()) return s;
     last = s.ToString();
+    last_code = s.code;
     Note("camera", last);
     if (s.code == drivers::StatusCode::kDeviceLost ||
         camera_->state() == drivers::CameraState::kLost) {
       if (log_) log_(drivers::LogLevel::kWarning, "camera lost: " + last + "; reconnecting");
       const drivers::DriverStatus r = camera_->Reconnect();
-      if (!r.ok()) return Fail(error, "camera lost and not recovered: " + r.ToString());
+      if (!r.ok()) {
+        return Error(drivers::StatusCode::kDeviceLost,
+                     "camera lost and not recovered: " + r.ToString());
+      }
       continue;
     }
     if (s.code != drivers::StatusCode::kTimeout && s.code != drivers::StatusCode::kIoError) {
-      return Fail(error, "camera: " + last);
+      return Error(s.code, "camera: " + last);
     }
     if (log_) log_(drivers::LogLevel::kWarning, "capture failed: " + last + "; trying again");
   }
-  return Fail(error, "camera: " + std::to_string(setup_.capture_retries) +
-                         " captures failed; last: " + last);
+  return Error(last_code, "camera: " + std::to_string(setup_.capture_retries) +
+                              " captures failed; last: " + last);
 }
 
-bool DeviceManager::MoveTo(double angle_deg, std::string* error) {
-  if (!turntable_) return Fail(error, "turntable: not open");
+drivers::DriverStatus DeviceManager::MoveTo(double angle_deg) {
+  if (!turntable_) return Error(drivers::StatusCode::kWrongState, "turntable: not open");
   const drivers::DriverStatus s = turntable_->MoveTo(angle_deg, setup_.move_timeout);
   if (!s.ok()) {
     Note("turntable", s.ToString());
-    return Fail(error, "turntable: " + s.ToString());
+    return Error(s.code, "turntable: " + s.ToString());
   }
-  return true;
+  return s;
 }
 
-bool DeviceManager::Home(std::string* error) {
-  if (!turntable_) return Fail(error, "turntable: not open");
+drivers::DriverStatus DeviceManager::Home() {
+  if (!turntable_) return Error(drivers::StatusCode::kWrongState, "turntable: not open");
   const drivers::DriverStatus s = turntable_->Home(setup_.home_timeout);
   if (!s.ok()) {
     Note("turntable", s.ToString());
-    return Fail(error, "turntable: " + s.ToString());
+    return Error(s.code, "turntable: " + s.ToString());
   }
   Note("turntable", "homed");
-  return true;
+  return s;
 }
 
-bool DeviceManager::PrepareTurntable(std::string* error) {
-  if (!turntable_) return Fail(error, "turntable: not open");
+bool DeviceManager::MoveTo(double angle_deg, std::string* error) {
+  const drivers::DriverStatus s = MoveTo(angle_deg);
+  return s.ok() || Fail(error, s.message);
+}
+
+bool DeviceManager::Home(std::string* error) {
+  const drivers::DriverStatus s = Home();
+  return s.ok() || Fail(error, s.message);
+}
+
+drivers::DriverStatus DeviceManager::PrepareTurntable() {
+  if (!turntable_) return Error(drivers::StatusCode::kWrongState, "turntable: not open");
   const drivers::TurntableStatus status = turntable_->Status();
-  if (status.state == drivers::TurntableState::kReady) return true;
+  if (status.state == drivers::TurntableState::kReady) return drivers::DriverStatus::Ok();
   std::string why = "turntable is " + std::string(drivers::ToString(status.state));
   if (!status.fault_reason.empty()) why += " (" + status.fault_reason + ")";
   if (log_) log_(drivers::LogLevel::kInfo, why + ": homing it before the job");
   Note("turntable", why + "; homing");
-  std::string home_error;
-  if (!Home(&home_error)) return Fail(error, why + "; homing failed: " + home_error);
-  return true;
+  const drivers::DriverStatus home = Home();
+  if (!home.ok()) return Error(home.code, why + "; homing failed: " + home.message);
+  return home;
 }
 
 bool DeviceManager::AbortMove() { return turntable_ && turntable_->Abort().ok(); }

@@ -11,41 +11,19 @@
 #include <exception>
 #include <fstream>
 #include <sstream>
+#include <thread>
+#include <type_traits>
 #include <utility>
 
-#include <opencv2/imgcodecs.hpp>
-
 #include "craftscan/daemon/bounded_queue.h"
-#include "craftscan/daemon/report.h"
 #include "craftscan/pipeline/common/atomic_file.h"
 
 namespace craftscan::daemon {
 namespace {
 
-constexpr double kDegToRad = CV_PI / 180;
-
 bool Fail(std::string* error, std::string message) {
   if (error) *error = std::move(message);
   return false;
-}
-
-std::string UtcStamp() {
-  const std::time_t t = std::time(nullptr);
-  std::tm tm{};
-  gmtime_r(&t, &tm);
-  char buffer[32];
-  std::strftime(buffer, sizeof buffer, "%Y%m%d-%H%M%S", &tm);
-  return buffer;
-}
-
-// The prior pose of a view cloud for display: the view taken at commanded
-// angle θ, brought back to the turntable frame at angle 0.
-cv::Matx44d WorldFromView(const StereoCalibration& c, double angle_deg) {
-  if (!c.turntable.valid) return cv::Matx44d::eye();
-  const double a = -angle_deg * kDegToRad;
-  const cv::Matx44d rz(std::cos(a), -std::sin(a), 0, 0, std::sin(a), std::cos(a), 0, 0, 0, 0, 1, 0,
-                       0, 0, 0, 1);
-  return rz * TurntableFromRig(c.turntable);
 }
 
 // The operator's next step after a storage error about a path below `dir`
@@ -74,16 +52,6 @@ std::string StorageAdvice(const std::string& error, const std::string& dir,
 // See JobEngine::kReserveBytes.
 std::string ReservePath(const std::string& data_dir) { return data_dir + "/.craftscand-reserve"; }
 
-nlohmann::json FrameMeta(const drivers::StereoFrame& frame, double angle_deg) {
-  return {
-      {"angle_deg", angle_deg},
-      {"exposure_us", frame.settings.exposure_us},
-      {"gain_db", frame.settings.gain_db},
-      {"pixel_format", std::string(drivers::ToString(frame.settings.pixel_format))},
-      {"left", {{"timestamp_ns", frame.left.timestamp_ns}, {"frame_id", frame.left.frame_id}}},
-      {"right", {{"timestamp_ns", frame.right.timestamp_ns}, {"frame_id", frame.right.frame_id}}}};
-}
-
 }  // namespace
 
 std::string_view ToString(JobState state) {
@@ -111,12 +79,14 @@ struct JobEngine::ScanPlan {
 };
 
 JobEngine::JobEngine(JobEngineOptions options, DeviceManager* devices, SessionStore* store,
-                     JobSink* sink, std::function<void(drivers::LogLevel, std::string_view)> log)
+                     JobSink* sink, std::function<void(drivers::LogLevel, std::string_view)> log,
+                     ReportWriter report)
     : options_(std::move(options)),
       devices_(devices),
       store_(store),
       sink_(sink),
-      log_(std::move(log)) {}
+      log_(std::move(log)),
+      report_(std::move(report)) {}
 
 JobEngine::~JobEngine() { Shutdown(); }
 
@@ -214,7 +184,7 @@ bool JobEngine::WaitIdle(std::chrono::milliseconds timeout) const {
 }
 
 bool JobEngine::Launch(const std::string& verb, const std::string& session,
-                       std::function<void()> body, JobInfo* info, std::string* error) {
+                       std::function<JobOutcome()> body, JobInfo* info, std::string* error) {
   std::unique_lock lock(mutex_);
   if (running_) {
     return Fail(error, "busy: " + current_.id + " (" + current_.verb + ") is running");
@@ -231,25 +201,33 @@ bool JobEngine::Launch(const std::string& verb, const std::string& session,
   current_.session = session;
   current_.stage = "starting";
   running_ = true;
-  cancel_ = false;
+  stop_ = false;
   if (info) *info = current_;
   worker_ = std::thread([this, body = std::move(body)] {
+    JobOutcome outcome;
     try {
-      body();
+      outcome = body();
     } catch (const std::exception& e) {
-      Finish(JobState::kFailed, std::string("internal error: ") + e.what());
+      outcome = {JobState::kFailed, std::string("internal error: ") + e.what(), {}};
     } catch (...) {
-      Finish(JobState::kFailed, "internal error: unknown exception");
+      outcome = {JobState::kFailed, "internal error: unknown exception", {}};
     }
-    std::lock_guard lock(mutex_);
-    if (running_) {  // a body that forgot to finish
-      running_ = false;
-      current_.state = JobState::kFailed;
-      current_.message = "job ended without a result";
-    }
-    idle_.notify_all();
+    Finish(std::move(outcome));
   });
   return true;
+}
+
+StageContext JobEngine::Context(Session* session) {
+  StageContext context;
+  context.session = session;
+  context.sink = sink_;
+  context.progress = [this](const std::string& stage, int current, int total,
+                            const std::string& message) {
+    SetStage(stage, current, total, message);
+  };
+  context.log = log_;
+  context.stop = &stop_;
+  return context;
 }
 
 void JobEngine::SetStage(const std::string& stage, int current, int total,
@@ -264,34 +242,33 @@ void JobEngine::SetStage(const std::string& stage, int current, int total,
   if (sink_) sink_->Progress(job, stage, current, total, message);
 }
 
-void JobEngine::Finish(JobState state, const std::string& message, nlohmann::json result) {
-  if (defer_finish_) {  // RunScan finishes once the session is closed
-    deferred_finish_ = DeferredFinish{state, message, std::move(result)};
-    return;
+void JobEngine::Finish(JobOutcome outcome) {
+  if (outcome.state == JobState::kIdle || outcome.state == JobState::kRunning) {
+    outcome = {JobState::kFailed, "job ended without a result", {}};  // a bug in a Run*
   }
-  std::string job, stage;
+  std::string job;
   {
     std::lock_guard lock(mutex_);
-    current_.state = state;
-    current_.message = message;
-    current_.result = std::move(result);
-    if (state == JobState::kDone) current_.progress = 1;
+    current_.state = outcome.state;
+    current_.message = outcome.message;
+    current_.result = std::move(outcome.result);
+    if (outcome.state == JobState::kDone) current_.progress = 1;
     running_ = false;
     job = current_.id;
     idle_.notify_all();
   }
   if (log_) {
-    log_(state == JobState::kDone ? drivers::LogLevel::kInfo : drivers::LogLevel::kWarning,
-         job + " " + std::string(ToString(state)) + ": " + message);
+    log_(outcome.state == JobState::kDone ? drivers::LogLevel::kInfo : drivers::LogLevel::kWarning,
+         job + " " + std::string(ToString(outcome.state)) + ": " + outcome.message);
   }
-  if (sink_) sink_->Progress(job, std::string(ToString(state)), 1, 1, message);
+  if (sink_) sink_->Progress(job, std::string(ToString(outcome.state)), 1, 1, outcome.message);
 }
 
 bool JobEngine::Cancel(std::string* error) {
   {
     std::lock_guard lock(mutex_);
     if (!running_) return Fail(error, "no job is running");
-    cancel_ = true;
+    stop_ = true;
   }
   // A move can take many seconds: stop the table (the driver's feed hold)
   // instead of waiting for it. The job then ends "cancelled" at that view.
@@ -300,7 +277,7 @@ bool JobEngine::Cancel(std::string* error) {
 }
 
 void JobEngine::Shutdown() {
-  cancel_ = true;
+  stop_ = true;
   if (moving_) devices_->AbortMove();
   if (worker_.joinable()) worker_.join();
 }
@@ -324,10 +301,6 @@ bool JobEngine::StartScan(const ScanRequest& request, JobInfo* info, std::string
   if (!calibration->turntable.valid) {
     return Fail(error, "the calibration has no turntable axis: run calibrate-turntable first");
   }
-  if (Busy()) return Fail(error, "busy: " + Current().id + " (" + Current().verb + ") is running");
-  SessionStore* store = Store(error);
-  if (!store) return false;
-  EnsureReserve();
   auto plan = std::make_shared<ScanPlan>();
   plan->calibration = *calibration;
   plan->views = views;
@@ -336,36 +309,29 @@ bool JobEngine::StartScan(const ScanRequest& request, JobInfo* info, std::string
                                  {"step_deg", step},
                                  {"client", request.client},
                                  {"calibration_id", calibration_id()}};
-  plan->session =
-      store->Create(request.object, "scan", params, std::chrono::system_clock::now(), error);
-  if (!plan->session) {
-    *error += StorageAdvice(*error, store->sessions_dir(), options_.data_dir, "try again");
-    return false;
-  }
-  const std::string current = options_.data_dir + "/calibration/current.yaml";
-  if (!plan->session->CopyCalibration(current, calibration_id(), error)) {
-    RecordState(*plan->session, SessionState::kFailed, *error, nullptr);
-    *error += StorageAdvice(*error, store->sessions_dir(), options_.data_dir, "try again");
-    return false;
-  }
-  return Launch(
-      "scan", plan->session->id(), [this, plan] { RunScan(plan); }, info, error);
+  return StartSessionJob("scan", request.object, params, std::move(plan), info, error);
 }
 
 bool JobEngine::StartCapture(const std::string& object, JobInfo* info, std::string* error) {
   const std::optional<StereoCalibration> calibration = this->calibration();
   if (!calibration) return Fail(error, "no calibration: run calibrate first");
-  if (Busy()) return Fail(error, "busy: " + Current().id + " (" + Current().verb + ") is running");
-  SessionStore* store = Store(error);
-  if (!store) return false;
-  EnsureReserve();
   auto plan = std::make_shared<ScanPlan>();
   plan->calibration = *calibration;
   plan->views = 1;
   plan->step_deg = 0;
   plan->reconstruct = false;
-  plan->session = store->Create(object, "capture", {{"views", 1}, {"step_deg", 0}},
-                                std::chrono::system_clock::now(), error);
+  return StartSessionJob("capture", object, {{"views", 1}, {"step_deg", 0}}, std::move(plan), info,
+                         error);
+}
+
+bool JobEngine::StartSessionJob(const std::string& verb, const std::string& object,
+                                nlohmann::json params, std::shared_ptr<ScanPlan> plan,
+                                JobInfo* info, std::string* error) {
+  if (Busy()) return Fail(error, "busy: " + Current().id + " (" + Current().verb + ") is running");
+  SessionStore* store = Store(error);
+  if (!store) return false;
+  EnsureReserve();
+  plan->session = store->Create(object, verb, params, std::chrono::system_clock::now(), error);
   if (!plan->session) {
     *error += StorageAdvice(*error, store->sessions_dir(), options_.data_dir, "try again");
     return false;
@@ -376,8 +342,9 @@ bool JobEngine::StartCapture(const std::string& object, JobInfo* info, std::stri
     *error += StorageAdvice(*error, store->sessions_dir(), options_.data_dir, "try again");
     return false;
   }
+  const std::string session = plan->session->id();
   return Launch(
-      "capture", plan->session->id(), [this, plan] { RunScan(plan); }, info, error);
+      verb, session, [this, plan] { return RunScan(plan); }, info, error);
 }
 
 bool JobEngine::StartResume(const std::string& session_id, JobInfo* info, std::string* error) {
@@ -410,372 +377,178 @@ bool JobEngine::StartResume(const std::string& session_id, JobInfo* info, std::s
     return false;
   }
   return Launch(
-      "resume", session_id, [this, plan] { RunScan(plan); }, info, error);
+      "resume", session_id, [this, plan] { return RunScan(plan); }, info, error);
 }
 
-void JobEngine::RunScan(const std::shared_ptr<ScanPlan>& plan) {
-  // The session is closed -- its lock released -- before the job is
-  // announced as ended, so a client told "done" or "failed" can open it at
-  // once (resume, craftscan-record, another process). ScanBody's Finish is
-  // held back until then.
-  defer_finish_ = true;
+JobEngine::JobOutcome JobEngine::RunScan(const std::shared_ptr<ScanPlan>& plan) {
+  const std::string sid = plan->session->id();
+  JobOutcome outcome;
   try {
-    ScanBody(plan);
+    outcome = RunScanStages(*plan);
+  } catch (const std::exception& e) {
+    outcome = {
+        JobState::kFailed, "session " + sid + ": internal error: " + e.what(), {{"session", sid}}};
   } catch (...) {
-    defer_finish_ = false;
-    deferred_finish_.reset();
-    plan->session.reset();
-    throw;  // Launch reports it
+    outcome = {JobState::kFailed,
+               "session " + sid + ": internal error: unknown exception",
+               {{"session", sid}}};
   }
-  defer_finish_ = false;
+  // The session is closed -- its lock released -- before the job is
+  // announced as ended (Finish, by the caller), so a client told "done" or
+  // "failed" can open it at once (resume, craftscan-record, another process).
   plan->session.reset();
-  if (deferred_finish_) {
-    DeferredFinish f = std::move(*deferred_finish_);
-    deferred_finish_.reset();
-    Finish(f.state, f.message, std::move(f.result));
+  return outcome;
+}
+
+namespace {
+
+// Turns an exception escaping a stage's thread into its outcome.
+template <class Run>
+auto Guarded(const char* stage, bool resumable, Run run) -> decltype(run()) {
+  const auto failed = [&](const std::string& what) {
+    decltype(run()) out{};
+    if constexpr (std::is_same_v<decltype(out), StageOutcome>) {
+      out = StageOutcome::Error(ErrorCode::kInternal, stage + (": " + what), resumable);
+    } else {
+      out.status = StageOutcome::Error(ErrorCode::kInternal, stage + (": " + what), resumable);
+    }
+    return out;
+  };
+  try {
+    return run();
+  } catch (const std::exception& e) {
+    return failed(e.what());
+  } catch (...) {
+    return failed("unknown exception");
   }
 }
 
-void JobEngine::ScanBody(const std::shared_ptr<ScanPlan>& plan) {
-  Session& session = *plan->session;
-  const std::string sid = session.id();
-  const int n = plan->views;
-  std::string error;
+// The outcome of stages running together: the first failure, else a
+// cancel, else ok. Thread-safe.
+class CombinedOutcome {
+ public:
+  void Add(const StageOutcome& outcome) {
+    std::lock_guard lock(mutex_);
+    if (outcome.cancelled()) {
+      cancelled_ = true;
+    } else if (!outcome.ok() && !failure_) {
+      failure_ = outcome;
+    }
+  }
+  StageOutcome Result() const {
+    std::lock_guard lock(mutex_);
+    if (failure_) return *failure_;
+    return cancelled_ ? StageOutcome::Cancelled() : StageOutcome::Ok();
+  }
 
+ private:
+  mutable std::mutex mutex_;
+  std::optional<StageOutcome> failure_;
+  bool cancelled_ = false;
+};
+
+}  // namespace
+
+JobEngine::JobOutcome JobEngine::RunScanStages(ScanPlan& plan) {
+  Session& session = *plan.session;
+  const std::string sid = session.id();
+  std::string error;
   ViewProcessor processor;
   ViewProcessorOptions view_options = options_.view;
   view_options.num_threads = options_.threads;
-  const auto advice = [&](const std::string& e) {
-    return StorageAdvice(e, session.dir(), options_.data_dir, "resume " + sid);
-  };
-  if (!processor.Init(plan->calibration, view_options, &error)) {
-    RecordState(session, SessionState::kFailed, error, nullptr);
-    Finish(JobState::kFailed, error);
-    return;
+  if (!processor.Init(plan.calibration, view_options, &error)) {
+    return EndSession(session, StageOutcome::Error(ErrorCode::kInvalidArgument, error, false));
   }
   if (!session.SetState(SessionState::kCapturing, "job " + Current().id, &error)) {
-    Finish(JobState::kFailed, error + advice(error), {{"session", sid}});
-    return;
+    return {JobState::kFailed,
+            error + StorageAdvice(error, session.dir(), options_.data_dir, "resume " + sid),
+            {{"session", sid}}};
   }
 
-  struct Captured {
-    int view;
-    double angle_deg;
-    cv::Mat left, right;  // empty: the cloud is already durable
-  };
-  struct Matched {
-    int view;
-    double angle_deg;
-    PointCloud cloud;
-  };
-  BoundedQueue<Captured> q1(static_cast<std::size_t>(options_.queue_capacity));
-  BoundedQueue<Matched> q2(static_cast<std::size_t>(options_.queue_capacity));
-  std::mutex error_mutex;
-  std::string first_error;
-  bool resumable = true;  // interrupted (device, cancel) vs failed (pipeline)
-  auto fail = [&](const std::string& message, bool can_resume) {
-    {
-      std::lock_guard lock(error_mutex);
-      if (first_error.empty()) {
-        first_error = message;
-        resumable = can_resume;
-      }
+  BoundedQueue<CapturedView> q1(static_cast<std::size_t>(options_.queue_capacity));
+  BoundedQueue<MatchedView> q2(static_cast<std::size_t>(options_.queue_capacity));
+  CombinedOutcome combined;
+  // A stage that failed stops the others; one that ended closes its output.
+  const auto ended = [&](const StageOutcome& outcome, auto& output) {
+    combined.Add(outcome);
+    if (!outcome.ok()) {
+      stop_ = true;
+      q1.Close();
+      q2.Close();
     }
-    cancel_ = true;
-    q1.Close();
-    q2.Close();
+    output.Close();
   };
+  const StageContext context = Context(&session);
+  CaptureStage capture(context, devices_, {plan.views, plan.step_deg, options_.settle}, &moving_);
+  MatchStage match(context, &processor, &plan.calibration, plan.views);
+  ReconstructStage::Options build;
+  build.views = plan.views;
+  build.step_deg = plan.step_deg;
+  build.scan = options_.scan;
+  build.scan.num_threads = options_.threads;
+  build.min_disparity = processor.min_disparity();
+  build.num_disparities = processor.num_disparities();
+  ReconstructStage reconstruct(context, &plan.calibration, std::move(build), report_);
 
-  std::vector<std::optional<Matched>> clouds(static_cast<std::size_t>(n));
-  double match_ms = 0, capture_ms = 0;
-  std::thread matcher([&] {
-    try {
-      while (std::optional<Captured> item = q1.Pop()) {
-        if (cancel_) break;
-        Matched out{item->view, item->angle_deg, {}};
-        std::string why;
-        if (item->left.empty()) {
-          if (!session.LoadCloud(item->view, &out.cloud, &why)) {
-            fail("view " + std::to_string(item->view) + ": " + why, false);
-            break;
-          }
-        } else {
-          const auto start = std::chrono::steady_clock::now();
-          ProcessedView v = processor.Process(item->left, item->right);
-          if (!v.ok) {
-            fail("view " + std::to_string(item->view) + ": " + v.message, false);
-            break;
-          }
-          if (!session.StoreDisparity(item->view, v.disparity, &why) ||
-              !session.StoreCloud(item->view, v.cloud_in_rig, &why)) {
-            fail("view " + std::to_string(item->view) + ": " + why, true);
-            break;
-          }
-          match_ms +=
-              std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start)
-                  .count();
-          if (sink_) {
-            sink_->Disparity(sid, item->view, v.disparity, processor.focal_px(),
-                             processor.baseline_mm(), v.min_disparity, v.num_disparities);
-          }
-          out.cloud = std::move(v.cloud_in_rig);
-        }
-        if (sink_) {
-          sink_->Cloud(sid, item->view, out.cloud,
-                       WorldFromView(plan->calibration, item->angle_deg));
-        }
-        SetStage("match", item->view + 1, n,
-                 "view " + std::to_string(item->view) + ": " + std::to_string(out.cloud.size()) +
-                     " points");
-        if (!q2.Push(std::move(out))) break;
-      }
-    } catch (const std::exception& e) {
-      fail(std::string("matching: ") + e.what(), false);
+  std::thread matcher(
+      [&] { ended(Guarded("matching", false, [&] { return match.Run(q1, q2); }), q2); });
+  ReconstructOutcome built;
+  std::thread builder([&] {
+    if (plan.reconstruct) {
+      built = Guarded("reconstruction", false, [&] { return reconstruct.Run(q2); });
+    } else {
+      CollectViews(q2, plan.views);
+      if (stop_) built.status = StageOutcome::Cancelled();
     }
-    q2.Close();
+    combined.Add(built.status);
   });
-  std::thread collector([&] {
-    while (std::optional<Matched> item = q2.Pop()) {
-      clouds[static_cast<std::size_t>(item->view)] = std::move(*item);
-    }
-  });
-
-  // Stage 1 on this thread: capture what is not durable yet, hand on the rest.
-  bool turntable_prepared = false;  // homed first if an earlier job left it faulted
-  try {
-    for (int k = 0; k < n && !cancel_; ++k) {
-      const double angle = k * plan->step_deg;
-      const Manifest manifest = session.manifest();
-      const auto record = manifest.views.find(k);
-      const bool has_capture = record != manifest.views.end() && record->second.HasCapture();
-      const bool has_cloud = has_capture && record->second.HasCloud();
-      if (has_cloud) {
-        if (!q1.Push({k, angle, {}, {}})) break;
-        continue;
-      }
-      Captured item{k, angle, {}, {}};
-      if (has_capture) {
-        nlohmann::json meta;
-        if (!session.LoadCapture(k, &item.left, &item.right, &meta, &error)) {
-          fail("view " + std::to_string(k) + ": stored capture unreadable: " + error, false);
-          break;
-        }
-      } else {
-        const auto start = std::chrono::steady_clock::now();
-        SetStage("capture", k, n, "moving to " + std::to_string(angle) + " deg");
-        if (n > 1 || plan->step_deg != 0) {
-          if (!turntable_prepared && !(turntable_prepared = devices_->PrepareTurntable(&error))) {
-            fail("view " + std::to_string(k) + ": " + error, true);
-            break;
-          }
-          moving_ = true;
-          const bool moved = devices_->MoveTo(angle, &error);
-          moving_ = false;
-          if (!moved) {
-            fail(cancel_ ? "cancelled" : "view " + std::to_string(k) + ": " + error, true);
-            break;
-          }
-          std::this_thread::sleep_for(options_.settle);
-        }
-        drivers::StereoFrame frame;
-        if (!devices_->Capture(&frame, cancel_, &error)) {
-          fail(cancel_ && error == "cancelled" ? "cancelled"
-                                               : "view " + std::to_string(k) + ": " + error,
-               true);
-          break;
-        }
-        if (!session.StoreCapture(k, angle, frame.left.image, frame.right.image,
-                                  FrameMeta(frame, angle), &error)) {
-          fail("view " + std::to_string(k) + ": " + error, true);
-          break;
-        }
-        capture_ms +=
-            std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start)
-                .count();
-        if (sink_) sink_->Capture(sid, k, angle, frame);  // durable: acknowledged
-        SetStage("capture", k + 1, n, "view " + std::to_string(k) + " stored");
-        item.left = frame.left.image;
-        item.right = frame.right.image;
-      }
-      if (!q1.Push(std::move(item))) break;
-    }
-  } catch (const std::exception& e) {
-    fail(std::string("capture: ") + e.what(), true);
-  }
-  q1.Close();
+  ended(Guarded("capture", true, [&] { return capture.Run(q1); }), q1);
   matcher.join();
-  collector.join();
+  builder.join();
 
-  if (first_error.empty() && cancel_) fail("cancelled", true);
-  if (!first_error.empty()) {
-    const SessionState state = resumable ? SessionState::kInterrupted : SessionState::kFailed;
-    std::string message = first_error + advice(first_error);
-    std::string why;
-    const bool recorded = RecordState(session, state, first_error, &why);
-    if (!recorded) {
-      message += "; it could not be marked " + std::string(ToString(state)) + " (" + why +
-                 "): resume marks it";
-    }
-    Finish(first_error == "cancelled" ? JobState::kCancelled : JobState::kFailed,
-           "session " + sid + " " + (recorded ? ToString(state) : "stopped") + ": " + message,
-           {{"session", sid}});
-    return;
+  const StageOutcome outcome = combined.Result();
+  if (!outcome.ok()) return EndSession(session, outcome);
+  nlohmann::json result = {{"session", sid},
+                           {"views", plan.views},
+                           {"capture_ms", capture.capture_ms()},
+                           {"match_ms", match.match_ms()}};
+  if (!plan.reconstruct) {
+    return EndSessionDone(session, "capture stored", "the view is stored",
+                          {JobState::kDone, "session " + sid + ": 1 view captured", result});
   }
+  result.update(built.result);
+  return EndSessionDone(session, built.done_detail, "the outputs are stored",
+                        {JobState::kDone, "session " + sid + ": " + built.summary, result});
+}
 
-  nlohmann::json result = {
-      {"session", sid}, {"views", n}, {"capture_ms", capture_ms}, {"match_ms", match_ms}};
-  if (!plan->reconstruct) {
-    if (!RecordState(session, SessionState::kDone, "capture stored", &error)) {
-      Finish(JobState::kFailed,
-             "session " + sid + ": the view is stored but the session could not be marked done: " +
-                 error + advice(error),
-             {{"session", sid}});
-      return;
-    }
-    Finish(JobState::kDone, "session " + sid + ": 1 view captured", result);
-    return;
+JobEngine::JobOutcome JobEngine::EndSession(Session& session, const StageOutcome& outcome) {
+  const std::string sid = session.id();
+  const SessionState state = outcome.resumable ? SessionState::kInterrupted : SessionState::kFailed;
+  std::string message = outcome.message + StorageAdvice(outcome.message, session.dir(),
+                                                        options_.data_dir, "resume " + sid);
+  std::string why;
+  const bool recorded = RecordState(session, state, outcome.message, &why);
+  if (!recorded) {
+    message += "; it could not be marked " + std::string(ToString(state)) + " (" + why +
+               "): resume marks it";
   }
+  return {outcome.cancelled() ? JobState::kCancelled : JobState::kFailed,
+          "session " + sid + " " + (recorded ? ToString(state) : "stopped") + ": " + message,
+          {{"session", sid}}};
+}
 
-  if (!session.SetState(SessionState::kReconstructing, "registration, fusion, mesh", &error)) {
-    RecordState(session, SessionState::kInterrupted, error, nullptr);
-    Finish(JobState::kFailed, "session " + sid + " interrupted: " + error + advice(error),
-           {{"session", sid}});
-    return;
-  }
-  SetStage("register", 0, 1, "registering " + std::to_string(n) + " views");
-  std::vector<ScanView> views;
-  for (auto& c : clouds) {
-    ScanView v;
-    v.commanded_angle_rad = c->angle_deg * kDegToRad;
-    v.cloud_in_rig = std::move(c->cloud);
-    views.push_back(std::move(v));
-  }
-  ScanOptions scan = options_.scan;
-  scan.num_threads = options_.threads;
-  const auto start = std::chrono::steady_clock::now();
-  const ScanResult r = ReconstructScan(views, plan->calibration.turntable, scan);
-  const double reconstruct_ms =
-      std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count();
-  if (!r.IsUsable()) {
-    RecordState(session, SessionState::kFailed, "reconstruction: " + r.message, nullptr);
-    Finish(JobState::kFailed, "session " + sid + " failed: reconstruction: " + r.message,
-           {{"session", sid}});
-    return;
-  }
-  SetStage("write", 0, 1, "writing fused cloud, mesh and report");
-  bool written = session.StoreOutputWith(
-      "fused.ply",
-      [&](const std::string& path, std::string* why) { return WritePly(path, r.fused, true, why); },
-      &error);
-  if (written && r.mesh.status == MeshResult::Status::kOk) {
-    written = session.StoreOutputWith(
-                  "mesh.ply",
-                  [&](const std::string& path, std::string* why) {
-                    return WriteMeshPly(path, r.mesh.mesh, true, why);
-                  },
-                  &error) &&
-              session.StoreOutputWith(
-                  "mesh.obj",
-                  [&](const std::string& path, std::string* why) {
-                    return WriteMeshObj(path, r.mesh.mesh, why);
-                  },
-                  &error);
-  }
-  const std::string report = ScanReportJson(r);
-  written = written && session.StoreOutput("report.json", report, &error);
-  if (!written) {
-    // Storage, not the pipeline: resumable like a capture that failed.
-    std::string message = error + advice(error);
-    std::string why;
-    const bool recorded =
-        RecordState(session, SessionState::kInterrupted, "outputs: " + error, &why);
-    if (!recorded) message += "; it could not be marked interrupted (" + why + "): resume marks it";
-    Finish(JobState::kFailed,
-           "session " + sid + (recorded ? " interrupted: " : " stopped: ") + message,
-           {{"session", sid}});
-    return;
-  }
-  // The page people look at: measurements, calibration, registration and
-  // pictures. A report that cannot be made is noted, not a failed scan.
-  SetStage("report", 0, 1, "rendering previews and report.html");
-  {
-    const Manifest manifest = session.manifest();
-    ReportInputs inputs;
-    inputs.session_id = sid;
-    inputs.object_name = manifest.object_name;
-    inputs.created_utc = manifest.created_utc;
-    inputs.calibration_id = manifest.calibration_id;
-    inputs.scan_report_json = report;
-    inputs.calibration = &plan->calibration;
-    inputs.fused = &r.fused;
-    if (r.mesh.status == MeshResult::Status::kOk) inputs.mesh = &r.mesh.mesh;
-    for (int k = 0; k < n; ++k) {
-      DisparityView view;
-      view.index = k;
-      view.angle_deg = k * plan->step_deg;
-      view.min_disparity_px = processor.min_disparity();
-      view.max_disparity_px = processor.min_disparity() + processor.num_disparities() - 1;
-      if (session.LoadDisparity(k, &view.disparity_px, nullptr)) {
-        inputs.disparities.push_back(std::move(view));
-      }
-    }
-    ReportFiles files;
-    std::string why;
-    bool ok = MakeReportFiles(inputs, &files, &why);
-    for (std::size_t i = 0; ok && i < files.files.size(); ++i) {
-      ok = session.StoreOutput(files.files[i].name, files.files[i].bytes, &why);
-    }
-    if (!ok && log_) log_(drivers::LogLevel::kWarning, "session " + sid + ": report: " + why);
-    result["report_ms"] = files.render_ms;
-  }
-  if (sink_) sink_->Cloud(sid, -1, r.fused, cv::Matx44d::eye());
-  if (!RecordState(session, SessionState::kDone,
-                   "fused " + std::to_string(r.fused.size()) + " points", &error)) {
-    Finish(JobState::kFailed,
-           "session " + sid +
-               ": the outputs are stored but the session could not be marked done: " + error +
-               advice(error),
-           {{"session", sid}});
-    return;
-  }
-  result["fused_points"] = r.fused.size();
-  result["mesh_vertices"] = r.mesh.mesh.vertices_mm.size();
-  result["reconstruct_ms"] = reconstruct_ms;
-  result["stage_ms"] = {{"condition", r.condition_ms}, {"register", r.register_ms},
-                        {"loop", r.loop_ms},           {"fuse", r.fuse_ms},
-                        {"mesh", r.mesh_ms},           {"measure", r.measure_ms}};
-  result["box_mm"] = {r.box.extents_mm[0], r.box.extents_mm[1], r.box.extents_mm[2]};
-  const nlohmann::json report_json = nlohmann::json::parse(report, nullptr, false);
-  if (report_json.is_object() && report_json.contains("measurement")) {
-    result["measurement"] = report_json["measurement"];
-  }
-  Finish(JobState::kDone,
-         "session " + sid + ": " + std::to_string(n) + " views, " + std::to_string(r.fused.size()) +
-             " fused points",
-         result);
+JobEngine::JobOutcome JobEngine::EndSessionDone(Session& session, const std::string& detail,
+                                                const std::string& stored, JobOutcome done) {
+  std::string error;
+  if (RecordState(session, SessionState::kDone, detail, &error)) return done;
+  return {JobState::kFailed,
+          "session " + session.id() + ": " + stored +
+              " but the session could not be marked done: " + error +
+              StorageAdvice(error, session.dir(), options_.data_dir, "resume " + session.id()),
+          {{"session", session.id()}}};
 }
 
 // --- calibration -------------------------------------------------------------
-
-std::string JobEngine::NewCalibrationDir(std::string* id, std::string* error) {
-  const std::string root = options_.data_dir + "/calibration";
-  ::mkdir(root.c_str(), 0755);
-  std::string candidate = UtcStamp();
-  for (int i = 2; i < 1000; ++i) {
-    const std::string dir = root + "/" + candidate;
-    if (::mkdir(dir.c_str(), 0755) == 0) {
-      *id = candidate;
-      return dir;
-    }
-    if (errno != EEXIST) {
-      Fail(error, "'" + dir + "': " + std::strerror(errno));
-      return {};
-    }
-    candidate = UtcStamp() + "-" + std::to_string(i);
-  }
-  Fail(error, "'" + root + "': no free calibration name");
-  return {};
-}
 
 bool JobEngine::SetCurrentCalibration(const StereoCalibration& calibration, const std::string& id,
                                       std::string* error) {
@@ -793,171 +566,43 @@ bool JobEngine::SetCurrentCalibration(const StereoCalibration& calibration, cons
 
 bool JobEngine::StartCalibrate(JobInfo* info, std::string* error) {
   return Launch(
-      "calibrate", "", [this] { RunCalibrate(); }, info, error);
+      "calibrate", "", [this] { return RunCalibrate(); }, info, error);
 }
 
 bool JobEngine::StartCalibrateTurntable(JobInfo* info, std::string* error) {
   if (!calibration()) return Fail(error, "no calibration: run calibrate first");
   return Launch(
-      "calibrate-turntable", "", [this] { RunCalibrateTurntable(); }, info, error);
+      "calibrate-turntable", "", [this] { return RunCalibrateTurntable(); }, info, error);
 }
 
-void JobEngine::RunCalibrate() {
-  std::string error;
-  if (!devices_->SwitchScene("held_board", &options_.board, &error)) {
-    Finish(JobState::kFailed, "calibrate: " + error);
-    return;
-  }
-  std::string id;
-  const std::string dir = NewCalibrationDir(&id, &error);
-  if (dir.empty()) {
-    devices_->SwitchScene("object", nullptr, &error);
-    Finish(JobState::kFailed, "calibrate: " + error);
-    return;
-  }
-  std::vector<StereoBoardView> views;
-  cv::Size image_size;
-  const int wanted = options_.calibration_views;
-  for (int attempt = 0; attempt < options_.calibration_max_attempts &&
-                        static_cast<int>(views.size()) < wanted && !cancel_;
-       ++attempt) {
-    drivers::StereoFrame frame;
-    if (!devices_->Capture(&frame, cancel_, &error)) break;
-    image_size = frame.left.image.size();
-    StereoBoardView view = DetectStereoBoard("view" + std::to_string(attempt), frame.left.image,
-                                             frame.right.image, options_.board);
-    const bool found = view.left.found && view.right.found;
-    if (found) {
-      char name[32];
-      std::snprintf(name, sizeof name, "/%03zu_", views.size());
-      std::vector<uchar> png;
-      cv::imencode(".png", frame.left.image, png);
-      WriteFileAtomically(dir + name + "left.png", std::string(png.begin(), png.end()), nullptr);
-      cv::imencode(".png", frame.right.image, png);
-      WriteFileAtomically(dir + name + "right.png", std::string(png.begin(), png.end()), nullptr);
-      views.push_back(std::move(view));
-    }
-    SetStage("capture", static_cast<int>(views.size()), wanted,
-             found ? "board found" : "board not found in both images; move the board");
-  }
-  devices_->SwitchScene("object", nullptr, nullptr);
-  if (cancel_) {
-    Finish(JobState::kCancelled, "calibrate cancelled; nothing changed");
-    return;
-  }
-  if (static_cast<int>(views.size()) < wanted) {
-    Finish(JobState::kFailed, "calibrate: the board was found in " + std::to_string(views.size()) +
-                                  " of " + std::to_string(wanted) + " views" +
-                                  (error.empty() ? "" : " (" + error + ")"));
-    return;
-  }
-  SetStage("calibrate", 0, 1, "solving");
-  StereoCalibrationResult r =
-      CalibrateStereo(views, image_size, options_.board, options_.calibration);
-  if (r.status != StereoCalibrationResult::Status::kOk) {
-    Finish(JobState::kFailed, "calibrate: " + r.message);
-    return;
-  }
-  const CalibrationReport& report = r.report();
-  nlohmann::json result = {
-      {"calibration_id", id},
-      {"rms_stereo_px", report.rms_stereo_px},
-      {"rms_left_px", report.rms_left_px},
-      {"rms_right_px", report.rms_right_px},
-      {"epipolar_mean_px", report.epipolar_mean_px},
-      {"views_used", report.views_used},
-      {"verdict", std::string(ToString(report.verdict))},
-      {"verdict_reason", report.verdict_reason},
-      {"focal_px", r.calibration.P1(0, 0)},
-      {"baseline_mm", std::abs(r.calibration.P2(0, 3) / r.calibration.P2(0, 0))}};
-  if (!SaveCalibration(dir + "/calibration.yaml", r.calibration, &error) ||
-      !WriteFileAtomically(dir + "/report.json", result.dump(2), &error)) {
-    Finish(JobState::kFailed, "calibrate: " + error, result);
-    return;
-  }
-  const bool accepted = r.IsUsable() && report.rms_stereo_px <= options_.max_rms_px;
-  result["accepted"] = accepted;
-  if (!accepted) {
-    Finish(JobState::kFailed,
-           "calibrate: rejected (rms " + std::to_string(report.rms_stereo_px) + " px; " +
-               report.verdict_reason + "); the current calibration is unchanged",
-           result);
-    return;
-  }
-  if (!SetCurrentCalibration(r.calibration, id, &error)) {
-    Finish(JobState::kFailed, "calibrate: " + error, result);
-    return;
-  }
-  Finish(JobState::kDone,
-         "calibration " + id + " accepted and current (rms " +
-             std::to_string(report.rms_stereo_px) + " px); run calibrate-turntable next",
-         result);
+JobEngine::JobOutcome JobEngine::RunCalibrate() {
+  CalibrateStage stage(
+      Context(nullptr), devices_,
+      {options_.data_dir, options_.board, options_.calibration_views,
+       options_.calibration_max_attempts, options_.max_rms_px, options_.calibration});
+  return EndCalibration("calibrate", stage.Run());
 }
 
-void JobEngine::RunCalibrateTurntable() {
+JobEngine::JobOutcome JobEngine::RunCalibrateTurntable() {
+  CalibrateTurntableStage stage(
+      Context(nullptr), devices_,
+      {options_.data_dir, options_.turntable_board, options_.turntable_angles_deg, options_.settle,
+       options_.turntable_board_thickness_mm},
+      *calibration(), &moving_);
+  return EndCalibration("calibrate-turntable", stage.Run());
+}
+
+JobEngine::JobOutcome JobEngine::EndCalibration(const std::string& verb,
+                                                CalibrationOutcome outcome) {
+  if (outcome.status.cancelled()) return {JobState::kCancelled, outcome.status.message, {}};
+  if (!outcome.status.ok()) {
+    return {JobState::kFailed, outcome.status.message, std::move(outcome.result)};
+  }
   std::string error;
-  StereoCalibration calibration = *this->calibration();
-  if (!devices_->SwitchScene("platter_board", &options_.turntable_board, &error)) {
-    Finish(JobState::kFailed, "calibrate-turntable: " + error);
-    return;
+  if (!outcome.accepted || !SetCurrentCalibration(*outcome.accepted, outcome.id, &error)) {
+    return {JobState::kFailed, verb + ": " + error, std::move(outcome.result)};
   }
-  std::vector<TurntableStep> steps;
-  const auto& angles = options_.turntable_angles_deg;
-  if (!devices_->PrepareTurntable(&error)) {
-    devices_->SwitchScene("object", nullptr, nullptr);
-    Finish(JobState::kFailed, "calibrate-turntable: " + error);
-    return;
-  }
-  for (std::size_t i = 0; i < angles.size() && !cancel_; ++i) {
-    drivers::StereoFrame frame;
-    if (!devices_->MoveTo(angles[i], &error)) break;
-    std::this_thread::sleep_for(options_.settle);
-    if (!devices_->Capture(&frame, cancel_, &error)) break;
-    TurntableStep step;
-    step.commanded_angle_rad = angles[i] * kDegToRad;
-    step.left = DetectBoard(frame.left.image, options_.turntable_board);
-    SetStage("capture", static_cast<int>(i + 1), static_cast<int>(angles.size()),
-             step.left.found ? "board found" : "board not found: " + step.left.message);
-    steps.push_back(std::move(step));
-  }
-  devices_->MoveTo(0, nullptr);
-  devices_->SwitchScene("object", nullptr, nullptr);
-  if (cancel_) {
-    Finish(JobState::kCancelled, "calibrate-turntable cancelled; nothing changed");
-    return;
-  }
-  if (steps.size() < angles.size()) {
-    Finish(JobState::kFailed, "calibrate-turntable: " + error);
-    return;
-  }
-  TurntableAxisOptions axis_options;
-  axis_options.board_thickness_mm = options_.turntable_board_thickness_mm;
-  const TurntableAxisResult r = CalibrateTurntableAxis(calibration, steps, axis_options);
-  nlohmann::json result = {{"status", std::string(ToString(r.status))},
-                           {"steps_used", r.steps_used},
-                           {"residual_mm", r.residual_mm},
-                           {"max_abs_angle_error_deg", r.max_abs_angle_error_deg},
-                           {"verdict", std::string(ToString(r.verdict))},
-                           {"verdict_reason", r.verdict_reason}};
-  if (!r.IsUsable() || !ApplyTurntableAxis(r, &calibration)) {
-    Finish(JobState::kFailed,
-           "calibrate-turntable: rejected: " + (r.message.empty() ? r.verdict_reason : r.message),
-           result);
-    return;
-  }
-  std::string id;
-  const std::string dir = NewCalibrationDir(&id, &error);
-  if (dir.empty() || !SaveCalibration(dir + "/calibration.yaml", calibration, &error) ||
-      !WriteFileAtomically(dir + "/report.json", result.dump(2), &error) ||
-      !SetCurrentCalibration(calibration, id, &error)) {
-    Finish(JobState::kFailed, "calibrate-turntable: " + error, result);
-    return;
-  }
-  result["calibration_id"] = id;
-  Finish(JobState::kDone,
-         "turntable axis accepted (residual " + std::to_string(r.residual_mm) +
-             " mm); calibration " + id + " is current",
-         result);
+  return {JobState::kDone, outcome.summary, std::move(outcome.result)};
 }
 
 }  // namespace craftscan::daemon

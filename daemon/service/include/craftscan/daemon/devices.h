@@ -45,7 +45,13 @@ struct DeviceReport {
   std::string message;  // last event or error
 };
 
-// Thread-safety: Open/Close/SwitchScene/ApplyCameraSettings from one thread
+// What the cameras are shown for a calibration job.
+enum class CalibrationTarget {
+  kHeldBoard,     // a board held in front of the cameras (stereo calibration)
+  kPlatterBoard,  // a board lying on the platter, turning with it (turntable axis)
+};
+
+// Thread-safety: Open/Close/ShowCalibrationTarget/ShowObject/ApplyCameraSettings from one thread
 // (the job thread or the service's start-up); Reports() from any thread;
 // Capture/MoveTo/Home/PrepareTurntable from the job thread only. Reports()
 // never waits for a device call in progress (a reconnect may take seconds)
@@ -68,25 +74,37 @@ class DeviceManager {
   bool IsSim() const;  // the camera's driver is "sim"
   drivers::CameraSettings camera_settings() const;
 
-  // For calibration on the simulated station: reopens the sim driver with
-  // its `scene` key set ("object", "held_board", "platter_board") showing
-  // `board` (may be null for "object"). On a real station the operator
-  // presents the board and this returns true without changing anything.
-  bool SwitchScene(const std::string& scene, const BoardSpec* board, std::string* error);
+  // Before a calibration job: has `target` showing `board` put in front of
+  // the cameras. On the simulated station the sim driver is reopened with
+  // that scene (the mapping lives here, in devices.cc); on a real station the
+  // operator presents the board and this returns ok without changing
+  // anything. An error names the device.
+  drivers::DriverStatus ShowCalibrationTarget(CalibrationTarget target, const BoardSpec& board);
+  // After a calibration job (also after a failed one): back to the object on
+  // the turntable.
+  drivers::DriverStatus ShowObject();
 
   // One stereo pair. Loss → Reconnect() (the driver's back-off) and retry;
   // timeouts and transport errors (kIoError: e.g. a GigE frame with missing
   // packets, common just after a reconnect) → up to capture_retries tries.
-  // `cancel` is polled between tries.
-  bool Capture(drivers::StereoFrame* frame, const std::atomic<bool>& cancel, std::string* error);
+  // `cancel` is polled between tries: set, the capture ends with kAborted.
+  // Other errors keep the driver's code (kDeviceLost once reconnecting gave
+  // up); the message names the camera and the cause.
+  drivers::DriverStatus Capture(drivers::StereoFrame* frame, const std::atomic<bool>& cancel);
+  // A move stopped by AbortMove() ends with kAborted; a fault (alarm) with
+  // kFault, a move that does not arrive with kTimeout. Messages start
+  // "turntable: ".
+  drivers::DriverStatus MoveTo(double angle_deg);
+  drivers::DriverStatus Home();
+  // The same for callers that only show the message (the command handler).
   bool MoveTo(double angle_deg, std::string* error);
   bool Home(std::string* error);
   // Before a job turns the table: homes it unless it is Ready, i.e. after a
   // fault an earlier job left (alarm, timeout, position mismatch, a lost
   // link: drivers reconnect in Home) or an abort. The operator asked for the
-  // new job; a fault in the middle of a job still ends that job. False with
-  // *error naming the turntable and why it is not ready.
-  bool PrepareTurntable(std::string* error);
+  // new job; a fault in the middle of a job still ends that job. An error
+  // names the turntable and why it is not ready.
+  drivers::DriverStatus PrepareTurntable();
   bool AbortMove();
   drivers::TurntableStatus TurntableStatusNow() const;
   // Stop, Configure with the new settings, Start; on failure the old ones are restored.
@@ -95,6 +113,10 @@ class DeviceManager {
  private:
   bool OpenLocked(const DeviceSpec& camera, const DeviceSpec& turntable, std::string* error);
   void Note(const std::string& device, const std::string& message);
+  // Reopens the sim driver with its `scene` key set ("object", "held_board",
+  // "platter_board") showing `board` (null for "object"); true without a
+  // change on a real station.
+  drivers::DriverStatus SwitchScene(const std::string& scene, const BoardSpec* board);
 
   DeviceSetup setup_;
   std::function<void(drivers::LogLevel, std::string_view)> log_;

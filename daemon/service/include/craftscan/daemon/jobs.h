@@ -10,6 +10,10 @@
 //                        measurements (a session)
 //   resume               an interrupted scan from its last durable step
 //
+// The jobs are made of the stages in stages.h; the engine composes them,
+// records how the session ended and announces the end, in one place
+// (JobEngine::Finish), after the session is closed.
+//
 // A scan runs three stages joined by bounded queues (capacity from the
 // options; a stereo pair is ~8 MB, so 2 keeps memory bounded while capture
 // of view k+1 overlaps matching of view k):
@@ -48,6 +52,7 @@
 
 #include "craftscan/daemon/devices.h"
 #include "craftscan/daemon/session_store.h"
+#include "craftscan/daemon/stages.h"
 #include "craftscan/drivers/camera.h"
 #include "craftscan/pipeline/calib/calibration.h"
 #include "craftscan/pipeline/common/point_cloud.h"
@@ -122,8 +127,10 @@ struct ScanRequest {
 class JobEngine {
  public:
   // `store` may be null while the data directory is unusable (SetStore).
+  // `sink`, `log` and `report` may be null/empty (`report` renders a scan's
+  // report.html and pictures: MakeReportFiles from craftscan/daemon/report.h).
   JobEngine(JobEngineOptions options, DeviceManager* devices, SessionStore* store, JobSink* sink,
-            std::function<void(drivers::LogLevel, std::string_view)> log);
+            std::function<void(drivers::LogLevel, std::string_view)> log, ReportWriter report);
   ~JobEngine();
 
   // Space kept allocated for recording a session's end on a full disk.
@@ -162,17 +169,38 @@ class JobEngine {
 
  private:
   struct ScanPlan;
-  bool Launch(const std::string& verb, const std::string& session, std::function<void()> body,
+  // How a job ended, as Current() and the final Progress tell it.
+  struct JobOutcome {
+    JobState state = JobState::kFailed;
+    std::string message;
+    nlohmann::json result;
+  };
+  bool Launch(const std::string& verb, const std::string& session, std::function<JobOutcome()> body,
               JobInfo* info, std::string* error);
-  void RunScan(const std::shared_ptr<ScanPlan>& plan);
-  void ScanBody(const std::shared_ptr<ScanPlan>& plan);
-  void RunCalibrate();
-  void RunCalibrateTurntable();
+  // Creates the session of a scan or capture with the current calibration
+  // copied in and launches it.
+  bool StartSessionJob(const std::string& verb, const std::string& object, nlohmann::json params,
+                       std::shared_ptr<ScanPlan> plan, JobInfo* info, std::string* error);
+  // Runs the stages, records the session's end, closes the session.
+  JobOutcome RunScan(const std::shared_ptr<ScanPlan>& plan);
+  JobOutcome RunScanStages(ScanPlan& plan);
+  // Records a stopped or failed session job: the session interrupted
+  // (resumable) or failed, and the job's message.
+  JobOutcome EndSession(Session& session, const StageOutcome& outcome);
+  // Records done; a failed job when done cannot be recorded (`stored` says
+  // what is safe on disk then).
+  JobOutcome EndSessionDone(Session& session, const std::string& detail, const std::string& stored,
+                            JobOutcome done);
+  JobOutcome RunCalibrate();
+  JobOutcome RunCalibrateTurntable();
+  // Makes an accepted calibration current, or the failed job saying why.
+  JobOutcome EndCalibration(const std::string& verb, CalibrationOutcome outcome);
+  StageContext Context(Session* session);
   void SetStage(const std::string& stage, int current, int total, const std::string& message);
-  void Finish(JobState state, const std::string& message, nlohmann::json result = {});
+  // The one place a job ends: Current() and the terminal Progress.
+  void Finish(JobOutcome outcome);
   bool SetCurrentCalibration(const StereoCalibration& calibration, const std::string& id,
                              std::string* error);
-  std::string NewCalibrationDir(std::string* id, std::string* error);
   // The session store, or null with *error saying so.
   SessionStore* Store(std::string* error) const;
   // Makes the reserve file if it is missing (best effort).
@@ -185,21 +213,12 @@ class JobEngine {
   // is released once its thread ends).
   void JoinFinishedWorker();
 
-  // Finish called by ScanBody, held until RunScan has closed the session
-  // (worker thread only).
-  struct DeferredFinish {
-    JobState state;
-    std::string message;
-    nlohmann::json result;
-  };
-  bool defer_finish_ = false;
-  std::optional<DeferredFinish> deferred_finish_;
-
   JobEngineOptions options_;
   DeviceManager* devices_;
   std::atomic<SessionStore*> store_;
   JobSink* sink_;
   std::function<void(drivers::LogLevel, std::string_view)> log_;
+  ReportWriter report_;
 
   mutable std::mutex mutex_;  // guards current_, calibration_, calibration_id_
   mutable std::condition_variable idle_;
@@ -208,7 +227,10 @@ class JobEngine {
   std::uint64_t next_job_ = 1;
   std::optional<StereoCalibration> calibration_;
   std::string calibration_id_;
-  std::atomic<bool> cancel_{false};
+  // The running job's stages stop: set by Cancel, Shutdown and by a stage
+  // that failed (so the others stop too); the stages' StageContext::stop.
+  // The job's outcome says which (CombinedOutcome in jobs.cc).
+  std::atomic<bool> stop_{false};
   std::atomic<bool> moving_{false};  // a scan's turntable move is in progress (Cancel aborts it)
   std::thread worker_;
 };

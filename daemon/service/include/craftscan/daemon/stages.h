@@ -1,0 +1,310 @@
+// The stages of the station's jobs (DESIGN.md "The second wave"): each a
+// class with one Run() that returns a typed outcome. JobEngine (jobs.h)
+// composes them on its worker threads; tests call Run() directly.
+//
+//   scan, capture, resume (one session):
+//     CaptureStage      move, settle, trigger, store durably, publish
+//       ─Q1─► MatchStage        rectify, AD-Census, reproject, store, publish
+//       ─Q2─► ReconstructStage  after the last view: ReconstructScan, outputs,
+//                               report (scan and resume of a scan only)
+//   calibrate            CalibrateStage
+//   calibrate-turntable  CalibrateTurntableStage
+//
+// Stopping: a stage polls `stop` (set by a cancel, a shutdown or another
+// stage's failure) at its safe points and ends with kCancelled; so does a
+// stage whose queue was closed under it. Each stage finishes the item in
+// hand first, so whatever it acknowledged is durable. Stages do not record
+// the session's end (the JobEngine does, in one place) and throw nothing
+// the JobEngine does not catch.
+#pragma once
+
+#include <atomic>
+#include <chrono>
+#include <functional>
+#include <optional>
+#include <string>
+#include <string_view>
+#include <vector>
+
+#include <nlohmann/json.hpp>
+#include <opencv2/core.hpp>
+
+#include "craftscan/daemon/bounded_queue.h"
+#include "craftscan/daemon/devices.h"
+#include "craftscan/daemon/session_store.h"
+#include "craftscan/drivers/camera.h"
+#include "craftscan/drivers/host.h"
+#include "craftscan/pipeline/calib/calibration.h"
+#include "craftscan/pipeline/common/point_cloud.h"
+#include "craftscan/pipeline/common/status.h"
+#include "craftscan/pipeline/stereo/view_processing.h"
+#include "craftscan/pipeline/surface/scan_reconstruction.h"
+
+namespace craftscan::daemon {
+
+class JobSink;
+struct ReportInputs;  // craftscan/daemon/report.h
+struct ReportFiles;
+
+// How a stage ended. Callers switch on `code`, never on `message`.
+struct StageOutcome {
+  ErrorCode code = ErrorCode::kOk;
+  // "" when ok; otherwise what failed, naming the view and the cause
+  // ("view 2: camera lost and not recovered: ...", "cancelled").
+  std::string message;
+  // The session can be continued by resume without redoing what is durable
+  // (a device, a storage error, a cancel): it is marked interrupted. False
+  // for an outcome the same data would give again (the pipeline, unreadable
+  // stored data): the session is marked failed.
+  bool resumable = true;
+
+  bool ok() const { return code == ErrorCode::kOk; }
+  bool cancelled() const { return code == ErrorCode::kCancelled; }
+  static StageOutcome Ok() { return {}; }
+  static StageOutcome Cancelled() { return {ErrorCode::kCancelled, "cancelled", true}; }
+  static StageOutcome Error(ErrorCode code, std::string message, bool resumable) {
+    return {code, std::move(message), resumable};
+  }
+};
+
+// The ErrorCode of a device error: kAborted → kCancelled, kDeviceLost →
+// kDeviceLost, kTimeout → kTimeout, kInvalidArgument → kInvalidArgument,
+// kWrongState/kFault/kUnsupported → kFailedPrecondition, kIoError → kIoError.
+ErrorCode ToErrorCode(drivers::StatusCode code);
+
+// Progress of a job: stage name ("capture", "match", "register", ...),
+// current of total, a line for the operator.
+using ProgressFn = std::function<void(const std::string& stage, int current, int total,
+                                      const std::string& message)>;
+using LogFn = std::function<void(drivers::LogLevel, std::string_view)>;
+
+// Renders report.html and its pictures for a finished scan (MakeReportFiles
+// in craftscan/daemon/report.h); false with *error when it cannot.
+using ReportWriter =
+    std::function<bool(const ReportInputs& inputs, ReportFiles* files, std::string* error)>;
+
+// What every stage is given. Pointers are not owned and outlive the stage.
+struct StageContext {
+  Session* session = nullptr;               // the job's session (scan stages)
+  JobSink* sink = nullptr;                  // may be null: nothing published
+  ProgressFn progress;                      // may be empty
+  LogFn log;                                // may be empty
+  const std::atomic<bool>* stop = nullptr;  // may be null: never stopped
+
+  bool Stopping() const { return stop && stop->load(); }
+  // The flag to poll (DeviceManager::Capture): `stop`, or one never set.
+  const std::atomic<bool>& StopFlag() const {
+    static const std::atomic<bool> never{false};
+    return stop ? *stop : never;
+  }
+  void Progress(const std::string& stage, int current, int total,
+                const std::string& message) const {
+    if (progress) progress(stage, current, total, message);
+  }
+  void Log(drivers::LogLevel level, std::string_view message) const {
+    if (log) log(level, message);
+  }
+};
+
+// Q1: a view captured (or loaded from the session); empty images: its cloud
+// is already durable and the match stage loads it.
+struct CapturedView {
+  int view = 0;
+  double angle_deg = 0;
+  cv::Mat left, right;
+};
+// Q2: a view's cloud in the rig frame (mm).
+struct MatchedView {
+  int view = 0;
+  double angle_deg = 0;
+  PointCloud cloud;
+};
+
+// The pose of a view cloud for display: the view taken at commanded angle
+// θ, brought back to the turntable frame at angle 0 (identity without a
+// turntable axis).
+cv::Matx44d WorldFromView(const StereoCalibration& calibration, double angle_deg);
+
+// Views 0..views-1 in order (view k at k·step_deg): a view whose cloud is
+// durable is handed on as it is, a durable capture is loaded, the others
+// are captured (turntable prepared once, moved unless it is a one-view
+// capture with step 0, settle, trigger), stored durably, then published
+// (JobSink::Capture: the acknowledgement) and handed on. Thread: the job's.
+class CaptureStage {
+ public:
+  struct Options {
+    int views = 1;
+    double step_deg = 0;
+    std::chrono::milliseconds settle{0};
+  };
+  // `moving` (may be null) is true while a move is in progress, so a cancel
+  // can abort it (DeviceManager::AbortMove).
+  CaptureStage(StageContext context, DeviceManager* devices, Options options,
+               std::atomic<bool>* moving = nullptr)
+      : context_(std::move(context)), devices_(devices), options_(options), moving_(moving) {}
+
+  // Ends ok once every view is handed on (Q1 is left open: the caller closes
+  // it); kCancelled on stop or a closed Q1; a device error with its code
+  // (resumable); a storage error (resumable); a stored capture that cannot
+  // be read back (not resumable).
+  StageOutcome Run(BoundedQueue<CapturedView>& out);
+  double capture_ms() const { return capture_ms_; }  // moves, captures and stores
+
+ private:
+  StageOutcome CaptureView(int view, double angle_deg, CapturedView* item);
+
+  StageContext context_;
+  DeviceManager* devices_;
+  Options options_;
+  std::atomic<bool>* moving_;
+  bool turntable_prepared_ = false;
+  double capture_ms_ = 0;
+};
+
+// Each view from Q1: rectify, match, reproject, crop (ViewProcessor), store
+// the disparity map and the cloud, publish both (a durable cloud is loaded
+// and published again), hand the cloud on. Thread: its own.
+class MatchStage {
+ public:
+  // `processor` is initialised; `views` is the job's view count (progress).
+  MatchStage(StageContext context, ViewProcessor* processor, const StereoCalibration* calibration,
+             int views)
+      : context_(std::move(context)),
+        processor_(processor),
+        calibration_(calibration),
+        views_(views) {}
+
+  // Ends ok when Q1 is closed and drained (Q2 is left open); kCancelled on
+  // stop or a closed Q2; a pipeline error or an unreadable cloud (not
+  // resumable); a storage error (resumable).
+  StageOutcome Run(BoundedQueue<CapturedView>& in, BoundedQueue<MatchedView>& out);
+  double match_ms() const { return match_ms_; }
+
+ private:
+  StageOutcome MatchView(CapturedView& item, MatchedView* out);
+
+  StageContext context_;
+  ViewProcessor* processor_;
+  const StereoCalibration* calibration_;
+  int views_;
+  double match_ms_ = 0;
+};
+
+// Collects the views from Q2 until it closes: index k holds view k (nullopt
+// for a view that never came). `views` ≥ 0.
+std::vector<std::optional<MatchedView>> CollectViews(BoundedQueue<MatchedView>& in, int views);
+
+struct ReconstructOutcome {
+  StageOutcome status;
+  nlohmann::json result;    // fused_points, mesh_vertices, stage times, box, measurement
+  std::string summary;      // "6 views, 123456 fused points" when ok
+  std::string done_detail;  // the journal entry for done: "fused 123456 points"
+};
+
+// After the last view: session reconstructing, ReconstructScan (registration,
+// loop closure, fusion, mesh, measurements), fused.ply, mesh.ply, mesh.obj
+// and report.json stored, then the report pages (a report that cannot be made
+// is logged, not a failure), then the fused cloud published. Thread: its own.
+class ReconstructStage {
+ public:
+  struct Options {
+    int views = 0;
+    double step_deg = 0;
+    ScanOptions scan;
+    int min_disparity = 0;  // the band searched (for the report's colour scale), px
+    int num_disparities = 0;
+  };
+  // `report` may be empty: no report pages.
+  ReconstructStage(StageContext context, const StereoCalibration* calibration, Options options,
+                   ReportWriter report)
+      : context_(std::move(context)),
+        calibration_(calibration),
+        options_(std::move(options)),
+        report_(std::move(report)) {}
+
+  // Collects Q2 (CollectViews) first. kCancelled on stop, checked once the
+  // views are in and again after ReconstructScan (it cannot be interrupted),
+  // before any output is written; a missing view → kInternal; an unusable
+  // reconstruction (not resumable); a storage error (resumable).
+  ReconstructOutcome Run(BoundedQueue<MatchedView>& in);
+
+ private:
+  void StoreReport(const std::string& report_json, const ScanResult& r, nlohmann::json* result);
+
+  StageContext context_;
+  const StereoCalibration* calibration_;
+  Options options_;
+  ReportWriter report_;
+};
+
+// How a calibration job ended; JobEngine makes `accepted` current.
+struct CalibrationOutcome {
+  StageOutcome status;  // message: the job's message ("calibrate: ...")
+  nlohmann::json result;
+  std::optional<StereoCalibration> accepted;  // set when ok
+  std::string id;                             // the calibration's folder name
+  std::string summary;                        // the job's message when ok
+};
+
+// A new folder <data_dir>/calibration/<UTC stamp>[-n]; its name in *id.
+// "" with *error.
+std::string NewCalibrationDir(const std::string& data_dir, std::string* id, std::string* error);
+
+// Stereo calibration from a board held in front of the cameras: captures
+// until `views` have the board in both images (at most `max_attempts`),
+// keeps their pictures under a new calibration folder, solves, saves
+// calibration.yaml and report.json there; accepted when usable and its RMS
+// is at most max_rms_px. Thread: the job's.
+class CalibrateStage {
+ public:
+  struct Options {
+    std::string data_dir;
+    BoardSpec board;
+    int views = 16;
+    int max_attempts = 40;
+    double max_rms_px = 0.5;
+    StereoCalibrationOptions calibration;
+  };
+  CalibrateStage(StageContext context, DeviceManager* devices, Options options)
+      : context_(std::move(context)), devices_(devices), options_(std::move(options)) {}
+  CalibrationOutcome Run();
+
+ private:
+  CalibrationOutcome Solve(const std::vector<StereoBoardView>& views, cv::Size image_size,
+                           const std::string& dir, const std::string& id);
+
+  StageContext context_;
+  DeviceManager* devices_;
+  Options options_;
+};
+
+// The turntable axis from a board lying on the platter, captured at each of
+// `angles_deg`, added to `calibration` and saved under a new calibration
+// folder. Thread: the job's.
+class CalibrateTurntableStage {
+ public:
+  struct Options {
+    std::string data_dir;
+    BoardSpec board;
+    std::vector<double> angles_deg;
+    std::chrono::milliseconds settle{0};
+    double board_thickness_mm = 3;
+  };
+  CalibrateTurntableStage(StageContext context, DeviceManager* devices, Options options,
+                          StereoCalibration calibration, std::atomic<bool>* moving = nullptr)
+      : context_(std::move(context)),
+        devices_(devices),
+        options_(std::move(options)),
+        calibration_(std::move(calibration)),
+        moving_(moving) {}
+  CalibrationOutcome Run();
+
+ private:
+  StageContext context_;
+  DeviceManager* devices_;
+  Options options_;
+  StereoCalibration calibration_;
+  std::atomic<bool>* moving_;
+};
+
+}  // namespace craftscan::daemon

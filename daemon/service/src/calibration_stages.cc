@@ -1,0 +1,236 @@
+// The calibration jobs' stages: calibrate, calibrate-turntable (stages.h).
+#include <sys/stat.h>
+
+#include <cerrno>
+#include <cmath>
+#include <cstdio>
+#include <cstring>
+#include <ctime>
+#include <thread>
+#include <utility>
+
+#include <opencv2/imgcodecs.hpp>
+
+#include "craftscan/daemon/jobs.h"
+#include "craftscan/daemon/stages.h"
+#include "craftscan/pipeline/common/atomic_file.h"
+
+namespace craftscan::daemon {
+namespace {
+
+constexpr double kDegToRad = CV_PI / 180;
+
+std::string UtcStamp() {
+  const std::time_t t = std::time(nullptr);
+  std::tm tm{};
+  gmtime_r(&t, &tm);
+  char buffer[32];
+  std::strftime(buffer, sizeof buffer, "%Y%m%d-%H%M%S", &tm);
+  return buffer;
+}
+
+CalibrationOutcome Failure(std::string message, nlohmann::json result = {}) {
+  CalibrationOutcome out;
+  out.status = StageOutcome::Error(ErrorCode::kFailedPrecondition, std::move(message), false);
+  out.result = std::move(result);
+  return out;
+}
+
+CalibrationOutcome Cancelled(const std::string& verb) {
+  CalibrationOutcome out;
+  out.status = StageOutcome::Cancelled();
+  out.status.message = verb + " cancelled; nothing changed";
+  return out;
+}
+
+void StorePng(const std::string& path, const cv::Mat& image) {
+  std::vector<uchar> png;
+  cv::imencode(".png", image, png);
+  WriteFileAtomically(path, std::string(png.begin(), png.end()), nullptr);
+}
+
+}  // namespace
+
+std::string NewCalibrationDir(const std::string& data_dir, std::string* id, std::string* error) {
+  const std::string root = data_dir + "/calibration";
+  ::mkdir(root.c_str(), 0755);
+  std::string candidate = UtcStamp();
+  for (int i = 2; i < 1000; ++i) {
+    const std::string dir = root + "/" + candidate;
+    if (::mkdir(dir.c_str(), 0755) == 0) {
+      *id = candidate;
+      return dir;
+    }
+    if (errno != EEXIST) {
+      Fail(error, "'" + dir + "': " + std::strerror(errno));
+      return {};
+    }
+    candidate = UtcStamp() + "-" + std::to_string(i);
+  }
+  Fail(error, "'" + root + "': no free calibration name");
+  return {};
+}
+
+// --- calibrate -----------------------------------------------------------------
+
+CalibrationOutcome CalibrateStage::Run() {
+  if (const drivers::DriverStatus s =
+          devices_->ShowCalibrationTarget(CalibrationTarget::kHeldBoard, options_.board);
+      !s.ok()) {
+    return Failure("calibrate: " + s.message);
+  }
+  std::string error, id;
+  const std::string dir = NewCalibrationDir(options_.data_dir, &id, &error);
+  if (dir.empty()) {
+    devices_->ShowObject();
+    return Failure("calibrate: " + error);
+  }
+  std::vector<StereoBoardView> views;
+  cv::Size image_size;
+  const int wanted = options_.views;
+  for (int attempt = 0; attempt < options_.max_attempts &&
+                        static_cast<int>(views.size()) < wanted && !context_.Stopping();
+       ++attempt) {
+    drivers::StereoFrame frame;
+    const drivers::DriverStatus s = devices_->Capture(&frame, context_.StopFlag());
+    if (!s.ok()) {
+      error = s.message;
+      break;
+    }
+    image_size = frame.left.image.size();
+    StereoBoardView view = DetectStereoBoard("view" + std::to_string(attempt), frame.left.image,
+                                             frame.right.image, options_.board);
+    const bool found = view.left.found && view.right.found;
+    if (found) {
+      char name[32];
+      std::snprintf(name, sizeof name, "/%03zu_", views.size());
+      StorePng(dir + name + "left.png", frame.left.image);
+      StorePng(dir + name + "right.png", frame.right.image);
+      views.push_back(std::move(view));
+    }
+    context_.Progress("capture", static_cast<int>(views.size()), wanted,
+                      found ? "board found" : "board not found in both images; move the board");
+  }
+  devices_->ShowObject();
+  if (context_.Stopping()) return Cancelled("calibrate");
+  if (static_cast<int>(views.size()) < wanted) {
+    return Failure("calibrate: the board was found in " + std::to_string(views.size()) + " of " +
+                   std::to_string(wanted) + " views" + (error.empty() ? "" : " (" + error + ")"));
+  }
+  return Solve(views, image_size, dir, id);
+}
+
+CalibrationOutcome CalibrateStage::Solve(const std::vector<StereoBoardView>& views,
+                                         cv::Size image_size, const std::string& dir,
+                                         const std::string& id) {
+  context_.Progress("calibrate", 0, 1, "solving");
+  StereoCalibrationResult r =
+      CalibrateStereo(views, image_size, options_.board, options_.calibration);
+  if (r.status != StereoCalibrationResult::Status::kOk) return Failure("calibrate: " + r.message);
+  const CalibrationReport& report = r.report();
+  nlohmann::json result = {
+      {"calibration_id", id},
+      {"rms_stereo_px", report.rms_stereo_px},
+      {"rms_left_px", report.rms_left_px},
+      {"rms_right_px", report.rms_right_px},
+      {"epipolar_mean_px", report.epipolar_mean_px},
+      {"views_used", report.views_used},
+      {"verdict", std::string(ToString(report.verdict))},
+      {"verdict_reason", report.verdict_reason},
+      {"focal_px", r.calibration.P1(0, 0)},
+      {"baseline_mm", std::abs(r.calibration.P2(0, 3) / r.calibration.P2(0, 0))}};
+  std::string error;
+  if (!SaveCalibration(dir + "/calibration.yaml", r.calibration, &error) ||
+      !WriteFileAtomically(dir + "/report.json", result.dump(2), &error)) {
+    return Failure("calibrate: " + error, result);
+  }
+  const bool accepted = r.IsUsable() && report.rms_stereo_px <= options_.max_rms_px;
+  result["accepted"] = accepted;
+  if (!accepted) {
+    return Failure("calibrate: rejected (rms " + std::to_string(report.rms_stereo_px) + " px; " +
+                       report.verdict_reason + "); the current calibration is unchanged",
+                   result);
+  }
+  CalibrationOutcome out;
+  out.result = std::move(result);
+  out.accepted = r.calibration;
+  out.id = id;
+  out.summary = "calibration " + id + " accepted and current (rms " +
+                std::to_string(report.rms_stereo_px) + " px); run calibrate-turntable next";
+  return out;
+}
+
+// --- calibrate-turntable -------------------------------------------------------
+
+CalibrationOutcome CalibrateTurntableStage::Run() {
+  if (const drivers::DriverStatus s =
+          devices_->ShowCalibrationTarget(CalibrationTarget::kPlatterBoard, options_.board);
+      !s.ok()) {
+    return Failure("calibrate-turntable: " + s.message);
+  }
+  if (const drivers::DriverStatus s = devices_->PrepareTurntable(); !s.ok()) {
+    devices_->ShowObject();
+    return Failure("calibrate-turntable: " + s.message);
+  }
+  std::vector<TurntableStep> steps;
+  std::string error;
+  const auto& angles = options_.angles_deg;
+  for (std::size_t i = 0; i < angles.size() && !context_.Stopping(); ++i) {
+    if (moving_) *moving_ = true;
+    const drivers::DriverStatus moved = devices_->MoveTo(angles[i]);
+    if (moving_) *moving_ = false;
+    if (!moved.ok()) {
+      error = moved.message;
+      break;
+    }
+    std::this_thread::sleep_for(options_.settle);
+    drivers::StereoFrame frame;
+    const drivers::DriverStatus captured = devices_->Capture(&frame, context_.StopFlag());
+    if (!captured.ok()) {
+      error = captured.message;
+      break;
+    }
+    TurntableStep step;
+    step.commanded_angle_rad = angles[i] * kDegToRad;
+    step.left = DetectBoard(frame.left.image, options_.board);
+    context_.Progress("capture", static_cast<int>(i + 1), static_cast<int>(angles.size()),
+                      step.left.found ? "board found" : "board not found: " + step.left.message);
+    steps.push_back(std::move(step));
+  }
+  devices_->MoveTo(0);
+  devices_->ShowObject();
+  if (context_.Stopping()) return Cancelled("calibrate-turntable");
+  if (steps.size() < angles.size()) return Failure("calibrate-turntable: " + error);
+
+  TurntableAxisOptions axis_options;
+  axis_options.board_thickness_mm = options_.board_thickness_mm;
+  const TurntableAxisResult r = CalibrateTurntableAxis(calibration_, steps, axis_options);
+  nlohmann::json result = {{"status", std::string(ToString(r.status))},
+                           {"steps_used", r.steps_used},
+                           {"residual_mm", r.residual_mm},
+                           {"max_abs_angle_error_deg", r.max_abs_angle_error_deg},
+                           {"verdict", std::string(ToString(r.verdict))},
+                           {"verdict_reason", r.verdict_reason}};
+  StereoCalibration calibration = calibration_;
+  if (!r.IsUsable() || !ApplyTurntableAxis(r, &calibration)) {
+    return Failure(
+        "calibrate-turntable: rejected: " + (r.message.empty() ? r.verdict_reason : r.message),
+        result);
+  }
+  std::string id;
+  const std::string dir = NewCalibrationDir(options_.data_dir, &id, &error);
+  if (dir.empty() || !SaveCalibration(dir + "/calibration.yaml", calibration, &error) ||
+      !WriteFileAtomically(dir + "/report.json", result.dump(2), &error)) {
+    return Failure("calibrate-turntable: " + error, result);
+  }
+  result["calibration_id"] = id;
+  CalibrationOutcome out;
+  out.result = std::move(result);
+  out.accepted = calibration;
+  out.id = id;
+  out.summary = "turntable axis accepted (residual " + std::to_string(r.residual_mm) +
+                " mm); calibration " + id + " is current";
+  return out;
+}
+
+}  // namespace craftscan::daemon

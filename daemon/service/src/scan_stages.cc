@@ -1,0 +1,324 @@
+// The scan's stages: capture, match, reconstruct (stages.h).
+#include <cmath>
+#include <exception>
+#include <thread>
+#include <utility>
+
+#include "craftscan/daemon/jobs.h"
+#include "craftscan/daemon/report.h"
+#include "craftscan/daemon/stages.h"
+
+namespace craftscan::daemon {
+namespace {
+
+constexpr double kDegToRad = CV_PI / 180;
+
+double MsSince(std::chrono::steady_clock::time_point start) {
+  return std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start)
+      .count();
+}
+
+std::string ViewPrefix(int view) { return "view " + std::to_string(view) + ": "; }
+
+nlohmann::json FrameMeta(const drivers::StereoFrame& frame, double angle_deg) {
+  return {
+      {"angle_deg", angle_deg},
+      {"exposure_us", frame.settings.exposure_us},
+      {"gain_db", frame.settings.gain_db},
+      {"pixel_format", std::string(drivers::ToString(frame.settings.pixel_format))},
+      {"left", {{"timestamp_ns", frame.left.timestamp_ns}, {"frame_id", frame.left.frame_id}}},
+      {"right", {{"timestamp_ns", frame.right.timestamp_ns}, {"frame_id", frame.right.frame_id}}}};
+}
+
+// A storage error of the session store: resumable once the operator fixes
+// the disk. (Its code is not carried yet: kIoError.)
+StageOutcome StorageError(int view, const std::string& why) {
+  return StageOutcome::Error(ErrorCode::kIoError, ViewPrefix(view) + why, true);
+}
+
+}  // namespace
+
+ErrorCode ToErrorCode(drivers::StatusCode code) {
+  switch (code) {
+    case drivers::StatusCode::kOk:
+      return ErrorCode::kOk;
+    case drivers::StatusCode::kAborted:
+      return ErrorCode::kCancelled;
+    case drivers::StatusCode::kDeviceLost:
+      return ErrorCode::kDeviceLost;
+    case drivers::StatusCode::kTimeout:
+      return ErrorCode::kTimeout;
+    case drivers::StatusCode::kInvalidArgument:
+      return ErrorCode::kInvalidArgument;
+    case drivers::StatusCode::kIoError:
+      return ErrorCode::kIoError;
+    case drivers::StatusCode::kWrongState:
+    case drivers::StatusCode::kFault:
+    case drivers::StatusCode::kUnsupported:
+      return ErrorCode::kFailedPrecondition;
+  }
+  return ErrorCode::kInternal;
+}
+
+cv::Matx44d WorldFromView(const StereoCalibration& c, double angle_deg) {
+  if (!c.turntable.valid) return cv::Matx44d::eye();
+  const double a = -angle_deg * kDegToRad;
+  const cv::Matx44d rz(std::cos(a), -std::sin(a), 0, 0, std::sin(a), std::cos(a), 0, 0, 0, 0, 1, 0,
+                       0, 0, 0, 1);
+  return rz * TurntableFromRig(c.turntable);
+}
+
+// --- capture -------------------------------------------------------------------
+
+StageOutcome CaptureStage::Run(BoundedQueue<CapturedView>& out) {
+  Session& session = *context_.session;
+  for (int k = 0; k < options_.views; ++k) {
+    if (context_.Stopping()) return StageOutcome::Cancelled();
+    const double angle = k * options_.step_deg;
+    const Manifest manifest = session.manifest();
+    const auto record = manifest.views.find(k);
+    const bool has_capture = record != manifest.views.end() && record->second.HasCapture();
+    CapturedView item{k, angle, {}, {}};
+    if (has_capture && record->second.HasCloud()) {
+      // Durable up to its cloud: the match stage loads it.
+    } else if (has_capture) {
+      std::string why;
+      nlohmann::json meta;
+      if (!session.LoadCapture(k, &item.left, &item.right, &meta, &why)) {
+        return StageOutcome::Error(ErrorCode::kCorrupt,
+                                   ViewPrefix(k) + "stored capture unreadable: " + why, false);
+      }
+    } else if (StageOutcome captured = CaptureView(k, angle, &item); !captured.ok()) {
+      return captured;
+    }
+    if (!out.Push(std::move(item))) return StageOutcome::Cancelled();
+  }
+  return StageOutcome::Ok();
+}
+
+StageOutcome CaptureStage::CaptureView(int k, double angle, CapturedView* item) {
+  const int n = options_.views;
+  // A device error while stopping is the stop (an aborted move, a capture
+  // given up), not a fault of the device.
+  const auto device_error = [&](const drivers::DriverStatus& s) {
+    if (context_.Stopping() || s.code == drivers::StatusCode::kAborted) {
+      return StageOutcome::Cancelled();
+    }
+    return StageOutcome::Error(ToErrorCode(s.code), ViewPrefix(k) + s.message, true);
+  };
+  const auto start = std::chrono::steady_clock::now();
+  context_.Progress("capture", k, n, "moving to " + std::to_string(angle) + " deg");
+  if (n > 1 || options_.step_deg != 0) {
+    if (!turntable_prepared_) {
+      // Homed first if an earlier job left it faulted.
+      const drivers::DriverStatus prepared = devices_->PrepareTurntable();
+      if (!prepared.ok()) return device_error(prepared);
+      turntable_prepared_ = true;
+    }
+    if (moving_) *moving_ = true;
+    const drivers::DriverStatus moved = devices_->MoveTo(angle);
+    if (moving_) *moving_ = false;
+    if (!moved.ok()) return device_error(moved);
+    std::this_thread::sleep_for(options_.settle);
+  }
+  drivers::StereoFrame frame;
+  const drivers::DriverStatus captured = devices_->Capture(&frame, context_.StopFlag());
+  if (!captured.ok()) return device_error(captured);
+  std::string why;
+  if (!context_.session->StoreCapture(k, angle, frame.left.image, frame.right.image,
+                                      FrameMeta(frame, angle), &why)) {
+    return StorageError(k, why);
+  }
+  capture_ms_ += MsSince(start);
+  if (context_.sink) context_.sink->Capture(context_.session->id(), k, angle, frame);  // durable
+  context_.Progress("capture", k + 1, n, "view " + std::to_string(k) + " stored");
+  item->left = frame.left.image;
+  item->right = frame.right.image;
+  return StageOutcome::Ok();
+}
+
+// --- match ---------------------------------------------------------------------
+
+StageOutcome MatchStage::Run(BoundedQueue<CapturedView>& in, BoundedQueue<MatchedView>& out) {
+  while (std::optional<CapturedView> item = in.Pop()) {
+    if (context_.Stopping()) return StageOutcome::Cancelled();
+    MatchedView matched{item->view, item->angle_deg, {}};
+    if (StageOutcome o = MatchView(*item, &matched); !o.ok()) return o;
+    const std::string sid = context_.session->id();
+    if (context_.sink) {
+      context_.sink->Cloud(sid, matched.view, matched.cloud,
+                           WorldFromView(*calibration_, matched.angle_deg));
+    }
+    context_.Progress("match", matched.view + 1, views_,
+                      "view " + std::to_string(matched.view) + ": " +
+                          std::to_string(matched.cloud.size()) + " points");
+    if (!out.Push(std::move(matched))) return StageOutcome::Cancelled();
+  }
+  return context_.Stopping() ? StageOutcome::Cancelled() : StageOutcome::Ok();
+}
+
+StageOutcome MatchStage::MatchView(CapturedView& item, MatchedView* out) {
+  Session& session = *context_.session;
+  std::string why;
+  if (item.left.empty()) {
+    if (!session.LoadCloud(item.view, &out->cloud, &why)) {
+      return StageOutcome::Error(ErrorCode::kCorrupt, ViewPrefix(item.view) + why, false);
+    }
+    return StageOutcome::Ok();
+  }
+  const auto start = std::chrono::steady_clock::now();
+  ProcessedView v = processor_->Process(item.left, item.right);
+  if (!v.ok) {
+    return StageOutcome::Error(ErrorCode::kInvalidArgument, ViewPrefix(item.view) + v.message,
+                               false);
+  }
+  if (!session.StoreDisparity(item.view, v.disparity, &why) ||
+      !session.StoreCloud(item.view, v.cloud_in_rig, &why)) {
+    return StorageError(item.view, why);
+  }
+  match_ms_ += MsSince(start);
+  if (context_.sink) {
+    context_.sink->Disparity(session.id(), item.view, v.disparity, processor_->focal_px(),
+                             processor_->baseline_mm(), v.min_disparity, v.num_disparities);
+  }
+  out->cloud = std::move(v.cloud_in_rig);
+  return StageOutcome::Ok();
+}
+
+// --- reconstruct ---------------------------------------------------------------
+
+std::vector<std::optional<MatchedView>> CollectViews(BoundedQueue<MatchedView>& in, int views) {
+  std::vector<std::optional<MatchedView>> out(static_cast<std::size_t>(views));
+  while (std::optional<MatchedView> item = in.Pop()) {
+    if (item->view >= 0 && item->view < views) {
+      out[static_cast<std::size_t>(item->view)] = std::move(*item);
+    }
+  }
+  return out;
+}
+
+ReconstructOutcome ReconstructStage::Run(BoundedQueue<MatchedView>& in) {
+  ReconstructOutcome out;
+  std::vector<std::optional<MatchedView>> clouds = CollectViews(in, options_.views);
+  if (context_.Stopping()) {
+    out.status = StageOutcome::Cancelled();
+    return out;
+  }
+  std::vector<ScanView> views;
+  for (auto& c : clouds) {
+    if (!c) {
+      out.status =
+          StageOutcome::Error(ErrorCode::kInternal,
+                              "view " + std::to_string(views.size()) + " was never matched", true);
+      return out;
+    }
+    ScanView v;
+    v.commanded_angle_rad = c->angle_deg * kDegToRad;
+    v.cloud_in_rig = std::move(c->cloud);
+    views.push_back(std::move(v));
+  }
+  Session& session = *context_.session;
+  std::string error;
+  if (!session.SetState(SessionState::kReconstructing, "registration, fusion, mesh", &error)) {
+    out.status = StageOutcome::Error(ErrorCode::kIoError, error, true);
+    return out;
+  }
+  const int n = options_.views;
+  context_.Progress("register", 0, 1, "registering " + std::to_string(n) + " views");
+  const auto start = std::chrono::steady_clock::now();
+  const ScanResult r = ReconstructScan(views, calibration_->turntable, options_.scan);
+  const double reconstruct_ms = MsSince(start);
+  if (!r.IsUsable()) {
+    out.status =
+        StageOutcome::Error(ErrorCode::kInvalidArgument, "reconstruction: " + r.message, false);
+    return out;
+  }
+  if (context_.Stopping()) {  // the last safe point: nothing is written yet
+    out.status = StageOutcome::Cancelled();
+    return out;
+  }
+  context_.Progress("write", 0, 1, "writing fused cloud, mesh and report");
+  const bool mesh = r.mesh.status == MeshResult::Status::kOk;
+  const std::string report = ScanReportJson(r);
+  const bool written = session.StoreOutputWith(
+                           "fused.ply",
+                           [&](const std::string& path, std::string* why) {
+                             return WritePly(path, r.fused, true, why);
+                           },
+                           &error) &&
+                       (!mesh || session.StoreOutputWith(
+                                     "mesh.ply",
+                                     [&](const std::string& path, std::string* why) {
+                                       return WriteMeshPly(path, r.mesh.mesh, true, why);
+                                     },
+                                     &error)) &&
+                       (!mesh || session.StoreOutputWith(
+                                     "mesh.obj",
+                                     [&](const std::string& path, std::string* why) {
+                                       return WriteMeshObj(path, r.mesh.mesh, why);
+                                     },
+                                     &error)) &&
+                       session.StoreOutput("report.json", report, &error);
+  if (!written) {
+    // Storage, not the pipeline: resumable like a capture that failed.
+    out.status = StageOutcome::Error(ErrorCode::kIoError, "outputs: " + error, true);
+    return out;
+  }
+  StoreReport(report, r, &out.result);
+  if (context_.sink) context_.sink->Cloud(session.id(), -1, r.fused, cv::Matx44d::eye());
+
+  out.result["fused_points"] = r.fused.size();
+  out.result["mesh_vertices"] = r.mesh.mesh.vertices_mm.size();
+  out.result["reconstruct_ms"] = reconstruct_ms;
+  out.result["stage_ms"] = {{"condition", r.condition_ms}, {"register", r.register_ms},
+                            {"loop", r.loop_ms},           {"fuse", r.fuse_ms},
+                            {"mesh", r.mesh_ms},           {"measure", r.measure_ms}};
+  out.result["box_mm"] = {r.box.extents_mm[0], r.box.extents_mm[1], r.box.extents_mm[2]};
+  const nlohmann::json report_json = nlohmann::json::parse(report, nullptr, false);
+  if (report_json.is_object() && report_json.contains("measurement")) {
+    out.result["measurement"] = report_json["measurement"];
+  }
+  out.summary = std::to_string(n) + " views, " + std::to_string(r.fused.size()) + " fused points";
+  out.done_detail = "fused " + std::to_string(r.fused.size()) + " points";
+  return out;
+}
+
+// The page people look at: measurements, calibration, registration and
+// pictures. A report that cannot be made is noted, not a failed scan.
+void ReconstructStage::StoreReport(const std::string& report_json, const ScanResult& r,
+                                   nlohmann::json* result) {
+  if (!report_) return;
+  Session& session = *context_.session;
+  context_.Progress("report", 0, 1, "rendering previews and report.html");
+  const Manifest manifest = session.manifest();
+  ReportInputs inputs;
+  inputs.session_id = session.id();
+  inputs.object_name = manifest.object_name;
+  inputs.created_utc = manifest.created_utc;
+  inputs.calibration_id = manifest.calibration_id;
+  inputs.scan_report_json = report_json;
+  inputs.calibration = calibration_;
+  inputs.fused = &r.fused;
+  if (r.mesh.status == MeshResult::Status::kOk) inputs.mesh = &r.mesh.mesh;
+  for (int k = 0; k < options_.views; ++k) {
+    DisparityView view;
+    view.index = k;
+    view.angle_deg = k * options_.step_deg;
+    view.min_disparity_px = options_.min_disparity;
+    view.max_disparity_px = options_.min_disparity + options_.num_disparities - 1;
+    if (session.LoadDisparity(k, &view.disparity_px, nullptr)) {
+      inputs.disparities.push_back(std::move(view));
+    }
+  }
+  ReportFiles files;
+  std::string why;
+  bool ok = report_(inputs, &files, &why);
+  for (std::size_t i = 0; ok && i < files.files.size(); ++i) {
+    ok = session.StoreOutput(files.files[i].name, files.files[i].bytes, &why);
+  }
+  if (!ok)
+    context_.Log(drivers::LogLevel::kWarning, "session " + session.id() + ": report: " + why);
+  (*result)["report_ms"] = files.render_ms;
+}
+
+}  // namespace craftscan::daemon

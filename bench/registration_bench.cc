@@ -93,6 +93,7 @@
 #include <opencv2/core/utility.hpp>
 
 #include "command.h"
+#include "craftscan/pipeline/common/pose.h"
 #include "craftscan/pipeline/registration/loop_closure.h"
 #include "craftscan/pipeline/registration/registration.h"
 #include "craftscan/pipeline/registration/scan_dataset.h"

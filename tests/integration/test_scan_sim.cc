@@ -43,7 +43,7 @@
 #include <vector>
 
 #include "craftscan/pipeline/common/point_cloud.h"
-#include "craftscan/pipeline/registration/scan_dataset.h"
+#include "craftscan/pipeline/common/pose.h"
 #include "craftscan/pipeline/stereo/adcensus.h"
 #include "craftscan/pipeline/stereo/reproject.h"
 #include "craftscan/pipeline/surface/fusion.h"
@@ -245,8 +245,13 @@ bool RunSimScan(const sim::SceneOptions& scene_options, int num_views, double st
     // views and would land inside the working volume.
     ReprojectOptions reproject;
     reproject.min_texture_std = 2.5;
-    const std::vector<ColoredPoint> points =
+    const ReprojectResult reprojected =
         ReprojectToPoints(match.disparity, cv::Mat(c.Q), left, reproject);
+    if (!reprojected.IsUsable()) {
+      *error = "view " + std::to_string(k) + ": " + reprojected.message;
+      return false;
+    }
+    const std::vector<ColoredPoint>& points = reprojected.points;
     view.cloud_in_rig.points_mm.reserve(points.size());
     view.cloud_in_rig.colors_rgb.reserve(points.size());
     for (const ColoredPoint& p : points) {
@@ -486,10 +491,7 @@ void RunObject(const sim::SceneOptions& scene, const ScanOptions& options, Objec
   const int previous_threads = cv::getNumThreads();
   cv::setNumThreads(kNumThreads);
   std::string error;
-  WorkingVolume volume;
-  volume.radius_mm = options.volume_radius_mm;
-  volume.min_height_mm = options.volume_min_height_mm;
-  volume.max_height_mm = options.volume_max_height_mm;
+  const WorkingVolume volume = options.volume;
   const bool ok = RunSimScan(scene, kNumViews, kStepRad, volume, &run->scan, &error);
   if (ok) {
     const auto start = std::chrono::steady_clock::now();
@@ -503,7 +505,7 @@ void RunObject(const sim::SceneOptions& scene, const ScanOptions& options, Objec
   ASSERT_TRUE(run->result.IsUsable()) << run->result.message;
   ASSERT_EQ(run->result.view0_from_view.size(), static_cast<std::size_t>(kNumViews));
   ASSERT_TRUE(run->result.turntable_from_view0.has_value());
-  run->figures = Evaluate(run->scan, run->result, options.volume_min_height_mm);
+  run->figures = Evaluate(run->scan, run->result, options.volume.min_height_mm);
 
   const ScanFigures& f = run->figures;
   ::testing::Test::RecordProperty("fused_mean_mm", std::to_string(f.fused_mean_mm));
@@ -644,7 +646,7 @@ TEST(ScanSimTest, Egg) {
   const ScanResult& r = run.result;
   // Truth: the ellipsoid's extents; the working volume drops its lowest
   // volume_min_height_mm.
-  const double height = scene.object.egg.height_mm - options.volume_min_height_mm;
+  const double height = scene.object.egg.height_mm - options.volume.min_height_mm;
   const double diameter = scene.object.egg.diameter_mm;
   std::printf("  oriented box %.3f × %.3f × %.3f mm (truth %.1f × %.1f × %.1f)\n",
               r.box.extents_mm[0], r.box.extents_mm[1], r.box.extents_mm[2], height, diameter,

@@ -14,6 +14,7 @@
 #include <string>
 #include <vector>
 
+#include "craftscan/pipeline/common/ply.h"
 #include "craftscan/pipeline/common/point_cloud.h"
 #include "craftscan/pipeline/surface/fusion.h"
 #include "craftscan/pipeline/surface/mesh.h"

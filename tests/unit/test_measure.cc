@@ -17,8 +17,9 @@
 #include <vector>
 
 #include "craftscan/pipeline/common/point_cloud.h"
-#include "craftscan/pipeline/registration/scan_dataset.h"
+#include "craftscan/pipeline/common/pose.h"
 #include "craftscan/pipeline/surface/measure.h"
+#include "craftscan/pipeline/surface/scan_reconstruction.h"
 #include "test_util.h"
 
 namespace craftscan {
@@ -506,6 +507,29 @@ TEST_F(ReportTest, JsonHasBoxAndEdges) {
 
   EXPECT_FALSE(WriteMeasurementReport(Path("no/such/dir/report.json"), obb, &m, &error));
   EXPECT_FALSE(error.empty());
+}
+
+// Bug found in the "never throws" audit: a message quoting bytes that are not
+// UTF-8 (e.g. a file name) made nlohmann's dump() throw inside
+// ScanReportJson, and the whole report became {"ok": false, "message":
+// "report failed"}. The report keeps every figure and replaces the bytes.
+TEST(ScanReportTest, MessageThatIsNotUtf8KeepsTheReport) {
+  ScanResult result;
+  result.message = "view 2: cannot read '/data/\xff\xfe.ply'";
+  result.views.resize(2);
+  result.views[1].error = "bad \xc3";
+  result.condition_ms = 12.5;
+  std::string report;
+  ASSERT_NO_THROW(report = ScanReportJson(result));
+  const nlohmann::json j = nlohmann::json::parse(report, nullptr, /*allow_exceptions=*/false);
+  ASSERT_FALSE(j.is_discarded()) << report;
+  EXPECT_EQ(j["ok"], false);
+  const std::string message = j["message"].get<std::string>();
+  EXPECT_EQ(message.rfind("view 2: cannot read '/data/", 0), 0u) << message;
+  EXPECT_NE(message.find("\xef\xbf\xbd"), std::string::npos) << message;  // U+FFFD
+  ASSERT_EQ(j["views"].size(), 2u);
+  EXPECT_TRUE(j["views"][1].contains("error"));
+  EXPECT_TRUE(j.contains("times"));
 }
 
 TEST(VertexMethodTest, StringsRoundTrip) {

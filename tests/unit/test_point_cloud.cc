@@ -12,7 +12,9 @@
 #include <string>
 #include <vector>
 
+#include "craftscan/pipeline/common/ply.h"
 #include "craftscan/pipeline/common/point_cloud.h"
+#include "craftscan/pipeline/common/pose.h"
 #include "craftscan/pipeline/registration/scan_dataset.h"
 #include "test_util.h"
 

@@ -65,14 +65,27 @@ TEST(Preprocess, EqualizedOnlySkipsGradientAndEdges) {
   EXPECT_FALSE(all.edges.empty());
 }
 
-TEST(Preprocess, BadInputThrowsWithTheReason) {
+// The inputs that used to throw std::invalid_argument: a failed result that
+// says why, never an exception.
+TEST(Preprocess, BadInputFailsWithTheReason) {
   PreprocessOptions o;
-  EXPECT_THROW(Preprocess(cv::Mat(), o), std::invalid_argument);
-  EXPECT_THROW(Preprocess(cv::Mat(10, 10, CV_32F), o), std::invalid_argument);
+  auto expect_invalid = [](const Preprocessed& p, const std::string& needle) {
+    EXPECT_EQ(p.status, Preprocessed::Status::kInvalidInput);
+    EXPECT_FALSE(p.IsUsable());
+    EXPECT_NE(p.message.find(needle), std::string::npos) << p.message;
+    EXPECT_TRUE(p.image.empty() && p.grey.empty() && p.gradient.empty() && p.edges.empty());
+  };
+  Preprocessed p;
+  EXPECT_NO_THROW(p = Preprocess(cv::Mat(), o));
+  expect_invalid(p, "empty image");
+  EXPECT_NO_THROW(p = Preprocess(cv::Mat(10, 10, CV_32F), o));
+  expect_invalid(p, "CV_8UC1 or CV_8UC3");
   o.canny_aperture = 4;
   std::string why;
   EXPECT_FALSE(o.IsValid(&why));
   EXPECT_NE(why.find("canny_aperture"), std::string::npos);
+  EXPECT_NO_THROW(p = Preprocess(cv::Mat(10, 10, CV_8UC1, cv::Scalar(7)), o));
+  expect_invalid(p, "canny_aperture");
 }
 
 }  // namespace

@@ -6,9 +6,9 @@
 
 #include <opencv2/calib3d.hpp>
 
+#include "craftscan/pipeline/common/pose.h"
 #include "craftscan/pipeline/registration/loop_closure.h"
 #include "craftscan/pipeline/registration/registration.h"
-#include "craftscan/pipeline/registration/scan_dataset.h"
 
 namespace craftscan {
 namespace {

@@ -16,6 +16,21 @@ namespace {
 
 constexpr float kNan = std::numeric_limits<float>::quiet_NaN();
 
+// The points of a usable result (a failed one fails the test).
+std::vector<ColoredPoint> Points(const ReprojectResult& result) {
+  EXPECT_TRUE(result.IsUsable()) << result.message;
+  return result.points;
+}
+
+// Inputs that used to throw std::invalid_argument: a failed result that
+// names the function and the problem, and no points.
+void ExpectInvalidInput(const ReprojectResult& result) {
+  EXPECT_EQ(result.status, ReprojectResult::Status::kInvalidInput);
+  EXPECT_EQ(result.message.rfind("ReprojectToPoints: ", 0), 0u) << result.message;
+  EXPECT_GT(result.message.size(), std::string("ReprojectToPoints: ").size());
+  EXPECT_TRUE(result.points.empty());
+}
+
 // A plane n·p = offset_mm in the rig (rectified left camera) frame.
 struct Plane {
   cv::Vec3d n;
@@ -66,7 +81,8 @@ TEST(ReprojectTest, PlaneWithHandBuiltQ) {
   const RectifiedRig rig{700.0, 319.5, 239.5, 120.0};
   const cv::Size size(640, 480);
   const cv::Mat disparity = PlaneDisparity(rig, kTiltedPlane, size);
-  const std::vector<ColoredPoint> points = ReprojectToPoints(disparity, HandQ(rig), cv::Mat());
+  const std::vector<ColoredPoint> points =
+      Points(ReprojectToPoints(disparity, HandQ(rig), cv::Mat()));
   ASSERT_EQ(points.size(), static_cast<std::size_t>(size.area()));
   ExpectOnPlane(points, kTiltedPlane, 1e-3);
   // Row-major order: the first point is pixel (0, 0), on its ray.
@@ -90,7 +106,7 @@ TEST(ReprojectTest, PlaneWithStereoRectifyQ) {
   ASSERT_NEAR(rig.baseline_mm, 95.0, 1e-9);
 
   const cv::Mat disparity = PlaneDisparity(rig, kTiltedPlane, size);
-  const std::vector<ColoredPoint> points = ReprojectToPoints(disparity, q, cv::Mat());
+  const std::vector<ColoredPoint> points = Points(ReprojectToPoints(disparity, q, cv::Mat()));
   ASSERT_EQ(points.size(), static_cast<std::size_t>(size.area()));
   ExpectOnPlane(points, kTiltedPlane, 1e-3);
 
@@ -111,7 +127,8 @@ TEST(ReprojectTest, SkipsInvalidDisparitiesAndPointsAtInfinity) {
   disparity.at<float>(1, 1) = kNan;
   disparity.at<float>(2, 2) = std::numeric_limits<float>::infinity();
   disparity.at<float>(2, 3) = 0.0f;  // W = 0 with this Q
-  const std::vector<ColoredPoint> points = ReprojectToPoints(disparity, HandQ(rig), cv::Mat());
+  const std::vector<ColoredPoint> points =
+      Points(ReprojectToPoints(disparity, HandQ(rig), cv::Mat()));
   EXPECT_EQ(points.size(), 12u - 4u);
   for (const ColoredPoint& p : points) {
     EXPECT_TRUE(std::isfinite(p.x) && std::isfinite(p.y) && std::isfinite(p.z));
@@ -127,7 +144,7 @@ TEST(ReprojectTest, DepthFilter) {
   options.min_depth_mm = 300;
   options.max_depth_mm = 600;
   const std::vector<ColoredPoint> points =
-      ReprojectToPoints(disparity, HandQ(rig), cv::Mat(), options);
+      Points(ReprojectToPoints(disparity, HandQ(rig), cv::Mat(), options));
   ASSERT_EQ(points.size(), 1u);
   EXPECT_NEAR(points[0].z, 500.0, 1e-3);
 }
@@ -140,7 +157,7 @@ TEST(ReprojectTest, CarriesColour) {
   for (int i = 0; i < 6; ++i) {
     bgr.at<cv::Vec3b>(i / 3, i % 3) = cv::Vec3b(10 * i + 1, 10 * i + 2, 10 * i + 3);
   }
-  std::vector<ColoredPoint> points = ReprojectToPoints(disparity, HandQ(rig), bgr);
+  std::vector<ColoredPoint> points = Points(ReprojectToPoints(disparity, HandQ(rig), bgr));
   ASSERT_EQ(points.size(), 5u);
   // Pixel 0 → point 0; pixel 1 skipped; pixel 2 → point 1.
   EXPECT_EQ(points[0].b, 1);
@@ -154,7 +171,7 @@ TEST(ReprojectTest, CarriesColour) {
   for (int i = 0; i < 6; ++i) {
     grey.at<std::uint8_t>(i / 3, i % 3) = static_cast<std::uint8_t>(7 * i);
   }
-  points = ReprojectToPoints(disparity, HandQ(rig), grey);
+  points = Points(ReprojectToPoints(disparity, HandQ(rig), grey));
   ASSERT_EQ(points.size(), 5u);
   EXPECT_EQ(points[4].r, 35);
   EXPECT_EQ(points[4].g, 35);
@@ -165,19 +182,21 @@ TEST(ReprojectTest, RejectsMismatchedInputs) {
   const RectifiedRig rig{500.0, 1.0, 1.0, 100.0};
   const cv::Mat q = HandQ(rig);
   const cv::Mat disparity(4, 4, CV_32FC1, cv::Scalar(10.0f));
-  EXPECT_THROW(ReprojectToPoints(cv::Mat(), q, cv::Mat()), std::invalid_argument);
-  EXPECT_THROW(ReprojectToPoints(cv::Mat(4, 4, CV_16SC1), q, cv::Mat()), std::invalid_argument);
-  EXPECT_THROW(ReprojectToPoints(disparity, cv::Mat::eye(3, 3, CV_64F), cv::Mat()),
-               std::invalid_argument);
-  EXPECT_THROW(ReprojectToPoints(disparity, q, cv::Mat(3, 4, CV_8UC3)), std::invalid_argument);
-  EXPECT_THROW(ReprojectToPoints(disparity, q, cv::Mat(4, 4, CV_16UC1)), std::invalid_argument);
+  ExpectInvalidInput(ReprojectToPoints(cv::Mat(), q, cv::Mat()));
+  ExpectInvalidInput(ReprojectToPoints(cv::Mat(4, 4, CV_16SC1), q, cv::Mat()));
+  ExpectInvalidInput(ReprojectToPoints(disparity, cv::Mat::eye(3, 3, CV_64F), cv::Mat()));
+  ExpectInvalidInput(ReprojectToPoints(disparity, q, cv::Mat(3, 4, CV_8UC3)));
+  ExpectInvalidInput(ReprojectToPoints(disparity, q, cv::Mat(4, 4, CV_16UC1)));
+  cv::Mat not_finite = q.clone();
+  not_finite.at<double>(0, 3) = std::numeric_limits<double>::infinity();
+  ExpectInvalidInput(ReprojectToPoints(disparity, not_finite, cv::Mat()));
   ReprojectOptions bad;
   bad.min_depth_mm = 10;
   bad.max_depth_mm = 5;
   std::string why;
   EXPECT_FALSE(bad.IsValid(&why));
   EXPECT_FALSE(why.empty());
-  EXPECT_THROW(ReprojectToPoints(disparity, q, cv::Mat(), bad), std::invalid_argument);
+  ExpectInvalidInput(ReprojectToPoints(disparity, q, cv::Mat(), bad));
 }
 
 TEST(ReprojectTest, TextureFilterDropsFlatRegions) {
@@ -195,17 +214,17 @@ TEST(ReprojectTest, TextureFilterDropsFlatRegions) {
     }
   ReprojectOptions options;
   options.min_texture_std = 2.5;
-  const auto points = ReprojectToPoints(disparity, q, color, options);
+  const auto points = Points(ReprojectToPoints(disparity, q, color, options));
   // The 7×7 window straddles the border 3 px into the flat half.
   std::size_t left = 0, right = 0;
   const double f = rig.f_px, cx = rig.cx;
   for (const auto& p : points) (p.x * f / p.z + cx < 36.5 ? left : right)++;
   EXPECT_EQ(left, 0u);
   EXPECT_GE(right, 40u * 40u - 40u * 6u);  // all but the image border rows/cols' edge effects
-  EXPECT_EQ(ReprojectToPoints(disparity, q, color).size(), 80u * 40u);  // off by default
-  EXPECT_THROW(ReprojectToPoints(disparity, q, cv::Mat(), options), std::invalid_argument);
+  EXPECT_EQ(Points(ReprojectToPoints(disparity, q, color)).size(), 80u * 40u);  // off by default
+  ExpectInvalidInput(ReprojectToPoints(disparity, q, cv::Mat(), options));
   options.texture_window = 4;
-  EXPECT_THROW(ReprojectToPoints(disparity, q, color, options), std::invalid_argument);
+  ExpectInvalidInput(ReprojectToPoints(disparity, q, color, options));
 }
 
 }  // namespace

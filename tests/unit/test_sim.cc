@@ -18,8 +18,9 @@
 #include <opencv2/core.hpp>
 #include <opencv2/imgproc.hpp>
 
+#include "craftscan/pipeline/common/ply.h"
+#include "craftscan/pipeline/common/triangle_mesh.h"
 #include "craftscan/sim/calibration_scenes.h"
-#include "craftscan/sim/ply.h"
 #include "craftscan/sim/station.h"
 
 namespace craftscan::sim {
@@ -790,26 +791,27 @@ void WriteText(const std::string& path, const std::string& text) {
 // vertices at the poles and on the equator so its bounding box is exact.
 TriangleMesh Ellipsoid(double a, double c, int segments, int rings) {
   TriangleMesh m;
-  m.vertices.emplace_back(0, 0, 2 * c);
+  m.vertices_mm.emplace_back(0.0f, 0.0f, static_cast<float>(2 * c));
   for (int j = 1; j < rings; ++j) {
     const double theta = kPi * j / rings;
     for (int i = 0; i < segments; ++i) {
       const double phi = 2 * kPi * i / segments;
-      m.vertices.emplace_back(a * std::sin(theta) * std::cos(phi),
-                              a * std::sin(theta) * std::sin(phi), c + c * std::cos(theta));
+      m.vertices_mm.emplace_back(static_cast<float>(a * std::sin(theta) * std::cos(phi)),
+                                 static_cast<float>(a * std::sin(theta) * std::sin(phi)),
+                                 static_cast<float>(c + c * std::cos(theta)));
     }
   }
-  m.vertices.emplace_back(0, 0, 0);
-  const int south = static_cast<int>(m.vertices.size()) - 1;
+  m.vertices_mm.emplace_back(0.0f, 0.0f, 0.0f);
+  const int south = static_cast<int>(m.vertices_mm.size()) - 1;
   auto ring = [&](int j, int i) { return 1 + (j - 1) * segments + (i % segments); };
-  for (int i = 0; i < segments; ++i) m.triangles.emplace_back(0, ring(1, i), ring(1, i + 1));
+  for (int i = 0; i < segments; ++i) m.faces.emplace_back(0, ring(1, i), ring(1, i + 1));
   for (int j = 1; j < rings - 1; ++j)
     for (int i = 0; i < segments; ++i) {
-      m.triangles.emplace_back(ring(j, i), ring(j + 1, i), ring(j + 1, i + 1));
-      m.triangles.emplace_back(ring(j, i), ring(j + 1, i + 1), ring(j, i + 1));
+      m.faces.emplace_back(ring(j, i), ring(j + 1, i), ring(j + 1, i + 1));
+      m.faces.emplace_back(ring(j, i), ring(j + 1, i + 1), ring(j, i + 1));
     }
   for (int i = 0; i < segments; ++i)
-    m.triangles.emplace_back(south, ring(rings - 1, i + 1), ring(rings - 1, i));
+    m.faces.emplace_back(south, ring(rings - 1, i + 1), ring(rings - 1, i));
   return m;
 }
 
@@ -817,9 +819,9 @@ TEST(SimMesh, FineMeshOfTheEggRendersTheEggsDepth) {
   TempDir dir;
   // ~72k triangles: the 70k-triangle case of the issue.
   const TriangleMesh mesh = Ellipsoid(22.5, 30, 256, 142);
-  ASSERT_GT(mesh.triangles.size(), 70000u);
+  ASSERT_GT(mesh.faces.size(), 70000u);
   std::string error;
-  ASSERT_TRUE(SavePly(dir.File("egg.ply"), mesh, /*binary=*/true, &error)) << error;
+  ASSERT_TRUE(WriteMeshPly(dir.File("egg.ply"), mesh, /*binary=*/true, &error)) << error;
 
   auto station = MakeStation(SmallRig());
   SceneOptions analytic;
@@ -830,7 +832,7 @@ TEST(SimMesh, FineMeshOfTheEggRendersTheEggsDepth) {
   meshed.object.mesh.path = dir.File("egg.ply");
   meshed.object.mesh.scale = 1.0;
   const auto mesh_scene = MakeScene(meshed);
-  EXPECT_EQ(mesh_scene->mesh_triangle_count(), mesh.triangles.size());
+  EXPECT_EQ(mesh_scene->mesh_triangle_count(), mesh.faces.size());
   const StereoRender a = station->Render(*MakeScene(analytic));
   const StereoRender m = station->Render(*mesh_scene);
   int both = 0;
@@ -854,15 +856,16 @@ TEST(SimMesh, PlacementScalesRotatesAndSeatsTheMesh) {
   // A unit cube from (0,0,0) to (1,2,3) in file units, +Y up in the file.
   TriangleMesh cube;
   for (int i = 0; i < 8; ++i)
-    cube.vertices.emplace_back(i & 1, 2 * ((i >> 1) & 1), 3 * ((i >> 2) & 1));
+    cube.vertices_mm.emplace_back(static_cast<float>(i & 1), static_cast<float>(2 * ((i >> 1) & 1)),
+                                  static_cast<float>(3 * ((i >> 2) & 1)));
   const int quads[6][4] = {{0, 2, 3, 1}, {4, 5, 7, 6}, {0, 1, 5, 4},
                            {2, 6, 7, 3}, {0, 4, 6, 2}, {1, 3, 7, 5}};
   for (const auto& q : quads) {
-    cube.triangles.emplace_back(q[0], q[1], q[2]);
-    cube.triangles.emplace_back(q[0], q[2], q[3]);
+    cube.faces.emplace_back(q[0], q[1], q[2]);
+    cube.faces.emplace_back(q[0], q[2], q[3]);
   }
   std::string error;
-  ASSERT_TRUE(SavePly(dir.File("cube.ply"), cube, /*binary=*/false, &error)) << error;
+  ASSERT_TRUE(WriteMeshPly(dir.File("cube.ply"), cube, /*binary=*/false, &error)) << error;
   SceneOptions options;
   options.object.type = ObjectType::kMesh;
   options.object.mesh.path = dir.File("cube.ply");
@@ -888,15 +891,14 @@ TEST(SimPly, BinaryAndAsciiRoundTripAndQuadsBecomeFans) {
   std::string error;
   for (bool binary : {true, false}) {
     const std::string path = dir.File(binary ? "b.ply" : "a.ply");
-    ASSERT_TRUE(SavePly(path, mesh, binary, &error)) << error;
+    ASSERT_TRUE(WriteMeshPly(path, mesh, binary, &error)) << error;
     TriangleMesh back;
-    ASSERT_TRUE(LoadPly(path, &back, &error)) << error;
-    ASSERT_EQ(back.vertices.size(), mesh.vertices.size());
-    ASSERT_EQ(back.triangles.size(), mesh.triangles.size());
-    for (std::size_t i = 0; i < mesh.vertices.size(); ++i)
-      EXPECT_LT(cv::norm(back.vertices[i] - mesh.vertices[i]), 1e-6);
-    for (std::size_t i = 0; i < mesh.triangles.size(); ++i)
-      EXPECT_EQ(back.triangles[i], mesh.triangles[i]);
+    ASSERT_TRUE(ReadMeshPly(path, &back, &error)) << error;
+    ASSERT_EQ(back.vertices_mm.size(), mesh.vertices_mm.size());
+    ASSERT_EQ(back.faces.size(), mesh.faces.size());
+    for (std::size_t i = 0; i < mesh.vertices_mm.size(); ++i)
+      EXPECT_LT(cv::norm(back.vertices_mm[i] - mesh.vertices_mm[i]), 1e-6);
+    for (std::size_t i = 0; i < mesh.faces.size(); ++i) EXPECT_EQ(back.faces[i], mesh.faces[i]);
   }
   // Extra properties and elements are skipped; a quad becomes two triangles.
   WriteText(dir.File("quad.ply"),
@@ -906,10 +908,10 @@ TEST(SimPly, BinaryAndAsciiRoundTripAndQuadsBecomeFans) {
             "element edge 1\nproperty int a\nproperty int b\nend_header\n"
             "0 0 0 255\n1 0 0 255\n1 1 0 255\n0 1 0 255\n4 0 1 2 3 7\n0 1\n");
   TriangleMesh quad;
-  ASSERT_TRUE(LoadPly(dir.File("quad.ply"), &quad, &error)) << error;
-  ASSERT_EQ(quad.triangles.size(), 2u);
-  EXPECT_EQ(quad.triangles[0], cv::Vec3i(0, 1, 2));
-  EXPECT_EQ(quad.triangles[1], cv::Vec3i(0, 2, 3));
+  ASSERT_TRUE(ReadMeshPly(dir.File("quad.ply"), &quad, &error)) << error;
+  ASSERT_EQ(quad.faces.size(), 2u);
+  EXPECT_EQ(quad.faces[0], cv::Vec3i(0, 1, 2));
+  EXPECT_EQ(quad.faces[1], cv::Vec3i(0, 2, 3));
 }
 
 TEST(SimPly, ErrorsNameTheFileAndTheProblem) {
@@ -918,18 +920,18 @@ TEST(SimPly, ErrorsNameTheFileAndTheProblem) {
   std::string error;
   auto expect_error = [&](const std::string& path, const std::string& needle) {
     error.clear();
-    EXPECT_FALSE(LoadPly(path, &mesh, &error));
+    EXPECT_FALSE(ReadMeshPly(path, &mesh, &error));
     EXPECT_NE(error.find(path), std::string::npos) << error;
     EXPECT_NE(error.find(needle), std::string::npos) << "'" << needle << "' not in: " << error;
   };
-  expect_error(dir.File("missing.ply"), "cannot open file");
+  expect_error(dir.File("missing.ply"), "no such file");
   WriteText(dir.File("garbage.ply"), "hello world\nthis is not a mesh\n");
   expect_error(dir.File("garbage.ply"), "not a PLY file");
-  WriteText(dir.File("big.ply"),
-            "ply\nformat binary_big_endian 1.0\nelement vertex 0\nend_header\n");
-  expect_error(dir.File("big.ply"), "unsupported format 'binary_big_endian'");
+  WriteText(dir.File("middle.ply"),
+            "ply\nformat binary_middle_endian 1.0\nelement vertex 0\nend_header\n");
+  expect_error(dir.File("middle.ply"), "unsupported format 'binary_middle_endian'");
   WriteText(dir.File("noend.ply"), "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\n");
-  expect_error(dir.File("noend.ply"), "no 'end_header'");
+  expect_error(dir.File("noend.ply"), "without 'end_header'");
   WriteText(dir.File("badprop.ply"),
             "ply\nformat ascii 1.0\nelement vertex 3\nproperty quaternion x\nend_header\n");
   expect_error(dir.File("badprop.ply"), "header line 4: unknown property type 'quaternion'");
@@ -939,29 +941,34 @@ TEST(SimPly, ErrorsNameTheFileAndTheProblem) {
   WriteText(dir.File("range.ply"), header + "0 0 0\n1 0 0\n0 1 0\n3 0 1 7\n");
   expect_error(dir.File("range.ply"), "face 0 refers to vertex 7 but there are 3 vertices");
   WriteText(dir.File("short_ascii.ply"), header + "0 0 0\n1 0 0\n0 1\n");
-  expect_error(dir.File("short_ascii.ply"), "truncated: element 'vertex' item 2 of 3");
+  expect_error(dir.File("short_ascii.ply"), "element 'vertex' entry 2 of 3");
+  expect_error(dir.File("short_ascii.ply"), "truncated file");
   WriteText(dir.File("two.ply"), header + "0 0 0\n1 0 0\n0 1 0\n2 0 1\n");
   expect_error(dir.File("two.ply"), "face 0 has 2 vertices");
   WriteText(dir.File("cloud.ply"),
             "ply\nformat ascii 1.0\nelement vertex 1\nproperty float x\nproperty float y\n"
             "property float z\nend_header\n0 0 0\n");
   expect_error(dir.File("cloud.ply"), "no faces");
-  WriteText(dir.File("word.ply"), header + "0 0 zero\n");
-  expect_error(dir.File("word.ply"), "malformed number in element 'vertex' item 0");
+  WriteText(dir.File("word.ply"), header + "0 0 zero\n1 0 0\n0 1 0\n3 0 1 2\n");
+  expect_error(dir.File("word.ply"), "element 'vertex' entry 0 of 3, property 'z'");
+  expect_error(dir.File("word.ply"), "'zero' is not a number");
+  WriteText(dir.File("nan.ply"), header + "0 0 0\n1 0 nan\n0 1 0\n3 0 1 2\n");
+  expect_error(dir.File("nan.ply"), "mesh vertex 1 is not finite");
 
   // Truncated binary: a valid file cut short inside the face list.
-  ASSERT_TRUE(SavePly(dir.File("full.ply"), Ellipsoid(1, 1, 6, 4), true, &error));
+  ASSERT_TRUE(WriteMeshPly(dir.File("full.ply"), Ellipsoid(1, 1, 6, 4), true, &error));
   std::ifstream in(dir.File("full.ply"), std::ios::binary);
   std::string bytes((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
   WriteText(dir.File("cut.ply"), bytes.substr(0, bytes.size() - 7));
-  expect_error(dir.File("cut.ply"), "truncated: element 'face'");
+  expect_error(dir.File("cut.ply"), "element 'face' entry");
+  expect_error(dir.File("cut.ply"), "truncated file");
 
   // Through the scene: the option is named, then the file's problem.
   SceneOptions options;
   options.object.type = ObjectType::kMesh;
   options.object.mesh.path = dir.File("range.ply");
   EXPECT_EQ(Scene::Create(options, &error), nullptr);
-  EXPECT_EQ(error.rfind("object.mesh: '", 0), 0u) << error;
+  EXPECT_EQ(error.rfind("object.mesh: PLY '", 0), 0u) << error;
   EXPECT_NE(error.find("refers to vertex 7"), std::string::npos) << error;
 }
 

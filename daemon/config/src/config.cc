@@ -386,9 +386,9 @@ bool DaemonConfig::IsValid(std::string* why) const {
                          "° = " + config_internal::FormatNumber(scan.views * scan.step_deg) +
                          "° is more than a full turn");
   }
-  if (!(pipeline.volume_max_height_mm > pipeline.volume_min_height_mm)) {
+  if (!(pipeline.volume.max_height_mm > pipeline.volume.min_height_mm)) {
     return Fail(why, "pipeline.volume_max_height_mm: must be above volume_min_height_mm (" +
-                         config_internal::FormatNumber(pipeline.volume_min_height_mm) + ")");
+                         config_internal::FormatNumber(pipeline.volume.min_height_mm) + ")");
   }
   if (pipeline.num_disparities > 0 && !MatcherOptions(pipeline).IsValid(&what)) {
     return Fail(why, "pipeline: " + what);
@@ -515,9 +515,7 @@ ReprojectOptions ReprojectionOptions(const PipelineSettings& settings) {
 ScanOptions ReconstructionOptions(const PipelineSettings& settings) {
   ScanOptions options;
   options.num_threads = settings.threads;
-  options.volume_radius_mm = settings.volume_radius_mm;
-  options.volume_min_height_mm = settings.volume_min_height_mm;
-  options.volume_max_height_mm = settings.volume_max_height_mm;
+  options.volume = settings.volume;
   options.mesh = settings.mesh;
   options.measure_box = settings.measure_box;
   return options;

@@ -377,13 +377,13 @@ std::vector<Field> MakeFields() {
                         [](DaemonConfig& c) -> double& { return c.pipeline.min_texture_std; },
                         {0, 255}));
   f.push_back(RealField("pipeline.volume_radius_mm",
-                        [](DaemonConfig& c) -> double& { return c.pipeline.volume_radius_mm; },
+                        [](DaemonConfig& c) -> double& { return c.pipeline.volume.radius_mm; },
                         {0, kMax, true}));
   f.push_back(RealField("pipeline.volume_min_height_mm",
-                        [](DaemonConfig& c) -> double& { return c.pipeline.volume_min_height_mm; },
+                        [](DaemonConfig& c) -> double& { return c.pipeline.volume.min_height_mm; },
                         {-1000, kMax}));
   f.push_back(RealField("pipeline.volume_max_height_mm",
-                        [](DaemonConfig& c) -> double& { return c.pipeline.volume_max_height_mm; },
+                        [](DaemonConfig& c) -> double& { return c.pipeline.volume.max_height_mm; },
                         {-1000, kMax}));
   f.push_back(BoolField("pipeline.mesh", [](DaemonConfig& c) -> bool& { return c.pipeline.mesh; }));
   f.push_back(BoolField("pipeline.measure_box",

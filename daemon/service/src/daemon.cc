@@ -303,9 +303,7 @@ std::unique_ptr<Daemon> Daemon::Create(const DaemonConfig& config, std::string* 
   jobs.settle = std::chrono::milliseconds(config.scan.settle_ms);
   jobs.queue_capacity = config.limits.queue_capacity;
   jobs.threads = config.pipeline.threads;
-  jobs.view.volume_radius_mm = config.pipeline.volume_radius_mm;
-  jobs.view.volume_min_height_mm = config.pipeline.volume_min_height_mm;
-  jobs.view.volume_max_height_mm = config.pipeline.volume_max_height_mm;
+  jobs.view.volume = config.pipeline.volume;
   jobs.view.min_texture_std = config.pipeline.min_texture_std;
   jobs.view.min_disparity = config.pipeline.min_disparity;
   jobs.view.num_disparities = config.pipeline.num_disparities;

@@ -34,11 +34,13 @@ struct Node {
 
 class MeshShape : public Primitive {
  public:
-  MeshShape(TriangleMesh mesh, std::uint64_t seed) : Primitive(SurfaceLabel::kObject), seed_(seed) {
-    vertices_.reserve(mesh.vertices.size());
-    for (const cv::Vec3d& v : mesh.vertices) vertices_.push_back(FromCv(v));
-    triangles_.reserve(mesh.triangles.size());
-    for (const cv::Vec3i& t : mesh.triangles) triangles_.push_back({t[0], t[1], t[2]});
+  MeshShape(const std::vector<cv::Vec3d>& vertices_mm, const std::vector<cv::Vec3i>& triangles,
+            std::uint64_t seed)
+      : Primitive(SurfaceLabel::kObject), seed_(seed) {
+    vertices_.reserve(vertices_mm.size());
+    for (const cv::Vec3d& v : vertices_mm) vertices_.push_back(FromCv(v));
+    triangles_.reserve(triangles.size());
+    for (const cv::Vec3i& t : triangles) triangles_.push_back({t[0], t[1], t[2]});
     // Area-weighted vertex normals (the cross product's length is 2·area).
     normals_.assign(vertices_.size(), V3(0, 0, 0));
     for (const auto& t : triangles_) {
@@ -235,8 +237,9 @@ class MeshShape : public Primitive {
 
 }  // namespace
 
-std::unique_ptr<Primitive> MakeMesh(TriangleMesh mesh, std::uint64_t seed) {
-  return std::make_unique<MeshShape>(std::move(mesh), seed);
+std::unique_ptr<Primitive> MakeMesh(std::vector<cv::Vec3d> vertices_mm,
+                                    std::vector<cv::Vec3i> triangles, std::uint64_t seed) {
+  return std::make_unique<MeshShape>(vertices_mm, triangles, seed);
 }
 
 }  // namespace craftscan::sim

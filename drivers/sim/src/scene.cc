@@ -5,7 +5,8 @@
 
 #include <opencv2/calib3d.hpp>
 
-#include "craftscan/sim/ply.h"
+#include "craftscan/pipeline/common/ply.h"
+#include "craftscan/pipeline/common/triangle_mesh.h"
 #include "scene_impl.h"
 #include "shapes.h"
 #include "texture.h"
@@ -27,16 +28,19 @@ Rigid Rotation(const M3& R) {
 
 // Scales, rotates and seats the mesh: bounding box centred on the z axis,
 // bottom at z = 0 (object frame, mm).
-bool PlaceMesh(const MeshOptions& o, TriangleMesh* mesh, std::string* error) {
-  if (mesh->vertices.empty() || mesh->triangles.empty()) {
+bool PlaceMesh(const MeshOptions& o, const TriangleMesh& mesh, std::vector<cv::Vec3d>* vertices_mm,
+               std::string* error) {
+  if (mesh.vertices_mm.empty() || mesh.faces.empty()) {
     *error = "object.mesh: '" + o.path + "' has no triangles";
     return false;
   }
   const M3 R = M3::Rodrigues(o.rotation_rad);
   V3 lo(1e300, 1e300, 1e300), hi(-1e300, -1e300, -1e300);
-  for (cv::Vec3d& v : mesh->vertices) {
-    const V3 p = R * FromCv(v);
-    v = ToCv(p);
+  vertices_mm->clear();
+  vertices_mm->reserve(mesh.vertices_mm.size());
+  for (const cv::Vec3f& file_vertex : mesh.vertices_mm) {
+    const V3 p = R * FromCv(cv::Vec3d(file_vertex));
+    vertices_mm->push_back(ToCv(p));
     lo = V3(std::min(lo.x, p.x), std::min(lo.y, p.y), std::min(lo.z, p.z));
     hi = V3(std::max(hi.x, p.x), std::max(hi.y, p.y), std::max(hi.z, p.z));
   }
@@ -48,7 +52,7 @@ bool PlaceMesh(const MeshOptions& o, TriangleMesh* mesh, std::string* error) {
   }
   const double scale = o.size_mm > 0 ? o.size_mm / largest : o.scale;
   const V3 offset(-(lo.x + hi.x) / 2, -(lo.y + hi.y) / 2, -lo.z);
-  for (cv::Vec3d& v : mesh->vertices) v = ToCv((FromCv(v) + offset) * scale);
+  for (cv::Vec3d& v : *vertices_mm) v = ToCv((FromCv(v) + offset) * scale);
   return true;
 }
 
@@ -156,18 +160,19 @@ std::unique_ptr<Scene> Scene::Create(const SceneOptions& options, std::string* e
       object = MakeEmbroidery(o.embroidery, object_seed, &s.object_from_local);
       break;
     case ObjectType::kMesh: {
-      TriangleMesh mesh;
+      TriangleMesh mesh;  // file units
       std::string load_error;
-      if (!LoadPly(o.mesh.path, &mesh, &load_error)) {
+      if (!ReadMeshPly(o.mesh.path, &mesh, &load_error)) {
         if (error) *error = "object.mesh: " + load_error;
         return nullptr;
       }
-      if (!PlaceMesh(o.mesh, &mesh, &load_error)) {
+      std::vector<cv::Vec3d> vertices_mm;
+      if (!PlaceMesh(o.mesh, mesh, &vertices_mm, &load_error)) {
         if (error) *error = load_error;
         return nullptr;
       }
-      s.mesh_triangles = mesh.triangles.size();
-      object = MakeMesh(std::move(mesh), object_seed);
+      s.mesh_triangles = mesh.faces.size();
+      object = MakeMesh(std::move(vertices_mm), std::move(mesh.faces), object_seed);
       break;
     }
   }

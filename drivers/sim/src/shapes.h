@@ -5,8 +5,10 @@
 #include <cstdint>
 #include <memory>
 #include <string>
+#include <vector>
 
-#include "craftscan/sim/ply.h"
+#include <opencv2/core/matx.hpp>
+
 #include "craftscan/sim/station.h"
 #include "math.h"
 
@@ -54,8 +56,10 @@ std::unique_ptr<Primitive> MakeCarvedBox(const CarvedBoxOptions& options, std::u
 // receives the tilt and lift that rest it on the platter.
 std::unique_ptr<Primitive> MakeEmbroidery(const EmbroideryOptions& options, std::uint64_t seed,
                                           Rigid* object_from_disc);
-// `mesh` in object-frame millimetres.
-std::unique_ptr<Primitive> MakeMesh(TriangleMesh mesh, std::uint64_t seed);
+// A triangle mesh (common/triangle_mesh.h faces) whose vertices were placed
+// in the object frame (millimetres, double: placement keeps full precision).
+std::unique_ptr<Primitive> MakeMesh(std::vector<cv::Vec3d> vertices_mm,
+                                    std::vector<cv::Vec3i> triangles, std::uint64_t seed);
 // Local frame = board frame. Null with *error on failure (e.g. OpenCV).
 std::unique_ptr<Primitive> MakeBoard(const BoardOptions& options, std::string* error);
 

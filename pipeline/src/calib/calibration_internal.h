@@ -7,16 +7,14 @@
 #include <vector>
 
 #include "craftscan/pipeline/calib/calibration.h"
+#include "craftscan/pipeline/common/status.h"
 
 namespace craftscan::calib_internal {
 
 inline constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
 
-// Sets *why (may be null) and returns false.
-inline bool Fail(std::string* why, std::string reason) {
-  if (why != nullptr) *why = std::move(reason);
-  return false;
-}
+// Fail(why, reason): common/status.h.
+using craftscan::Fail;
 
 template <int M, int N>
 bool AllFinite(const cv::Matx<double, M, N>& m) {

@@ -131,9 +131,7 @@ class Reader {
  public:
   Reader(std::string path, std::string* error) : path_(std::move(path)), error_(error) {}
 
-  bool Fail(const std::string& what) {
-    return calib_internal::Fail(error_, "'" + path_ + "': " + what);
-  }
+  bool Fail(const std::string& what) { return craftscan::Fail(error_, "'" + path_ + "': " + what); }
 
   bool Node(const cv::FileNode& parent, const std::string& key, const std::string& name,
             cv::FileNode* out) {

@@ -43,36 +43,18 @@ double AngleAbout(const cv::Matx33d& r, const cv::Vec3d& d) {
   return std::atan2(d.dot(v.cross(w)), v.dot(w));
 }
 
-}  // namespace
-
-TurntableAxisResult CalibrateTurntableAxis(const StereoCalibration& calibration,
-                                           const std::vector<TurntableStep>& steps,
-                                           const TurntableAxisOptions& options) {
-  using Status = TurntableAxisResult::Status;
-  TurntableAxisResult result;
-  result.steps.resize(steps.size());
-  std::string why;
-  if (!options.IsValid(&why)) {
-    result.message = "options: " + why;
-    return result;
-  }
-  if (!calibration.IsValid(&why)) {
-    result.message = "calibration: " + why;
-    return result;
-  }
-  if (calibration.board.IsRotationallySymmetric()) {
-    result.message = "the " + Describe(calibration.board) +
-                     " looks the same turned by 180° (cols + rows even), so its corner order "
-                     "cannot follow the turntable; use a board with one odd and one even side "
-                     "(e.g. 9x6) or a ChArUco board";
-    return result;
-  }
-
-  // Board poses in the rig frame (rectified left camera).
+// Board poses in the rig frame (rectified left camera) for every step that
+// sees the board; fills result->steps and *used. False (result->message set)
+// for a step whose commanded angle is not finite.
+bool BoardPosesInRig(const StereoCalibration& calibration, const std::vector<TurntableStep>& steps,
+                     TurntableAxisResult* result_out, std::vector<Pose>* poses_out,
+                     std::vector<std::size_t>* used_out) {
+  TurntableAxisResult& result = *result_out;
+  std::vector<Pose>& poses = *poses_out;
+  std::vector<std::size_t>& used = *used_out;
   const cv::Mat k(calibration.left.camera_matrix);
   const cv::Mat dist = calibration.left.DistortionCoeffs();
-  std::vector<Pose> poses(steps.size());
-  std::vector<std::size_t> used;
+  poses.assign(steps.size(), Pose{});
   for (std::size_t i = 0; i < steps.size(); ++i) {
     TurntableAxisResult::Step& s = result.steps[i];
     const TurntableStep& step = steps[i];
@@ -80,7 +62,7 @@ TurntableAxisResult CalibrateTurntableAxis(const StereoCalibration& calibration,
     const std::string name = "step " + std::to_string(i);
     if (!std::isfinite(step.commanded_angle_rad)) {
       result.message = name + ": commanded angle is not finite";
-      return result;
+      return false;
     }
     if (!step.left.found) {
       s.message = step.left.message.empty() ? "board not found" : step.left.message;
@@ -115,33 +97,16 @@ TurntableAxisResult CalibrateTurntableAxis(const StereoCalibration& calibration,
     s.used = true;
     used.push_back(i);
   }
-  result.steps_used = static_cast<int>(used.size());
-  if (result.steps_used < options.min_steps) {
-    result.status = Status::kTooFewSteps;
-    result.message = "too few turntable steps with the board: " + std::to_string(used.size()) +
-                     " of " + std::to_string(steps.size()) + ", need " +
-                     std::to_string(options.min_steps);
-    for (std::size_t i = 0; i < steps.size(); ++i) {
-      if (!result.steps[i].used) {
-        result.message += "; step " + std::to_string(i) + ": " + result.steps[i].message;
-      }
-    }
-    return result;
-  }
-  const std::size_t first = used.front();
-  double span = 0;
-  for (std::size_t i : used) {
-    span =
-        std::max(span, std::abs(steps[i].commanded_angle_rad - steps[first].commanded_angle_rad));
-  }
-  if (span < options.min_span_rad) {
-    result.message = "commanded angles span only " + Fixed(span * kRadToDeg, 2) + "°, need " +
-                     Fixed(options.min_span_rad * kRadToDeg, 2) + "° for a well-defined axis";
-    return result;
-  }
+  return true;
+}
 
-  // Direction: the vector every relative rotation leaves fixed,
-  // argmin Σ |(R_rel − I)·d|² (weights large rotations more).
+// The axis direction: the vector every relative rotation leaves fixed,
+// argmin Σ |(R_rel − I)·d|² (weights large rotations more), oriented so that
+// positive commanded angles turn right-handed about it. False when the poses
+// do not rotate about a common axis.
+bool FitAxisDirection(const std::vector<Pose>& poses, const std::vector<std::size_t>& used,
+                      const std::vector<TurntableStep>& steps, cv::Vec3d* direction) {
+  const std::size_t first = used.front();
   const Pose& p0 = poses[first];
   cv::Matx33d m = cv::Matx33d::zeros();
   for (std::size_t i : used) {
@@ -151,9 +116,7 @@ TurntableAxisResult CalibrateTurntableAxis(const StereoCalibration& calibration,
   cv::Mat eigenvalues, eigenvectors;
   cv::eigen(cv::Mat(m), eigenvalues, eigenvectors);  // descending
   if (!(eigenvalues.at<double>(1) > 1e-6)) {
-    result.status = Status::kFailed;
-    result.message = "the board poses do not rotate about a common axis (did the turntable turn?)";
-    return result;
+    return false;
   }
   cv::Vec3d d(eigenvectors.at<double>(2, 0), eigenvectors.at<double>(2, 1),
               eigenvectors.at<double>(2, 2));
@@ -170,8 +133,18 @@ TurntableAxisResult CalibrateTurntableAxis(const StereoCalibration& calibration,
   }
   if (other_way > same_way) d = -d;
 
-  // Point: (I − R_rel)·c = t_rel for every step, plus dᵀc = 0 to pin the
-  // free position along the axis; then slide it onto the platter.
+  *direction = d;
+  return true;
+}
+
+// A point on the axis: (I − R_rel)·c = t_rel for every step, plus dᵀc = 0 to
+// pin the free position along the axis; then slid onto the platter (or to
+// the board's height, with *note saying so, when the board is not lying
+// flat). False when the system cannot be solved.
+bool FitAxisPoint(const std::vector<Pose>& poses, const std::vector<std::size_t>& used,
+                  const cv::Vec3d& d, const TurntableAxisOptions& options, cv::Vec3d* point,
+                  std::string* note) {
+  const Pose& p0 = poses[used.front()];
   const int rows = 3 * static_cast<int>(used.size()) + 1;
   cv::Mat a(rows, 3, CV_64F), b(rows, 1, CV_64F);
   int row = 0;
@@ -188,13 +161,10 @@ TurntableAxisResult CalibrateTurntableAxis(const StereoCalibration& calibration,
   b.at<double>(row) = 0;
   cv::Mat c_mat;
   if (!cv::solve(a, b, c_mat, cv::DECOMP_SVD) || !cv::checkRange(c_mat)) {
-    result.status = Status::kFailed;
-    result.message = "cannot solve for a point on the axis";
-    return result;
+    return false;
   }
   cv::Vec3d c(c_mat.at<double>(0), c_mat.at<double>(1), c_mat.at<double>(2));
 
-  std::string note;
   const cv::Vec3d normal = p0.R * cv::Vec3d(0, 0, 1);
   if (std::abs(normal.dot(d)) >= kMinNormalAxisCos) {
     // The platter lies behind the board as the camera sees it.
@@ -204,16 +174,26 @@ TurntableAxisResult CalibrateTurntableAxis(const StereoCalibration& calibration,
   } else {
     // Not lying flat: take the height of the board's origin instead.
     c += d.dot(p0.t - c) * d;
-    note = "; the board is not lying on the platter (normal " +
-           Fixed(std::acos(std::min(1.0, std::abs(normal.dot(d)))) * kRadToDeg, 1) +
-           "° from the axis): point_in_rig_mm is at the board's height, not the platter's";
+    *note = "; the board is not lying on the platter (normal " +
+            Fixed(std::acos(std::min(1.0, std::abs(normal.dot(d)))) * kRadToDeg, 1) +
+            "° from the axis): point_in_rig_mm is at the board's height, not the platter's";
   }
 
-  // Angles, relative to the first used step.
+  *point = c;
+  return true;
+}
+
+// Each used step's turn about the axis against its command (relative to the
+// first used step); returns the step with the largest error.
+std::size_t MeasureAngles(const std::vector<Pose>& poses, const std::vector<std::size_t>& used,
+                          const std::vector<TurntableStep>& steps, const cv::Vec3d& d,
+                          TurntableAxisResult* result) {
+  const std::size_t first = used.front();
+  const Pose& p0 = poses[first];
   double max_error = 0;
   std::size_t worst_step = first;
   for (std::size_t i : used) {
-    TurntableAxisResult::Step& s = result.steps[i];
+    TurntableAxisResult::Step& s = result->steps[i];
     s.estimated_angle_rad = AngleAbout(poses[i].R * p0.R.t(), d);
     const double commanded = steps[i].commanded_angle_rad - steps[first].commanded_angle_rad;
     s.angle_error_deg = WrapAngle(s.estimated_angle_rad - commanded) * kRadToDeg;
@@ -222,9 +202,15 @@ TurntableAxisResult CalibrateTurntableAxis(const StereoCalibration& calibration,
       worst_step = i;
     }
   }
-  result.max_abs_angle_error_deg = max_error;
+  result->max_abs_angle_error_deg = max_error;
 
-  // Residuals: each corner (by id) should travel on a circle about the axis.
+  return worst_step;
+}
+
+// Residuals: each corner (by id) should travel on a circle about the axis.
+void AxisResiduals(const std::vector<Pose>& poses, const std::vector<std::size_t>& used,
+                   const std::vector<TurntableStep>& steps, const cv::Vec3d& d, const cv::Vec3d& c,
+                   TurntableAxisResult* result) {
   struct Track {
     std::vector<std::pair<std::size_t, cv::Vec3d>> positions;  // (step, p_in_rig)
   };
@@ -264,16 +250,18 @@ TurntableAxisResult CalibrateTurntableAxis(const StereoCalibration& calibration,
       ++step_count[track.positions[j].first];
     }
   }
-  result.residual_mm = count > 0 ? std::sqrt(sum / count) : kNaN;
+  result->residual_mm = count > 0 ? std::sqrt(sum / count) : kNaN;
   for (std::size_t i : used) {
-    if (step_count[i] > 0) result.steps[i].residual_mm = std::sqrt(step_sum[i] / step_count[i]);
+    if (step_count[i] > 0) result->steps[i].residual_mm = std::sqrt(step_sum[i] / step_count[i]);
   }
+}
 
-  result.axis.valid = true;
-  result.axis.direction_in_rig = d;
-  result.axis.point_in_rig_mm = c;
-  result.status = Status::kOk;
-
+// Accepts or rejects the fit against the options' limits.
+void JudgeAxis(const std::vector<TurntableStep>& steps, std::size_t used_steps,
+               std::size_t worst_step, const TurntableAxisOptions& options,
+               TurntableAxisResult* result_out) {
+  TurntableAxisResult& result = *result_out;
+  const double max_error = result.max_abs_angle_error_deg;
   std::vector<std::string> failures;
   if (!(result.residual_mm <= options.max_residual_mm)) {
     failures.push_back("residual " + Fixed(result.residual_mm, 3) + " mm > " +
@@ -289,7 +277,7 @@ TurntableAxisResult CalibrateTurntableAxis(const StereoCalibration& calibration,
   }
   if (failures.empty()) {
     result.verdict = CalibrationVerdict::kAccept;
-    result.verdict_reason = "accepted: " + std::to_string(used.size()) + " steps, residual " +
+    result.verdict_reason = "accepted: " + std::to_string(used_steps) + " steps, residual " +
                             Fixed(result.residual_mm, 3) + " mm, max angle error " +
                             Fixed(max_error, 3) + "°";
   } else {
@@ -299,6 +287,82 @@ TurntableAxisResult CalibrateTurntableAxis(const StereoCalibration& calibration,
       result.verdict_reason += (i ? "; " : "") + failures[i];
     }
   }
+}
+
+}  // namespace
+
+TurntableAxisResult CalibrateTurntableAxis(const StereoCalibration& calibration,
+                                           const std::vector<TurntableStep>& steps,
+                                           const TurntableAxisOptions& options) {
+  using Status = TurntableAxisResult::Status;
+  TurntableAxisResult result;
+  result.steps.resize(steps.size());
+  std::string why;
+  if (!options.IsValid(&why)) {
+    result.message = "options: " + why;
+    return result;
+  }
+  if (!calibration.IsValid(&why)) {
+    result.message = "calibration: " + why;
+    return result;
+  }
+  if (calibration.board.IsRotationallySymmetric()) {
+    result.message = "the " + Describe(calibration.board) +
+                     " looks the same turned by 180° (cols + rows even), so its corner order "
+                     "cannot follow the turntable; use a board with one odd and one even side "
+                     "(e.g. 9x6) or a ChArUco board";
+    return result;
+  }
+
+  std::vector<Pose> poses;
+  std::vector<std::size_t> used;
+  if (!BoardPosesInRig(calibration, steps, &result, &poses, &used)) return result;
+  result.steps_used = static_cast<int>(used.size());
+  if (result.steps_used < options.min_steps) {
+    result.status = Status::kTooFewSteps;
+    result.message = "too few turntable steps with the board: " + std::to_string(used.size()) +
+                     " of " + std::to_string(steps.size()) + ", need " +
+                     std::to_string(options.min_steps);
+    for (std::size_t i = 0; i < steps.size(); ++i) {
+      if (!result.steps[i].used) {
+        result.message += "; step " + std::to_string(i) + ": " + result.steps[i].message;
+      }
+    }
+    return result;
+  }
+  const std::size_t first = used.front();
+  double span = 0;
+  for (std::size_t i : used) {
+    span =
+        std::max(span, std::abs(steps[i].commanded_angle_rad - steps[first].commanded_angle_rad));
+  }
+  if (span < options.min_span_rad) {
+    result.message = "commanded angles span only " + Fixed(span * kRadToDeg, 2) + "°, need " +
+                     Fixed(options.min_span_rad * kRadToDeg, 2) + "° for a well-defined axis";
+    return result;
+  }
+
+  cv::Vec3d d;
+  if (!FitAxisDirection(poses, used, steps, &d)) {
+    result.status = Status::kFailed;
+    result.message = "the board poses do not rotate about a common axis (did the turntable turn?)";
+    return result;
+  }
+  cv::Vec3d c;
+  std::string note;
+  if (!FitAxisPoint(poses, used, d, options, &c, &note)) {
+    result.status = Status::kFailed;
+    result.message = "cannot solve for a point on the axis";
+    return result;
+  }
+  const std::size_t worst_step = MeasureAngles(poses, used, steps, d, &result);
+  AxisResiduals(poses, used, steps, d, c, &result);
+
+  result.axis.valid = true;
+  result.axis.direction_in_rig = d;
+  result.axis.point_in_rig_mm = c;
+  result.status = Status::kOk;
+  JudgeAxis(steps, used.size(), worst_step, options, &result);
   result.message = result.verdict_reason + note;
   return result;
 }

@@ -1,6 +1,7 @@
 #include "craftscan/pipeline/common/pfm.h"
 
 #include "craftscan/pipeline/common/atomic_file.h"
+#include "craftscan/pipeline/common/status.h"
 
 #include <bit>
 #include <cctype>
@@ -27,11 +28,6 @@ namespace {
 constexpr int kMaxPfmSide = 1 << 15;
 // A header token longer than this is garbage, not a number.
 constexpr std::size_t kMaxTokenLength = 64;
-
-bool SetError(std::string* error, std::string message) {
-  if (error != nullptr) *error = std::move(message);
-  return false;
-}
 
 std::uint32_t ByteSwap32(std::uint32_t v) {
   return ((v & 0x000000FFu) << 24) | ((v & 0x0000FF00u) << 8) | ((v & 0x00FF0000u) >> 8) |
@@ -81,11 +77,11 @@ bool ParseDouble(const std::string& text, double* value) {
 bool ReadPfmImpl(const std::string& path, cv::Mat* image, std::string* error) {
   const std::string where = "PFM '" + path + "': ";
   std::ifstream in(path, std::ios::binary);
-  if (!in) return SetError(error, where + "cannot open file (missing or unreadable)");
+  if (!in) return Fail(error, where + "cannot open file (missing or unreadable)");
 
   std::string magic;
   if (!ReadToken(in, &magic) || (magic != "Pf" && magic != "PF")) {
-    return SetError(error, where + "bad magic (expected 'Pf' or 'PF')");
+    return Fail(error, where + "bad magic (expected 'Pf' or 'PF')");
   }
   const int channels = magic == "PF" ? 3 : 1;
 
@@ -93,15 +89,15 @@ bool ReadPfmImpl(const std::string& path, cv::Mat* image, std::string* error) {
   long width = 0, height = 0;
   if (!ReadToken(in, &width_text) || !ReadToken(in, &height_text) ||
       !ParseInt(width_text, &width) || !ParseInt(height_text, &height)) {
-    return SetError(error, where + "malformed width/height in header");
+    return Fail(error, where + "malformed width/height in header");
   }
   if (width <= 0 || height <= 0 || width > kMaxPfmSide || height > kMaxPfmSide) {
-    return SetError(error, where + "bad dimensions " + width_text + "x" + height_text +
-                               " (each side must be in 1.." + std::to_string(kMaxPfmSide) + ")");
+    return Fail(error, where + "bad dimensions " + width_text + "x" + height_text +
+                           " (each side must be in 1.." + std::to_string(kMaxPfmSide) + ")");
   }
   double scale = 0;
   if (!ReadToken(in, &scale_text) || !ParseDouble(scale_text, &scale) || scale == 0) {
-    return SetError(error, where + "malformed scale in header (need a finite non-zero number)");
+    return Fail(error, where + "malformed scale in header (need a finite non-zero number)");
   }
   const bool file_little_endian = scale < 0;
 
@@ -117,17 +113,17 @@ bool ReadPfmImpl(const std::string& path, cv::Mat* image, std::string* error) {
     in.clear();
     in.seekg(data_start);
     if (end != std::streampos(-1) && end - data_start < static_cast<std::streamoff>(needed)) {
-      return SetError(error, where + "truncated data: expected " + std::to_string(needed) +
-                                 " bytes, found " + std::to_string(end - data_start));
+      return Fail(error, where + "truncated data: expected " + std::to_string(needed) +
+                             " bytes, found " + std::to_string(end - data_start));
     }
   }
   std::vector<float> data(total_floats);
   in.read(reinterpret_cast<char*>(data.data()),
           static_cast<std::streamsize>(total_floats * sizeof(float)));
   if (static_cast<std::size_t>(in.gcount()) != total_floats * sizeof(float)) {
-    return SetError(error, where + "truncated data: expected " +
-                               std::to_string(total_floats * sizeof(float)) + " bytes, found " +
-                               std::to_string(in.gcount()));
+    return Fail(error, where + "truncated data: expected " +
+                           std::to_string(total_floats * sizeof(float)) + " bytes, found " +
+                           std::to_string(in.gcount()));
   }
   const bool host_little_endian = std::endian::native == std::endian::little;
   if (file_little_endian != host_little_endian) ByteSwapFloats(data.data(), total_floats);
@@ -145,12 +141,12 @@ bool ReadPfmImpl(const std::string& path, cv::Mat* image, std::string* error) {
 
 bool WritePfmImpl(const std::string& path, const cv::Mat& image, std::string* error) {
   const std::string where = "PFM '" + path + "': ";
-  if (image.empty()) return SetError(error, where + "cannot write an empty image");
+  if (image.empty()) return Fail(error, where + "cannot write an empty image");
   if (image.type() != CV_32FC1 && image.type() != CV_32FC3) {
-    return SetError(error, where + "image must be CV_32FC1 or CV_32FC3");
+    return Fail(error, where + "image must be CV_32FC1 or CV_32FC3");
   }
   if (image.cols > kMaxPfmSide || image.rows > kMaxPfmSide) {
-    return SetError(error, where + "image too large for PFM I/O");
+    return Fail(error, where + "image too large for PFM I/O");
   }
   cv::Mat rgb;  // must not share the caller's buffer: cvtColor would write into it
   if (image.channels() == 3) {
@@ -173,18 +169,18 @@ bool WritePfmImpl(const std::string& path, const cv::Mat& image, std::string* er
               static_cast<std::streamsize>(row_floats * sizeof(float)));
   }
   std::string why;
-  if (!WriteFileAtomically(path, out.view(), &why)) return SetError(error, "PFM " + why);
+  if (!WriteFileAtomically(path, out.view(), &why)) return Fail(error, "PFM " + why);
   return true;
 }
 
 }  // namespace
 
 bool ReadPfm(const std::string& path, cv::Mat* image, std::string* error) {
-  if (image == nullptr) return SetError(error, "ReadPfm: image is null");
+  if (image == nullptr) return Fail(error, "ReadPfm: image is null");
   try {
     return ReadPfmImpl(path, image, error);
   } catch (const std::exception& e) {  // bad_alloc, cv::Exception: report, never throw
-    return SetError(error, "PFM '" + path + "': " + e.what());
+    return Fail(error, "PFM '" + path + "': " + e.what());
   }
 }
 
@@ -192,7 +188,7 @@ bool WritePfm(const std::string& path, const cv::Mat& image, std::string* error)
   try {
     return WritePfmImpl(path, image, error);
   } catch (const std::exception& e) {
-    return SetError(error, "PFM '" + path + "': " + e.what());
+    return Fail(error, "PFM '" + path + "': " + e.what());
   }
 }
 

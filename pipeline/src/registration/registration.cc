@@ -3,7 +3,8 @@
 // slowly); PCL does the filters, normals and FPFH, the rest is Eigen + TBB.
 #include "craftscan/pipeline/registration/registration.h"
 
-#include "craftscan/pipeline/registration/scan_dataset.h"
+#include "craftscan/pipeline/common/pose.h"
+#include "craftscan/pipeline/common/status.h"
 
 #include <algorithm>
 #include <array>
@@ -31,11 +32,6 @@ namespace {
 using Clock = std::chrono::steady_clock;
 double MsSince(Clock::time_point start) {
   return std::chrono::duration<double, std::milli>(Clock::now() - start).count();
-}
-
-bool Fail(std::string* why, const std::string& message) {
-  if (why) *why = message;
-  return false;
 }
 
 Eigen::Vector3f V(const cv::Vec3f& p) { return {p[0], p[1], p[2]}; }
@@ -252,25 +248,22 @@ inline double Huber(double u, double w) { return u <= w ? 0.5 * u * u : w * (u -
 
 // --- Options ------------------------------------------------------------------
 
-bool WorkingVolume::IsValid(std::string* why) const {
+bool VolumeCrop::IsValid(std::string* why) const {
   if (!enabled) return true;
-  if (!(radius_mm > 0) || !std::isfinite(radius_mm))
-    return Fail(why, "volume.radius_mm must be > 0");
+  std::string sub;
+  if (!volume.IsValid(&sub)) return Fail(why, "crop.volume." + sub);
   if (!std::isfinite(platter_band_mm) || !(platter_normal_deg >= 0 && platter_normal_deg <= 90))
-    return Fail(why, "volume.platter_band_mm must be finite and platter_normal_deg in [0, 90]");
-  if (!std::isfinite(min_height_mm) || !std::isfinite(max_height_mm) ||
-      !(max_height_mm > min_height_mm))
-    return Fail(why, "volume.max_height_mm must be finite and > volume.min_height_mm");
+    return Fail(why, "crop.platter_band_mm must be finite and platter_normal_deg in [0, 90]");
   const cv::Matx33d R = turntable_from_cloud.get_minor<3, 3>(0, 0);
   const cv::Matx33d should_be_eye = R.t() * R;
   if (cv::norm(should_be_eye - cv::Matx33d::eye()) > 1e-6 ||
       std::abs(cv::determinant(R) - 1) > 1e-6)
-    return Fail(why, "volume.turntable_from_cloud is not a rigid transform");
+    return Fail(why, "crop.turntable_from_cloud is not a rigid transform");
   return true;
 }
 
 bool ConditioningOptions::IsValid(std::string* why) const {
-  if (!volume.IsValid(why)) return false;
+  if (!crop.IsValid(why)) return false;
   if (outlier_neighbors < 0) return Fail(why, "outlier_neighbors must be ≥ 0");
   if (outlier_neighbors > 0 && !(outlier_std_ratio > 0))
     return Fail(why, "outlier_std_ratio must be > 0");
@@ -384,17 +377,15 @@ ViewCloud ConditionCloud(const PointCloud& input, const ConditioningOptions& opt
   PointCloud kept;
   kept.points_mm.reserve(input.size());
   if (input.HasColors()) kept.colors_rgb.reserve(input.size());
-  const cv::Matx44d& T = options.volume.turntable_from_cloud;
-  const double r2 = options.volume.radius_mm * options.volume.radius_mm;
+  const cv::Matx44d& T = options.crop.turntable_from_cloud;
   for (std::size_t i = 0; i < input.size(); ++i) {
     const cv::Vec3f& p = input.points_mm[i];
     if (!std::isfinite(p[0]) || !std::isfinite(p[1]) || !std::isfinite(p[2])) {
       continue;
     }
-    if (options.volume.enabled) {
+    if (options.crop.enabled) {
       const cv::Vec4d q = T * cv::Vec4d(p[0], p[1], p[2], 1);
-      if (q[0] * q[0] + q[1] * q[1] > r2 || q[2] < options.volume.min_height_mm ||
-          q[2] > options.volume.max_height_mm) {
+      if (!options.crop.volume.Contains(cv::Vec3d(q[0], q[1], q[2]))) {
         ++view.cropped_points;
         continue;
       }
@@ -403,8 +394,8 @@ ViewCloud ConditionCloud(const PointCloud& input, const ConditioningOptions& opt
     if (input.HasColors()) kept.colors_rgb.push_back(input.colors_rgb[i]);
   }
   if (kept.empty()) {
-    view.error = options.volume.enabled ? "no points left inside the working volume"
-                                        : "the input cloud has no finite points";
+    view.error = options.crop.enabled ? "no points left inside the working volume"
+                                      : "the input cloud has no finite points";
     return view;
   }
   // Downsample first: statistical filtering of a dense stereo cloud is slow
@@ -436,17 +427,17 @@ ViewCloud ConditionCloud(const PointCloud& input, const ConditioningOptions& opt
   auto surface = ToPclXyz(fine);
   const int k = std::min<int>(options.normal_neighbors, static_cast<int>(fine.size()));
   EstimateNormals(&fine, surface, k, options.viewpoint_mm, options.num_threads);
-  if (options.volume.enabled && options.volume.platter_band_mm > options.volume.min_height_mm) {
+  if (options.crop.enabled && options.crop.platter_band_mm > options.crop.volume.min_height_mm) {
     // Level surface just above the platter: the platter itself, lifted by
     // matching errors (a few px of disparity lift it by a millimetre or two).
-    const double cos_level = std::cos(options.volume.platter_normal_deg * M_PI / 180.0);
+    const double cos_level = std::cos(options.crop.platter_normal_deg * M_PI / 180.0);
     const cv::Matx33d R = T.get_minor<3, 3>(0, 0);
     PointCloud kept_level;
     for (std::size_t i = 0; i < fine.size(); ++i) {
       const cv::Vec3f& p = fine.points_mm[i];
       const cv::Vec4d q = T * cv::Vec4d(p[0], p[1], p[2], 1);
       const cv::Vec3d n = R * cv::Vec3d(fine.normals[i]);
-      if (q[2] < options.volume.platter_band_mm && std::abs(n[2]) >= cos_level) {
+      if (q[2] < options.crop.platter_band_mm && std::abs(n[2]) >= cos_level) {
         ++view.cropped_points;
         continue;
       }
@@ -608,157 +599,162 @@ std::uint64_t SplitMix(std::uint64_t x) {
 
 RegistrationResult RegisterCoarse(const ViewCloud& source, const ViewCloud& target,
                                   const CoarseOptions& options, int num_threads) {
-  const auto start = Clock::now();
-  RegistrationResult result;
-  std::string why;
-  if (!options.IsValid(&why)) {
-    result.message = "invalid options: " + why;
-    return result;
-  }
-  const PointCloud& s = source.coarse;
-  const PointCloud& t = target.coarse;
-  if (s.size() < 3 || t.size() < 3 || !s.HasNormals() || !t.HasNormals()) {
-    result.message = "coarse clouds need at least 3 points with normals";
-    return result;
-  }
-  const int threads = std::max(1, num_threads);
-  const std::vector<Fpfh> fs = ComputeFpfh(s, options.feature_radius_mm, threads);
-  const std::vector<Fpfh> ft = ComputeFpfh(t, options.feature_radius_mm, threads);
-  const Eigen::MatrixXf ms = FeatureMatrix(fs), mt = FeatureMatrix(ft);
-  const NearestBothWays nearest = FindNearestBothWays(ms, mt, threads);
-  const std::vector<int>& s_to_t = nearest.a_to_b;
-  std::vector<std::pair<int, int>> pairs;
-  if (options.mutual_filter) {
-    const std::vector<int>& t_to_s = nearest.b_to_a;
-    for (std::size_t i = 0; i < s_to_t.size(); ++i)
-      if (s_to_t[i] >= 0 && t_to_s[s_to_t[i]] == static_cast<int>(i))
-        pairs.emplace_back(static_cast<int>(i), s_to_t[i]);
-  }
-  // Too few mutual matches (tiny or repetitive clouds): use the one-way ones.
-  if (pairs.size() < 10) {
-    pairs.clear();
-    for (std::size_t i = 0; i < s_to_t.size(); ++i)
-      if (s_to_t[i] >= 0) pairs.emplace_back(static_cast<int>(i), s_to_t[i]);
-  }
-  result.correspondences = pairs.size();
-  std::vector<Eigen::Vector3d> src(pairs.size()), dst(pairs.size());
-  std::vector<Eigen::Vector3d> src_n(pairs.size()), dst_n(pairs.size());
-  for (std::size_t i = 0; i < pairs.size(); ++i) {
-    src[i] = V(s.points_mm[pairs[i].first]).cast<double>();
-    dst[i] = V(t.points_mm[pairs[i].second]).cast<double>();
-    src_n[i] = V(s.normals[pairs[i].first]).cast<double>();
-    dst_n[i] = V(t.normals[pairs[i].second]).cast<double>();
-  }
-  const double w = options.inlier_distance_mm;
-  const double cap = 2 * w;
-  PointIndex target_index(t);
+  return NoThrow<RegistrationResult>(
+      "RegisterCoarse", RegistrationResult::Status::kFailed, [&]() -> RegistrationResult {
+        const auto start = Clock::now();
+        RegistrationResult result;
+        std::string why;
+        if (!options.IsValid(&why)) {
+          result.message = "invalid options: " + why;
+          return result;
+        }
+        const PointCloud& s = source.coarse;
+        const PointCloud& t = target.coarse;
+        if (s.size() < 3 || t.size() < 3 || !s.HasNormals() || !t.HasNormals()) {
+          result.message = "coarse clouds need at least 3 points with normals";
+          return result;
+        }
+        const int threads = std::max(1, num_threads);
+        const std::vector<Fpfh> fs = ComputeFpfh(s, options.feature_radius_mm, threads);
+        const std::vector<Fpfh> ft = ComputeFpfh(t, options.feature_radius_mm, threads);
+        const Eigen::MatrixXf ms = FeatureMatrix(fs), mt = FeatureMatrix(ft);
+        const NearestBothWays nearest = FindNearestBothWays(ms, mt, threads);
+        const std::vector<int>& s_to_t = nearest.a_to_b;
+        std::vector<std::pair<int, int>> pairs;
+        if (options.mutual_filter) {
+          const std::vector<int>& t_to_s = nearest.b_to_a;
+          for (std::size_t i = 0; i < s_to_t.size(); ++i)
+            if (s_to_t[i] >= 0 && t_to_s[s_to_t[i]] == static_cast<int>(i))
+              pairs.emplace_back(static_cast<int>(i), s_to_t[i]);
+        }
+        // Too few mutual matches (tiny or repetitive clouds): use the one-way ones.
+        if (pairs.size() < 10) {
+          pairs.clear();
+          for (std::size_t i = 0; i < s_to_t.size(); ++i)
+            if (s_to_t[i] >= 0) pairs.emplace_back(static_cast<int>(i), s_to_t[i]);
+        }
+        result.correspondences = pairs.size();
+        std::vector<Eigen::Vector3d> src(pairs.size()), dst(pairs.size());
+        std::vector<Eigen::Vector3d> src_n(pairs.size()), dst_n(pairs.size());
+        for (std::size_t i = 0; i < pairs.size(); ++i) {
+          src[i] = V(s.points_mm[pairs[i].first]).cast<double>();
+          dst[i] = V(t.points_mm[pairs[i].second]).cast<double>();
+          src_n[i] = V(s.normals[pairs[i].first]).cast<double>();
+          dst_n[i] = V(t.normals[pairs[i].second]).cast<double>();
+        }
+        const double w = options.inlier_distance_mm;
+        const double cap = 2 * w;
+        PointIndex target_index(t);
 
-  Hypothesis best;
-  if (options.prior_target_from_source) {
-    best = Score(ToEigen(*options.prior_target_from_source), src, dst, w, cap);
-    best.index = -1;
-    if (options.prior_accept_fitness > 0) {
-      const Overlap o = MeasureOverlap(s, target_index, best.T, w, threads);
-      if (o.fitness >= options.prior_accept_fitness) {
+        Hypothesis best;
+        if (options.prior_target_from_source) {
+          best = Score(ToEigen(*options.prior_target_from_source), src, dst, w, cap);
+          best.index = -1;
+          if (options.prior_accept_fitness > 0) {
+            const Overlap o = MeasureOverlap(s, target_index, best.T, w, threads);
+            if (o.fitness >= options.prior_accept_fitness) {
+              result.status = RegistrationResult::Status::kOk;
+              result.target_from_source = ToCv(best.T);
+              result.fitness = o.fitness;
+              result.rmse_mm = o.rmse;
+              result.inliers = o.inliers;
+              result.prior_kept = true;
+              result.converged = true;
+              result.message = "prior accepted without RANSAC";
+              result.time_ms = MsSince(start);
+              return result;
+            }
+          }
+        }
+
+        const std::size_t n = pairs.size();
+        const double min_ratio = options.edge_similarity;
+        const double cos_normal = std::cos(60.0 * M_PI / 180.0);
+        long needed = options.max_iterations;
+        long done = 0;
+        constexpr long kBatch = 512;
+        while (n >= 3 && done < needed) {
+          const long batch = std::min<long>(kBatch, needed - done);
+          std::vector<Hypothesis> hyps(static_cast<std::size_t>(batch));
+          ParallelFor(static_cast<std::size_t>(batch), threads, [&](std::size_t b, std::size_t e) {
+            for (std::size_t k = b; k < e; ++k) {
+              const long index = done + static_cast<long>(k);
+              std::mt19937_64 rng(
+                  SplitMix(options.seed ^ SplitMix(static_cast<std::uint64_t>(index))));
+              std::uniform_int_distribution<std::size_t> pick(0, n - 1);
+              std::array<std::size_t, 3> id{pick(rng), pick(rng), pick(rng)};
+              if (id[0] == id[1] || id[0] == id[2] || id[1] == id[2]) continue;
+              bool ok = true;
+              for (int a = 0; a < 3 && ok; ++a) {
+                const int b2 = (a + 1) % 3;
+                const double ls = (src[id[a]] - src[id[b2]]).norm();
+                const double lt = (dst[id[a]] - dst[id[b2]]).norm();
+                if (ls < 2 * w || lt < 2 * w)
+                  ok = false;  // too close: an ill-posed rotation
+                else if (std::min(ls, lt) < min_ratio * std::max(ls, lt))
+                  ok = false;
+              }
+              if (!ok) continue;
+              std::vector<Eigen::Vector3d> a3{src[id[0]], src[id[1]], src[id[2]]};
+              std::vector<Eigen::Vector3d> b3{dst[id[0]], dst[id[1]], dst[id[2]]};
+              const Eigen::Matrix4d T = RigidFromPairs(a3, b3, nullptr);
+              const Eigen::Matrix3d R = T.topLeftCorner<3, 3>();
+              for (int a = 0; a < 3 && ok; ++a)
+                if ((R * src_n[id[a]]).dot(dst_n[id[a]]) < cos_normal) ok = false;
+              if (!ok) continue;
+              Hypothesis h = Score(T, src, dst, w, cap);
+              h.index = index;
+              hyps[k] = h;
+            }
+          });
+          for (const Hypothesis& h : hyps)
+            if (std::isfinite(h.score) && Better(h, best)) best = h;
+          done += batch;
+          // Early termination: enough samples for an all-inlier one with the
+          // confidence asked, at the best inlier ratio so far.
+          const double ratio = static_cast<double>(best.inliers) / static_cast<double>(n);
+          if (ratio > 0) {
+            const double p_good = ratio * ratio * ratio;
+            const double k =
+                p_good >= 1 ? 1 : std::log(1 - options.confidence) / std::log(1 - p_good);
+            // Samples rejected by the pre-checks count too, so this is conservative.
+            needed = std::min<long>(options.max_iterations,
+                                    std::max<long>(kBatch, static_cast<long>(std::ceil(k))));
+          }
+        }
+        result.iterations = static_cast<int>(done);
+        result.converged = done < options.max_iterations;
+        if (!std::isfinite(best.score)) {
+          result.message = "RANSAC found no consistent hypothesis among " + std::to_string(n) +
+                           " feature matches";
+          result.time_ms = MsSince(start);
+          return result;
+        }
+        result.prior_kept = best.index == -1;
+        // Refit on the inliers (twice: the set may grow).
+        Eigen::Matrix4d T = best.T;
+        for (int round = 0; round < 2; ++round) {
+          std::vector<Eigen::Vector3d> a, b;
+          const Eigen::Matrix3d R = T.topLeftCorner<3, 3>();
+          const Eigen::Vector3d tt = T.topRightCorner<3, 1>();
+          for (std::size_t i = 0; i < n; ++i) {
+            if ((R * src[i] + tt - dst[i]).norm() <= w) {
+              a.push_back(src[i]);
+              b.push_back(dst[i]);
+            }
+          }
+          if (a.size() < 3) break;
+          T = RigidFromPairs(a, b, nullptr);
+        }
+        const Overlap o = MeasureOverlap(s, target_index, T, w, threads);
         result.status = RegistrationResult::Status::kOk;
-        result.target_from_source = ToCv(best.T);
+        result.target_from_source = ToCv(T);
         result.fitness = o.fitness;
         result.rmse_mm = o.rmse;
         result.inliers = o.inliers;
-        result.prior_kept = true;
-        result.converged = true;
-        result.message = "prior accepted without RANSAC";
         result.time_ms = MsSince(start);
         return result;
-      }
-    }
-  }
-
-  const std::size_t n = pairs.size();
-  const double min_ratio = options.edge_similarity;
-  const double cos_normal = std::cos(60.0 * M_PI / 180.0);
-  long needed = options.max_iterations;
-  long done = 0;
-  constexpr long kBatch = 512;
-  while (n >= 3 && done < needed) {
-    const long batch = std::min<long>(kBatch, needed - done);
-    std::vector<Hypothesis> hyps(static_cast<std::size_t>(batch));
-    ParallelFor(static_cast<std::size_t>(batch), threads, [&](std::size_t b, std::size_t e) {
-      for (std::size_t k = b; k < e; ++k) {
-        const long index = done + static_cast<long>(k);
-        std::mt19937_64 rng(SplitMix(options.seed ^ SplitMix(static_cast<std::uint64_t>(index))));
-        std::uniform_int_distribution<std::size_t> pick(0, n - 1);
-        std::array<std::size_t, 3> id{pick(rng), pick(rng), pick(rng)};
-        if (id[0] == id[1] || id[0] == id[2] || id[1] == id[2]) continue;
-        bool ok = true;
-        for (int a = 0; a < 3 && ok; ++a) {
-          const int b2 = (a + 1) % 3;
-          const double ls = (src[id[a]] - src[id[b2]]).norm();
-          const double lt = (dst[id[a]] - dst[id[b2]]).norm();
-          if (ls < 2 * w || lt < 2 * w)
-            ok = false;  // too close: an ill-posed rotation
-          else if (std::min(ls, lt) < min_ratio * std::max(ls, lt))
-            ok = false;
-        }
-        if (!ok) continue;
-        std::vector<Eigen::Vector3d> a3{src[id[0]], src[id[1]], src[id[2]]};
-        std::vector<Eigen::Vector3d> b3{dst[id[0]], dst[id[1]], dst[id[2]]};
-        const Eigen::Matrix4d T = RigidFromPairs(a3, b3, nullptr);
-        const Eigen::Matrix3d R = T.topLeftCorner<3, 3>();
-        for (int a = 0; a < 3 && ok; ++a)
-          if ((R * src_n[id[a]]).dot(dst_n[id[a]]) < cos_normal) ok = false;
-        if (!ok) continue;
-        Hypothesis h = Score(T, src, dst, w, cap);
-        h.index = index;
-        hyps[k] = h;
-      }
-    });
-    for (const Hypothesis& h : hyps)
-      if (std::isfinite(h.score) && Better(h, best)) best = h;
-    done += batch;
-    // Early termination: enough samples for an all-inlier one with the
-    // confidence asked, at the best inlier ratio so far.
-    const double ratio = static_cast<double>(best.inliers) / static_cast<double>(n);
-    if (ratio > 0) {
-      const double p_good = ratio * ratio * ratio;
-      const double k = p_good >= 1 ? 1 : std::log(1 - options.confidence) / std::log(1 - p_good);
-      // Samples rejected by the pre-checks count too, so this is conservative.
-      needed = std::min<long>(options.max_iterations,
-                              std::max<long>(kBatch, static_cast<long>(std::ceil(k))));
-    }
-  }
-  result.iterations = static_cast<int>(done);
-  result.converged = done < options.max_iterations;
-  if (!std::isfinite(best.score)) {
-    result.message =
-        "RANSAC found no consistent hypothesis among " + std::to_string(n) + " feature matches";
-    result.time_ms = MsSince(start);
-    return result;
-  }
-  result.prior_kept = best.index == -1;
-  // Refit on the inliers (twice: the set may grow).
-  Eigen::Matrix4d T = best.T;
-  for (int round = 0; round < 2; ++round) {
-    std::vector<Eigen::Vector3d> a, b;
-    const Eigen::Matrix3d R = T.topLeftCorner<3, 3>();
-    const Eigen::Vector3d tt = T.topRightCorner<3, 1>();
-    for (std::size_t i = 0; i < n; ++i) {
-      if ((R * src[i] + tt - dst[i]).norm() <= w) {
-        a.push_back(src[i]);
-        b.push_back(dst[i]);
-      }
-    }
-    if (a.size() < 3) break;
-    T = RigidFromPairs(a, b, nullptr);
-  }
-  const Overlap o = MeasureOverlap(s, target_index, T, w, threads);
-  result.status = RegistrationResult::Status::kOk;
-  result.target_from_source = ToCv(T);
-  result.fitness = o.fitness;
-  result.rmse_mm = o.rmse;
-  result.inliers = o.inliers;
-  result.time_ms = MsSince(start);
-  return result;
+      });
 }
 
 // --- Fine ---------------------------------------------------------------------
@@ -784,18 +780,184 @@ const PointCloud& StridedSource(const PointCloud& fine, int max_points, PointClo
 // against `target` (indexed by `target_index`) from `initial_target_from_source`.
 // Sets the pose, iterations and converged flag (status kOk), or a failure;
 // leaves fitness and timing to the caller.
-RegistrationResult IterateFine(const PointCloud& s, const ViewCloud& target,
-                               const PointIndex& target_index,
-                               const Eigen::Matrix4d& initial_target_from_source,
-                               const FineOptions& options, int threads) {
-  RegistrationResult result;
+// One fine-registration correspondence of a source point.
+struct FinePair {
+  float d2 = -1;  // squared distance (mm²); < 0: rejected
+  int target = -1;
+  float b = 1;  // overlap weight
+};
+
+// The nearest target point of every source point under the pose (R, t),
+// within the gate and with agreeing normals; weighted by whether the source
+// point faces the target's sensor.
+void FindCorrespondences(const PointCloud& s, const ViewCloud& target,
+                         const PointIndex& target_index, const Eigen::Matrix4d& T, double gate,
+                         const FineOptions& options, int threads, std::vector<FinePair>* pairs) {
   const PointCloud& t = target.fine;
   const Eigen::Vector3d view_t(target.viewpoint_mm[0], target.viewpoint_mm[1],
                                target.viewpoint_mm[2]);
   const double cos_max = std::cos(options.max_normal_angle_deg * M_PI / 180.0);
   // Overlap test: the source point's normal faces the target's sensor.
   constexpr double kFacingCos = 0.2;  // within ~78° of the line of sight
+  const Eigen::Matrix3f R = T.topLeftCorner<3, 3>().cast<float>();
+  const Eigen::Vector3f tt = T.topRightCorner<3, 1>().cast<float>();
+  const float gate2 = static_cast<float>(gate * gate);
+  ParallelFor(s.size(), threads, [&](std::size_t b, std::size_t e) {
+    for (std::size_t i = b; i < e; ++i) {
+      FinePair& pr = (*pairs)[i];
+      pr.d2 = -1;
+      const Eigen::Vector3f p = R * V(s.points_mm[i]) + tt;
+      int idx;
+      float d2;
+      if (!target_index.Nearest(p, &idx, &d2) || d2 > gate2) continue;
+      const Eigen::Vector3f n = R * V(s.normals[i]);
+      if (n.dot(V(t.normals[idx])) < cos_max) continue;
+      const Eigen::Vector3f to_view = view_t.cast<float>() - p;
+      const float facing = n.dot(to_view) / std::max(1e-6f, to_view.norm());
+      pr.d2 = d2;
+      pr.target = idx;
+      pr.b = facing >= kFacingCos ? 1.f : static_cast<float>(options.outside_overlap_weight);
+    }
+  });
+}
 
+// The accepted correspondences as point pairs for the solver: source points
+// moved by T, their target points (projected onto the target's tangent
+// plane when options.tangent_projection), the target normals and weights.
+struct WeightedPairs {
+  std::vector<Eigen::Vector3d> a, b, b_normals;
+  std::vector<double> weights;
+};
+
+WeightedPairs BuildWeightedPairs(const PointCloud& s, const PointCloud& t,
+                                 const std::vector<FinePair>& pairs, const Eigen::Matrix4d& T,
+                                 double sigma, std::size_t z, const FineOptions& options) {
+  WeightedPairs out;
+  out.a.reserve(z);
+  out.b.reserve(z);
+  out.weights.reserve(z);
+  const Eigen::Matrix3d Rd = T.topLeftCorner<3, 3>();
+  const Eigen::Vector3d td = T.topRightCorner<3, 1>();
+  for (std::size_t i = 0; i < pairs.size(); ++i) {
+    const FinePair& pr = pairs[i];
+    if (pr.d2 < 0) continue;
+    out.a.push_back(Rd * V(s.points_mm[i]).cast<double>() + td);
+    const Eigen::Vector3d q = V(t.points_mm[pr.target]).cast<double>();
+    const Eigen::Vector3d nq = V(t.normals[pr.target]).cast<double>();
+    out.b_normals.push_back(nq);
+    // The target point on the target's tangent plane nearest the source
+    // point: tangential offsets between samples then cost nothing, so
+    // point-to-point least squares slides along the surface as fast as
+    // point-to-plane (the nearest sample alone converges slowly and
+    // sticks at sample spacing).
+    out.b.push_back(options.tangent_projection
+                        ? Eigen::Vector3d(out.a.back() - (out.a.back() - q).dot(nq) * nq)
+                        : q);
+    out.weights.push_back(pr.b * (sigma > 0 ? std::exp(-pr.d2 / sigma) : 1.0));
+  }
+  return out;
+}
+
+// The pose increment that best aligns the pairs (weighted point-to-point, or
+// point-to-plane linearised about the current pose). False when the
+// point-to-plane system is singular.
+bool SolveIncrement(WeightedPairs* pairs, FineMethod method, Eigen::Matrix4d* delta) {
+  *delta = Eigen::Matrix4d::Identity();
+  if (method == FineMethod::kWeightedIcp) {
+    *delta = RigidFromPairs(pairs->a, pairs->b, &pairs->weights);
+    return true;
+  }
+  // Point-to-plane, linearised about the current pose (small angles).
+  Eigen::Matrix<double, 6, 6> H = Eigen::Matrix<double, 6, 6>::Zero();
+  Eigen::Matrix<double, 6, 1> g = Eigen::Matrix<double, 6, 1>::Zero();
+  for (std::size_t i = 0; i < pairs->a.size(); ++i) {
+    Eigen::Matrix<double, 6, 1> J;
+    J.head<3>() = pairs->a[i].cross(pairs->b_normals[i]);
+    J.tail<3>() = pairs->b_normals[i];
+    const double r = (pairs->a[i] - pairs->b[i]).dot(pairs->b_normals[i]);
+    H += pairs->weights[i] * J * J.transpose();
+    g += pairs->weights[i] * J * r;
+  }
+  const Eigen::Matrix<double, 6, 1> x = H.ldlt().solve(-g);
+  if (!x.allFinite()) return false;
+  const Eigen::Vector3d w(x[0], x[1], x[2]);
+  const double angle = w.norm();
+  if (angle > 0)
+    delta->topLeftCorner<3, 3>() = Eigen::AngleAxisd(angle, w / angle).toRotationMatrix();
+  delta->topRightCorner<3, 1>() = x.tail<3>();
+  return true;
+}
+
+// Anderson acceleration (type II, as in AA-ICP / Fast and Robust ICP) of
+// the fixed-point map T → ICP step(T), on x = (radius·rotation vector,
+// translation). Weighted point-to-point ICP creeps along weakly
+// constrained directions (hundreds of iterations on smooth surfaces);
+// accelerated, it needs tens.
+class AndersonAccelerator {
+ public:
+  explicit AndersonAccelerator(double radius) : rscale_(std::max(1.0, radius)) {}
+
+  // Records the step T → G and returns the extrapolated pose (G itself
+  // until there is history, or when the extrapolation is not finite);
+  // *accelerated says which.
+  Eigen::Matrix4d Step(const Eigen::Matrix4d& T, const Eigen::Matrix4d& G, bool* accelerated) {
+    const Vec6 x = Log(T), g = Log(G);
+    hist_g_.push_back(g);
+    hist_f_.push_back(g - x);
+    if (hist_g_.size() > kHistory + 1) {
+      hist_g_.erase(hist_g_.begin());
+      hist_f_.erase(hist_f_.begin());
+    }
+    *accelerated = false;
+    const std::size_t m = hist_g_.size() - 1;
+    if (m < 1) return G;
+    Eigen::MatrixXd dF(6, m), dG(6, m);
+    for (std::size_t j = 0; j < m; ++j) {
+      dF.col(j) = hist_f_[j + 1] - hist_f_[j];
+      dG.col(j) = hist_g_[j + 1] - hist_g_[j];
+    }
+    const Eigen::VectorXd gamma = dF.colPivHouseholderQr().solve(hist_f_.back());
+    const Vec6 next = hist_g_.back() - dG * gamma;
+    if (!gamma.allFinite() || !next.allFinite()) return G;
+    *accelerated = true;
+    return Exp(next);
+  }
+
+  // Forgets the history (after an extrapolation that made things worse).
+  void Reset() {
+    hist_g_.clear();
+    hist_f_.clear();
+  }
+
+ private:
+  using Vec6 = Eigen::Matrix<double, 6, 1>;
+  static constexpr std::size_t kHistory = 5;
+
+  Vec6 Log(const Eigen::Matrix4d& M) const {
+    const Eigen::AngleAxisd aa(Eigen::Matrix3d(M.topLeftCorner<3, 3>()));
+    Vec6 x;
+    x.head<3>() = aa.axis() * aa.angle() * rscale_;
+    x.tail<3>() = M.topRightCorner<3, 1>();
+    return x;
+  }
+  Eigen::Matrix4d Exp(const Vec6& x) const {
+    Eigen::Matrix4d M = Eigen::Matrix4d::Identity();
+    const Eigen::Vector3d w = x.head<3>() / rscale_;
+    const double angle = w.norm();
+    if (angle > 0) M.topLeftCorner<3, 3>() = Eigen::AngleAxisd(angle, w / angle).toRotationMatrix();
+    M.topRightCorner<3, 1>() = x.tail<3>();
+    return M;
+  }
+
+  double rscale_;
+  std::vector<Vec6> hist_g_, hist_f_;  // G(x_i) and f_i = G(x_i) − x_i, newest last
+};
+
+RegistrationResult IterateFine(const PointCloud& s, const ViewCloud& target,
+                               const PointIndex& target_index,
+                               const Eigen::Matrix4d& initial_target_from_source,
+                               const FineOptions& options, int threads) {
+  RegistrationResult result;
   // The scale of rotations for the update test: the source's extent.
   Eigen::Vector3d centroid = Eigen::Vector3d::Zero();
   for (const auto& p : s.points_mm) centroid += V(p).cast<double>();
@@ -806,73 +968,24 @@ RegistrationResult IterateFine(const PointCloud& s, const ViewCloud& target,
 
   Eigen::Matrix4d T = initial_target_from_source;
   double gate = options.max_correspondence_mm;
-  struct Pair {
-    float d2 = -1;  // < 0: rejected
-    int target = -1;
-    float b = 1;
-  };
-  std::vector<Pair> pairs(s.size());
+  std::vector<FinePair> pairs(s.size());
   int iteration = 0;
   bool converged = false;
-  // Anderson acceleration (type II, as in AA-ICP / Fast and Robust ICP) of
-  // the fixed-point map T → ICP step(T), on x = (radius·rotation vector,
-  // translation). Weighted point-to-point ICP creeps along weakly
-  // constrained directions (hundreds of iterations on smooth surfaces);
-  // accelerated, it needs tens. A step that raises the mean distance is
-  // undone and the history cleared.
-  using Vec6 = Eigen::Matrix<double, 6, 1>;
-  const double rscale = std::max(1.0, radius);
-  auto log6 = [&](const Eigen::Matrix4d& M) {
-    const Eigen::AngleAxisd aa(Eigen::Matrix3d(M.topLeftCorner<3, 3>()));
-    Vec6 x;
-    x.head<3>() = aa.axis() * aa.angle() * rscale;
-    x.tail<3>() = M.topRightCorner<3, 1>();
-    return x;
-  };
-  auto exp6 = [&](const Vec6& x) {
-    Eigen::Matrix4d M = Eigen::Matrix4d::Identity();
-    const Eigen::Vector3d w = x.head<3>() / rscale;
-    const double angle = w.norm();
-    if (angle > 0) M.topLeftCorner<3, 3>() = Eigen::AngleAxisd(angle, w / angle).toRotationMatrix();
-    M.topRightCorner<3, 1>() = x.tail<3>();
-    return M;
-  };
-  constexpr std::size_t kHistory = 5;
-  std::vector<Vec6> hist_g, hist_f;  // G(x_i) and f_i = G(x_i) − x_i, newest last
+  // A step that raises the mean distance is undone and the history cleared.
+  AndersonAccelerator anderson(radius);
   bool accelerated = false;
   Eigen::Matrix4d plain_step = T;
   double accepted_mean = std::numeric_limits<double>::infinity();
   for (; iteration < options.max_iterations; ++iteration) {
-    const Eigen::Matrix3f R = T.topLeftCorner<3, 3>().cast<float>();
-    const Eigen::Vector3f tt = T.topRightCorner<3, 1>().cast<float>();
-    const float gate2 = static_cast<float>(gate * gate);
-    ParallelFor(s.size(), threads, [&](std::size_t b, std::size_t e) {
-      for (std::size_t i = b; i < e; ++i) {
-        Pair& pr = pairs[i];
-        pr.d2 = -1;
-        const Eigen::Vector3f p = R * V(s.points_mm[i]) + tt;
-        int idx;
-        float d2;
-        if (!target_index.Nearest(p, &idx, &d2) || d2 > gate2) continue;
-        const Eigen::Vector3f n = R * V(s.normals[i]);
-        if (n.dot(V(t.normals[idx])) < cos_max) continue;
-        const Eigen::Vector3f to_view = view_t.cast<float>() - p;
-        const float facing = n.dot(to_view) / std::max(1e-6f, to_view.norm());
-        pr.d2 = d2;
-        pr.target = idx;
-        pr.b = facing >= kFacingCos ? 1.f : static_cast<float>(options.outside_overlap_weight);
-      }
-    });
-    std::vector<Eigen::Vector3d> a, bpts, bn;
-    std::vector<double> weights;
+    FindCorrespondences(s, target, target_index, T, gate, options, threads, &pairs);
     double sum_d2 = 0, sum_d = 0;
-    for (const Pair& pr : pairs) {
+    for (const FinePair& pr : pairs) {
       if (pr.d2 < 0) continue;
       sum_d2 += pr.d2;
       sum_d += std::sqrt(pr.d2);
     }
     const std::size_t z = static_cast<std::size_t>(
-        std::count_if(pairs.begin(), pairs.end(), [](const Pair& p) { return p.d2 >= 0; }));
+        std::count_if(pairs.begin(), pairs.end(), [](const FinePair& p) { return p.d2 >= 0; }));
     if (z < 6) {
       result.message = "fine registration lost its correspondences (" + std::to_string(z) +
                        " pairs within " + std::to_string(gate) + " mm)";
@@ -882,8 +995,7 @@ RegistrationResult IterateFine(const PointCloud& s, const ViewCloud& target,
     const double mean = sum_d / static_cast<double>(z);
     if (accelerated && mean > accepted_mean) {
       T = plain_step;  // the accelerated step made things worse: undo it
-      hist_g.clear();
-      hist_f.clear();
+      anderson.Reset();
       accelerated = false;
       continue;
     }
@@ -897,81 +1009,16 @@ RegistrationResult IterateFine(const PointCloud& s, const ViewCloud& target,
     // (the literal exp(−d/σ²) is not dimensionless and collapses to zero
     // weight for all but the closest pairs once residuals are below 1 mm).
     const double sigma = 2.0 * sum_d2 / static_cast<double>(z);
-    a.reserve(z);
-    bpts.reserve(z);
-    weights.reserve(z);
-    const Eigen::Matrix3d Rd = T.topLeftCorner<3, 3>();
-    const Eigen::Vector3d td = T.topRightCorner<3, 1>();
-    for (std::size_t i = 0; i < pairs.size(); ++i) {
-      const Pair& pr = pairs[i];
-      if (pr.d2 < 0) continue;
-      a.push_back(Rd * V(s.points_mm[i]).cast<double>() + td);
-      const Eigen::Vector3d q = V(t.points_mm[pr.target]).cast<double>();
-      const Eigen::Vector3d nq = V(t.normals[pr.target]).cast<double>();
-      bn.push_back(nq);
-      // The target point on the target's tangent plane nearest the source
-      // point: tangential offsets between samples then cost nothing, so
-      // point-to-point least squares slides along the surface as fast as
-      // point-to-plane (the nearest sample alone converges slowly and
-      // sticks at sample spacing).
-      bpts.push_back(
-          options.tangent_projection ? Eigen::Vector3d(a.back() - (a.back() - q).dot(nq) * nq) : q);
-      weights.push_back(pr.b * (sigma > 0 ? std::exp(-pr.d2 / sigma) : 1.0));
-    }
-    Eigen::Matrix4d delta = Eigen::Matrix4d::Identity();
-    if (options.method == FineMethod::kWeightedIcp) {
-      delta = RigidFromPairs(a, bpts, &weights);
-    } else {
-      // Point-to-plane, linearised about the current pose (small angles).
-      Eigen::Matrix<double, 6, 6> H = Eigen::Matrix<double, 6, 6>::Zero();
-      Eigen::Matrix<double, 6, 1> g = Eigen::Matrix<double, 6, 1>::Zero();
-      for (std::size_t i = 0; i < a.size(); ++i) {
-        Eigen::Matrix<double, 6, 1> J;
-        J.head<3>() = a[i].cross(bn[i]);
-        J.tail<3>() = bn[i];
-        const double r = (a[i] - bpts[i]).dot(bn[i]);
-        H += weights[i] * J * J.transpose();
-        g += weights[i] * J * r;
-      }
-      const Eigen::Matrix<double, 6, 1> x = H.ldlt().solve(-g);
-      if (!x.allFinite()) {
-        result.message = "point-to-plane system is singular";
-        result.iterations = iteration;
-        return result;
-      }
-      const Eigen::Vector3d w(x[0], x[1], x[2]);
-      const double angle = w.norm();
-      if (angle > 0)
-        delta.topLeftCorner<3, 3>() = Eigen::AngleAxisd(angle, w / angle).toRotationMatrix();
-      delta.topRightCorner<3, 1>() = x.tail<3>();
+    WeightedPairs weighted = BuildWeightedPairs(s, target.fine, pairs, T, sigma, z, options);
+    Eigen::Matrix4d delta;
+    if (!SolveIncrement(&weighted, options.method, &delta)) {
+      result.message = "point-to-plane system is singular";
+      result.iterations = iteration;
+      return result;
     }
     const Eigen::Matrix4d G = delta * T;
-    {
-      const Vec6 x = log6(T), g = log6(G);
-      hist_g.push_back(g);
-      hist_f.push_back(g - x);
-      if (hist_g.size() > kHistory + 1) {
-        hist_g.erase(hist_g.begin());
-        hist_f.erase(hist_f.begin());
-      }
-      plain_step = G;
-      accelerated = false;
-      T = G;
-      const std::size_t m = hist_g.size() - 1;
-      if (m >= 1) {
-        Eigen::MatrixXd dF(6, m), dG(6, m);
-        for (std::size_t j = 0; j < m; ++j) {
-          dF.col(j) = hist_f[j + 1] - hist_f[j];
-          dG.col(j) = hist_g[j + 1] - hist_g[j];
-        }
-        const Eigen::VectorXd gamma = dF.colPivHouseholderQr().solve(hist_f.back());
-        const Vec6 next = hist_g.back() - dG * gamma;
-        if (gamma.allFinite() && next.allFinite()) {
-          T = exp6(next);
-          accelerated = true;
-        }
-      }
-    }
+    plain_step = G;
+    T = anderson.Step(T, G, &accelerated);
     // How far the plain update moved the source: rotation at the cloud's
     // radius plus the translation of its centroid.
     const Eigen::Matrix3d dR = delta.topLeftCorner<3, 3>();
@@ -1001,33 +1048,37 @@ RegistrationResult IterateFine(const PointCloud& s, const ViewCloud& target,
 RegistrationResult RegisterFine(const ViewCloud& source, const ViewCloud& target,
                                 const cv::Matx44d& initial_target_from_source,
                                 const FineOptions& options, int num_threads) {
-  const auto start = Clock::now();
-  RegistrationResult result;
-  std::string why;
-  if (!options.IsValid(&why)) {
-    result.message = "invalid options: " + why;
-    return result;
-  }
-  const PointCloud& t = target.fine;
-  if (source.fine.size() < 3 || t.size() < 3 || !source.fine.HasNormals() || !t.HasNormals()) {
-    result.message = "fine clouds need at least 3 points with normals";
-    return result;
-  }
-  PointCloud strided;
-  const PointCloud& s = StridedSource(source.fine, options.max_source_points, &strided);
-  const int threads = std::max(1, num_threads);
-  const PointIndex target_index(t);
-  result =
-      IterateFine(s, target, target_index, ToEigen(initial_target_from_source), options, threads);
-  if (result.IsUsable()) {
-    const Overlap o = MeasureOverlap(s, target_index, ToEigen(result.target_from_source),
-                                     options.max_correspondence_mm, threads);
-    result.fitness = o.fitness;
-    result.rmse_mm = o.rmse;
-    result.inliers = o.inliers;
-  }
-  result.time_ms = MsSince(start);
-  return result;
+  return NoThrow<RegistrationResult>(
+      "RegisterFine", RegistrationResult::Status::kFailed, [&]() -> RegistrationResult {
+        const auto start = Clock::now();
+        RegistrationResult result;
+        std::string why;
+        if (!options.IsValid(&why)) {
+          result.message = "invalid options: " + why;
+          return result;
+        }
+        const PointCloud& t = target.fine;
+        if (source.fine.size() < 3 || t.size() < 3 || !source.fine.HasNormals() ||
+            !t.HasNormals()) {
+          result.message = "fine clouds need at least 3 points with normals";
+          return result;
+        }
+        PointCloud strided;
+        const PointCloud& s = StridedSource(source.fine, options.max_source_points, &strided);
+        const int threads = std::max(1, num_threads);
+        const PointIndex target_index(t);
+        result = IterateFine(s, target, target_index, ToEigen(initial_target_from_source), options,
+                             threads);
+        if (result.IsUsable()) {
+          const Overlap o = MeasureOverlap(s, target_index, ToEigen(result.target_from_source),
+                                           options.max_correspondence_mm, threads);
+          result.fitness = o.fitness;
+          result.rmse_mm = o.rmse;
+          result.inliers = o.inliers;
+        }
+        result.time_ms = MsSince(start);
+        return result;
+      });
 }
 
 // --- Both ---------------------------------------------------------------------
@@ -1063,171 +1114,181 @@ double Constrainedness(const PointCloud& cloud) {
 
 RegistrationResult RegisterPair(const ViewCloud& source, const ViewCloud& target,
                                 const RegistrationOptions& options) {
-  const auto start = Clock::now();
-  RegistrationResult result;
-  std::string why;
-  if (!options.IsValid(&why)) {
-    result.message = "invalid options: " + why;
-    return result;
-  }
-  if (!source.ok() || !target.ok()) {
-    result.message = "conditioning failed: " + (source.ok() ? target.error : source.error);
-    return result;
-  }
-  const std::size_t need = static_cast<std::size_t>(options.min_points);
-  if (source.coarse.size() < need || target.coarse.size() < need) {
-    result.message = "too few points: " + std::to_string(source.coarse.size()) + " (source) and " +
-                     std::to_string(target.coarse.size()) + " (target) coarse points, need " +
-                     std::to_string(need);
-    return result;
-  }
-  for (const PointCloud* c : {&source.fine, &target.fine}) {
-    const Eigen::Vector3d ev = CovarianceEigenvalues(*c);
-    if (ev[2] <= 0 || ev[1] / ev[2] < 1e-4) {
-      result.message = std::string("degenerate ") + (c == &source.fine ? "source" : "target") +
-                       " cloud: its points lie on a line";
-      return result;
-    }
-    if (ev[0] / ev[2] < 1e-4) {
-      result.message = std::string("degenerate ") + (c == &source.fine ? "source" : "target") +
-                       " cloud: its points lie on a plane, which does not fix the pose";
-      return result;
-    }
-  }
-  const bool has_prior = options.coarse.prior_target_from_source.has_value();
-  const double constrained = std::min(Constrainedness(source.fine), Constrainedness(target.fine));
-  constexpr double kMinConstrainedness = 1e-3;
-  if (constrained < kMinConstrainedness && !has_prior) {
-    result.message =
-        "degenerate geometry: a motion leaves the surface on itself (plane, sphere or surface of "
-        "revolution) and there is no prior pose";
-    return result;
-  }
-  // One target index and one strided source for every fine run below.
-  const int threads = options.num_threads;
-  const PointIndex target_index(target.fine);
-  PointCloud strided;
-  const PointCloud& fine_source =
-      StridedSource(source.fine, options.fine.max_source_points, &strided);
-  auto refine = [&](const cv::Matx44d& initial) {
-    const auto fine_start = Clock::now();
-    RegistrationResult r =
-        IterateFine(fine_source, target, target_index, ToEigen(initial), options.fine, threads);
-    r.time_ms = MsSince(fine_start);
-    return r;
-  };
-  // Fitness and RMSE of a fine pose at the (tighter) fitness gate.
-  auto evaluate = [&](RegistrationResult* r) {
-    const Overlap o = MeasureOverlap(source.fine, target_index, ToEigen(r->target_from_source),
-                                     options.fitness_distance_mm, options.num_threads);
-    r->fitness = o.fitness;
-    r->rmse_mm = o.rmse;
-    r->inliers = o.inliers;
-  };
-  // With a prior (the turntable), fine registration from the prior is one
-  // candidate; RANSAC's pose replaces it only when it fits clearly better.
-  // On symmetric objects (a box turned by 180°, an egg) RANSAC's best
-  // hypothesis can score as well as the truth; the turntable settles it.
-  // RANSAC must beat the prior's fitness by both margins: a symmetric object
-  // (a box turned by 180°) lets a wrong pose fit nearly as well as the truth,
-  // while a wrong commanded angle or a moved object leaves the prior's
-  // fitness far below the true pose's.
-  constexpr double kReplaceGain = 0.1;   // absolute fitness gain
-  constexpr double kReplaceRatio = 1.5;  // relative fitness gain
-  std::optional<RegistrationResult> from_prior;
-  if (has_prior) {
-    from_prior = refine(*options.coarse.prior_target_from_source);
-    if (from_prior->IsUsable()) evaluate(&*from_prior);
-  }
-  const RegistrationResult coarse =
-      RegisterCoarse(source, target, options.coarse, options.num_threads);
-  std::optional<RegistrationResult> from_coarse;
-  if (coarse.IsUsable() && !(coarse.prior_kept && from_prior)) {
-    from_coarse = refine(coarse.target_from_source);
-    if (from_coarse->IsUsable()) evaluate(&*from_coarse);
-  }
-  const bool prior_ok = from_prior && from_prior->IsUsable();
-  const bool coarse_ok = from_coarse && from_coarse->IsUsable();
-  if (!prior_ok && !coarse_ok) {
-    result = coarse.IsUsable() ? (from_coarse ? *from_coarse : *from_prior) : coarse;
-    result.status = RegistrationResult::Status::kFailed;
-    result.message = !coarse.IsUsable() ? "coarse registration failed: " + coarse.message
-                                        : "fine registration failed: " + result.message;
-    result.time_ms = MsSince(start);
-    return result;
-  }
-  const bool use_prior =
-      prior_ok && (!coarse_ok || from_coarse->fitness < from_prior->fitness + kReplaceGain ||
-                   from_coarse->fitness < from_prior->fitness * kReplaceRatio);
-  RegistrationResult fine = use_prior ? *from_prior : *from_coarse;
-  fine.prior_kept = use_prior || coarse.prior_kept;
-  bool prior_pose_kept = false;
-  if (use_prior && options.prior_slide_deg > 0) {
-    // ICP that moves far from the prior without fitting better slid along
-    // a direction the geometry does not fix (a surface of revolution about
-    // the turntable axis): keep the turntable's own pose.
-    RegistrationResult at_prior = *from_prior;
-    at_prior.target_from_source = *options.coarse.prior_target_from_source;
-    evaluate(&at_prior);
-    const double moved_deg =
-        RotationErrorDeg(from_prior->target_from_source, at_prior.target_from_source);
-    if (moved_deg > options.prior_slide_deg &&
-        from_prior->fitness < at_prior.fitness + options.prior_slide_gain) {
-      fine.target_from_source = at_prior.target_from_source;
-      fine.fitness = at_prior.fitness;
-      fine.rmse_mm = at_prior.rmse_mm;
-      fine.inliers = at_prior.inliers;
-      prior_pose_kept = true;
-    }
-  }
+  return NoThrow<RegistrationResult>(
+      "RegisterPair", RegistrationResult::Status::kFailed, [&]() -> RegistrationResult {
+        const auto start = Clock::now();
+        RegistrationResult result;
+        std::string why;
+        if (!options.IsValid(&why)) {
+          result.message = "invalid options: " + why;
+          return result;
+        }
+        if (!source.ok() || !target.ok()) {
+          result.message = "conditioning failed: " + (source.ok() ? target.error : source.error);
+          return result;
+        }
+        const std::size_t need = static_cast<std::size_t>(options.min_points);
+        if (source.coarse.size() < need || target.coarse.size() < need) {
+          result.message = "too few points: " + std::to_string(source.coarse.size()) +
+                           " (source) and " + std::to_string(target.coarse.size()) +
+                           " (target) coarse points, need " + std::to_string(need);
+          return result;
+        }
+        for (const PointCloud* c : {&source.fine, &target.fine}) {
+          const Eigen::Vector3d ev = CovarianceEigenvalues(*c);
+          if (ev[2] <= 0 || ev[1] / ev[2] < 1e-4) {
+            result.message = std::string("degenerate ") +
+                             (c == &source.fine ? "source" : "target") +
+                             " cloud: its points lie on a line";
+            return result;
+          }
+          if (ev[0] / ev[2] < 1e-4) {
+            result.message = std::string("degenerate ") +
+                             (c == &source.fine ? "source" : "target") +
+                             " cloud: its points lie on a plane, which does not fix the pose";
+            return result;
+          }
+        }
+        const bool has_prior = options.coarse.prior_target_from_source.has_value();
+        const double constrained =
+            std::min(Constrainedness(source.fine), Constrainedness(target.fine));
+        constexpr double kMinConstrainedness = 1e-3;
+        if (constrained < kMinConstrainedness && !has_prior) {
+          result.message =
+              "degenerate geometry: a motion leaves the surface on itself (plane, sphere or "
+              "surface of "
+              "revolution) and there is no prior pose";
+          return result;
+        }
+        // One target index and one strided source for every fine run below.
+        const int threads = options.num_threads;
+        const PointIndex target_index(target.fine);
+        PointCloud strided;
+        const PointCloud& fine_source =
+            StridedSource(source.fine, options.fine.max_source_points, &strided);
+        auto refine = [&](const cv::Matx44d& initial) {
+          const auto fine_start = Clock::now();
+          RegistrationResult r = IterateFine(fine_source, target, target_index, ToEigen(initial),
+                                             options.fine, threads);
+          r.time_ms = MsSince(fine_start);
+          return r;
+        };
+        // Fitness and RMSE of a fine pose at the (tighter) fitness gate.
+        auto evaluate = [&](RegistrationResult* r) {
+          const Overlap o =
+              MeasureOverlap(source.fine, target_index, ToEigen(r->target_from_source),
+                             options.fitness_distance_mm, options.num_threads);
+          r->fitness = o.fitness;
+          r->rmse_mm = o.rmse;
+          r->inliers = o.inliers;
+        };
+        // With a prior (the turntable), fine registration from the prior is one
+        // candidate; RANSAC's pose replaces it only when it fits clearly better.
+        // On symmetric objects (a box turned by 180°, an egg) RANSAC's best
+        // hypothesis can score as well as the truth; the turntable settles it.
+        // RANSAC must beat the prior's fitness by both margins: a symmetric object
+        // (a box turned by 180°) lets a wrong pose fit nearly as well as the truth,
+        // while a wrong commanded angle or a moved object leaves the prior's
+        // fitness far below the true pose's.
+        constexpr double kReplaceGain = 0.1;   // absolute fitness gain
+        constexpr double kReplaceRatio = 1.5;  // relative fitness gain
+        std::optional<RegistrationResult> from_prior;
+        if (has_prior) {
+          from_prior = refine(*options.coarse.prior_target_from_source);
+          if (from_prior->IsUsable()) evaluate(&*from_prior);
+        }
+        const RegistrationResult coarse =
+            RegisterCoarse(source, target, options.coarse, options.num_threads);
+        std::optional<RegistrationResult> from_coarse;
+        if (coarse.IsUsable() && !(coarse.prior_kept && from_prior)) {
+          from_coarse = refine(coarse.target_from_source);
+          if (from_coarse->IsUsable()) evaluate(&*from_coarse);
+        }
+        const bool prior_ok = from_prior && from_prior->IsUsable();
+        const bool coarse_ok = from_coarse && from_coarse->IsUsable();
+        if (!prior_ok && !coarse_ok) {
+          result = coarse.IsUsable() ? (from_coarse ? *from_coarse : *from_prior) : coarse;
+          result.status = RegistrationResult::Status::kFailed;
+          result.message = !coarse.IsUsable() ? "coarse registration failed: " + coarse.message
+                                              : "fine registration failed: " + result.message;
+          result.time_ms = MsSince(start);
+          return result;
+        }
+        const bool use_prior =
+            prior_ok && (!coarse_ok || from_coarse->fitness < from_prior->fitness + kReplaceGain ||
+                         from_coarse->fitness < from_prior->fitness * kReplaceRatio);
+        RegistrationResult fine = use_prior ? *from_prior : *from_coarse;
+        fine.prior_kept = use_prior || coarse.prior_kept;
+        bool prior_pose_kept = false;
+        if (use_prior && options.prior_slide_deg > 0) {
+          // ICP that moves far from the prior without fitting better slid along
+          // a direction the geometry does not fix (a surface of revolution about
+          // the turntable axis): keep the turntable's own pose.
+          RegistrationResult at_prior = *from_prior;
+          at_prior.target_from_source = *options.coarse.prior_target_from_source;
+          evaluate(&at_prior);
+          const double moved_deg =
+              RotationErrorDeg(from_prior->target_from_source, at_prior.target_from_source);
+          if (moved_deg > options.prior_slide_deg &&
+              from_prior->fitness < at_prior.fitness + options.prior_slide_gain) {
+            fine.target_from_source = at_prior.target_from_source;
+            fine.fitness = at_prior.fitness;
+            fine.rmse_mm = at_prior.rmse_mm;
+            fine.inliers = at_prior.inliers;
+            prior_pose_kept = true;
+          }
+        }
 
-  fine.coarse_ms = coarse.time_ms;
-  fine.fine_ms = (from_prior ? from_prior->time_ms : 0) + (from_coarse ? from_coarse->time_ms : 0);
-  fine.correspondences = coarse.correspondences;
-  std::string notes = fine.message;
-  if (prior_ok && coarse_ok && !use_prior)
-    notes += std::string(notes.empty() ? "" : "; ") + "the prior was replaced (fitness " +
-             std::to_string(from_prior->fitness) + " → " + std::to_string(from_coarse->fitness) +
-             ")";
-  if (prior_pose_kept)
-    notes +=
-        std::string(notes.empty() ? "" : "; ") +
-        "fine registration slid away from the prior without fitting better: the prior pose is kept";
-  if (constrained < kMinConstrainedness && !prior_pose_kept)
-    notes += std::string(notes.empty() ? "" : "; ") +
-             "surface of revolution or similar: the unconstrained motion is kept from the prior";
-  // Does the result agree with the prior (then the turntable vouches for it)?
-  bool near_prior = false;
-  if (has_prior) {
-    Eigen::Vector3d c = Eigen::Vector3d::Zero();
-    for (const auto& p : source.fine.points_mm) c += V(p).cast<double>();
-    c /= static_cast<double>(source.fine.size());
-    const Eigen::Matrix4d A = ToEigen(fine.target_from_source);
-    const Eigen::Matrix4d B = ToEigen(*options.coarse.prior_target_from_source);
-    const double moved = ((A.topLeftCorner<3, 3>() - B.topLeftCorner<3, 3>()) * c +
-                          A.topRightCorner<3, 1>() - B.topRightCorner<3, 1>())
-                             .norm();
-    near_prior =
-        RotationErrorDeg(fine.target_from_source, *options.coarse.prior_target_from_source) < 3.0 &&
-        moved < 5.0;
-  }
-  if (!near_prior && fine.fitness >= options.min_fitness &&
-      fine.rmse_mm > options.max_rmse_ratio * options.fitness_distance_mm) {
-    fine.status = RegistrationResult::Status::kFailed;
-    fine.message = "no overlap: the residuals (RMSE " + std::to_string(fine.rmse_mm) +
-                   " mm within " + std::to_string(options.fitness_distance_mm) +
-                   " mm) are spread like those of unrelated surfaces";
-  } else if (fine.fitness < options.min_fitness) {
-    fine.status = RegistrationResult::Status::kFailed;
-    fine.message = "no overlap: only " +
-                   std::to_string(static_cast<int>(fine.fitness * 100 + 0.5)) +
-                   " % of the source lies on the target after registration (need " +
-                   std::to_string(static_cast<int>(options.min_fitness * 100 + 0.5)) + " %)";
-  } else {
-    fine.message = notes;
-  }
-  fine.time_ms = MsSince(start);
-  return fine;
+        fine.coarse_ms = coarse.time_ms;
+        fine.fine_ms =
+            (from_prior ? from_prior->time_ms : 0) + (from_coarse ? from_coarse->time_ms : 0);
+        fine.correspondences = coarse.correspondences;
+        std::string notes = fine.message;
+        if (prior_ok && coarse_ok && !use_prior)
+          notes += std::string(notes.empty() ? "" : "; ") + "the prior was replaced (fitness " +
+                   std::to_string(from_prior->fitness) + " → " +
+                   std::to_string(from_coarse->fitness) + ")";
+        if (prior_pose_kept)
+          notes += std::string(notes.empty() ? "" : "; ") +
+                   "fine registration slid away from the prior without fitting better: the prior "
+                   "pose is kept";
+        if (constrained < kMinConstrainedness && !prior_pose_kept)
+          notes +=
+              std::string(notes.empty() ? "" : "; ") +
+              "surface of revolution or similar: the unconstrained motion is kept from the prior";
+        // Does the result agree with the prior (then the turntable vouches for it)?
+        bool near_prior = false;
+        if (has_prior) {
+          Eigen::Vector3d c = Eigen::Vector3d::Zero();
+          for (const auto& p : source.fine.points_mm) c += V(p).cast<double>();
+          c /= static_cast<double>(source.fine.size());
+          const Eigen::Matrix4d A = ToEigen(fine.target_from_source);
+          const Eigen::Matrix4d B = ToEigen(*options.coarse.prior_target_from_source);
+          const double moved = ((A.topLeftCorner<3, 3>() - B.topLeftCorner<3, 3>()) * c +
+                                A.topRightCorner<3, 1>() - B.topRightCorner<3, 1>())
+                                   .norm();
+          near_prior = RotationErrorDeg(fine.target_from_source,
+                                        *options.coarse.prior_target_from_source) < 3.0 &&
+                       moved < 5.0;
+        }
+        if (!near_prior && fine.fitness >= options.min_fitness &&
+            fine.rmse_mm > options.max_rmse_ratio * options.fitness_distance_mm) {
+          fine.status = RegistrationResult::Status::kFailed;
+          fine.message = "no overlap: the residuals (RMSE " + std::to_string(fine.rmse_mm) +
+                         " mm within " + std::to_string(options.fitness_distance_mm) +
+                         " mm) are spread like those of unrelated surfaces";
+        } else if (fine.fitness < options.min_fitness) {
+          fine.status = RegistrationResult::Status::kFailed;
+          fine.message = "no overlap: only " +
+                         std::to_string(static_cast<int>(fine.fitness * 100 + 0.5)) +
+                         " % of the source lies on the target after registration (need " +
+                         std::to_string(static_cast<int>(options.min_fitness * 100 + 0.5)) + " %)";
+        } else {
+          fine.message = notes;
+        }
+        fine.time_ms = MsSince(start);
+        return fine;
+      });
 }
 
 }  // namespace craftscan

@@ -1,4 +1,5 @@
 #include "craftscan/pipeline/stereo/adcensus.h"
+#include "craftscan/pipeline/common/status.h"
 
 #include <algorithm>
 #include <chrono>
@@ -32,49 +33,45 @@ bool ArmRuleFromString(std::string_view text, ArmRule* rule) {
 
 bool ADCensusOptions::IsValid(std::string* why) const {
   std::string reason;
-  auto fail = [&](std::string msg) {
-    if (why) *why = std::move(msg);
-    return false;
-  };
   if (num_disparities < 1 || num_disparities > 4096)
-    return fail("num_disparities must be in [1, 4096]");
+    return Fail(why, "num_disparities must be in [1, 4096]");
   if (min_disparity < -65536 || min_disparity > 65536)
-    return fail("min_disparity must be in [-65536, 65536]");
-  if (!preprocess.IsValid(&reason)) return fail(reason);
+    return Fail(why, "min_disparity must be in [-65536, 65536]");
+  if (!preprocess.IsValid(&reason)) return Fail(why, reason);
   if (census_width < 1 || census_height < 1 || census_width % 2 == 0 || census_height % 2 == 0)
-    return fail("census_width and census_height must be odd and positive");
+    return Fail(why, "census_width and census_height must be odd and positive");
   if (census_width * census_height > 65)
-    return fail("census window has more than 64 neighbours (census_width·census_height > 65)");
+    return Fail(why, "census window has more than 64 neighbours (census_width·census_height > 65)");
   if (!(lambda_ad > 0) || !(lambda_census > 0))
-    return fail("lambda_ad and lambda_census must be > 0");
+    return Fail(why, "lambda_ad and lambda_census must be > 0");
   if (!(out_of_image_cost >= 0 && out_of_image_cost <= 2))
-    return fail("out_of_image_cost must be in [0, 2]");
+    return Fail(why, "out_of_image_cost must be in [0, 2]");
   if (classic.l1_px < 1 || classic.l1_px > 255 || classic.l2_px < 0 ||
       classic.l2_px > classic.l1_px)
-    return fail("classic arms: need 1 ≤ l1_px ≤ 255 and 0 ≤ l2_px ≤ l1_px");
+    return Fail(why, "classic arms: need 1 ≤ l1_px ≤ 255 and 0 ≤ l2_px ≤ l1_px");
   if (!(classic.tau1 > 0) || !(classic.tau2 > 0))
-    return fail("classic arms: tau1, tau2 must be > 0");
+    return Fail(why, "classic arms: tau1, tau2 must be > 0");
   const ImprovedArmOptions& im = improved;
   if (im.l_max_px < 1 || im.l_max_px > 255 || im.l2_px < 0 || im.l2_px > im.l_max_px)
-    return fail("improved arms: need 1 ≤ l_max_px ≤ 255 and 0 ≤ l2_px ≤ l_max_px");
+    return Fail(why, "improved arms: need 1 ≤ l_max_px ≤ 255 and 0 ≤ l2_px ≤ l_max_px");
   if (!(im.tau_max > 0) || !(im.tau2 > 0) || !(im.beta1 > 0) || !(im.beta_max > 0))
-    return fail("improved arms: tau_max, tau2, beta1, beta_max must be > 0");
+    return Fail(why, "improved arms: tau_max, tau2, beta1, beta_max must be > 0");
   if (!(im.edge_length_scale > 0 && im.edge_length_scale <= 1) ||
       !(im.edge_tau_scale > 0 && im.edge_tau_scale <= 1))
-    return fail("improved arms: edge_length_scale and edge_tau_scale must be in (0, 1]");
+    return Fail(why, "improved arms: edge_length_scale and edge_tau_scale must be in (0, 1]");
   if (aggregation_iterations < 0 || aggregation_iterations > 16)
-    return fail("aggregation_iterations must be in [0, 16]");
-  if (!(pi1 >= 0) || !(pi2 >= pi1)) return fail("scanline penalties need 0 ≤ pi1 ≤ pi2");
-  if (!(tau_so >= 0)) return fail("tau_so must be ≥ 0");
+    return Fail(why, "aggregation_iterations must be in [0, 16]");
+  if (!(pi1 >= 0) || !(pi2 >= pi1)) return Fail(why, "scanline penalties need 0 ≤ pi1 ≤ pi2");
+  if (!(tau_so >= 0)) return Fail(why, "tau_so must be ≥ 0");
   const RefinementOptions& r = refinement;
-  if (!(r.lr_tolerance_px >= 0)) return fail("refinement.lr_tolerance_px must be ≥ 0");
+  if (!(r.lr_tolerance_px >= 0)) return Fail(why, "refinement.lr_tolerance_px must be ≥ 0");
   if (r.voting_iterations < 0 || r.voting_iterations > 100)
-    return fail("refinement.voting_iterations must be in [0, 100]");
-  if (r.tau_s < 0) return fail("refinement.tau_s must be ≥ 0");
-  if (!(r.tau_h >= 0 && r.tau_h < 1)) return fail("refinement.tau_h must be in [0, 1)");
+    return Fail(why, "refinement.voting_iterations must be in [0, 100]");
+  if (r.tau_s < 0) return Fail(why, "refinement.tau_s must be ≥ 0");
+  if (!(r.tau_h >= 0 && r.tau_h < 1)) return Fail(why, "refinement.tau_h must be in [0, 1)");
   if (r.median_size != 0 && r.median_size != 1 && r.median_size != 3 && r.median_size != 5)
-    return fail("refinement.median_size must be 0, 3 or 5");
-  if (num_threads < 1 || num_threads > 256) return fail("num_threads must be in [1, 256]");
+    return Fail(why, "refinement.median_size must be 0, 3 or 5");
+  if (num_threads < 1 || num_threads > 256) return Fail(why, "num_threads must be in [1, 256]");
   return true;
 }
 
@@ -86,11 +83,8 @@ double MsSince(Clock::time_point t) {
   return std::chrono::duration<double, std::milli>(Clock::now() - t).count();
 }
 
-DisparityResult Fail(std::string message) {
-  DisparityResult r;
-  r.status = DisparityResult::Status::kInvalidInput;
-  r.message = std::move(message);
-  return r;
+DisparityResult InvalidInput(std::string message) {
+  return Failed<DisparityResult>(DisparityResult::Status::kInvalidInput, std::move(message));
 }
 
 }  // namespace
@@ -117,26 +111,26 @@ DisparityResult ComputeDisparity(const cv::Mat& left, const cv::Mat& right,
 DisparityResult StereoMatcher::Compute(const cv::Mat& left, const cv::Mat& right) {
   const ADCensusOptions& options = options_;
   std::string why;
-  if (!options.IsValid(&why)) return Fail("invalid options: " + why);
-  if (left.empty() || right.empty()) return Fail("left or right image is empty");
+  if (!options.IsValid(&why)) return InvalidInput("invalid options: " + why);
+  if (left.empty() || right.empty()) return InvalidInput("left or right image is empty");
   if (left.size() != right.size())
-    return Fail("image sizes differ: left " + std::to_string(left.cols) + "x" +
-                std::to_string(left.rows) + ", right " + std::to_string(right.cols) + "x" +
-                std::to_string(right.rows));
+    return InvalidInput("image sizes differ: left " + std::to_string(left.cols) + "x" +
+                        std::to_string(left.rows) + ", right " + std::to_string(right.cols) + "x" +
+                        std::to_string(right.rows));
   if (left.type() != right.type() || (left.type() != CV_8UC1 && left.type() != CV_8UC3))
-    return Fail("images must both be CV_8UC1 or both CV_8UC3");
-  if (left.cols < 2 || left.rows < 2) return Fail("images must be at least 2x2 pixels");
+    return InvalidInput("images must both be CV_8UC1 or both CV_8UC3");
+  if (left.cols < 2 || left.rows < 2) return InvalidInput("images must be at least 2x2 pixels");
   const double voxels =
       static_cast<double>(left.cols) * left.rows * ((options.num_disparities + 15) / 16 * 16);
   if (voxels > 1.0e9)  // two float volumes live at once: 8 GB at this limit
-    return Fail("cost volume too large: width·height·num_disparities = " +
-                std::to_string(static_cast<long long>(voxels)) +
-                " exceeds 1e9; narrow the disparity range or match at lower resolution");
+    return InvalidInput("cost volume too large: width·height·num_disparities = " +
+                        std::to_string(static_cast<long long>(voxels)) +
+                        " exceeds 1e9; narrow the disparity range or match at lower resolution");
   if (options.min_disparity >= left.cols ||
       options.min_disparity + options.num_disparities - 1 <= -left.cols)
-    return Fail("disparity range [" + std::to_string(options.min_disparity) + ", " +
-                std::to_string(options.min_disparity + options.num_disparities) +
-                ") lies entirely outside the image width " + std::to_string(left.cols));
+    return InvalidInput("disparity range [" + std::to_string(options.min_disparity) + ", " +
+                        std::to_string(options.min_disparity + options.num_disparities) +
+                        ") lies entirely outside the image width " + std::to_string(left.cols));
 
   try {
     const auto t_start = Clock::now();
@@ -148,6 +142,8 @@ DisparityResult StereoMatcher::Compute(const cv::Mat& left, const cv::Mat& right
     const Preprocessed pl = Preprocess(left, options.preprocess);
     // The right view feeds only the census and the colour costs.
     const Preprocessed pr = Preprocess(right, options.preprocess, PreprocessParts::kEqualizedOnly);
+    if (!pl.IsUsable()) return InvalidInput("left: " + pl.message);
+    if (!pr.IsUsable()) return InvalidInput("right: " + pr.message);
     const cv::Mat& img_l = options.match_equalized ? pl.image : left;
     const cv::Mat& img_r = options.match_equalized ? pr.image : right;
     result.time_ms.preprocess = MsSince(t);
@@ -207,9 +203,9 @@ DisparityResult StereoMatcher::Compute(const cv::Mat& left, const cv::Mat& right
     result.time_ms.total = MsSince(t_start);
     return result;
   } catch (const std::bad_alloc&) {
-    return Fail("out of memory for the cost volume; reduce num_disparities or image size");
+    return InvalidInput("out of memory for the cost volume; reduce num_disparities or image size");
   } catch (const std::exception& e) {
-    return Fail(std::string("matching failed: ") + e.what());
+    return InvalidInput(std::string("matching failed: ") + e.what());
   }
 }
 

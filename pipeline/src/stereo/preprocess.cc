@@ -1,24 +1,22 @@
 #include "craftscan/pipeline/stereo/preprocess.h"
+#include "craftscan/pipeline/common/status.h"
 
 #include <algorithm>
+#include <exception>
 #include <opencv2/imgproc.hpp>
-#include <stdexcept>
+#include <string>
 
 namespace craftscan {
 
 bool PreprocessOptions::IsValid(std::string* why) const {
-  auto fail = [&](const char* msg) {
-    if (why) *why = msg;
-    return false;
-  };
   if (!(canny_sigma > 0 && canny_sigma <= 1))
-    return fail("preprocess.canny_sigma must be in (0, 1]");
+    return Fail(why, "preprocess.canny_sigma must be in (0, 1]");
   if (!(canny_min_threshold >= 0 && canny_min_threshold < 255))
-    return fail("preprocess.canny_min_threshold must be in [0, 255)");
+    return Fail(why, "preprocess.canny_min_threshold must be in [0, 255)");
   if (canny_aperture != 3 && canny_aperture != 5 && canny_aperture != 7)
-    return fail("preprocess.canny_aperture must be 3, 5 or 7");
+    return Fail(why, "preprocess.canny_aperture must be 3, 5 or 7");
   if (dilate_radius_px < 0 || dilate_radius_px > 15)
-    return fail("preprocess.dilate_radius_px must be in [0, 15]");
+    return Fail(why, "preprocess.dilate_radius_px must be in [0, 15]");
   return true;
 }
 
@@ -39,17 +37,11 @@ double Median8U(const cv::Mat& grey) {
   return 255;
 }
 
-}  // namespace
-
-Preprocessed Preprocess(const cv::Mat& image, const PreprocessOptions& options,
-                        PreprocessParts parts) {
-  std::string why;
-  if (!options.IsValid(&why)) throw std::invalid_argument(why);
-  if (image.empty()) throw std::invalid_argument("Preprocess: empty image");
-  if (image.type() != CV_8UC1 && image.type() != CV_8UC3)
-    throw std::invalid_argument("Preprocess: image must be CV_8UC1 or CV_8UC3 (BGR)");
-
+// Preprocess on validated inputs; OpenCV may still throw (out of memory).
+Preprocessed PreprocessValid(const cv::Mat& image, const PreprocessOptions& options,
+                             PreprocessParts parts) {
   Preprocessed out;
+  out.status = Preprocessed::Status::kOk;
   if (image.channels() == 1) {
     if (options.equalize) {
       cv::equalizeHist(image, out.image);
@@ -93,6 +85,26 @@ Preprocessed Preprocess(const cv::Mat& image, const PreprocessOptions& options,
     cv::dilate(out.edges, out.edges, cv::getStructuringElement(cv::MORPH_RECT, {k, k}));
   }
   return out;
+}
+
+}  // namespace
+
+Preprocessed Preprocess(const cv::Mat& image, const PreprocessOptions& options,
+                        PreprocessParts parts) {
+  using Status = Preprocessed::Status;
+  std::string why;
+  if (!options.IsValid(&why))
+    return Failed<Preprocessed>(Status::kInvalidInput, "Preprocess: " + why);
+  if (image.empty()) return Failed<Preprocessed>(Status::kInvalidInput, "Preprocess: empty image");
+  if (image.type() != CV_8UC1 && image.type() != CV_8UC3) {
+    return Failed<Preprocessed>(Status::kInvalidInput,
+                                "Preprocess: image must be CV_8UC1 or CV_8UC3 (BGR)");
+  }
+  try {
+    return PreprocessValid(image, options, parts);
+  } catch (const std::exception& e) {  // cv::Exception, std::bad_alloc
+    return Failed<Preprocessed>(Status::kFailed, std::string("Preprocess: ") + e.what());
+  }
 }
 
 }  // namespace craftscan

@@ -7,20 +7,18 @@
 #include <opencv2/core.hpp>
 #include <opencv2/imgproc.hpp>
 
+#include "craftscan/pipeline/common/status.h"
 #include "craftscan/pipeline/stereo/adcensus.h"
 
 namespace craftscan {
 
 bool ReprojectOptions::IsValid(std::string* why) const {
-  auto fail = [why](const char* reason) {
-    if (why != nullptr) *why = reason;
-    return false;
-  };
-  if (std::isnan(min_depth_mm) || std::isnan(max_depth_mm)) return fail("depth limits are NaN");
-  if (min_depth_mm > max_depth_mm) return fail("min_depth_mm > max_depth_mm");
-  if (!(min_texture_std >= 0)) return fail("min_texture_std must be >= 0");
+  if (std::isnan(min_depth_mm) || std::isnan(max_depth_mm))
+    return Fail(why, "depth limits are NaN");
+  if (min_depth_mm > max_depth_mm) return Fail(why, "min_depth_mm > max_depth_mm");
+  if (!(min_texture_std >= 0)) return Fail(why, "min_texture_std must be >= 0");
   if (texture_window < 3 || texture_window % 2 == 0)
-    return fail("texture_window must be odd and >= 3");
+    return Fail(why, "texture_window must be odd and >= 3");
   return true;
 }
 
@@ -42,30 +40,17 @@ cv::Mat TextureMask(const cv::Mat& color, int window, double min_std) {
   return (mean2 - mean.mul(mean)) >= min_std * min_std;
 }
 
-std::vector<ColoredPoint> ReprojectToPoints(const cv::Mat& disparity, const cv::Mat& Q,
-                                            const cv::Mat& color, const ReprojectOptions& options) {
-  std::string why;
-  if (!options.IsValid(&why)) throw std::invalid_argument("ReprojectToPoints: " + why);
-  if (disparity.empty() || disparity.type() != CV_32FC1) {
-    throw std::invalid_argument("ReprojectToPoints: disparity must be a non-empty CV_32FC1");
-  }
-  if (Q.rows != 4 || Q.cols != 4 || (Q.type() != CV_64FC1 && Q.type() != CV_32FC1)) {
-    throw std::invalid_argument("ReprojectToPoints: Q must be 4x4 CV_64F");
-  }
-  if (!color.empty() &&
-      (color.size() != disparity.size() || (color.type() != CV_8UC1 && color.type() != CV_8UC3))) {
-    throw std::invalid_argument(
-        "ReprojectToPoints: color must be empty or CV_8UC1/CV_8UC3 of the disparity's size");
-  }
-  cv::Matx44d q;
-  Q.convertTo(cv::Mat(q, false), CV_64F);
-  for (int i = 0; i < 16; ++i) {
-    if (!std::isfinite(q.val[i])) throw std::invalid_argument("ReprojectToPoints: Q not finite");
-  }
+namespace {
 
-  if (options.min_texture_std > 0 && color.empty()) {
-    throw std::invalid_argument("ReprojectToPoints: the texture filter needs the colour image");
-  }
+using ReprojectStatus = ReprojectResult::Status;
+
+ReprojectResult InvalidInput(std::string message) {
+  return Failed<ReprojectResult>(ReprojectStatus::kInvalidInput, "ReprojectToPoints: " + message);
+}
+
+// On validated inputs; OpenCV may still throw (out of memory).
+std::vector<ColoredPoint> ReprojectValid(const cv::Mat& disparity, const cv::Matx44d& q,
+                                         const cv::Mat& color, const ReprojectOptions& options) {
   const cv::Mat texture_ok =  // CV_8U, non-zero where the texture passes
       options.min_texture_std > 0
           ? TextureMask(color, options.texture_window, options.min_texture_std)
@@ -107,6 +92,41 @@ std::vector<ColoredPoint> ReprojectToPoints(const cv::Mat& disparity, const cv::
     }
   }
   return points;
+}
+
+}  // namespace
+
+ReprojectResult ReprojectToPoints(const cv::Mat& disparity, const cv::Mat& Q, const cv::Mat& color,
+                                  const ReprojectOptions& options) {
+  std::string why;
+  if (!options.IsValid(&why)) return InvalidInput(why);
+  if (disparity.empty() || disparity.type() != CV_32FC1) {
+    return InvalidInput("disparity must be a non-empty CV_32FC1");
+  }
+  if (Q.rows != 4 || Q.cols != 4 || (Q.type() != CV_64FC1 && Q.type() != CV_32FC1)) {
+    return InvalidInput("Q must be 4x4 CV_64F");
+  }
+  if (!color.empty() &&
+      (color.size() != disparity.size() || (color.type() != CV_8UC1 && color.type() != CV_8UC3))) {
+    return InvalidInput("color must be empty or CV_8UC1/CV_8UC3 of the disparity's size");
+  }
+  if (options.min_texture_std > 0 && color.empty()) {
+    return InvalidInput("the texture filter needs the colour image");
+  }
+  try {
+    cv::Matx44d q;
+    Q.convertTo(cv::Mat(q, false), CV_64F);
+    for (int i = 0; i < 16; ++i) {
+      if (!std::isfinite(q.val[i])) return InvalidInput("Q not finite");
+    }
+    ReprojectResult result;
+    result.points = ReprojectValid(disparity, q, color, options);
+    result.status = ReprojectStatus::kOk;
+    return result;
+  } catch (const std::exception& e) {  // cv::Exception, std::bad_alloc
+    return Failed<ReprojectResult>(ReprojectStatus::kFailed,
+                                   std::string("ReprojectToPoints: ") + e.what());
+  }
 }
 
 }  // namespace craftscan

@@ -6,6 +6,7 @@
 #include <exception>
 #include <vector>
 
+#include "craftscan/pipeline/common/status.h"
 #include "craftscan/pipeline/stereo/reproject.h"
 #include "craftscan/pipeline/surface/scan_reconstruction.h"
 
@@ -17,18 +18,12 @@ double MsSince(std::chrono::steady_clock::time_point start) {
       .count();
 }
 
-bool Fail(std::string* error, std::string message) {
-  if (error) *error = std::move(message);
-  return false;
-}
-
 }  // namespace
 
 bool ViewProcessorOptions::IsValid(std::string* why) const {
   if (num_threads < 1 || num_threads > 256) return Fail(why, "num_threads must be in 1..256");
-  if (!(volume_radius_mm > 0)) return Fail(why, "volume_radius_mm must be > 0");
-  if (!(volume_max_height_mm > volume_min_height_mm))
-    return Fail(why, "volume_max_height_mm must exceed volume_min_height_mm");
+  std::string sub;
+  if (!volume.IsValid(&sub)) return Fail(why, "volume." + sub);
   if (disparity_margin_px < 0 || disparity_margin_px > 64)
     return Fail(why, "disparity_margin_px must be in 0..64");
   if (max_num_disparities < 16) return Fail(why, "max_num_disparities must be >= 16");
@@ -51,8 +46,8 @@ bool ViewProcessor::Init(const StereoCalibration& calibration, const ViewProcess
   if (crop_) {
     turntable_from_rig_ = TurntableFromRig(c.turntable);
     const cv::Matx44d rig_from_turntable = turntable_from_rig_.inv();
-    for (double z : {0.0, options.volume_max_height_mm}) {
-      for (double r : {0.0, options.volume_radius_mm}) {
+    for (double z : {0.0, options.volume.max_height_mm}) {
+      for (double r : {0.0, options.volume.radius_mm}) {
         for (int i = 0; i < 72; ++i) {
           const double a = i * CV_PI / 36;
           const cv::Vec4d p =
@@ -133,18 +128,20 @@ ProcessedView ViewProcessor::Process(const cv::Mat& left_raw, const cv::Mat& rig
     start = std::chrono::steady_clock::now();
     ReprojectOptions reproject;
     reproject.min_texture_std = options_.min_texture_std;
-    const std::vector<ColoredPoint> points = ReprojectToPoints(
+    const ReprojectResult reprojected = ReprojectToPoints(
         out.disparity, cv::Mat(rectifier_.calibration().Q), out.rectified_left, reproject);
+    if (!reprojected.IsUsable()) {
+      out.message = "reproject: " + reprojected.message;
+      return out;
+    }
+    const std::vector<ColoredPoint>& points = reprojected.points;
     PointCloud& cloud = out.cloud_in_rig;
     cloud.points_mm.reserve(points.size());
     cloud.colors_rgb.reserve(points.size());
-    const double r2 = options_.volume_radius_mm * options_.volume_radius_mm;
     for (const ColoredPoint& p : points) {
       if (crop_) {
         const cv::Vec4d q = turntable_from_rig_ * cv::Vec4d(p.x, p.y, p.z, 1);
-        if (q[0] * q[0] + q[1] * q[1] > r2 || q[2] < options_.volume_min_height_mm ||
-            q[2] > options_.volume_max_height_mm)
-          continue;
+        if (!options_.volume.Contains(cv::Vec3d(q[0], q[1], q[2]))) continue;
       }
       cloud.points_mm.emplace_back(p.x, p.y, p.z);
       cloud.colors_rgb.emplace_back(p.r, p.g, p.b);

@@ -4,9 +4,12 @@
 #include <bit>
 #include <cmath>
 #include <cstdint>
+#include <exception>
 #include <limits>
 #include <unordered_map>
 #include <utility>
+
+#include "craftscan/pipeline/common/status.h"
 
 namespace craftscan {
 namespace {
@@ -15,76 +18,79 @@ namespace {
 // is one uint64 and sorting by it groups a voxel's points together.
 constexpr std::int64_t kHalfRange = std::int64_t{1} << 20;
 
-bool Fail(const std::string& message, std::string* error) {
-  if (error) *error = message;
-  return false;
-}
-
 bool Finite(const cv::Vec3f& v) {
   return std::isfinite(v[0]) && std::isfinite(v[1]) && std::isfinite(v[2]);
 }
 
-}  // namespace
+constexpr std::uint64_t kMask = (std::uint64_t{1} << 21) - 1;
 
-bool FusionOptions::IsValid(std::string* why) const {
-  if (!(voxel_mm > 0) || !std::isfinite(voxel_mm))
-    return Fail("FusionOptions.voxel_mm must be finite and > 0", why);
-  if (min_points_per_voxel < 1) return Fail("FusionOptions.min_points_per_voxel must be >= 1", why);
-  if (min_views < 1) return Fail("FusionOptions.min_views must be >= 1", why);
-  if (!(view_support_mm > 0) || !std::isfinite(view_support_mm))
-    return Fail("FusionOptions.view_support_mm must be > 0", why);
-  if (!(min_normal_agreement >= 0 && min_normal_agreement <= 1))
-    return Fail("FusionOptions.min_normal_agreement must be within 0..1", why);
+// The key of the voxel (dx, dy, dz) cells from `key`; false outside the grid.
+bool NeighbourKey(std::uint64_t key, std::int64_t dx, std::int64_t dy, std::int64_t dz,
+                  std::uint64_t* neighbour) {
+  const std::int64_t x = static_cast<std::int64_t>((key >> 42) & kMask) + dx;
+  const std::int64_t y = static_cast<std::int64_t>((key >> 21) & kMask) + dy;
+  const std::int64_t z = static_cast<std::int64_t>(key & kMask) + dz;
+  if (x < 0 || y < 0 || z < 0 || x > static_cast<std::int64_t>(kMask) ||
+      y > static_cast<std::int64_t>(kMask) || z > static_cast<std::int64_t>(kMask))
+    return false;
+  *neighbour = (static_cast<std::uint64_t>(x) << 42) | (static_cast<std::uint64_t>(y) << 21) |
+               static_cast<std::uint64_t>(z);
   return true;
 }
 
-PointCloud FuseClouds(const std::vector<PointCloud>& clouds, const FusionOptions& options,
-                      std::string* error, FusionStats* stats) {
-  FusionStats local_stats;
-  FusionStats& s = stats ? *stats : local_stats;
-  s = FusionStats{};
-  if (error) error->clear();
+// What the inputs hold: the per-point attributes every non-empty cloud has.
+struct InputSummary {
+  bool all_normals = true;
+  bool all_colors = true;
+};
+
+// Validates options and clouds and counts the input points.
+bool CheckInputs(const std::vector<PointCloud>& clouds, const FusionOptions& options,
+                 InputSummary* summary, FusionStats* s, std::string* error) {
   std::string why;
-  if (!options.IsValid(&why)) {
-    Fail("fusion: " + why, error);
-    return {};
-  }
-  bool all_normals = true, all_colors = true, any_points = false;
+  if (!options.IsValid(&why)) return Fail(error, "fusion: " + why);
+  bool any_points = false;
   std::size_t total = 0;
   for (std::size_t c = 0; c < clouds.size(); ++c) {
     if (!clouds[c].IsValid(&why)) {
-      Fail("fusion: cloud " + std::to_string(c) + " is invalid: " + why, error);
-      return {};
+      return Fail(error, "fusion: cloud " + std::to_string(c) + " is invalid: " + why);
     }
     if (clouds[c].empty()) continue;
     any_points = true;
-    all_normals = all_normals && clouds[c].HasNormals();
-    all_colors = all_colors && clouds[c].HasColors();
+    summary->all_normals = summary->all_normals && clouds[c].HasNormals();
+    summary->all_colors = summary->all_colors && clouds[c].HasColors();
     total += clouds[c].size();
   }
-  s.input_points = total;
+  s->input_points = total;
   if (!any_points) {
-    Fail("fusion: no input points (" + std::to_string(clouds.size()) + " clouds, all empty)",
-         error);
-    return {};
+    return Fail(
+        error, "fusion: no input points (" + std::to_string(clouds.size()) + " clouds, all empty)");
   }
   if (total >= std::numeric_limits<std::uint32_t>::max()) {
-    Fail("fusion: too many input points (" + std::to_string(total) + ")", error);
-    return {};
+    return Fail(error, "fusion: too many input points (" + std::to_string(total) + ")");
   }
+  return true;
+}
 
-  // (voxel key, global point index), sorted: deterministic grouping.
-  std::vector<std::pair<std::uint64_t, std::uint32_t>> keyed;
+// Every finite, in-range input point with its voxel key, sorted by key (then
+// by global index): deterministic grouping.
+struct KeyedPoints {
+  std::vector<std::pair<std::uint64_t, std::uint32_t>> keyed;  // (voxel key, global index)
   std::vector<std::pair<std::uint32_t, std::uint32_t>> where;  // global index → (cloud, point)
-  keyed.reserve(total);
-  where.reserve(total);
+};
+
+KeyedPoints KeyPoints(const std::vector<PointCloud>& clouds, const FusionOptions& options,
+                      FusionStats* s) {
+  KeyedPoints out;
+  out.keyed.reserve(s->input_points);
+  out.where.reserve(s->input_points);
   const double inv_voxel = 1.0 / options.voxel_mm;
   for (std::size_t c = 0; c < clouds.size(); ++c) {
     const auto& points = clouds[c].points_mm;
     for (std::size_t i = 0; i < points.size(); ++i) {
       const cv::Vec3f& p = points[i];
       if (!Finite(p)) {
-        ++s.nonfinite_points;
+        ++s->nonfinite_points;
         continue;
       }
       std::uint64_t key = 0;
@@ -99,33 +105,40 @@ PointCloud FuseClouds(const std::vector<PointCloud>& clouds, const FusionOptions
             (key << 21) | static_cast<std::uint64_t>(static_cast<std::int64_t>(cell) + kHalfRange);
       }
       if (!in_range) {
-        ++s.out_of_range_points;
+        ++s->out_of_range_points;
         continue;
       }
-      keyed.emplace_back(key, static_cast<std::uint32_t>(where.size()));
-      where.emplace_back(static_cast<std::uint32_t>(c), static_cast<std::uint32_t>(i));
+      out.keyed.emplace_back(key, static_cast<std::uint32_t>(out.where.size()));
+      out.where.emplace_back(static_cast<std::uint32_t>(c), static_cast<std::uint32_t>(i));
     }
   }
-  if (keyed.empty()) {
-    Fail("fusion: no finite input point within range (" + std::to_string(s.nonfinite_points) +
-             " non-finite, " + std::to_string(s.out_of_range_points) + " out of range)",
-         error);
-    return {};
-  }
   // x is packed first (highest bits), so this orders by x, then y, then z.
-  std::sort(keyed.begin(), keyed.end());
+  std::sort(out.keyed.begin(), out.keyed.end());
+  return out;
+}
 
-  PointCloud out;
-  std::vector<std::uint64_t> out_keys;                 // voxel of each output point (sorted)
-  std::vector<std::pair<cv::Vec3d, double>> out_sums;  // Σ points, count per output voxel
-  std::vector<std::uint64_t> out_views;                // bit c: cloud c has points here
+// The fused cloud, one point per kept voxel, with each voxel's key (sorted),
+// point sum and count, and the clouds that have points in it (bit c).
+struct Voxels {
+  PointCloud cloud;
+  std::vector<std::uint64_t> keys;
+  std::vector<std::pair<cv::Vec3d, double>> sums;
+  std::vector<std::uint64_t> views;
+};
+
+// Averages the points (normals, colours) of every voxel holding at least
+// min_points_per_voxel points.
+Voxels AverageVoxels(const std::vector<PointCloud>& clouds, const KeyedPoints& points,
+                     const FusionOptions& options, const InputSummary& summary, FusionStats* s) {
+  const auto& keyed = points.keyed;
+  Voxels out;
   std::size_t kept_points = 0;
   for (std::size_t begin = 0; begin < keyed.size();) {
     std::size_t end = begin + 1;
     while (end < keyed.size() && keyed[end].first == keyed[begin].first) ++end;
     const std::size_t count = end - begin;
     if (count < static_cast<std::size_t>(options.min_points_per_voxel)) {
-      s.sparse_voxel_points += count;
+      s->sparse_voxel_points += count;
       begin = end;
       continue;
     }
@@ -135,11 +148,11 @@ PointCloud FuseClouds(const std::vector<PointCloud>& clouds, const FusionOptions
     std::size_t normals = 0;
     std::uint64_t views = 0;
     for (std::size_t k = begin; k < end; ++k) {
-      const auto [c, i] = where[keyed[k].second];
+      const auto [c, i] = points.where[keyed[k].second];
       views |= std::uint64_t{1} << std::min<std::uint32_t>(c, 63);
       const PointCloud& cloud = clouds[c];
       sum_p += cv::Vec3d(cloud.points_mm[i]);
-      if (all_normals) {
+      if (summary.all_normals) {
         const cv::Vec3f& nf = cloud.normals[i];
         if (Finite(nf)) {
           cv::Vec3d n(nf);
@@ -152,16 +165,16 @@ PointCloud FuseClouds(const std::vector<PointCloud>& clouds, const FusionOptions
           ++normals;
         }
       }
-      if (all_colors) sum_c += cv::Vec3d(cloud.colors_rgb[i]);
+      if (summary.all_colors) sum_c += cv::Vec3d(cloud.colors_rgb[i]);
     }
     const double inv = 1.0 / static_cast<double>(count);
     const cv::Vec3d mean = sum_p * inv;
-    out.points_mm.emplace_back(static_cast<float>(mean[0]), static_cast<float>(mean[1]),
-                               static_cast<float>(mean[2]));
-    out_keys.push_back(keyed[begin].first);
-    out_sums.emplace_back(sum_p, static_cast<double>(count));
-    out_views.push_back(views);
-    if (all_normals) {
+    out.cloud.points_mm.emplace_back(static_cast<float>(mean[0]), static_cast<float>(mean[1]),
+                                     static_cast<float>(mean[2]));
+    out.keys.push_back(keyed[begin].first);
+    out.sums.emplace_back(sum_p, static_cast<double>(count));
+    out.views.push_back(views);
+    if (summary.all_normals) {
       cv::Vec3d n = have_first_n ? first_n : cv::Vec3d(0, 0, 1);
       const double length = cv::norm(sum_n);
       if (normals > 0 && length > options.min_normal_agreement * static_cast<double>(normals) &&
@@ -171,114 +184,147 @@ PointCloud FuseClouds(const std::vector<PointCloud>& clouds, const FusionOptions
         n /= cv::norm(n);
       else
         n = cv::Vec3d(0, 0, 1);
-      out.normals.emplace_back(static_cast<float>(n[0]), static_cast<float>(n[1]),
-                               static_cast<float>(n[2]));
+      out.cloud.normals.emplace_back(static_cast<float>(n[0]), static_cast<float>(n[1]),
+                                     static_cast<float>(n[2]));
     }
-    if (all_colors) {
+    if (summary.all_colors) {
       cv::Vec3b rgb;
       for (int a = 0; a < 3; ++a)
         rgb[a] = static_cast<std::uint8_t>(std::clamp(std::lround(sum_c[a] * inv), 0L, 255L));
-      out.colors_rgb.push_back(rgb);
+      out.cloud.colors_rgb.push_back(rgb);
     }
     kept_points += count;
     begin = end;
   }
-  s.output_points = out.size();
-  if (out.empty()) {
-    Fail("fusion: no voxel holds min_points_per_voxel = " +
-             std::to_string(options.min_points_per_voxel) + " points (" +
-             std::to_string(keyed.size()) + " finite points)",
-         error);
-    return {};
-  }
-  s.mean_points_per_voxel = static_cast<double>(kept_points) / static_cast<double>(out.size());
-  constexpr std::uint64_t kMask = (std::uint64_t{1} << 21) - 1;
-  if (options.min_views > 1) {
-    std::unordered_map<std::uint64_t, std::size_t> index;
-    index.reserve(out_keys.size() * 2);
-    for (std::size_t v = 0; v < out_keys.size(); ++v) index.emplace(out_keys[v], v);
-    const std::int64_t r = std::max<std::int64_t>(
-        1, std::llround(std::ceil(options.view_support_mm / options.voxel_mm)));
-    std::vector<char> keep(out_keys.size(), 0);
-    for (std::size_t v = 0; v < out_keys.size(); ++v) {
-      const std::int64_t cx = static_cast<std::int64_t>((out_keys[v] >> 42) & kMask);
-      const std::int64_t cy = static_cast<std::int64_t>((out_keys[v] >> 21) & kMask);
-      const std::int64_t cz = static_cast<std::int64_t>(out_keys[v] & kMask);
-      std::uint64_t views = out_views[v];
-      for (std::int64_t dx = -r; dx <= r && std::popcount(views) < options.min_views; ++dx)
-        for (std::int64_t dy = -r; dy <= r; ++dy)
-          for (std::int64_t dz = -r; dz <= r; ++dz) {
-            const std::int64_t x = cx + dx, y = cy + dy, z = cz + dz;
-            if (x < 0 || y < 0 || z < 0 || x > static_cast<std::int64_t>(kMask) ||
-                y > static_cast<std::int64_t>(kMask) || z > static_cast<std::int64_t>(kMask))
-              continue;
-            const auto it =
-                index.find((static_cast<std::uint64_t>(x) << 42) |
-                           (static_cast<std::uint64_t>(y) << 21) | static_cast<std::uint64_t>(z));
-            if (it != index.end()) views |= out_views[it->second];
-          }
-      keep[v] = std::popcount(views) >= options.min_views;
-    }
-    PointCloud kept;
-    std::vector<std::uint64_t> kept_keys;
-    std::vector<std::pair<cv::Vec3d, double>> kept_sums;
-    for (std::size_t v = 0; v < out_keys.size(); ++v) {
-      if (!keep[v]) {
-        ++s.single_view_voxels;
-        continue;
-      }
-      kept.points_mm.push_back(out.points_mm[v]);
-      if (out.HasNormals()) kept.normals.push_back(out.normals[v]);
-      if (out.HasColors()) kept.colors_rgb.push_back(out.colors_rgb[v]);
-      kept_keys.push_back(out_keys[v]);
-      kept_sums.push_back(out_sums[v]);
-    }
-    out = std::move(kept);
-    out_keys = std::move(kept_keys);
-    out_sums = std::move(kept_sums);
-    s.output_points = out.size();
-    if (out.empty()) {
-      Fail("fusion: no voxel is supported by min_views = " + std::to_string(options.min_views) +
-               " clouds",
-           error);
-      return {};
-    }
-  }
-  if (options.refine_along_normal && out.HasNormals()) {
-    std::vector<cv::Vec3f> refined(out.size());
-    for (std::size_t v = 0; v < out.size(); ++v) {
-      const std::uint64_t key = out_keys[v];
-      const std::int64_t cx = static_cast<std::int64_t>((key >> 42) & kMask);
-      const std::int64_t cy = static_cast<std::int64_t>((key >> 21) & kMask);
-      const std::int64_t cz = static_cast<std::int64_t>(key & kMask);
-      cv::Vec3d sum(0, 0, 0);
-      double count = 0;
-      for (std::int64_t dx = -1; dx <= 1; ++dx)
-        for (std::int64_t dy = -1; dy <= 1; ++dy)
-          for (std::int64_t dz = -1; dz <= 1; ++dz) {
-            const std::int64_t x = cx + dx, y = cy + dy, z = cz + dz;
-            if (x < 0 || y < 0 || z < 0 || x > static_cast<std::int64_t>(kMask) ||
-                y > static_cast<std::int64_t>(kMask) || z > static_cast<std::int64_t>(kMask))
-              continue;
-            const std::uint64_t k = (static_cast<std::uint64_t>(x) << 42) |
-                                    (static_cast<std::uint64_t>(y) << 21) |
-                                    static_cast<std::uint64_t>(z);
-            const auto it = std::lower_bound(out_keys.begin(), out_keys.end(), k);
-            if (it == out_keys.end() || *it != k) continue;
-            const auto& [block_sum, block_count] =
-                out_sums[static_cast<std::size_t>(it - out_keys.begin())];
-            sum += block_sum;
-            count += block_count;
-          }
-      const cv::Vec3d p(out.points_mm[v]);
-      const cv::Vec3d n(out.normals[v]);
-      const cv::Vec3d moved = p + n * n.dot(sum / count - p);
-      refined[v] = cv::Vec3f(static_cast<float>(moved[0]), static_cast<float>(moved[1]),
-                             static_cast<float>(moved[2]));
-    }
-    out.points_mm.swap(refined);
+  s->output_points = out.cloud.size();
+  if (!out.cloud.empty()) {
+    s->mean_points_per_voxel =
+        static_cast<double>(kept_points) / static_cast<double>(out.cloud.size());
   }
   return out;
+}
+
+// Drops voxels seen by fewer than min_views clouds within view_support_mm.
+void KeepMultiViewVoxels(const FusionOptions& options, Voxels* voxels, FusionStats* s) {
+  const std::vector<std::uint64_t>& keys = voxels->keys;
+  std::unordered_map<std::uint64_t, std::size_t> index;
+  index.reserve(keys.size() * 2);
+  for (std::size_t v = 0; v < keys.size(); ++v) index.emplace(keys[v], v);
+  const std::int64_t r = std::max<std::int64_t>(
+      1, std::llround(std::ceil(options.view_support_mm / options.voxel_mm)));
+  std::vector<char> keep(keys.size(), 0);
+  for (std::size_t v = 0; v < keys.size(); ++v) {
+    std::uint64_t views = voxels->views[v];
+    for (std::int64_t dx = -r; dx <= r && std::popcount(views) < options.min_views; ++dx)
+      for (std::int64_t dy = -r; dy <= r; ++dy)
+        for (std::int64_t dz = -r; dz <= r; ++dz) {
+          std::uint64_t neighbour = 0;
+          if (!NeighbourKey(keys[v], dx, dy, dz, &neighbour)) continue;
+          const auto it = index.find(neighbour);
+          if (it != index.end()) views |= voxels->views[it->second];
+        }
+    keep[v] = std::popcount(views) >= options.min_views;
+  }
+  const PointCloud& out = voxels->cloud;
+  Voxels kept;
+  for (std::size_t v = 0; v < keys.size(); ++v) {
+    if (!keep[v]) {
+      ++s->single_view_voxels;
+      continue;
+    }
+    kept.cloud.points_mm.push_back(out.points_mm[v]);
+    if (out.HasNormals()) kept.cloud.normals.push_back(out.normals[v]);
+    if (out.HasColors()) kept.cloud.colors_rgb.push_back(out.colors_rgb[v]);
+    kept.keys.push_back(keys[v]);
+    kept.sums.push_back(voxels->sums[v]);
+    kept.views.push_back(voxels->views[v]);
+  }
+  *voxels = std::move(kept);
+  s->output_points = voxels->cloud.size();
+}
+
+// Moves each point along its normal to the plane through the mean of the
+// 3×3×3 voxels around it.
+void RefineAlongNormals(Voxels* voxels) {
+  PointCloud& out = voxels->cloud;
+  const std::vector<std::uint64_t>& keys = voxels->keys;
+  std::vector<cv::Vec3f> refined(out.size());
+  for (std::size_t v = 0; v < out.size(); ++v) {
+    cv::Vec3d sum(0, 0, 0);
+    double count = 0;
+    for (std::int64_t dx = -1; dx <= 1; ++dx)
+      for (std::int64_t dy = -1; dy <= 1; ++dy)
+        for (std::int64_t dz = -1; dz <= 1; ++dz) {
+          std::uint64_t k = 0;
+          if (!NeighbourKey(keys[v], dx, dy, dz, &k)) continue;
+          const auto it = std::lower_bound(keys.begin(), keys.end(), k);
+          if (it == keys.end() || *it != k) continue;
+          const auto& [block_sum, block_count] =
+              voxels->sums[static_cast<std::size_t>(it - keys.begin())];
+          sum += block_sum;
+          count += block_count;
+        }
+    const cv::Vec3d p(out.points_mm[v]);
+    const cv::Vec3d n(out.normals[v]);
+    const cv::Vec3d moved = p + n * n.dot(sum / count - p);
+    refined[v] = cv::Vec3f(static_cast<float>(moved[0]), static_cast<float>(moved[1]),
+                           static_cast<float>(moved[2]));
+  }
+  out.points_mm.swap(refined);
+}
+
+}  // namespace
+
+bool FusionOptions::IsValid(std::string* why) const {
+  if (!(voxel_mm > 0) || !std::isfinite(voxel_mm))
+    return Fail(why, "FusionOptions.voxel_mm must be finite and > 0");
+  if (min_points_per_voxel < 1) return Fail(why, "FusionOptions.min_points_per_voxel must be >= 1");
+  if (min_views < 1) return Fail(why, "FusionOptions.min_views must be >= 1");
+  if (!(view_support_mm > 0) || !std::isfinite(view_support_mm))
+    return Fail(why, "FusionOptions.view_support_mm must be > 0");
+  if (!(min_normal_agreement >= 0 && min_normal_agreement <= 1))
+    return Fail(why, "FusionOptions.min_normal_agreement must be within 0..1");
+  return true;
+}
+
+PointCloud FuseClouds(const std::vector<PointCloud>& clouds, const FusionOptions& options,
+                      std::string* error, FusionStats* stats) {
+  FusionStats local_stats;
+  FusionStats& s = stats ? *stats : local_stats;
+  s = FusionStats{};
+  if (error) error->clear();
+  try {
+    InputSummary summary;
+    if (!CheckInputs(clouds, options, &summary, &s, error)) return {};
+    const KeyedPoints keyed = KeyPoints(clouds, options, &s);
+    if (keyed.keyed.empty()) {
+      Fail(error, "fusion: no finite input point within range (" +
+                      std::to_string(s.nonfinite_points) + " non-finite, " +
+                      std::to_string(s.out_of_range_points) + " out of range)");
+      return {};
+    }
+    Voxels voxels = AverageVoxels(clouds, keyed, options, summary, &s);
+    if (voxels.cloud.empty()) {
+      Fail(error, "fusion: no voxel holds min_points_per_voxel = " +
+                      std::to_string(options.min_points_per_voxel) + " points (" +
+                      std::to_string(keyed.keyed.size()) + " finite points)");
+      return {};
+    }
+    if (options.min_views > 1) {
+      KeepMultiViewVoxels(options, &voxels, &s);
+      if (voxels.cloud.empty()) {
+        Fail(error, "fusion: no voxel is supported by min_views = " +
+                        std::to_string(options.min_views) + " clouds");
+        return {};
+      }
+    }
+    if (options.refine_along_normal && voxels.cloud.HasNormals()) RefineAlongNormals(&voxels);
+    return std::move(voxels.cloud);
+  } catch (const std::exception& e) {  // std::bad_alloc: never throws, as documented
+    s = FusionStats{};
+    Fail(error, std::string("fusion: ") + e.what());
+    return {};
+  }
 }
 
 }  // namespace craftscan

@@ -10,10 +10,12 @@
 #include <numbers>
 #include <numeric>
 #include <random>
+#include <string_view>
 #include <unordered_map>
 #include <utility>
 
 #include "craftscan/pipeline/common/atomic_file.h"
+#include "craftscan/pipeline/common/status.h"
 
 namespace craftscan {
 namespace {
@@ -24,11 +26,6 @@ using Eigen::Vector3d;
 constexpr double kPi = std::numbers::pi;
 constexpr double kDeg = kPi / 180.0;
 constexpr std::size_t kMinBoxPoints = 100;
-
-bool Fail(const std::string& message, std::string* why) {
-  if (why) *why = message;
-  return false;
-}
 
 bool Finite(const cv::Vec3f& v) {
   return std::isfinite(v[0]) && std::isfinite(v[1]) && std::isfinite(v[2]);
@@ -385,11 +382,8 @@ Vector3d SolveVertex(const FitPlane& a, const FitPlane& b, const FitPlane& c, do
   return m.colPivHouseholderQr().solve(Vector3d(-a.d, -b.d, -c.d));
 }
 
-BoxMeasurement Failed(BoxMeasurement m, const std::string& message) {
-  m.status = BoxMeasurement::Status::kFailed;
-  m.message = "MeasureBox: " + message;
-  return m;
-}
+constexpr auto kFailed = BoxMeasurement::Status::kFailed;
+constexpr std::string_view kWhere = "MeasureBox: ";
 
 Plane ToPlane(const FitPlane& p, std::size_t inliers, double rms, bool given) {
   Plane out;
@@ -399,6 +393,286 @@ Plane ToPlane(const FitPlane& p, std::size_t inliers, double rms, bool given) {
   out.rms_mm = rms;
   out.given = given;
   return out;
+}
+
+// Planes grouped by direction: up to three mutually orthogonal axes, two
+// face slots per axis (slot 2g+1 along +axes[g], 2g against it).
+struct FaceGroups {
+  std::vector<Vector3d> axes;
+  std::array<Face, 6> faces;
+
+  // Puts `plane` in the slot of its axis (within cos_tol), or starts a new
+  // axis when it is orthogonal (within sin_tol) to all so far. Returns 1 when
+  // placed, 0 when the slot already holds a (larger, earlier) plane, -1 for
+  // an oblique plane or a fourth direction. A `given` plane always wins.
+  int Place(const FitPlane& plane, const std::vector<int>* inliers, bool given, double cos_tol,
+            double sin_tol) {
+    for (std::size_t g = 0; g < axes.size(); ++g) {
+      const double c = plane.n.dot(axes[g]);
+      if (std::abs(c) < cos_tol) continue;
+      Face& f = faces[2 * g + (c > 0 ? 1 : 0)];
+      if (f.present && !given) return 0;  // the slot has a larger plane
+      f.plane = plane;
+      f.inliers = inliers ? *inliers : std::vector<int>{};
+      f.given = given;
+      f.present = true;
+      return 1;
+    }
+    for (const Vector3d& a : axes)
+      if (std::abs(plane.n.dot(a)) > sin_tol) return -1;  // oblique
+    if (axes.size() >= 3) return -1;
+    axes.push_back(plane.n);
+    Face& f = faces[2 * (axes.size() - 1) + 1];
+    f.plane = plane;
+    f.inliers = inliers ? *inliers : std::vector<int>{};
+    f.given = given;
+    f.present = true;
+    return 1;
+  }
+};
+
+// The working set: finite points, normals where finite and non-zero.
+Points WorkingSet(const PointCloud& cloud) {
+  Points points;
+  for (std::size_t i = 0; i < cloud.size(); ++i) {
+    if (!Finite(cloud.points_mm[i])) continue;
+    points.p.push_back(ToEigen(cloud.points_mm[i]));
+    Vector3d n = Vector3d::UnitZ();
+    char has = 0;
+    if (cloud.HasNormals() && Finite(cloud.normals[i])) {
+      n = ToEigen(cloud.normals[i]);
+      if (n.norm() > 1e-6) {
+        n.normalize();
+        has = 1;
+      }
+    }
+    points.n.push_back(n);
+    points.has_n.push_back(has);
+  }
+  return points;
+}
+
+// The given base plane (if any), turned so that its normal points away from
+// most points (the box stands on it), and in *active the points above it by
+// more than base_exclusion_mm (all points without a base).
+std::optional<FitPlane> OrientBasePlane(const BoxMeasureOptions& o, const Points& points,
+                                        std::vector<int>* active) {
+  if (o.base_plane) {
+    FitPlane b;
+    const double norm = cv::norm(o.base_plane->normal);
+    b.n = ToEigen(o.base_plane->normal) / norm;
+    b.d = o.base_plane->offset_mm / norm;
+    std::size_t above = 0;
+    for (const Vector3d& p : points.p) above += b.Distance(p) > 0 ? 1 : 0;
+    if (2 * above > points.p.size()) {  // the box is on the + side: outward is −n
+      b.n = -b.n;
+      b.d = -b.d;
+    }
+    for (std::size_t i = 0; i < points.p.size(); ++i)
+      if (-b.Distance(points.p[i]) > o.base_exclusion_mm) active->push_back(static_cast<int>(i));
+    return b;
+  }
+  active->resize(points.p.size());
+  std::iota(active->begin(), active->end(), 0);
+  return std::nullopt;
+}
+
+// Re-gathers face s's inliers from all active points, leaving out the edge
+// zones (within edge_margin_mm of the neighbouring faces), with a normal gate
+// adapted to the normals' noise, and refits its plane. False when fewer than
+// 3 points remain.
+bool RefitFace(const Points& points, const std::vector<int>& active, const BoxMeasureOptions& o,
+               double cos_normal, std::size_t s, std::array<Face, 6>* faces_io) {
+  std::array<Face, 6>& faces = *faces_io;
+  Face& f = faces[s];
+  std::vector<int> candidates;
+  for (int i : active) {
+    const Vector3d& p = points.p[static_cast<std::size_t>(i)];
+    bool inside = true;
+    for (std::size_t t = 0; t < 6 && inside; ++t)
+      if (t != s && t / 2 != s / 2) inside = -faces[t].plane.Distance(p) > o.edge_margin_mm;
+    if (inside) candidates.push_back(i);
+  }
+  std::vector<int> inliers = Inliers(points, candidates, f.plane, o.plane_distance_mm, cos_normal);
+  // Tighter normal gate: relief walls within the distance gate (shallow
+  // cuts) would pull the face inwards; it adapts to the normals' noise.
+  std::vector<double> angles;
+  for (int i : inliers) {
+    const auto q = static_cast<std::size_t>(i);
+    if (points.has_n[q])
+      angles.push_back(std::acos(std::min(1.0, std::abs(points.n[q].dot(f.plane.n)))) / kDeg);
+  }
+  if (!angles.empty()) {
+    std::nth_element(angles.begin(),
+                     angles.begin() + static_cast<std::ptrdiff_t>(angles.size() / 2), angles.end());
+    const double gate_deg = std::min(
+        o.normal_angle_deg, std::max(o.fit_normal_angle_deg, 2.5 * angles[angles.size() / 2]));
+    inliers = Inliers(points, inliers, f.plane, o.plane_distance_mm, std::cos(gate_deg * kDeg));
+  }
+  if (inliers.size() < 3) return false;
+  f.inliers = std::move(inliers);
+  FitPlane fitted = f.plane;
+  if (FitLeastSquares(points.p, f.inliers, &fitted)) f.plane = fitted;
+  return true;
+}
+
+// Sorts the box axes by extent (distance between opposite faces along the
+// axis through the centre), descending, reordering the faces with them; keeps
+// the frame right-handed. Returns the sorted frame (columns = axes).
+Matrix3d SortAxesByExtent(const Matrix3d& frame, const Vector3d& centre,
+                          std::array<Face, 6>* faces_io) {
+  std::array<Face, 6>& faces = *faces_io;
+  std::array<double, 3> extent{};
+  for (int g = 0; g < 3; ++g) {
+    const Vector3d a = frame.col(g);
+    const auto& plus = faces[static_cast<std::size_t>(2 * g + 1)].plane;
+    const auto& minus = faces[static_cast<std::size_t>(2 * g)].plane;
+    const double tp = -plus.Distance(centre) / plus.n.dot(a);
+    const double tm = -minus.Distance(centre) / minus.n.dot(a);
+    extent[static_cast<std::size_t>(g)] = tp - tm;
+  }
+  std::array<int, 3> order{0, 1, 2};
+  std::stable_sort(order.begin(), order.end(), [&](int a, int b) {
+    return extent[static_cast<std::size_t>(a)] > extent[static_cast<std::size_t>(b)];
+  });
+  Matrix3d sorted;
+  std::array<Face, 6> sorted_faces;
+  for (int k = 0; k < 3; ++k) {
+    const auto g = static_cast<std::size_t>(order[static_cast<std::size_t>(k)]);
+    sorted.col(k) = frame.col(static_cast<int>(g));
+    sorted_faces[static_cast<std::size_t>(2 * k)] = faces[2 * g];
+    sorted_faces[static_cast<std::size_t>(2 * k + 1)] = faces[2 * g + 1];
+  }
+  if (sorted.determinant() < 0) {
+    sorted.col(2) = -sorted.col(2);
+    std::swap(sorted_faces[4], sorted_faces[5]);
+  }
+  faces = std::move(sorted_faces);
+
+  return sorted;
+}
+
+// The fitted planes and their RMS residual (the given base excluded).
+void RecordFacePlanes(const Points& points, const std::array<Face, 6>& faces, BoxMeasurement* m) {
+  double rms_sum = 0;
+  std::size_t rms_count = 0;
+  for (const Face& f : faces) {
+    const double rms = RmsDistance(points.p, f.inliers, f.plane);
+    m->planes.push_back(ToPlane(f.plane, f.inliers.size(), rms, f.given));
+    if (!f.given) {
+      rms_sum += rms * rms * static_cast<double>(f.inliers.size());
+      rms_count += f.inliers.size();
+    }
+    m->face_points += f.inliers.size();
+  }
+  m->face_rms_mm = rms_count ? std::sqrt(rms_sum / static_cast<double>(rms_count)) : 0;
+}
+
+// A local plane for one side (`side`) of the edge from `vertex` along `t`
+// (reach mm long), fitted to the band of points next to the edge; the face's
+// own plane when the band is too thin or the side is the given base.
+FitPlane LocalEdgePlane(const Points& points, const std::vector<int>& active,
+                        const BoxMeasureOptions& o, double cos_normal, const Face& side,
+                        const Face& across, const Vector3d& vertex, const Vector3d& t,
+                        double reach) {
+  if (side.given) return side.plane;
+  std::vector<int> band;
+  for (int i : active) {
+    const auto q = static_cast<std::size_t>(i);
+    const Vector3d& p = points.p[q];
+    const double u = (p - vertex).dot(t);
+    if (u < o.edge_band_min_mm || u > reach) continue;
+    const double w = -across.plane.Distance(p);
+    if (w < o.edge_band_min_mm || w > o.edge_band_max_mm) continue;
+    if (std::abs(side.plane.Distance(p)) >= o.plane_distance_mm) continue;
+    if (!points.NormalAgrees(q, side.plane.n, cos_normal)) continue;
+    band.push_back(i);
+  }
+  if (band.size() < static_cast<std::size_t>(o.min_edge_points)) return side.plane;
+  FitPlane local = side.plane;
+  if (!FitLeastSquares(points.p, band, &local)) return side.plane;
+  // One re-gate about the local plane (noise, stray relief).
+  std::vector<int> kept;
+  for (int i : band)
+    if (std::abs(local.Distance(points.p[static_cast<std::size_t>(i)])) < o.plane_distance_mm)
+      kept.push_back(i);
+  FitPlane refit = local;
+  if (kept.size() >= static_cast<std::size_t>(o.min_edge_points) &&
+      FitLeastSquares(points.p, kept, &refit))
+    local = refit;
+  return local;
+}
+
+// Point-circle refinement: three independently fitted edge lines per vertex,
+// the vertex the centre of the circle through their closest points. Returns
+// -1, or the vertex whose edge line is degenerate.
+int PointCircleVertices(const Points& points, const std::vector<int>& active,
+                        const BoxMeasureOptions& o, double cos_normal,
+                        const std::array<Face, 6>& faces, BoxMeasurement* m) {
+  auto face_of = [&](int vertex, int axis) -> const Face& {
+    return faces[static_cast<std::size_t>(2 * axis + ((vertex >> axis) & 1))];
+  };
+  for (int v = 0; v < 8; ++v) {
+    const Vector3d vertex = ToEigen(m->vertices_mm[static_cast<std::size_t>(v)]);
+    std::array<Line, 3> lines;  // lines[m]: the edge along axis m
+    for (int axis = 0; axis < 3; ++axis) {
+      const int j = (axis + 1) % 3, k = (axis + 2) % 3;
+      const Face& fj = face_of(v, j);
+      const Face& fk = face_of(v, k);
+      const Vector3d other = ToEigen(m->vertices_mm[static_cast<std::size_t>(v ^ (1 << axis))]);
+      const double length = (other - vertex).norm();
+      const Vector3d t = (other - vertex) / length;
+      const double reach = std::min(o.edge_local_length_mm, 0.45 * length);
+      const FitPlane pj = LocalEdgePlane(points, active, o, cos_normal, fj, fk, vertex, t, reach);
+      const FitPlane pk = LocalEdgePlane(points, active, o, cos_normal, fk, fj, vertex, t, reach);
+      Line line;
+      if (!IntersectPlanes(pj, pk, vertex, &line) &&
+          !IntersectPlanes(fj.plane, fk.plane, vertex, &line))
+        return v;
+      lines[static_cast<std::size_t>(axis)] = line;
+    }
+    const Vector3d a = ClosestMidpoint(lines[0], lines[1]);
+    const Vector3d b = ClosestMidpoint(lines[1], lines[2]);
+    const Vector3d c = ClosestMidpoint(lines[2], lines[0]);
+    Vector3d centre_v;
+    double radius = 0;
+    const double longest = std::max({(a - b).norm(), (b - c).norm(), (c - a).norm()});
+    bool fallback = !Circumcircle(a, b, c, &centre_v, &radius) || radius > o.max_circle_radius_mm ||
+                    radius > longest;
+    if (fallback) {
+      centre_v = (a + b + c) / 3;
+      radius = std::max({(a - centre_v).norm(), (b - centre_v).norm(), (c - centre_v).norm()});
+    }
+    m->refined_vertices_mm.push_back(ToCv(centre_v));
+    m->circle_radius_mm.push_back(radius);
+    m->circle_fallback.push_back(fallback);
+  }
+
+  return -1;
+}
+
+// The 12 edges (along axis 0, then 1, then 2; a < b) and the box dimensions
+// (mean edge length per axis).
+void MeasureEdges(const BoxMeasureOptions& o, BoxMeasurement* m) {
+  std::array<double, 3> dims_sum{};
+  for (int axis = 0; axis < 3; ++axis) {
+    for (int v = 0; v < 8; ++v) {
+      if (v & (1 << axis)) continue;
+      BoxEdge e;
+      e.a = v;
+      e.b = v | (1 << axis);
+      e.axis = axis;
+      e.intersection_length_mm = cv::norm(m->vertices_mm[static_cast<std::size_t>(e.b)] -
+                                          m->vertices_mm[static_cast<std::size_t>(e.a)]);
+      e.circle_length_mm = cv::norm(m->refined_vertices_mm[static_cast<std::size_t>(e.b)] -
+                                    m->refined_vertices_mm[static_cast<std::size_t>(e.a)]);
+      e.length_mm = o.vertex_method == VertexMethod::kPointCircle ? e.circle_length_mm
+                                                                  : e.intersection_length_mm;
+      dims_sum[static_cast<std::size_t>(axis)] += e.length_mm / 4;
+      m->edges.push_back(e);
+    }
+  }
+  m->dims_mm = cv::Vec3d(dims_sum[0], dims_sum[1], dims_sum[2]);
 }
 
 }  // namespace
@@ -427,53 +701,53 @@ bool VertexMethodFromString(const std::string& text, VertexMethod* method) {
 
 bool OrientedBoxOptions::IsValid(std::string* why) const {
   if (!(trim_fraction >= 0 && trim_fraction < 0.2))
-    return Fail("OrientedBoxOptions.trim_fraction must be within [0, 0.2)", why);
+    return Fail(why, "OrientedBoxOptions.trim_fraction must be within [0, 0.2)");
   if (max_search_points < 100)
-    return Fail("OrientedBoxOptions.max_search_points must be >= 100", why);
+    return Fail(why, "OrientedBoxOptions.max_search_points must be >= 100");
   return true;
 }
 
 bool BoxMeasureOptions::IsValid(std::string* why) const {
   auto positive = [](double v) { return std::isfinite(v) && v > 0; };
   if (!positive(plane_distance_mm))
-    return Fail("BoxMeasureOptions.plane_distance_mm must be finite and > 0", why);
+    return Fail(why, "BoxMeasureOptions.plane_distance_mm must be finite and > 0");
   if (!(normal_angle_deg > 0 && normal_angle_deg <= 90))
-    return Fail("BoxMeasureOptions.normal_angle_deg must be within (0, 90]", why);
+    return Fail(why, "BoxMeasureOptions.normal_angle_deg must be within (0, 90]");
   if (!(fit_normal_angle_deg > 0 && fit_normal_angle_deg <= 90))
-    return Fail("BoxMeasureOptions.fit_normal_angle_deg must be within (0, 90]", why);
+    return Fail(why, "BoxMeasureOptions.fit_normal_angle_deg must be within (0, 90]");
   if (!positive(normal_radius_mm))
-    return Fail("BoxMeasureOptions.normal_radius_mm must be finite and > 0", why);
-  if (ransac_iterations < 1) return Fail("BoxMeasureOptions.ransac_iterations must be >= 1", why);
+    return Fail(why, "BoxMeasureOptions.normal_radius_mm must be finite and > 0");
+  if (ransac_iterations < 1) return Fail(why, "BoxMeasureOptions.ransac_iterations must be >= 1");
   if (ransac_sample_points < 100)
-    return Fail("BoxMeasureOptions.ransac_sample_points must be >= 100", why);
-  if (max_planes < 1) return Fail("BoxMeasureOptions.max_planes must be >= 1", why);
-  if (min_face_points < 3) return Fail("BoxMeasureOptions.min_face_points must be >= 3", why);
+    return Fail(why, "BoxMeasureOptions.ransac_sample_points must be >= 100");
+  if (max_planes < 1) return Fail(why, "BoxMeasureOptions.max_planes must be >= 1");
+  if (min_face_points < 3) return Fail(why, "BoxMeasureOptions.min_face_points must be >= 3");
   if (!(min_face_fraction >= 0 && min_face_fraction <= 1))
-    return Fail("BoxMeasureOptions.min_face_fraction must be within [0, 1]", why);
+    return Fail(why, "BoxMeasureOptions.min_face_fraction must be within [0, 1]");
   if (!(orthogonality_tolerance_deg > 0 && orthogonality_tolerance_deg < 45))
-    return Fail("BoxMeasureOptions.orthogonality_tolerance_deg must be within (0, 45)", why);
+    return Fail(why, "BoxMeasureOptions.orthogonality_tolerance_deg must be within (0, 45)");
   if (!(edge_margin_mm >= 0 && std::isfinite(edge_margin_mm)))
-    return Fail("BoxMeasureOptions.edge_margin_mm must be finite and >= 0", why);
+    return Fail(why, "BoxMeasureOptions.edge_margin_mm must be finite and >= 0");
   if (base_plane) {
     const cv::Vec3d& n = base_plane->normal;
     if (!(std::isfinite(n[0]) && std::isfinite(n[1]) && std::isfinite(n[2]) &&
           std::isfinite(base_plane->offset_mm)) ||
         !(cv::norm(n) > 1e-9))
-      return Fail("BoxMeasureOptions.base_plane must have a finite, non-zero normal and offset",
-                  why);
+      return Fail(why,
+                  "BoxMeasureOptions.base_plane must have a finite, non-zero normal and offset");
   }
   if (!(base_exclusion_mm >= 0 && std::isfinite(base_exclusion_mm)))
-    return Fail("BoxMeasureOptions.base_exclusion_mm must be finite and >= 0", why);
+    return Fail(why, "BoxMeasureOptions.base_exclusion_mm must be finite and >= 0");
   if (!(edge_band_min_mm >= 0 && edge_band_max_mm > edge_band_min_mm &&
         std::isfinite(edge_band_max_mm)))
-    return Fail("BoxMeasureOptions.edge_band_min_mm/edge_band_max_mm must satisfy 0 <= min < max",
-                why);
+    return Fail(why,
+                "BoxMeasureOptions.edge_band_min_mm/edge_band_max_mm must satisfy 0 <= min < max");
   if (!(edge_local_length_mm > edge_band_min_mm && std::isfinite(edge_local_length_mm)))
-    return Fail("BoxMeasureOptions.edge_local_length_mm must be finite and > edge_band_min_mm",
-                why);
-  if (min_edge_points < 3) return Fail("BoxMeasureOptions.min_edge_points must be >= 3", why);
+    return Fail(why,
+                "BoxMeasureOptions.edge_local_length_mm must be finite and > edge_band_min_mm");
+  if (min_edge_points < 3) return Fail(why, "BoxMeasureOptions.min_edge_points must be >= 3");
   if (!positive(max_circle_radius_mm))
-    return Fail("BoxMeasureOptions.max_circle_radius_mm must be finite and > 0", why);
+    return Fail(why, "BoxMeasureOptions.max_circle_radius_mm must be finite and > 0");
   return true;
 }
 
@@ -485,428 +759,248 @@ bool ComputeOrientedBox(const PointCloud& cloud, OrientedBox* box, std::string* 
 
 bool ComputeOrientedBox(const PointCloud& cloud, const OrientedBoxOptions& options,
                         OrientedBox* box, std::string* error) {
-  std::string why;
-  if (!options.IsValid(&why)) return Fail("ComputeOrientedBox: " + why, error);
-  if (!box) return Fail("ComputeOrientedBox: no output box given", error);
-  std::vector<Vector3d> pts;
-  pts.reserve(cloud.size());
-  for (const cv::Vec3f& p : cloud.points_mm)
-    if (Finite(p)) pts.push_back(ToEigen(p));
-  if (pts.size() < 4)
-    return Fail("ComputeOrientedBox: need at least 4 finite points, got " +
-                    std::to_string(pts.size()) + " (of " + std::to_string(cloud.size()) + ")",
-                error);
-  std::vector<Vector3d> search = pts;
-  std::mt19937_64 rng(options.seed);
-  if (search.size() > static_cast<std::size_t>(options.max_search_points)) {
-    std::shuffle(search.begin(), search.end(), rng);
-    search.resize(static_cast<std::size_t>(options.max_search_points));
-  }
-  Vector3d mean = Vector3d::Zero();
-  for (const Vector3d& p : search) mean += p;
-  mean /= static_cast<double>(search.size());
-  Matrix3d cov = Matrix3d::Zero();
-  for (const Vector3d& p : search) cov += (p - mean) * (p - mean).transpose();
-  Eigen::SelfAdjointEigenSolver<Matrix3d> eig(cov);
-  Matrix3d pca = eig.info() == Eigen::Success ? eig.eigenvectors() : Matrix3d::Identity();
-  if (!pca.allFinite()) pca = Matrix3d::Identity();
-  if (pca.determinant() < 0) pca.col(2) = -pca.col(2);
-  // PCA is ambiguous for symmetric shapes (a cube): try it and three turns
-  // of it by 45°, keep the smallest local minimum.
-  std::vector<double> buffer;
-  Matrix3d best_axes = pca;
-  double best_volume = std::numeric_limits<double>::infinity();
-  for (int start = 0; start < 4; ++start) {
-    const Matrix3d initial = start == 0 ? pca : Matrix3d(pca * AxisRotation(start - 1, kPi / 4));
-    double volume = 0;
-    const Matrix3d axes = MinimiseVolume(search, initial, options.trim_fraction, &buffer, &volume);
-    if (volume < best_volume * (1 - 1e-9)) {
-      best_volume = volume;
-      best_axes = axes;
+  return NoThrowBool("ComputeOrientedBox", error, [&]() -> bool {
+    std::string why;
+    if (!options.IsValid(&why)) return Fail(error, "ComputeOrientedBox: " + why);
+    if (!box) return Fail(error, "ComputeOrientedBox: no output box given");
+    std::vector<Vector3d> pts;
+    pts.reserve(cloud.size());
+    for (const cv::Vec3f& p : cloud.points_mm)
+      if (Finite(p)) pts.push_back(ToEigen(p));
+    if (pts.size() < 4)
+      return Fail(error, "ComputeOrientedBox: need at least 4 finite points, got " +
+                             std::to_string(pts.size()) + " (of " + std::to_string(cloud.size()) +
+                             ")");
+    std::vector<Vector3d> search = pts;
+    std::mt19937_64 rng(options.seed);
+    if (search.size() > static_cast<std::size_t>(options.max_search_points)) {
+      std::shuffle(search.begin(), search.end(), rng);
+      search.resize(static_cast<std::size_t>(options.max_search_points));
     }
-  }
-  const Extents e = TrimmedExtents(pts, best_axes, options.trim_fraction, &buffer);
-  const Vector3d size = e.hi - e.lo;
-  std::array<int, 3> order{0, 1, 2};
-  std::stable_sort(order.begin(), order.end(), [&](int a, int b) { return size[a] > size[b]; });
-  Matrix3d axes;
-  Vector3d extents;
-  for (int k = 0; k < 3; ++k) {
-    axes.col(k) = best_axes.col(order[static_cast<std::size_t>(k)]);
-    extents[k] = size[order[static_cast<std::size_t>(k)]];
-  }
-  if (axes.determinant() < 0) axes.col(2) = -axes.col(2);
-  box->center_mm = ToCv(Vector3d(best_axes * (0.5 * (e.lo + e.hi))));
-  box->axes = ToCv(axes);
-  box->extents_mm = ToCv(extents);
-  box->points = pts.size();
-  if (error) error->clear();
-  return true;
+    Vector3d mean = Vector3d::Zero();
+    for (const Vector3d& p : search) mean += p;
+    mean /= static_cast<double>(search.size());
+    Matrix3d cov = Matrix3d::Zero();
+    for (const Vector3d& p : search) cov += (p - mean) * (p - mean).transpose();
+    Eigen::SelfAdjointEigenSolver<Matrix3d> eig(cov);
+    Matrix3d pca = eig.info() == Eigen::Success ? eig.eigenvectors() : Matrix3d::Identity();
+    if (!pca.allFinite()) pca = Matrix3d::Identity();
+    if (pca.determinant() < 0) pca.col(2) = -pca.col(2);
+    // PCA is ambiguous for symmetric shapes (a cube): try it and three turns
+    // of it by 45°, keep the smallest local minimum.
+    std::vector<double> buffer;
+    Matrix3d best_axes = pca;
+    double best_volume = std::numeric_limits<double>::infinity();
+    for (int start = 0; start < 4; ++start) {
+      const Matrix3d initial = start == 0 ? pca : Matrix3d(pca * AxisRotation(start - 1, kPi / 4));
+      double volume = 0;
+      const Matrix3d axes =
+          MinimiseVolume(search, initial, options.trim_fraction, &buffer, &volume);
+      if (volume < best_volume * (1 - 1e-9)) {
+        best_volume = volume;
+        best_axes = axes;
+      }
+    }
+    const Extents e = TrimmedExtents(pts, best_axes, options.trim_fraction, &buffer);
+    const Vector3d size = e.hi - e.lo;
+    std::array<int, 3> order{0, 1, 2};
+    std::stable_sort(order.begin(), order.end(), [&](int a, int b) { return size[a] > size[b]; });
+    Matrix3d axes;
+    Vector3d extents;
+    for (int k = 0; k < 3; ++k) {
+      axes.col(k) = best_axes.col(order[static_cast<std::size_t>(k)]);
+      extents[k] = size[order[static_cast<std::size_t>(k)]];
+    }
+    if (axes.determinant() < 0) axes.col(2) = -axes.col(2);
+    box->center_mm = ToCv(Vector3d(best_axes * (0.5 * (e.lo + e.hi))));
+    box->axes = ToCv(axes);
+    box->extents_mm = ToCv(extents);
+    box->points = pts.size();
+    if (error) error->clear();
+    return true;
+  });
 }
 
 // ------------------------------------------------------------ box measure ----
 
 BoxMeasurement MeasureBox(const PointCloud& cloud, const BoxMeasureOptions& o) {
-  BoxMeasurement m;
-  m.vertex_method = o.vertex_method;
-  std::string why;
-  if (!o.IsValid(&why)) return Failed(m, why);
-  if (!cloud.IsValid(&why)) return Failed(m, "invalid cloud: " + why);
+  return NoThrow<BoxMeasurement>(
+      "MeasureBox", BoxMeasurement::Status::kFailed, [&]() -> BoxMeasurement {
+        BoxMeasurement m;
+        m.vertex_method = o.vertex_method;
+        std::string why;
+        if (!o.IsValid(&why)) return Failed(m, kFailed, std::string(kWhere) + why);
+        if (!cloud.IsValid(&why))
+          return Failed(m, kFailed, std::string(kWhere) + "invalid cloud: " + why);
 
-  // Working set: finite points, normals where finite and non-zero.
-  Points points;
-  for (std::size_t i = 0; i < cloud.size(); ++i) {
-    if (!Finite(cloud.points_mm[i])) continue;
-    points.p.push_back(ToEigen(cloud.points_mm[i]));
-    Vector3d n = Vector3d::UnitZ();
-    char has = 0;
-    if (cloud.HasNormals() && Finite(cloud.normals[i])) {
-      n = ToEigen(cloud.normals[i]);
-      if (n.norm() > 1e-6) {
-        n.normalize();
-        has = 1;
-      }
-    }
-    points.n.push_back(n);
-    points.has_n.push_back(has);
-  }
-  m.input_points = points.p.size();
-  if (points.p.size() < kMinBoxPoints)
-    return Failed(m, "need at least " + std::to_string(kMinBoxPoints) + " finite points, got " +
-                         std::to_string(points.p.size()) + " (of " + std::to_string(cloud.size()) +
-                         ")");
+        Points points = WorkingSet(cloud);
+        m.input_points = points.p.size();
+        if (points.p.size() < kMinBoxPoints)
+          return Failed(m, kFailed,
+                        std::string(kWhere) + "need at least " + std::to_string(kMinBoxPoints) +
+                            " finite points, got " + std::to_string(points.p.size()) + " (of " +
+                            std::to_string(cloud.size()) + ")");
 
-  // The base plane, turned so that its normal points away from most points
-  // (the box stands on it); points at or below the base are ignored.
-  std::optional<FitPlane> base;
-  std::vector<int> active;
-  if (o.base_plane) {
-    FitPlane b;
-    const double norm = cv::norm(o.base_plane->normal);
-    b.n = ToEigen(o.base_plane->normal) / norm;
-    b.d = o.base_plane->offset_mm / norm;
-    std::size_t above = 0;
-    for (const Vector3d& p : points.p) above += b.Distance(p) > 0 ? 1 : 0;
-    if (2 * above > points.p.size()) {  // the box is on the + side: outward is −n
-      b.n = -b.n;
-      b.d = -b.d;
-    }
-    for (std::size_t i = 0; i < points.p.size(); ++i)
-      if (-b.Distance(points.p[i]) > o.base_exclusion_mm) active.push_back(static_cast<int>(i));
-    base = b;
-  } else {
-    active.resize(points.p.size());
-    std::iota(active.begin(), active.end(), 0);
-  }
-  if (active.size() < kMinBoxPoints)
-    return Failed(m, "only " + std::to_string(active.size()) +
-                         " points lie above the base plane (need " + std::to_string(kMinBoxPoints) +
-                         ")");
+        // The base plane, turned so that its normal points away from most points
+        // (the box stands on it); points at or below the base are ignored.
+        std::vector<int> active;
+        const std::optional<FitPlane> base = OrientBasePlane(o, points, &active);
+        if (active.size() < kMinBoxPoints)
+          return Failed(m, kFailed,
+                        std::string(kWhere) + "only " + std::to_string(active.size()) +
+                            " points lie above the base plane (need " +
+                            std::to_string(kMinBoxPoints) + ")");
 
-  bool all_normals = true;
-  for (int i : active) all_normals = all_normals && points.has_n[static_cast<std::size_t>(i)];
-  if (!all_normals) EstimateNormals(&points, o.normal_radius_mm);
+        bool all_normals = true;
+        for (int i : active) all_normals = all_normals && points.has_n[static_cast<std::size_t>(i)];
+        if (!all_normals) EstimateNormals(&points, o.normal_radius_mm);
 
-  // Centre of the active points: inside a box seen from outside, so it tells
-  // outward from inward.
-  Vector3d centre = Vector3d::Zero();
-  for (int i : active) centre += points.p[static_cast<std::size_t>(i)];
-  centre /= static_cast<double>(active.size());
+        // Centre of the active points: inside a box seen from outside, so it tells
+        // outward from inward.
+        Vector3d centre = Vector3d::Zero();
+        for (int i : active) centre += points.p[static_cast<std::size_t>(i)];
+        centre /= static_cast<double>(active.size());
 
-  const std::size_t min_points = std::max<std::size_t>(
-      static_cast<std::size_t>(o.min_face_points),
-      static_cast<std::size_t>(
-          std::ceil(o.min_face_fraction * static_cast<double>(active.size()))));
-  std::vector<Detected> detected = DetectPlanes(points, active, o, min_points);
-  for (Detected& d : detected) {
-    if (d.plane.Distance(centre) > 0) {
-      d.plane.n = -d.plane.n;
-      d.plane.d = -d.plane.d;
-    }
-    m.detected_planes.push_back(
-        ToPlane(d.plane, d.inliers.size(), RmsDistance(points.p, d.inliers, d.plane), false));
-  }
-  if (detected.empty())
-    return Failed(m, "no plane with at least " + std::to_string(min_points) + " points found");
-
-  // Group the planes by direction: up to three mutually orthogonal axes;
-  // planes that fit no group (oblique relief facets) are dropped.
-  const double sin_tol = std::sin(o.orthogonality_tolerance_deg * kDeg);
-  const double cos_tol = std::cos(o.orthogonality_tolerance_deg * kDeg);
-  std::vector<Vector3d> axes;
-  std::array<Face, 6> faces;
-  auto place = [&](const FitPlane& plane, const std::vector<int>* inliers, bool given) -> int {
-    for (std::size_t g = 0; g < axes.size(); ++g) {
-      const double c = plane.n.dot(axes[g]);
-      if (std::abs(c) < cos_tol) continue;
-      Face& f = faces[2 * g + (c > 0 ? 1 : 0)];
-      if (f.present && !given) return 0;  // the slot has a larger plane
-      f.plane = plane;
-      f.inliers = inliers ? *inliers : std::vector<int>{};
-      f.given = given;
-      f.present = true;
-      return 1;
-    }
-    for (const Vector3d& a : axes)
-      if (std::abs(plane.n.dot(a)) > sin_tol) return -1;  // oblique
-    if (axes.size() >= 3) return -1;
-    axes.push_back(plane.n);
-    Face& f = faces[2 * (axes.size() - 1) + 1];
-    f.plane = plane;
-    f.inliers = inliers ? *inliers : std::vector<int>{};
-    f.given = given;
-    f.present = true;
-    return 1;
-  };
-  for (const Detected& d : detected) place(d.plane, &d.inliers, false);
-  if (base && place(*base, nullptr, true) < 0)
-    return Failed(m, "the base plane is neither parallel nor orthogonal (within " +
-                         std::to_string(o.orthogonality_tolerance_deg) +
-                         " deg) to the box faces found");
-  if (axes.size() < 3) {
-    return Failed(m, "found faces along only " + std::to_string(axes.size()) +
-                         " of 3 orthogonal directions (" + std::to_string(detected.size()) +
-                         " planes detected); is the object a box?");
-  }
-  std::string missing;
-  for (int s = 0; s < 6; ++s)
-    if (!faces[static_cast<std::size_t>(s)].present)
-      missing += std::string(missing.empty() ? "" : ", ") + kSlotNames[s];
-  if (!missing.empty()) {
-    return Failed(m,
-                  "box face(s) not found: " + missing +
-                      (base ? "" : "; give BoxMeasureOptions::base_plane when the base is unseen"));
-  }
-  // A right-handed frame, so that one rotation can map the model axes onto it.
-  {
-    Matrix3d found;
-    for (int g = 0; g < 3; ++g) found.col(g) = axes[static_cast<std::size_t>(g)];
-    if (found.determinant() < 0) {
-      axes[2] = -axes[2];
-      std::swap(faces[4], faces[5]);
-    }
-  }
-  for (std::size_t a = 0; a < 6; ++a)
-    for (std::size_t b = a + 1; b < 6; ++b)
-      m.max_orthogonality_error_deg = std::max(
-          m.max_orthogonality_error_deg, OrthogonalityErrorDeg(faces[a].plane.n, faces[b].plane.n));
-
-  // Final face fits: inliers re-gathered from all active points, leaving out
-  // the edge zones; with enforce_orthogonality one rotation fits every normal.
-  const double cos_normal = std::cos(o.normal_angle_deg * kDeg);
-  Matrix3d frame;
-  for (int round = 0; round < 3; ++round) {
-    for (std::size_t s = 0; s < 6; ++s) {
-      Face& f = faces[s];
-      if (f.given) continue;
-      std::vector<int> candidates;
-      for (int i : active) {
-        const Vector3d& p = points.p[static_cast<std::size_t>(i)];
-        bool inside = true;
-        for (std::size_t t = 0; t < 6 && inside; ++t)
-          if (t != s && t / 2 != s / 2) inside = -faces[t].plane.Distance(p) > o.edge_margin_mm;
-        if (inside) candidates.push_back(i);
-      }
-      std::vector<int> inliers =
-          Inliers(points, candidates, f.plane, o.plane_distance_mm, cos_normal);
-      // Tighter normal gate: relief walls within the distance gate (shallow
-      // cuts) would pull the face inwards; it adapts to the normals' noise.
-      std::vector<double> angles;
-      for (int i : inliers) {
-        const auto q = static_cast<std::size_t>(i);
-        if (points.has_n[q])
-          angles.push_back(std::acos(std::min(1.0, std::abs(points.n[q].dot(f.plane.n)))) / kDeg);
-      }
-      if (!angles.empty()) {
-        std::nth_element(angles.begin(),
-                         angles.begin() + static_cast<std::ptrdiff_t>(angles.size() / 2),
-                         angles.end());
-        const double gate_deg = std::min(
-            o.normal_angle_deg, std::max(o.fit_normal_angle_deg, 2.5 * angles[angles.size() / 2]));
-        inliers = Inliers(points, inliers, f.plane, o.plane_distance_mm, std::cos(gate_deg * kDeg));
-      }
-      if (inliers.size() < 3)
-        return Failed(m, std::string("face ") + kSlotNames[s] + " lost its points");
-      f.inliers = std::move(inliers);
-      FitPlane fitted = f.plane;
-      if (FitLeastSquares(points.p, f.inliers, &fitted)) f.plane = fitted;
-    }
-    // The box frame: the rotation closest to the face normals (Procrustes),
-    // axis g along +face 2g+1.
-    Matrix3d cross = Matrix3d::Zero();
-    double max_weight = 0;
-    for (const Face& f : faces)
-      max_weight = std::max(max_weight, static_cast<double>(f.inliers.size()));
-    for (std::size_t s = 0; s < 6; ++s) {
-      const double w = faces[s].given ? max_weight : static_cast<double>(faces[s].inliers.size());
-      const Vector3d model = Vector3d::Unit(static_cast<int>(s / 2)) * (s % 2 ? 1.0 : -1.0);
-      cross += w * faces[s].plane.n * model.transpose();
-    }
-    Eigen::JacobiSVD<Matrix3d> svd(cross, Eigen::ComputeFullU | Eigen::ComputeFullV);
-    Matrix3d fix = Matrix3d::Identity();
-    fix(2, 2) = (svd.matrixU() * svd.matrixV().transpose()).determinant() < 0 ? -1 : 1;
-    frame = svd.matrixU() * fix * svd.matrixV().transpose();
-    if (!o.enforce_orthogonality) break;
-    for (std::size_t s = 0; s < 6; ++s) {
-      Face& f = faces[s];
-      const Vector3d n = frame.col(static_cast<int>(s / 2)) * (s % 2 ? 1.0 : -1.0);
-      if (f.given) {
-        // Keep the given plane's point nearest the centre.
-        const Vector3d foot = centre - f.plane.Distance(centre) * f.plane.n;
-        f.plane.n = n;
-        f.plane.d = -n.dot(foot);
-      } else {
-        f.plane.n = n;
-        f.plane.d = FitOffset(points.p, f.inliers, n);
-      }
-    }
-  }
-
-  // Sort the axes by extent (distance between opposite faces along the axis
-  // through the centre), descending; keep the frame right-handed.
-  std::array<double, 3> extent{};
-  for (int g = 0; g < 3; ++g) {
-    const Vector3d a = frame.col(g);
-    const auto& plus = faces[static_cast<std::size_t>(2 * g + 1)].plane;
-    const auto& minus = faces[static_cast<std::size_t>(2 * g)].plane;
-    const double tp = -plus.Distance(centre) / plus.n.dot(a);
-    const double tm = -minus.Distance(centre) / minus.n.dot(a);
-    extent[static_cast<std::size_t>(g)] = tp - tm;
-  }
-  std::array<int, 3> order{0, 1, 2};
-  std::stable_sort(order.begin(), order.end(), [&](int a, int b) {
-    return extent[static_cast<std::size_t>(a)] > extent[static_cast<std::size_t>(b)];
-  });
-  Matrix3d sorted;
-  std::array<Face, 6> sorted_faces;
-  for (int k = 0; k < 3; ++k) {
-    const auto g = static_cast<std::size_t>(order[static_cast<std::size_t>(k)]);
-    sorted.col(k) = frame.col(static_cast<int>(g));
-    sorted_faces[static_cast<std::size_t>(2 * k)] = faces[2 * g];
-    sorted_faces[static_cast<std::size_t>(2 * k + 1)] = faces[2 * g + 1];
-  }
-  if (sorted.determinant() < 0) {
-    sorted.col(2) = -sorted.col(2);
-    std::swap(sorted_faces[4], sorted_faces[5]);
-  }
-  faces = std::move(sorted_faces);
-  m.axes = ToCv(sorted);
-
-  double rms_sum = 0;
-  std::size_t rms_count = 0;
-  for (const Face& f : faces) {
-    const double rms = RmsDistance(points.p, f.inliers, f.plane);
-    m.planes.push_back(ToPlane(f.plane, f.inliers.size(), rms, f.given));
-    if (!f.given) {
-      rms_sum += rms * rms * static_cast<double>(f.inliers.size());
-      rms_count += f.inliers.size();
-    }
-    m.face_points += f.inliers.size();
-  }
-  m.face_rms_mm = rms_count ? std::sqrt(rms_sum / static_cast<double>(rms_count)) : 0;
-
-  // Vertices by plane intersection.
-  auto face_of = [&](int vertex, int axis) -> const Face& {
-    return faces[static_cast<std::size_t>(2 * axis + ((vertex >> axis) & 1))];
-  };
-  for (int v = 0; v < 8; ++v) {
-    double det = 0;
-    const Vector3d p =
-        SolveVertex(face_of(v, 0).plane, face_of(v, 1).plane, face_of(v, 2).plane, &det);
-    if (!(std::abs(det) > 0.5) || !p.allFinite())
-      return Failed(m, "degenerate plane intersection at vertex " + std::to_string(v));
-    m.vertices_mm.push_back(ToCv(p));
-  }
-
-  // Point-circle refinement: three independently fitted edge lines per vertex.
-  for (int v = 0; v < 8; ++v) {
-    const Vector3d vertex = ToEigen(m.vertices_mm[static_cast<std::size_t>(v)]);
-    std::array<Line, 3> lines;  // lines[m]: the edge along axis m
-    for (int axis = 0; axis < 3; ++axis) {
-      const int j = (axis + 1) % 3, k = (axis + 2) % 3;
-      const Face& fj = face_of(v, j);
-      const Face& fk = face_of(v, k);
-      const Vector3d other = ToEigen(m.vertices_mm[static_cast<std::size_t>(v ^ (1 << axis))]);
-      const double length = (other - vertex).norm();
-      const Vector3d t = (other - vertex) / length;
-      const double reach = std::min(o.edge_local_length_mm, 0.45 * length);
-      // A local plane for one side of the edge from its band of points.
-      auto local_fit = [&](const Face& side, const Face& across) {
-        if (side.given) return side.plane;
-        std::vector<int> band;
-        for (int i : active) {
-          const auto q = static_cast<std::size_t>(i);
-          const Vector3d& p = points.p[q];
-          const double u = (p - vertex).dot(t);
-          if (u < o.edge_band_min_mm || u > reach) continue;
-          const double w = -across.plane.Distance(p);
-          if (w < o.edge_band_min_mm || w > o.edge_band_max_mm) continue;
-          if (std::abs(side.plane.Distance(p)) >= o.plane_distance_mm) continue;
-          if (!points.NormalAgrees(q, side.plane.n, cos_normal)) continue;
-          band.push_back(i);
+        const std::size_t min_points = std::max<std::size_t>(
+            static_cast<std::size_t>(o.min_face_points),
+            static_cast<std::size_t>(
+                std::ceil(o.min_face_fraction * static_cast<double>(active.size()))));
+        std::vector<Detected> detected = DetectPlanes(points, active, o, min_points);
+        for (Detected& d : detected) {
+          if (d.plane.Distance(centre) > 0) {
+            d.plane.n = -d.plane.n;
+            d.plane.d = -d.plane.d;
+          }
+          m.detected_planes.push_back(
+              ToPlane(d.plane, d.inliers.size(), RmsDistance(points.p, d.inliers, d.plane), false));
         }
-        if (band.size() < static_cast<std::size_t>(o.min_edge_points)) return side.plane;
-        FitPlane local = side.plane;
-        if (!FitLeastSquares(points.p, band, &local)) return side.plane;
-        // One re-gate about the local plane (noise, stray relief).
-        std::vector<int> kept;
-        for (int i : band)
-          if (std::abs(local.Distance(points.p[static_cast<std::size_t>(i)])) < o.plane_distance_mm)
-            kept.push_back(i);
-        FitPlane refit = local;
-        if (kept.size() >= static_cast<std::size_t>(o.min_edge_points) &&
-            FitLeastSquares(points.p, kept, &refit))
-          local = refit;
-        return local;
-      };
-      const FitPlane pj = local_fit(fj, fk);
-      const FitPlane pk = local_fit(fk, fj);
-      Line line;
-      if (!IntersectPlanes(pj, pk, vertex, &line) &&
-          !IntersectPlanes(fj.plane, fk.plane, vertex, &line))
-        return Failed(m, "degenerate edge line at vertex " + std::to_string(v));
-      lines[static_cast<std::size_t>(axis)] = line;
-    }
-    const Vector3d a = ClosestMidpoint(lines[0], lines[1]);
-    const Vector3d b = ClosestMidpoint(lines[1], lines[2]);
-    const Vector3d c = ClosestMidpoint(lines[2], lines[0]);
-    Vector3d centre_v;
-    double radius = 0;
-    const double longest = std::max({(a - b).norm(), (b - c).norm(), (c - a).norm()});
-    bool fallback = !Circumcircle(a, b, c, &centre_v, &radius) || radius > o.max_circle_radius_mm ||
-                    radius > longest;
-    if (fallback) {
-      centre_v = (a + b + c) / 3;
-      radius = std::max({(a - centre_v).norm(), (b - centre_v).norm(), (c - centre_v).norm()});
-    }
-    m.refined_vertices_mm.push_back(ToCv(centre_v));
-    m.circle_radius_mm.push_back(radius);
-    m.circle_fallback.push_back(fallback);
-  }
+        if (detected.empty())
+          return Failed(m, kFailed,
+                        std::string(kWhere) + "no plane with at least " +
+                            std::to_string(min_points) + " points found");
 
-  // Edges: along axis 0, then 1, then 2; a < b.
-  std::array<double, 3> dims_sum{};
-  for (int axis = 0; axis < 3; ++axis) {
-    for (int v = 0; v < 8; ++v) {
-      if (v & (1 << axis)) continue;
-      BoxEdge e;
-      e.a = v;
-      e.b = v | (1 << axis);
-      e.axis = axis;
-      e.intersection_length_mm = cv::norm(m.vertices_mm[static_cast<std::size_t>(e.b)] -
-                                          m.vertices_mm[static_cast<std::size_t>(e.a)]);
-      e.circle_length_mm = cv::norm(m.refined_vertices_mm[static_cast<std::size_t>(e.b)] -
-                                    m.refined_vertices_mm[static_cast<std::size_t>(e.a)]);
-      e.length_mm = o.vertex_method == VertexMethod::kPointCircle ? e.circle_length_mm
-                                                                  : e.intersection_length_mm;
-      dims_sum[static_cast<std::size_t>(axis)] += e.length_mm / 4;
-      m.edges.push_back(e);
-    }
-  }
-  m.dims_mm = cv::Vec3d(dims_sum[0], dims_sum[1], dims_sum[2]);
-  m.status = BoxMeasurement::Status::kOk;
-  m.message = base ? "base plane given; 5 faces fitted" : "6 faces fitted";
-  return m;
+        // Group the planes by direction: up to three mutually orthogonal axes;
+        // planes that fit no group (oblique relief facets) are dropped.
+        const double sin_tol = std::sin(o.orthogonality_tolerance_deg * kDeg);
+        const double cos_tol = std::cos(o.orthogonality_tolerance_deg * kDeg);
+        FaceGroups groups;
+        std::vector<Vector3d>& axes = groups.axes;
+        std::array<Face, 6>& faces = groups.faces;
+        auto place = [&](const FitPlane& plane, const std::vector<int>* inliers, bool given) {
+          return groups.Place(plane, inliers, given, cos_tol, sin_tol);
+        };
+
+        for (const Detected& d : detected) place(d.plane, &d.inliers, false);
+        if (base && place(*base, nullptr, true) < 0)
+          return Failed(
+              m, kFailed,
+              std::string(kWhere) + "the base plane is neither parallel nor orthogonal (within " +
+                  std::to_string(o.orthogonality_tolerance_deg) + " deg) to the box faces found");
+        if (axes.size() < 3) {
+          return Failed(m, kFailed,
+                        std::string(kWhere) + "found faces along only " +
+                            std::to_string(axes.size()) + " of 3 orthogonal directions (" +
+                            std::to_string(detected.size()) +
+                            " planes detected); is the object a box?");
+        }
+        std::string missing;
+        for (int s = 0; s < 6; ++s)
+          if (!faces[static_cast<std::size_t>(s)].present)
+            missing += std::string(missing.empty() ? "" : ", ") + kSlotNames[s];
+        if (!missing.empty()) {
+          return Failed(
+              m, kFailed,
+              std::string(kWhere) + "box face(s) not found: " + missing +
+                  (base ? "" : "; give BoxMeasureOptions::base_plane when the base is unseen"));
+        }
+        // A right-handed frame, so that one rotation can map the model axes onto it.
+        {
+          Matrix3d found;
+          for (int g = 0; g < 3; ++g) found.col(g) = axes[static_cast<std::size_t>(g)];
+          if (found.determinant() < 0) {
+            axes[2] = -axes[2];
+            std::swap(faces[4], faces[5]);
+          }
+        }
+        for (std::size_t a = 0; a < 6; ++a)
+          for (std::size_t b = a + 1; b < 6; ++b)
+            m.max_orthogonality_error_deg =
+                std::max(m.max_orthogonality_error_deg,
+                         OrthogonalityErrorDeg(faces[a].plane.n, faces[b].plane.n));
+
+        // Final face fits: inliers re-gathered from all active points, leaving out
+        // the edge zones; with enforce_orthogonality one rotation fits every normal.
+        const double cos_normal = std::cos(o.normal_angle_deg * kDeg);
+        Matrix3d frame;
+        for (int round = 0; round < 3; ++round) {
+          for (std::size_t s = 0; s < 6; ++s) {
+            if (faces[s].given) continue;
+            if (!RefitFace(points, active, o, cos_normal, s, &faces)) {
+              return Failed(
+                  m, kFailed,
+                  std::string(kWhere) + std::string("face ") + kSlotNames[s] + " lost its points");
+            }
+          }
+          // The box frame: the rotation closest to the face normals (Procrustes),
+          // axis g along +face 2g+1.
+          Matrix3d cross = Matrix3d::Zero();
+          double max_weight = 0;
+          for (const Face& f : faces)
+            max_weight = std::max(max_weight, static_cast<double>(f.inliers.size()));
+          for (std::size_t s = 0; s < 6; ++s) {
+            const double w =
+                faces[s].given ? max_weight : static_cast<double>(faces[s].inliers.size());
+            const Vector3d model = Vector3d::Unit(static_cast<int>(s / 2)) * (s % 2 ? 1.0 : -1.0);
+            cross += w * faces[s].plane.n * model.transpose();
+          }
+          Eigen::JacobiSVD<Matrix3d> svd(cross, Eigen::ComputeFullU | Eigen::ComputeFullV);
+          Matrix3d fix = Matrix3d::Identity();
+          fix(2, 2) = (svd.matrixU() * svd.matrixV().transpose()).determinant() < 0 ? -1 : 1;
+          frame = svd.matrixU() * fix * svd.matrixV().transpose();
+          if (!o.enforce_orthogonality) break;
+          for (std::size_t s = 0; s < 6; ++s) {
+            Face& f = faces[s];
+            const Vector3d n = frame.col(static_cast<int>(s / 2)) * (s % 2 ? 1.0 : -1.0);
+            if (f.given) {
+              // Keep the given plane's point nearest the centre.
+              const Vector3d foot = centre - f.plane.Distance(centre) * f.plane.n;
+              f.plane.n = n;
+              f.plane.d = -n.dot(foot);
+            } else {
+              f.plane.n = n;
+              f.plane.d = FitOffset(points.p, f.inliers, n);
+            }
+          }
+        }
+
+        m.axes = ToCv(SortAxesByExtent(frame, centre, &faces));
+        RecordFacePlanes(points, faces, &m);
+
+        // Vertices by plane intersection.
+        auto face_of = [&](int vertex, int axis) -> const Face& {
+          return faces[static_cast<std::size_t>(2 * axis + ((vertex >> axis) & 1))];
+        };
+        for (int v = 0; v < 8; ++v) {
+          double det = 0;
+          const Vector3d p =
+              SolveVertex(face_of(v, 0).plane, face_of(v, 1).plane, face_of(v, 2).plane, &det);
+          if (!(std::abs(det) > 0.5) || !p.allFinite())
+            return Failed(m, kFailed,
+                          std::string(kWhere) + "degenerate plane intersection at vertex " +
+                              std::to_string(v));
+          m.vertices_mm.push_back(ToCv(p));
+        }
+
+        if (const int v = PointCircleVertices(points, active, o, cos_normal, faces, &m); v >= 0) {
+          return Failed(
+              m, kFailed,
+              std::string(kWhere) + "degenerate edge line at vertex " + std::to_string(v));
+        }
+        MeasureEdges(o, &m);
+        m.status = BoxMeasurement::Status::kOk;
+        m.message = base ? "base plane given; 5 faces fitted" : "6 faces fitted";
+        return m;
+      });
 }
 
 // ------------------------------------------------------------------ report ----

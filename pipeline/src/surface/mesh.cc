@@ -13,30 +13,23 @@
 #include <cstdint>
 #include <cstring>
 #include <exception>
+#include <string_view>
 
 #include "craftscan/pipeline/common/atomic_file.h"
+#include "craftscan/pipeline/common/status.h"
 
 namespace craftscan {
 namespace {
 
 constexpr std::size_t kMinMeshPoints = 100;
 
-bool Fail(const std::string& message, std::string* why) {
-  if (why) *why = message;
-  return false;
-}
-
 template <typename V>
 bool Finite3(const V& v) {
   return std::isfinite(v[0]) && std::isfinite(v[1]) && std::isfinite(v[2]);
 }
 
-MeshResult Failed(MeshResult r, const std::string& message) {
-  r.status = MeshResult::Status::kFailed;
-  r.message = "PoissonMesh: " + message;
-  r.mesh = TriangleMesh{};
-  return r;
-}
+constexpr auto kFailed = MeshResult::Status::kFailed;
+constexpr std::string_view kWhere = "PoissonMesh: ";
 
 // Shortest round-trip text of a float.
 void AppendFloat(std::string* out, float v) {
@@ -45,51 +38,21 @@ void AppendFloat(std::string* out, float v) {
   out->append(buffer, result.ptr);
 }
 
-template <typename T>
-void AppendLittle(std::string* out, T v) {
-  char bytes[sizeof(T)];
-  std::memcpy(bytes, &v, sizeof(T));
-  if constexpr (std::endian::native == std::endian::big) std::reverse(bytes, bytes + sizeof(T));
-  out->append(bytes, sizeof(T));
-}
-
 }  // namespace
 
-bool TriangleMesh::IsValid(std::string* why) const {
-  if (!normals.empty() && normals.size() != vertices_mm.size())
-    return Fail("mesh has " + std::to_string(normals.size()) + " normals for " +
-                    std::to_string(vertices_mm.size()) + " vertices",
-                why);
-  if (!colors_rgb.empty() && colors_rgb.size() != vertices_mm.size())
-    return Fail("mesh has " + std::to_string(colors_rgb.size()) + " colours for " +
-                    std::to_string(vertices_mm.size()) + " vertices",
-                why);
-  for (std::size_t i = 0; i < vertices_mm.size(); ++i)
-    if (!Finite3(vertices_mm[i]))
-      return Fail("mesh vertex " + std::to_string(i) + " is not finite", why);
-  const auto n = static_cast<long long>(vertices_mm.size());
-  for (std::size_t f = 0; f < faces.size(); ++f)
-    for (int k = 0; k < 3; ++k)
-      if (faces[f][k] < 0 || faces[f][k] >= n)
-        return Fail("mesh face " + std::to_string(f) + " references vertex " +
-                        std::to_string(faces[f][k]) + " of " + std::to_string(n),
-                    why);
-  return true;
-}
-
 bool PoissonOptions::IsValid(std::string* why) const {
-  if (depth < 4 || depth > 12) return Fail("PoissonOptions.depth must be within 4..12", why);
+  if (depth < 4 || depth > 12) return Fail(why, "PoissonOptions.depth must be within 4..12");
   if (!(samples_per_node >= 1 && std::isfinite(samples_per_node)))
-    return Fail("PoissonOptions.samples_per_node must be finite and >= 1", why);
+    return Fail(why, "PoissonOptions.samples_per_node must be finite and >= 1");
   if (!(point_weight >= 0 && std::isfinite(point_weight)))
-    return Fail("PoissonOptions.point_weight must be finite and >= 0", why);
+    return Fail(why, "PoissonOptions.point_weight must be finite and >= 0");
   if (!(scale >= 1 && std::isfinite(scale)))
-    return Fail("PoissonOptions.scale must be finite and >= 1", why);
+    return Fail(why, "PoissonOptions.scale must be finite and >= 1");
   if (!(trim_density_quantile >= 0 && trim_density_quantile < 1))
-    return Fail("PoissonOptions.trim_density_quantile must be within [0, 1)", why);
+    return Fail(why, "PoissonOptions.trim_density_quantile must be within [0, 1)");
   if (!(support_radius_mm >= 0 && std::isfinite(support_radius_mm)))
-    return Fail("PoissonOptions.support_radius_mm must be finite and >= 0", why);
-  if (num_threads < 1) return Fail("PoissonOptions.num_threads must be >= 1", why);
+    return Fail(why, "PoissonOptions.support_radius_mm must be finite and >= 0");
+  if (num_threads < 1) return Fail(why, "PoissonOptions.num_threads must be >= 1");
   return true;
 }
 
@@ -97,9 +60,12 @@ MeshResult PoissonMesh(const PointCloud& cloud, const PoissonOptions& options) {
   const auto start = std::chrono::steady_clock::now();
   MeshResult r;
   std::string why;
-  if (!options.IsValid(&why)) return Failed(r, why);
-  if (!cloud.IsValid(&why)) return Failed(r, "invalid cloud: " + why);
-  if (!cloud.HasNormals()) return Failed(r, "the cloud has no normals (Poisson needs them)");
+  if (!options.IsValid(&why)) return Failed(r, kFailed, std::string(kWhere) + why);
+  if (!cloud.IsValid(&why))
+    return Failed(r, kFailed, std::string(kWhere) + "invalid cloud: " + why);
+  if (!cloud.HasNormals())
+    return Failed(r, kFailed,
+                  std::string(kWhere) + "the cloud has no normals (Poisson needs them)");
 
   auto input = pcl::make_shared<pcl::PointCloud<pcl::PointNormal>>();
   auto positions = pcl::make_shared<pcl::PointCloud<pcl::PointXYZ>>();
@@ -122,9 +88,10 @@ MeshResult PoissonMesh(const PointCloud& cloud, const PoissonOptions& options) {
   }
   r.input_points = input->size();
   if (input->size() < kMinMeshPoints)
-    return Failed(r, "need at least " + std::to_string(kMinMeshPoints) +
-                         " points with finite normals, got " + std::to_string(input->size()) +
-                         " (of " + std::to_string(cloud.size()) + ")");
+    return Failed(r, kFailed,
+                  std::string(kWhere) + "need at least " + std::to_string(kMinMeshPoints) +
+                      " points with finite normals, got " + std::to_string(input->size()) +
+                      " (of " + std::to_string(cloud.size()) + ")");
 
   pcl::PointCloud<pcl::PointNormal> vertices;
   std::vector<pcl::Vertices> polygons;
@@ -142,11 +109,13 @@ MeshResult PoissonMesh(const PointCloud& cloud, const PoissonOptions& options) {
     poisson.reconstruct(vertices, polygons);
     tree.setInputCloud(positions);
   } catch (const std::exception& e) {
-    return Failed(r, std::string("reconstruction failed: ") + e.what());
+    return Failed(r, kFailed,
+                  std::string(kWhere) + std::string("reconstruction failed: ") + e.what());
   }
   r.raw_vertices = vertices.size();
   r.raw_faces = polygons.size();
-  if (vertices.empty() || polygons.empty()) return Failed(r, "reconstruction produced no triangle");
+  if (vertices.empty() || polygons.empty())
+    return Failed(r, kFailed, std::string(kWhere) + "reconstruction produced no triangle");
 
   // Support radius: from the median nearest-neighbour spacing of a sample.
   double radius = options.support_radius_mm;
@@ -158,7 +127,8 @@ MeshResult PoissonMesh(const PointCloud& cloud, const PoissonOptions& options) {
     for (std::size_t i = 0; i < positions->size(); i += step)
       if (tree.nearestKSearch((*positions)[i], 2, index, d2) == 2)
         spacing.push_back(std::sqrt(d2[1]));
-    if (spacing.empty()) return Failed(r, "could not estimate the point spacing");
+    if (spacing.empty())
+      return Failed(r, kFailed, std::string(kWhere) + "could not estimate the point spacing");
     std::nth_element(spacing.begin(),
                      spacing.begin() + static_cast<std::ptrdiff_t>(spacing.size() / 2),
                      spacing.end());
@@ -222,7 +192,10 @@ MeshResult PoissonMesh(const PointCloud& cloud, const PoissonOptions& options) {
     r.trimmed_vertices += mesh.vertices_mm.size() - kept.size();
     mesh.vertices_mm.swap(kept);
   }
-  if (mesh.faces.empty()) return Failed(r, "density trimming removed every triangle");
+  if (mesh.faces.empty()) {
+    mesh = TriangleMesh{};  // a failed result holds no mesh
+    return Failed(r, kFailed, std::string(kWhere) + "density trimming removed every triangle");
+  }
 
   // Orientation: faces should agree with the input normals (outwards).
   std::vector<cv::Vec3d> face_normals(mesh.faces.size());
@@ -275,96 +248,47 @@ MeshResult PoissonMesh(const PointCloud& cloud, const PoissonOptions& options) {
   return r;
 }
 
-bool WriteMeshPly(const std::string& path, const TriangleMesh& mesh, bool binary,
-                  std::string* error) {
-  std::string why;
-  if (!mesh.IsValid(&why)) return Fail("WriteMeshPly '" + path + "': " + why, error);
-  const bool normals = !mesh.normals.empty(), colors = !mesh.colors_rgb.empty();
-  std::string out;
-  out += "ply\nformat ";
-  out += binary ? "binary_little_endian" : "ascii";
-  out += " 1.0\ncomment craftscan mesh, units mm\n";
-  out += "element vertex " + std::to_string(mesh.vertices_mm.size()) + "\n";
-  out += "property float x\nproperty float y\nproperty float z\n";
-  if (normals) out += "property float nx\nproperty float ny\nproperty float nz\n";
-  if (colors) out += "property uchar red\nproperty uchar green\nproperty uchar blue\n";
-  out += "element face " + std::to_string(mesh.faces.size()) + "\n";
-  out += "property list uchar int vertex_indices\nend_header\n";
-  const std::size_t per_vertex = 12 + (normals ? 12 : 0) + (colors ? 3 : 0);
-  out.reserve(out.size() + mesh.vertices_mm.size() * (binary ? per_vertex : 4 * per_vertex) +
-              mesh.faces.size() * (binary ? 13 : 30));
-  for (std::size_t v = 0; v < mesh.vertices_mm.size(); ++v) {
-    if (binary) {
-      for (int k = 0; k < 3; ++k) AppendLittle(&out, mesh.vertices_mm[v][k]);
-      if (normals)
-        for (int k = 0; k < 3; ++k) AppendLittle(&out, mesh.normals[v][k]);
-      if (colors) out.append(reinterpret_cast<const char*>(&mesh.colors_rgb[v][0]), 3);
-    } else {
+bool WriteMeshObj(const std::string& path, const TriangleMesh& mesh, std::string* error) {
+  return NoThrowBool("WriteMeshObj", error, [&]() -> bool {
+    std::string why;
+    if (!mesh.IsValid(&why)) return Fail(error, "WriteMeshObj '" + path + "': " + why);
+    const bool normals = !mesh.normals.empty(), colors = !mesh.colors_rgb.empty();
+    std::string out = "# craftscan mesh, units mm\n";
+    out += "# " + std::to_string(mesh.vertices_mm.size()) + " vertices, " +
+           std::to_string(mesh.faces.size()) + " faces\n";
+    for (std::size_t v = 0; v < mesh.vertices_mm.size(); ++v) {
+      out += 'v';
       for (int k = 0; k < 3; ++k) {
-        if (k) out += ' ';
+        out += ' ';
         AppendFloat(&out, mesh.vertices_mm[v][k]);
       }
-      if (normals)
+      if (colors)
         for (int k = 0; k < 3; ++k) {
           out += ' ';
-          AppendFloat(&out, mesh.normals[v][k]);
+          AppendFloat(&out, static_cast<float>(mesh.colors_rgb[v][k]) / 255.0f);
         }
-      if (colors)
-        for (int k = 0; k < 3; ++k) out += ' ' + std::to_string(mesh.colors_rgb[v][k]);
       out += '\n';
     }
-  }
-  for (const cv::Vec3i& f : mesh.faces) {
-    if (binary) {
-      out += static_cast<char>(3);
-      for (int k = 0; k < 3; ++k) AppendLittle<std::int32_t>(&out, f[k]);
-    } else {
-      out += "3 " + std::to_string(f[0]) + ' ' + std::to_string(f[1]) + ' ' + std::to_string(f[2]) +
-             '\n';
-    }
-  }
-  return WriteFileAtomically(path, out, error);
-}
-
-bool WriteMeshObj(const std::string& path, const TriangleMesh& mesh, std::string* error) {
-  std::string why;
-  if (!mesh.IsValid(&why)) return Fail("WriteMeshObj '" + path + "': " + why, error);
-  const bool normals = !mesh.normals.empty(), colors = !mesh.colors_rgb.empty();
-  std::string out = "# craftscan mesh, units mm\n";
-  out += "# " + std::to_string(mesh.vertices_mm.size()) + " vertices, " +
-         std::to_string(mesh.faces.size()) + " faces\n";
-  for (std::size_t v = 0; v < mesh.vertices_mm.size(); ++v) {
-    out += 'v';
-    for (int k = 0; k < 3; ++k) {
-      out += ' ';
-      AppendFloat(&out, mesh.vertices_mm[v][k]);
-    }
-    if (colors)
-      for (int k = 0; k < 3; ++k) {
-        out += ' ';
-        AppendFloat(&out, static_cast<float>(mesh.colors_rgb[v][k]) / 255.0f);
+    if (normals)
+      for (const cv::Vec3f& n : mesh.normals) {
+        out += "vn";
+        for (int k = 0; k < 3; ++k) {
+          out += ' ';
+          AppendFloat(&out, n[k]);
+        }
+        out += '\n';
       }
-    out += '\n';
-  }
-  if (normals)
-    for (const cv::Vec3f& n : mesh.normals) {
-      out += "vn";
+    for (const cv::Vec3i& f : mesh.faces) {
+      out += 'f';
       for (int k = 0; k < 3; ++k) {
-        out += ' ';
-        AppendFloat(&out, n[k]);
+        const std::string i = std::to_string(f[k] + 1);
+        out += ' ' + i;
+        if (normals) out += "//" + i;
       }
       out += '\n';
     }
-  for (const cv::Vec3i& f : mesh.faces) {
-    out += 'f';
-    for (int k = 0; k < 3; ++k) {
-      const std::string i = std::to_string(f[k] + 1);
-      out += ' ' + i;
-      if (normals) out += "//" + i;
-    }
-    out += '\n';
-  }
-  return WriteFileAtomically(path, out, error);
+    return WriteFileAtomically(path, out, error);
+  });
 }
 
 }  // namespace craftscan

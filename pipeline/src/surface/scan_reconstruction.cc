@@ -8,7 +8,9 @@
 #include <nlohmann/json.hpp>
 
 #include "craftscan/pipeline/common/atomic_file.h"
-#include "craftscan/pipeline/registration/scan_dataset.h"
+#include "craftscan/pipeline/common/ply.h"
+#include "craftscan/pipeline/common/pose.h"
+#include "craftscan/pipeline/common/status.h"
 
 namespace craftscan {
 namespace {
@@ -70,11 +72,9 @@ ScanResult ReconstructImpl(const std::vector<ScanView>& views, const TurntableAx
   ConditioningOptions conditioning = options.conditioning;
   conditioning.num_threads = options.num_threads;
   if (have_axis) {
-    conditioning.volume.enabled = true;
-    conditioning.volume.turntable_from_cloud = turntable_from_rig;
-    conditioning.volume.radius_mm = options.volume_radius_mm;
-    conditioning.volume.min_height_mm = options.volume_min_height_mm;
-    conditioning.volume.max_height_mm = options.volume_max_height_mm;
+    conditioning.crop.enabled = true;
+    conditioning.crop.turntable_from_cloud = turntable_from_rig;
+    conditioning.crop.volume = options.volume;
     conditioning.viewpoint_mm = cv::Vec3d(0, 0, 0);  // the rectified left camera
   }
   result.views.reserve(n);
@@ -309,7 +309,9 @@ std::string ScanReportJson(const ScanResult& result) {
       if (result.box_measurement && !result.box_measurement->IsUsable())
         j["box_measurement_error"] = result.box_measurement->message;
     }
-    return j.dump(2);
+    // Messages may quote bytes that are not UTF-8 (a file name): replace
+    // them rather than losing the whole report to nlohmann's type_error.
+    return j.dump(2, ' ', false, Json::error_handler_t::replace);
   } catch (const std::exception& e) {
     return std::string("{\"ok\": false, \"message\": \"report failed\"}");
   }
@@ -327,21 +329,15 @@ bool WriteScanOutputs(const std::string& dir, const ScanResult& result, std::str
 }
 
 bool ScanOptions::IsValid(std::string* why) const {
-  auto fail = [&](const std::string& m) {
-    if (why) *why = m;
-    return false;
-  };
-  if (!(volume_radius_mm > 0)) return fail("volume_radius_mm must be > 0");
-  if (!(volume_max_height_mm > volume_min_height_mm))
-    return fail("volume_max_height_mm must be > volume_min_height_mm");
-  if (num_threads < 1) return fail("num_threads must be ≥ 1");
   std::string sub;
-  if (!conditioning.IsValid(&sub)) return fail("conditioning: " + sub);
-  if (!registration.IsValid(&sub)) return fail("registration: " + sub);
-  if (!loop.IsValid(&sub)) return fail("loop: " + sub);
-  if (!fusion.IsValid(&sub)) return fail("fusion: " + sub);
-  if (mesh && !poisson.IsValid(&sub)) return fail("poisson: " + sub);
-  if (measure_box && !box.IsValid(&sub)) return fail("box: " + sub);
+  if (!volume.IsValid(&sub)) return Fail(why, "volume." + sub);
+  if (num_threads < 1) return Fail(why, "num_threads must be ≥ 1");
+  if (!conditioning.IsValid(&sub)) return Fail(why, "conditioning: " + sub);
+  if (!registration.IsValid(&sub)) return Fail(why, "registration: " + sub);
+  if (!loop.IsValid(&sub)) return Fail(why, "loop: " + sub);
+  if (!fusion.IsValid(&sub)) return Fail(why, "fusion: " + sub);
+  if (mesh && !poisson.IsValid(&sub)) return Fail(why, "poisson: " + sub);
+  if (measure_box && !box.IsValid(&sub)) return Fail(why, "box: " + sub);
   return true;
 }
 

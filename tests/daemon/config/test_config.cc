@@ -105,9 +105,9 @@ watchdog: {enabled: no}
   EXPECT_EQ(c.pipeline.min_disparity, -32);
   EXPECT_EQ(c.pipeline.num_disparities, 192);
   EXPECT_DOUBLE_EQ(c.pipeline.min_texture_std, 0);
-  EXPECT_DOUBLE_EQ(c.pipeline.volume_radius_mm, 90);
-  EXPECT_DOUBLE_EQ(c.pipeline.volume_min_height_mm, 2);
-  EXPECT_DOUBLE_EQ(c.pipeline.volume_max_height_mm, 150);
+  EXPECT_DOUBLE_EQ(c.pipeline.volume.radius_mm, 90);
+  EXPECT_DOUBLE_EQ(c.pipeline.volume.min_height_mm, 2);
+  EXPECT_DOUBLE_EQ(c.pipeline.volume.max_height_mm, 150);
   EXPECT_FALSE(c.pipeline.mesh);
   EXPECT_EQ(c.limits.max_command_bytes, 4096);
   EXPECT_EQ(c.limits.queue_capacity, 3);
@@ -119,7 +119,7 @@ watchdog: {enabled: no}
   EXPECT_EQ(matcher.num_disparities, 192);
   const ScanOptions scan = ReconstructionOptions(c.pipeline);
   EXPECT_EQ(scan.num_threads, 4);
-  EXPECT_DOUBLE_EQ(scan.volume_radius_mm, 90);
+  EXPECT_DOUBLE_EQ(scan.volume.radius_mm, 90);
   EXPECT_FALSE(scan.mesh);
   EXPECT_DOUBLE_EQ(ReprojectionOptions(c.pipeline).min_texture_std, 0);
 

@@ -90,6 +90,7 @@
 
 #include "craftscan/drivers/host.h"
 #include "craftscan/pipeline/calib/calibration.h"
+#include "craftscan/pipeline/common/working_volume.h"
 #include "craftscan/pipeline/stereo/adcensus.h"
 #include "craftscan/pipeline/stereo/reproject.h"
 #include "craftscan/pipeline/surface/scan_reconstruction.h"
@@ -169,14 +170,14 @@ struct ScanSettings {
 };
 
 struct PipelineSettings {
-  int threads = 2;                    // worker threads per stage, 1..256
-  int min_disparity = 0;              // px, −4096..4096
-  int num_disparities = 0;            // px, 0..4096; 0 = derive from calibration + volume
-  double min_texture_std = 2.5;       // grey levels, [0, 255]; 0 = off
-  double volume_radius_mm = 120;      // (0, 10000]
-  double volume_min_height_mm = 1.5;  // [−1000, 10000]
-  double volume_max_height_mm = 200;  // > volume_min_height_mm, ≤ 10000
-  bool mesh = true;                   // Poisson mesh after fusion
+  int threads = 2;               // worker threads per stage, 1..256
+  int min_disparity = 0;         // px, −4096..4096
+  int num_disparities = 0;       // px, 0..4096; 0 = derive from calibration + volume
+  double min_texture_std = 2.5;  // grey levels, [0, 255]; 0 = off
+  // pipeline.volume_radius_mm (0, 10000], pipeline.volume_min_height_mm
+  // [−1000, 10000], pipeline.volume_max_height_mm (min, 10000]; mm.
+  WorkingVolume volume;
+  bool mesh = true;  // Poisson mesh after fusion
   // Measure the object as a box (faces, edges, vertices) besides its
   // oriented bounding box; objects that are not boxes report why not.
   bool measure_box = true;

@@ -9,6 +9,7 @@
 // the one way to build a failed one.
 #pragma once
 
+#include <exception>
 #include <string>
 #include <string_view>
 #include <utility>
@@ -83,6 +84,42 @@ Result Failed(decltype(Result::status) status, std::string message) {
   result.status = status;
   result.message = std::move(message);
   return result;
+}
+
+// The same for a result that already holds figures worth keeping on failure
+// (counts, timings, the stage reached): `partial` with status and message set.
+template <class Result>
+Result Failed(Result partial, decltype(Result::status) status, std::string message) {
+  partial.status = status;
+  partial.message = std::move(message);
+  return partial;
+}
+
+// For the functions documented "never throws": runs `body` (which returns
+// a Result) and turns an escaping exception (std::bad_alloc, cv::Exception,
+// a PCL exception) into a failed Result with "<where>: <what()>".
+template <class Result, class Body>
+Result NoThrow(std::string_view where, decltype(Result::status) failed_status, Body&& body) {
+  try {
+    return body();
+  } catch (const std::exception& e) {
+    return Failed<Result>(failed_status, std::string(where) + ": " + e.what());
+  } catch (...) {
+    return Failed<Result>(failed_status, std::string(where) + ": unknown exception");
+  }
+}
+
+// The same for `bool F(..., std::string* why)` functions: the exception
+// becomes false with *why set.
+template <class Body>
+bool NoThrowBool(std::string_view where, std::string* why, Body&& body) {
+  try {
+    return body();
+  } catch (const std::exception& e) {
+    return Fail(why, std::string(where) + ": " + e.what());
+  } catch (...) {
+    return Fail(why, std::string(where) + ": unknown exception");
+  }
 }
 
 }  // namespace craftscan

@@ -20,20 +20,18 @@
 #include <opencv2/core/matx.hpp>
 
 #include "craftscan/pipeline/common/point_cloud.h"
+#include "craftscan/pipeline/common/working_volume.h"
 
 namespace craftscan {
 
 // --- Conditioning -------------------------------------------------------------
 
-// The working volume above the platter: a vertical cylinder about the
-// turntable axis. Points are cropped in the turntable frame (origin on the
-// axis at the platter surface, +Z along the axis).
-struct WorkingVolume {
+// The crop to the working volume (common/working_volume.h): points are
+// mapped into the turntable frame and kept when inside the cylinder.
+struct VolumeCrop {
   bool enabled = false;
   cv::Matx44d turntable_from_cloud = cv::Matx44d::eye();  // rigid
-  double radius_mm = 120;                                 // distance from the axis
-  double min_height_mm = 1.5;  // above the platter surface: removes the platter itself
-  double max_height_mm = 200;  // above the platter surface
+  WorkingVolume volume;
   // Platter removal beyond the crop: points below platter_band_mm whose
   // normal is within platter_normal_deg of the axis (level surface just
   // above the platter: the platter lifted by matching errors) are dropped.
@@ -45,7 +43,7 @@ struct WorkingVolume {
 };
 
 struct ConditioningOptions {
-  WorkingVolume volume;  // disabled: no crop (clouds of an isolated object)
+  VolumeCrop crop;  // disabled: no crop (clouds of an isolated object)
   // Statistical outlier removal (PCL's): a point whose mean distance to its
   // k nearest neighbours exceeds the global mean by std_ratio standard
   // deviations is dropped. k = 0 disables.

@@ -22,12 +22,17 @@ struct PreprocessOptions {
 };
 
 struct Preprocessed {
+  enum class Status { kOk, kInvalidInput, kFailed };
+  Status status = Status::kFailed;
+  std::string message;   // why not kOk
   cv::Mat image;         // equalized image, same type as the input (CV_8UC1 or CV_8UC3)
   cv::Mat grey;          // equalized grey, CV_8UC1
   cv::Mat gradient;      // Sobel (3×3) gradient magnitude of `grey`, CV_32FC1
   cv::Mat edges;         // dilated Canny edge map, CV_8UC1, 255 = edge
   double canny_low = 0;  // thresholds actually used
   double canny_high = 0;
+
+  bool IsUsable() const { return status == Status::kOk; }
 };
 
 // What to compute: everything, or only the equalized images (the right view
@@ -36,8 +41,9 @@ enum class PreprocessParts { kAll, kEqualizedOnly };
 
 // Preprocesses one 8-bit grey (CV_8UC1) or BGR (CV_8UC3) image. With
 // kEqualizedOnly, `gradient` and `edges` stay empty and the thresholds 0.
-// Throws std::invalid_argument for an empty image, another type, or invalid
-// options. Thread-safe (no shared state).
+// Fails (kInvalidInput, the message says why) for an empty image, another
+// type, or invalid options; kFailed if OpenCV reports an error. Never throws.
+// Thread-safe (no shared state).
 Preprocessed Preprocess(const cv::Mat& image, const PreprocessOptions& options,
                         PreprocessParts parts = PreprocessParts::kAll);
 

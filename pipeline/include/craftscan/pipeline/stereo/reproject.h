@@ -39,17 +39,25 @@ struct ReprojectOptions {
 // z outside [min_depth_mm, max_depth_mm]. Points come in row-major pixel order.
 // `color` is the rectified left image (CV_8UC1 grey or CV_8UC3 BGR, same size)
 // or empty (grey 255).
-// Throws std::invalid_argument on mismatched inputs or invalid options.
-// Thread-safe.
+// Fails (kInvalidInput, the message says why) on mismatched inputs, a Q that
+// is not finite, or invalid options; kFailed if OpenCV reports an error.
+// Never throws. Thread-safe.
+struct ReprojectResult {
+  enum class Status { kOk, kInvalidInput, kFailed };
+  Status status = Status::kFailed;
+  std::string message;               // why not kOk
+  std::vector<ColoredPoint> points;  // row-major pixel order
+
+  bool IsUsable() const { return status == Status::kOk; }
+};
+ReprojectResult ReprojectToPoints(const cv::Mat& disparity, const cv::Mat& Q, const cv::Mat& color,
+                                  const ReprojectOptions& options = {});
+
 // The texture mask of ReprojectOptions::min_texture_std: CV_8UC1, 255 where
 // the grey-level standard deviation of `color` (CV_8UC1 or CV_8UC3 BGR) over
 // the window × window neighbourhood is at least min_std. Throws
 // std::invalid_argument on an empty or unsupported image or an even or
 // too small window.
 cv::Mat TextureMask(const cv::Mat& color, int window, double min_std);
-
-std::vector<ColoredPoint> ReprojectToPoints(const cv::Mat& disparity, const cv::Mat& Q,
-                                            const cv::Mat& color,
-                                            const ReprojectOptions& options = {});
 
 }  // namespace craftscan

@@ -14,15 +14,14 @@
 #include "craftscan/pipeline/calib/calibration.h"
 #include "craftscan/pipeline/calib/rectify.h"
 #include "craftscan/pipeline/common/point_cloud.h"
+#include "craftscan/pipeline/common/working_volume.h"
 #include "craftscan/pipeline/stereo/adcensus.h"
 
 namespace craftscan {
 
 struct ViewProcessorOptions {
-  int num_threads = 2;                // matcher threads
-  double volume_radius_mm = 120;      // working volume: cylinder about the turntable axis
-  double volume_min_height_mm = 1.5;  // above the platter (drops the platter itself)
-  double volume_max_height_mm = 200;
+  int num_threads = 2;   // matcher threads
+  WorkingVolume volume;  // cylinder about the turntable axis: the band and the crop
   // Disparity band: the volume's disparities (with the platter) widened by this
   // margin on both sides, so calibration error cannot cut the object off.
   int disparity_margin_px = 8;

@@ -1,5 +1,5 @@
 // Surface meshing of a fused cloud: Poisson reconstruction (PCL), trimmed
-// where the input gives it no support, and PLY/OBJ writers.
+// where the input gives it no support, and an OBJ writer (PLY: common/ply.h).
 //
 //   MeshResult r = PoissonMesh(fused_with_normals, PoissonOptions{});
 //   if (r.IsUsable()) WriteMeshPly(dir + "/mesh.ply", r.mesh, /*binary=*/true, &error);
@@ -13,24 +13,11 @@
 
 #include <opencv2/core/matx.hpp>
 
+#include "craftscan/pipeline/common/ply.h"  // WriteMeshPly, for the callers of PoissonMesh
 #include "craftscan/pipeline/common/point_cloud.h"
+#include "craftscan/pipeline/common/triangle_mesh.h"
 
 namespace craftscan {
-
-// An indexed triangle mesh. `normals` and `colors_rgb` are empty or have one
-// entry per vertex; faces index vertices (0-based) counter-clockwise seen
-// from outside (right-hand rule gives the outward normal).
-struct TriangleMesh {
-  std::vector<cv::Vec3f> vertices_mm;
-  std::vector<cv::Vec3f> normals;     // unit, per vertex
-  std::vector<cv::Vec3b> colors_rgb;  // 8-bit R, G, B per vertex
-  std::vector<cv::Vec3i> faces;
-
-  bool empty() const { return faces.empty(); }
-  // False with a reason (why may be null) for per-vertex arrays of the wrong
-  // size, a face index out of range, or a non-finite vertex.
-  bool IsValid(std::string* why) const;
-};
 
 struct PoissonOptions {
   // Octree depth (resolution 2^depth over `scale` × the cloud's bounding
@@ -84,19 +71,12 @@ struct MeshResult {
 // Thread-safe (reentrant).
 MeshResult PoissonMesh(const PointCloud& cloud_with_normals, const PoissonOptions& options);
 
-// Writes `mesh` as PLY: element vertex (float x y z; float nx ny nz if
-// present; uchar red green blue if present) and element face (list uchar int
-// vertex_indices). `binary` selects binary_little_endian, else ASCII. The
-// write is atomic (WriteFileAtomically). Returns false with *error (may be
-// null) for an invalid mesh or an I/O failure. Never throws. Thread-safe for
-// distinct paths.
-bool WriteMeshPly(const std::string& path, const TriangleMesh& mesh, bool binary,
-                  std::string* error);
-
 // Writes `mesh` as Wavefront OBJ: "v x y z" (with " r g b" in 0..1 when the
 // mesh has colours, the common vertex-colour extension), "vn" when it has
 // normals, and 1-based "f a b c" (or "f a//a b//b c//c" with normals).
-// Atomic write; errors as WriteMeshPly. Never throws.
+// Atomic write (WriteFileAtomically). Returns false with *error (may be
+// null) for an invalid mesh or an I/O failure. Never throws. Thread-safe for
+// distinct paths.
 bool WriteMeshObj(const std::string& path, const TriangleMesh& mesh, std::string* error);
 
 }  // namespace craftscan

@@ -34,12 +34,10 @@ struct ScanView {
 };
 
 struct ScanOptions {
-  // Conditioning; with a valid turntable axis the working volume is set from
-  // it (radius and heights below), and the viewpoint is the rig origin.
+  // Conditioning; with a valid turntable axis the crop is enabled with the
+  // axis and `volume`, and the viewpoint is the rig origin.
   ConditioningOptions conditioning;
-  double volume_radius_mm = 120;
-  double volume_min_height_mm = 1.5;  // above the platter: drops the platter
-  double volume_max_height_mm = 200;
+  WorkingVolume volume;
   RegistrationOptions registration;
   // Loop closure runs when the views cover a full turn (the commanded angles
   // span ≥ 360° − one step, i.e. the last view overlaps the first).

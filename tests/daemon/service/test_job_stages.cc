@@ -188,11 +188,9 @@ class Station {
     options.threads = TestThreads();
     PipelineSettings pipeline;  // the carved box with a margin, as daemon_fixture.h
     pipeline.threads = TestThreads();
-    pipeline.volume_radius_mm = 65;
-    pipeline.volume_max_height_mm = 70;
-    options.view.volume_radius_mm = pipeline.volume_radius_mm;
-    options.view.volume_min_height_mm = pipeline.volume_min_height_mm;
-    options.view.volume_max_height_mm = pipeline.volume_max_height_mm;
+    pipeline.volume.radius_mm = 65;
+    pipeline.volume.max_height_mm = 70;
+    options.view.volume = pipeline.volume;
     options.view.min_texture_std = pipeline.min_texture_std;
     options.scan = ReconstructionOptions(pipeline);
     options.board =
@@ -631,8 +629,8 @@ TEST_F(JobStages, CaptureStageStopsAtItsNextViewAndMatchStageFinishesTheViewInHa
   ASSERT_TRUE(calibration);
   ViewProcessor processor;
   ViewProcessorOptions view_options;
-  view_options.volume_radius_mm = 65;
-  view_options.volume_max_height_mm = 70;
+  view_options.volume.radius_mm = 65;
+  view_options.volume.max_height_mm = 70;
   ASSERT_TRUE(processor.Init(*calibration, view_options, &error)) << error;
   stop = false;
   BoundedQueue<MatchedView> q2(1);

@@ -1,18 +1,17 @@
-// Shared by the DDS-level tests (tests/dds, tests/clients/record): the
-// loopback-only Cyclone configuration, one random domain per test process,
-// and a child process that is killed and reaped if still running.
+// Shared by the DDS-level tests (tests/dds, tests/dds/security,
+// tests/clients/record): the loopback-only Cyclone configuration, one random
+// domain per test process and a participant on it, and station names no
+// other test uses. (Child processes: tests/process_util.h.)
 // Needs CRAFTSCAN_CYCLONEDDS_XML (the shipped systemd/cyclonedds.xml).
 #pragma once
 
-#include <signal.h>
-#include <sys/wait.h>
+#include <gtest/gtest.h>
 #include <unistd.h>
 
-#include <chrono>
 #include <cstdint>
+#include <memory>
 #include <random>
 #include <string>
-#include <thread>
 
 #include "craftscan/dds/participant.h"
 
@@ -29,45 +28,24 @@ inline std::uint32_t ProcessDomainId() {
   return id;
 }
 
-// A spawned child's pid, killed (SIGKILL) and reaped on destruction if still
-// running. Not copyable.
-class ChildProcess {
- public:
-  ChildProcess() = default;
-  ChildProcess(const ChildProcess&) = delete;
-  ChildProcess& operator=(const ChildProcess&) = delete;
-  ~ChildProcess() {
-    if (pid_ > 0) {
-      ::kill(pid_, SIGKILL);
-      ::waitpid(pid_, nullptr, 0);
-    }
-  }
+// A participant on ProcessDomainId() with TestDdsConfig(); null (and a test
+// failure with the reason) if it cannot be created.
+inline std::shared_ptr<dds::Participant> MakeTestParticipant() {
+  dds::ParticipantOptions options;
+  options.domain_id = ProcessDomainId();
+  options.config = TestDdsConfig();
+  std::string error;
+  std::shared_ptr<dds::Participant> participant = dds::Participant::Create(options, &error);
+  EXPECT_NE(participant, nullptr) << error;
+  return participant;
+}
 
-  // For posix_spawn: where it writes the pid (set -1 on failure).
-  pid_t* pid_slot() { return &pid_; }
-  bool started() const { return pid_ > 0; }
-  void Signal(int signal) {
-    if (pid_ > 0) ::kill(pid_, signal);
-  }
-
-  // The exit code (128 + signal if killed by one), or −1 if it did not exit
-  // within `timeout` (it keeps running; the destructor kills it).
-  int Wait(std::chrono::milliseconds timeout) {
-    const auto deadline = std::chrono::steady_clock::now() + timeout;
-    while (pid_ > 0) {
-      int status = 0;
-      if (::waitpid(pid_, &status, WNOHANG) == pid_) {
-        pid_ = -1;
-        return WIFEXITED(status) ? WEXITSTATUS(status) : 128 + WTERMSIG(status);
-      }
-      if (std::chrono::steady_clock::now() > deadline) break;
-      std::this_thread::sleep_for(std::chrono::milliseconds(10));
-    }
-    return -1;
-  }
-
- private:
-  pid_t pid_ = -1;
-};
+// A station name no other test (in this process or another) uses:
+// <prefix><pid>_<counter>_<random>. The prefix tells whose it is in a capture.
+inline std::string UniqueStation(const std::string& prefix) {
+  static int counter = 0;
+  return prefix + std::to_string(::getpid()) + "_" + std::to_string(counter++) + "_" +
+         std::to_string(std::random_device{}() % 100000);
+}
 
 }  // namespace craftscan::testing

@@ -11,7 +11,6 @@
 #include <dds/dds.h>
 #include <dds/ddsi/ddsi_serdata.h>
 #include <signal.h>
-#include <spawn.h>
 #include <sys/wait.h>
 #include <unistd.h>
 
@@ -33,8 +32,8 @@
 #include "craftscan/dds/participant.h"
 #include "craftscan/dds/topics.h"
 #include "dds_test_util.h"
-
-extern char** environ;
+#include "mat_util.h"
+#include "process_util.h"
 
 namespace craftscan::dds {
 namespace {
@@ -42,25 +41,12 @@ namespace {
 using std::chrono::milliseconds;
 constexpr milliseconds kTimeout{20000};  // generous: the machine is shared
 
+using ::craftscan::testing::BitExact;
 using ::craftscan::testing::ChildProcess;
+using ::craftscan::testing::MakeTestParticipant;
 using ::craftscan::testing::ProcessDomainId;
-std::string TestConfig() { return ::craftscan::testing::TestDdsConfig(); }
-
-std::string UniqueStation() {
-  static int counter = 0;
-  return "t" + std::to_string(getpid()) + "_" + std::to_string(counter++) + "_" +
-         std::to_string(std::random_device{}() % 100000);
-}
-
-std::shared_ptr<Participant> MakeParticipant() {
-  ParticipantOptions options;
-  options.domain_id = ProcessDomainId();
-  options.config = TestConfig();
-  std::string error;
-  auto participant = Participant::Create(options, &error);
-  EXPECT_NE(participant, nullptr) << error;
-  return participant;
-}
+using ::craftscan::testing::TestDdsConfig;
+using ::craftscan::testing::UniqueStation;
 
 // craftscan_dds_peer in echo mode, killed if still running when destroyed.
 class Peer {
@@ -70,7 +56,7 @@ class Peer {
                                            "--domain",
                                            std::to_string(ProcessDomainId()),
                                            "--config",
-                                           TestConfig(),
+                                           TestDdsConfig(),
                                            "--station",
                                            station,
                                            "--mode",
@@ -79,13 +65,7 @@ class Peer {
                                            std::to_string(count),
                                            "--timeout-ms",
                                            std::to_string(kTimeout.count())};
-    std::vector<char*> argv;
-    for (const std::string& arg : args) argv.push_back(const_cast<char*>(arg.c_str()));
-    argv.push_back(nullptr);
-    if (posix_spawn(child_.pid_slot(), CRAFTSCAN_DDS_PEER, nullptr, nullptr, argv.data(),
-                    environ) != 0) {
-      *child_.pid_slot() = -1;
-    }
+    ::craftscan::testing::Spawn(args, {}, &child_);
   }
   bool started() const { return child_.started(); }
 
@@ -116,15 +96,10 @@ template <typename Msg>
   return ::testing::AssertionSuccess();
 }
 
-bool SameBytes(const cv::Mat& a, const cv::Mat& b) {
-  return a.size() == b.size() && a.type() == b.type() && a.isContinuous() && b.isContinuous() &&
-         std::memcmp(a.data, b.data, a.total() * a.elemSize()) == 0;
-}
-
 TEST(DdsTransport, StereoCapturesCrossToAnotherProcessBitExact) {
-  const std::string station = UniqueStation();
+  const std::string station = UniqueStation("t");
   EchoLoop<msg::StereoCapture> loop;
-  ASSERT_TRUE(MakeEchoLoop(MakeParticipant(), &CaptureTopic, station, &loop));
+  ASSERT_TRUE(MakeEchoLoop(MakeTestParticipant(), &CaptureTopic, station, &loop));
   Peer peer(station, "capture", 2);
   ASSERT_TRUE(peer.started());
   ASSERT_TRUE(loop.writer->WaitForReaders(1, kTimeout));
@@ -153,8 +128,8 @@ TEST(DdsTransport, StereoCapturesCrossToAnotherProcessBitExact) {
     ASSERT_EQ(loop.echo->Take(kTimeout, &got, &error), TakeStatus::kOk) << error;
     cv::Mat got_left, got_right;
     ASSERT_TRUE(StereoCaptureToMats(*got, &got_left, &got_right, &error)) << error;
-    EXPECT_TRUE(SameBytes(got_left, left));
-    EXPECT_TRUE(SameBytes(got_right, right));
+    EXPECT_TRUE(BitExact(got_left, left));
+    EXPECT_TRUE(BitExact(got_right, right));
     EXPECT_EQ(View(got->encoding), type == CV_8UC1 ? "mono8" : "bgr8");
     EXPECT_EQ(View(got->session), meta.session);
     EXPECT_EQ(got->view_index, meta.view_index);
@@ -169,9 +144,9 @@ TEST(DdsTransport, StereoCapturesCrossToAnotherProcessBitExact) {
 }
 
 TEST(DdsTransport, MillionPointCloudCrossesToAnotherProcessBitExact) {
-  const std::string station = UniqueStation();
+  const std::string station = UniqueStation("t");
   EchoLoop<msg::PointCloud> loop;
-  ASSERT_TRUE(MakeEchoLoop(MakeParticipant(), &CloudTopic, station, &loop));
+  ASSERT_TRUE(MakeEchoLoop(MakeTestParticipant(), &CloudTopic, station, &loop));
   Peer peer(station, "cloud", 1);
   ASSERT_TRUE(peer.started());
 
@@ -228,9 +203,9 @@ TEST(DdsTransport, MillionPointCloudCrossesToAnotherProcessBitExact) {
 }
 
 TEST(DdsTransport, LateJoinerGetsTheLastStatus) {
-  auto participant = MakeParticipant();
+  auto participant = MakeTestParticipant();
   ASSERT_TRUE(participant);
-  const std::string station = UniqueStation();
+  const std::string station = UniqueStation("t");
   std::string error;
   auto writer = Writer<msg::StationStatus>::Create(participant, StatusTopic(station), &error);
   ASSERT_TRUE(writer) << error;
@@ -380,9 +355,9 @@ class RawReader {
 };
 
 TEST(DdsRos, ImageIsPlainCdrInRosLayout) {
-  auto participant = MakeParticipant();
+  auto participant = MakeTestParticipant();
   ASSERT_TRUE(participant);
-  const std::string station = UniqueStation();
+  const std::string station = UniqueStation("t");
   const TopicSpec<ros::Image> topic = RosImageTopic(station, Side::kLeft);
   RawReader raw(*participant, &sensor_msgs_msg_dds__Image__desc, topic.name);
   ASSERT_TRUE(raw.ok());
@@ -421,9 +396,9 @@ TEST(DdsRos, ImageIsPlainCdrInRosLayout) {
 // craftscan's own types are @appendable: XCDR2 with a delimiter header, so
 // fields can be appended later without breaking older peers.
 TEST(DdsTransport, OwnTypesAreAppendableXcdr2) {
-  auto participant = MakeParticipant();
+  auto participant = MakeTestParticipant();
   ASSERT_TRUE(participant);
-  const TopicSpec<msg::Reply> topic = ReplyTopic(UniqueStation());
+  const TopicSpec<msg::Reply> topic = ReplyTopic(UniqueStation("t"));
   RawReader raw(*participant, &craftscan_msg_Reply_desc, topic.name);
   ASSERT_TRUE(raw.ok());
   std::string error;
@@ -444,7 +419,7 @@ TEST(DdsTransport, OwnTypesAreAppendableXcdr2) {
 }
 
 TEST(DdsRos, RosSubscriberDecodesCloudCameraInfoAndDisparity) {
-  auto publisher = MakeParticipant();
+  auto publisher = MakeTestParticipant();
   ASSERT_TRUE(publisher);
   // A second participant in the same domain stands for the ROS node.
   ParticipantOptions join;
@@ -452,7 +427,7 @@ TEST(DdsRos, RosSubscriberDecodesCloudCameraInfoAndDisparity) {
   std::string error;
   auto subscriber = Participant::Create(join, &error);
   ASSERT_TRUE(subscriber) << error;
-  const std::string station = UniqueStation();
+  const std::string station = UniqueStation("t");
 
   // CameraInfo first, before anyone subscribes: transient-local.
   StereoCalibration calibration;
@@ -570,10 +545,10 @@ TEST(DdsRos, RosSubscriberDecodesCloudCameraInfoAndDisparity) {
 // --- Timeouts and errors ------------------------------------------------------
 
 TEST(DdsTransport, TakeTimesOutWhenNothingIsPublished) {
-  auto participant = MakeParticipant();
+  auto participant = MakeTestParticipant();
   ASSERT_TRUE(participant);
   std::string error;
-  auto reader = Reader<msg::Reply>::Create(participant, ReplyTopic(UniqueStation()), &error);
+  auto reader = Reader<msg::Reply>::Create(participant, ReplyTopic(UniqueStation("t")), &error);
   ASSERT_TRUE(reader) << error;
   Sample<msg::Reply> sample;
   const auto start = std::chrono::steady_clock::now();
@@ -597,7 +572,7 @@ TEST(DdsTransport, BadOptionsGiveClearErrors) {
   EXPECT_EQ(Participant::Create(options, &error), nullptr);
   EXPECT_NE(error.find("'/nonexistent/cyclonedds.xml' does not exist"), std::string::npos) << error;
 
-  options.config = TestConfig();
+  options.config = TestDdsConfig();
   auto first = Participant::Create(options, &error);
   ASSERT_TRUE(first) << error;
   EXPECT_EQ(Participant::Create(options, &error), nullptr);

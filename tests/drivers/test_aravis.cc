@@ -9,7 +9,7 @@
 //
 // Figures (printed): frame rate and latency of 1280×1024 stereo captures,
 // loss detection and recovery times. Run:
-//   build-drv/tests/drivers/test_aravis --gtest_filter='*Figures*:*Recovered*'
+//   build/tests/drivers/test_aravis --gtest_filter='*Figures*:*Recovered*:*ArrivalReconnects*'
 #include <arv.h>
 
 #include <algorithm>
@@ -147,7 +147,7 @@ TEST(AravisPairing, Decisions) {
 
 constexpr int kLeftSeed = 11, kRightSeed = 99;
 
-class AravisTest : public ::testing::Test {
+class Aravis : public ::testing::Test {
  protected:
   void SetUp() override {
     const std::string why = test::EnterNetns();
@@ -236,7 +236,7 @@ class AravisTest : public ::testing::Test {
   std::vector<DeviceEvent> events_;
 };
 
-TEST_F(AravisTest, FramesArriveBitExactAndPaired) {
+TEST_F(Aravis, FramesArriveBitExactAndPaired) {
   auto camera = Make(Config());
   ASSERT_TRUE(camera);
   EXPECT_TRUE(camera->info().sensor_size.empty());  // read from the cameras at Open
@@ -287,7 +287,7 @@ TEST_F(AravisTest, FramesArriveBitExactAndPaired) {
   EXPECT_EQ(events(), std::vector<DeviceEvent>{DeviceEvent::kConnected});
 }
 
-TEST_F(AravisTest, CameraPixelFormatsAreConvertedOrRefused) {
+TEST_F(Aravis, CameraPixelFormatsAreConvertedOrRefused) {
   const cv::Rect roi(10, 6, 64, 48);  // even offsets keep the Bayer phase
   {
     auto camera = Streaming({{"camera_pixel_format", "Mono16"}}, roi);
@@ -330,7 +330,7 @@ TEST_F(AravisTest, CameraPixelFormatsAreConvertedOrRefused) {
   }
 }
 
-TEST_F(AravisTest, CamerasAreFoundBySerialDeviceIdOrName) {
+TEST_F(Aravis, CamerasAreFoundBySerialDeviceIdOrName) {
   FakeCameraOptions named;
   named.user_name = "RightCam";
   right_.reset();
@@ -372,7 +372,7 @@ TEST_F(AravisTest, CamerasAreFoundBySerialDeviceIdOrName) {
       << status.message;  // names what was discovered
 }
 
-TEST_F(AravisTest, FrameRateIsAppliedAndValidated) {
+TEST_F(Aravis, FrameRateIsAppliedAndValidated) {
   auto camera = Streaming({{"frame_rate_hz", "30"}}, {0, 0, 64, 48});
   ASSERT_TRUE(camera);
   for (const auto& fake : {left_.get(), right_.get()}) {
@@ -392,7 +392,7 @@ TEST_F(AravisTest, FrameRateIsAppliedAndValidated) {
       << status.message;
 }
 
-TEST_F(AravisTest, HardwareTriggerIsConfiguredAndWaitsForAPulse) {
+TEST_F(Aravis, HardwareTriggerIsConfiguredAndWaitsForAPulse) {
   drivers::DriverConfig hardware = {
       {"trigger", "hardware"}, {"trigger_source", "Line0"}, {"trigger_activation", "RisingEdge"}};
   auto camera = Streaming(hardware, {0, 0, 64, 48});
@@ -431,7 +431,7 @@ TEST_F(AravisTest, HardwareTriggerIsConfiguredAndWaitsForAPulse) {
       << refused.message;
 }
 
-TEST_F(AravisTest, TimestampPairingRefusesPairsOutsideTheTolerance) {
+TEST_F(Aravis, TimestampPairingRefusesPairsOutsideTheTolerance) {
   FakeCameraOptions fast;  // 1 kHz trigger polling: natural skew ≤ ~1 ms
   fast.trigger_poll_hz = 1000;
   StartFakes(fast);
@@ -465,7 +465,7 @@ TEST_F(AravisTest, TimestampPairingRefusesPairsOutsideTheTolerance) {
   EXPECT_TRUE(status.ok()) << status.ToString();
 }
 
-TEST_F(AravisTest, FrameIdPairingSurvivesTheWrapAndASpuriousFrame) {
+TEST_F(Aravis, FrameIdPairingSurvivesTheWrapAndASpuriousFrame) {
   FakeCameraOptions fast;
   fast.trigger_poll_hz = 1000;
   StartFakes(fast);
@@ -496,7 +496,7 @@ TEST_F(AravisTest, FrameIdPairingSurvivesTheWrapAndASpuriousFrame) {
   EXPECT_EQ(frame.left.frame_id, frame.right.frame_id);
 }
 
-TEST_F(AravisTest, MissingCameraFailsFast) {
+TEST_F(Aravis, MissingCameraFailsFast) {
   auto config = Config();
   config["right"] = "127.0.0.9";  // nobody there
   auto camera = Make(config);
@@ -509,7 +509,7 @@ TEST_F(AravisTest, MissingCameraFailsFast) {
   EXPECT_EQ(camera->state(), CameraState::kClosed);
 }
 
-TEST_F(AravisTest, BadConfigIsRejected) {
+TEST_F(Aravis, BadConfigIsRejected) {
   drivers::DriverStatus status;
   EXPECT_FALSE(CreateAravisCamera({{"left", "127.0.0.1"}}, {}, &status));
   EXPECT_EQ(status.code, StatusCode::kInvalidArgument);
@@ -531,7 +531,7 @@ TEST_F(AravisTest, BadConfigIsRejected) {
   }
 }
 
-TEST_F(AravisTest, LoadsAsPlugin) {
+TEST_F(Aravis, LoadsAsPlugin) {
   drivers::PluginLoader loader(CRAFTSCAN_PLUGIN_DIR);
   std::shared_ptr<const drivers::Plugin> plugin;
   auto status = loader.Load("aravis", &plugin);
@@ -550,7 +550,7 @@ TEST_F(AravisTest, LoadsAsPlugin) {
   EXPECT_EQ(status.code, StatusCode::kUnsupported);
 }
 
-TEST_F(AravisTest, RestartedCameraIsRecoveredByReconnect) {
+TEST_F(Aravis, RestartedCameraIsRecoveredByReconnect) {
   const cv::Rect roi(0, 0, 160, 120);
   auto camera = Streaming({}, roi);
   ASSERT_TRUE(camera);
@@ -595,7 +595,7 @@ TEST_F(AravisTest, RestartedCameraIsRecoveredByReconnect) {
 // (trigger to both frames converted), with Aravis's default fake (trigger
 // register polled at 25 Hz, which bounds it) and with the fakes polling at
 // 1 kHz (closer to a camera's trigger latency).
-TEST_F(AravisTest, Figures1280x1024StereoCapture) {
+TEST_F(Aravis, Figures1280x1024StereoCapture) {
   for (double poll_hz : {25.0, 1000.0}) {
     FakeCameraOptions options;
     options.trigger_poll_hz = poll_hz;
@@ -639,7 +639,7 @@ TEST_F(AravisTest, Figures1280x1024StereoCapture) {
 // No USB bus here: the GigE fakes are followed by serial (usb_hotplug=on)
 // and USB arrivals/departures come from a fake event source.
 
-class AravisUsbTest : public AravisTest {
+class AravisUsb : public Aravis {
  protected:
   std::unique_ptr<AravisStereoCamera> MakeFollowed(drivers::test::FakeHost* host, int attempts) {
     auto config = Config();
@@ -659,7 +659,7 @@ class AravisUsbTest : public AravisTest {
   drivers::test::FakeUsbEventSource* source_ = nullptr;  // owned by the camera's monitor
 };
 
-TEST_F(AravisUsbTest, DepartureIsALossAndArrivalReconnectsAtOnce) {
+TEST_F(AravisUsb, DepartureIsALossAndArrivalReconnectsAtOnce) {
   drivers::test::FakeHost host;
   auto camera = MakeFollowed(&host, 3);
   ASSERT_TRUE(camera);
@@ -711,7 +711,7 @@ TEST_F(AravisUsbTest, DepartureIsALossAndArrivalReconnectsAtOnce) {
   EXPECT_FALSE(camera->FollowsUsbHotplug());
 }
 
-TEST_F(AravisUsbTest, WhileUnpluggedAttemptsFailWithoutTouchingTheNetwork) {
+TEST_F(AravisUsb, WhileUnpluggedAttemptsFailWithoutTouchingTheNetwork) {
   drivers::test::FakeHost host;
   auto camera = MakeFollowed(&host, 3);
   ASSERT_TRUE(camera);
@@ -729,7 +729,7 @@ TEST_F(AravisUsbTest, WhileUnpluggedAttemptsFailWithoutTouchingTheNetwork) {
   EXPECT_EQ(camera->state(), CameraState::kLost);
 }
 
-TEST_F(AravisUsbTest, GigECamerasAreNotFollowedByDefault) {
+TEST_F(AravisUsb, GigECamerasAreNotFollowedByDefault) {
   int sources = 0;
   auto camera = CreateAravisCamera(Config(), {}, nullptr, [&] {
     ++sources;

@@ -25,10 +25,12 @@
 #include "craftscan/sim/driver_options.h"
 #include "craftscan/sim/station.h"
 #include "fake_host.h"
+#include "mat_util.h"
 
 namespace craftscan::sim {
 namespace {
 
+using ::craftscan::testing::BitExact;
 using drivers::CameraSettings;
 using drivers::CameraState;
 using drivers::DeviceEvent;
@@ -47,10 +49,6 @@ const DriverConfig kSmall = {{"image_size", "320x256"}, {"threads", "2"}, {"seed
 DriverConfig With(DriverConfig config, const DriverConfig& extra) {
   for (const auto& [key, value] : extra) config.insert_or_assign(key, value);
   return config;
-}
-
-bool BitIdentical(const cv::Mat& a, const cv::Mat& b) {
-  return a.size() == b.size() && a.type() == b.type() && cv::norm(a, b, cv::NORM_INF) == 0;
 }
 
 class SimDriver : public ::testing::Test {
@@ -114,11 +112,11 @@ TEST_F(SimDriver, CaptureAfterAMoveShowsTheObjectTurned) {
   scene->SetTurntableAngle(60 * std::numbers::pi / 180);
   const StereoRender direct60 = station->Render(*scene, at60.left.frame_id);
   ASSERT_TRUE(direct0.IsUsable() && direct60.IsUsable());
-  EXPECT_TRUE(BitIdentical(at0.left.image, direct0.left));
-  EXPECT_TRUE(BitIdentical(at0.right.image, direct0.right));
-  EXPECT_TRUE(BitIdentical(at60.left.image, direct60.left));
-  EXPECT_TRUE(BitIdentical(at60.right.image, direct60.right));
-  EXPECT_FALSE(BitIdentical(direct0.left, direct60.left));
+  EXPECT_TRUE(BitExact(at0.left.image, direct0.left));
+  EXPECT_TRUE(BitExact(at0.right.image, direct0.right));
+  EXPECT_TRUE(BitExact(at60.left.image, direct60.left));
+  EXPECT_TRUE(BitExact(at60.right.image, direct60.right));
+  EXPECT_FALSE(BitExact(direct0.left, direct60.left));
 }
 
 TEST_F(SimDriver, MovesTakeTheirTimeOnTheInjectedClock) {
@@ -303,8 +301,8 @@ TEST_F(SimDriver, HeldBoardFrameIdPicksThePose) {
       auto scene = Scene::Create(SimHeldBoardSceneOptions(options, *station, id), &why);
       ASSERT_TRUE(scene) << why;
       const StereoRender direct = station->Render(*scene, id, RenderOutputs::kImagesOnly);
-      EXPECT_TRUE(BitIdentical(frames[id].left.image, direct.left));
-      EXPECT_TRUE(BitIdentical(frames[id].right.image, direct.right));
+      EXPECT_TRUE(BitExact(frames[id].left.image, direct.left));
+      EXPECT_TRUE(BitExact(frames[id].right.image, direct.right));
     }
     const SceneOptions pose0 = SimHeldBoardSceneOptions(options, *station, 0);
     const SceneOptions pose16 = SimHeldBoardSceneOptions(options, *station, 16);
@@ -315,7 +313,7 @@ TEST_F(SimDriver, HeldBoardFrameIdPicksThePose) {
     cv::Mat diff;
     cv::absdiff(frames[0].left.image, frames[16].left.image, diff);
     EXPECT_LT(cv::mean(diff)[1], 1.5);
-    EXPECT_FALSE(BitIdentical(frames[0].left.image, frames[16].left.image));
+    EXPECT_FALSE(BitExact(frames[0].left.image, frames[16].left.image));
     // Frames 0 and 1: the board moved.
     cv::absdiff(frames[0].left.image, frames[1].left.image, diff);
     EXPECT_GT(cv::countNonZero(diff.reshape(1) > 60), 1000);

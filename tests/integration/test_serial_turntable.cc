@@ -35,7 +35,7 @@ bool Contains(const std::string& text, const std::string& part) {
   return text.find(part) != std::string::npos;
 }
 
-class SerialTurntableTest : public ::testing::Test {
+class SerialTurntable : public ::testing::Test {
  protected:
   // Fast settings: 3600 deg/min = 60 deg/s, short timeouts.
   GrblTurntableOptions DriverOptions(const std::string& path) {
@@ -71,7 +71,7 @@ class SerialTurntableTest : public ::testing::Test {
   std::unique_ptr<GrblTurntable> table_;
 };
 
-TEST_F(SerialTurntableTest, ConnectsAndChecksTheBanner) {
+TEST_F(SerialTurntable, ConnectsAndChecksTheBanner) {
   StartEmulator();
   GrblTurntable table(DriverOptions(emu_->slave_path()));
   EXPECT_EQ(table.state(), State::kClosed);
@@ -93,7 +93,7 @@ TEST_F(SerialTurntableTest, ConnectsAndChecksTheBanner) {
   EXPECT_EQ(table.Reconnect().code, StatusCode::kWrongState);
 }
 
-TEST_F(SerialTurntableTest, ResetsWhenNoBannerComes) {
+TEST_F(SerialTurntable, ResetsWhenNoBannerComes) {
   EmulatorOptions o;
   o.banner_on_start = false;  // controller already running when the port opens
   StartEmulator(o);
@@ -106,7 +106,7 @@ TEST_F(SerialTurntableTest, ResetsWhenNoBannerComes) {
   EXPECT_LT(SecondsSince(start), 0.6);
 }
 
-TEST_F(SerialTurntableTest, RejectsOtherFirmwareVersions) {
+TEST_F(SerialTurntable, RejectsOtherFirmwareVersions) {
   EmulatorOptions o;
   o.version = "0.9j";
   StartEmulator(o);
@@ -117,7 +117,7 @@ TEST_F(SerialTurntableTest, RejectsOtherFirmwareVersions) {
   EXPECT_EQ(table.state(), State::kClosed);
 }
 
-TEST_F(SerialTurntableTest, OpenErrorsNameThePath) {
+TEST_F(SerialTurntable, OpenErrorsNameThePath) {
   GrblTurntable table(DriverOptions("/nonexistent/ttyGRBL"));
   Status s = table.Connect();
   EXPECT_EQ(s.code, StatusCode::kIoError);
@@ -137,7 +137,7 @@ TEST_F(SerialTurntableTest, OpenErrorsNameThePath) {
   EXPECT_TRUE(Contains(s.message, "feed_deg_per_min")) << s.message;
 }
 
-TEST_F(SerialTurntableTest, HomesAndMovesWithRealisticTiming) {
+TEST_F(SerialTurntable, HomesAndMovesWithRealisticTiming) {
   EmulatorOptions o;
   o.start_position_deg = 123;
   o.homing_time = milliseconds(150);
@@ -185,7 +185,7 @@ TEST_F(SerialTurntableTest, HomesAndMovesWithRealisticTiming) {
   EXPECT_EQ(table_->state(), State::kReady);  // a rejected argument changes nothing
 }
 
-TEST_F(SerialTurntableTest, SettleTimeIsWaitedAfterTheMove) {
+TEST_F(SerialTurntable, SettleTimeIsWaitedAfterTheMove) {
   StartEmulator();
   GrblTurntableOptions o = DriverOptions(emu_->slave_path());
   o.settle_time = milliseconds(200);
@@ -198,7 +198,7 @@ TEST_F(SerialTurntableTest, SettleTimeIsWaitedAfterTheMove) {
   EXPECT_LT(SecondsSince(start), 0.4);
 }
 
-TEST_F(SerialTurntableTest, WithoutLimitSwitchHomeSetsZeroHere) {
+TEST_F(SerialTurntable, WithoutLimitSwitchHomeSetsZeroHere) {
   EmulatorOptions eo;
   eo.homing_enabled = false;
   eo.start_position_deg = 37.5;
@@ -216,7 +216,7 @@ TEST_F(SerialTurntableTest, WithoutLimitSwitchHomeSetsZeroHere) {
   EXPECT_NEAR(emu_->machine_position_deg(), 47.5, 1e-9);  // work 10 = machine 37.5 + 10
 }
 
-TEST_F(SerialTurntableTest, HomingCycleOnAControllerWithoutIt) {
+TEST_F(SerialTurntable, HomingCycleOnAControllerWithoutIt) {
   EmulatorOptions eo;
   eo.homing_enabled = false;
   StartEmulator(eo);
@@ -232,7 +232,7 @@ TEST_F(SerialTurntableTest, HomingCycleOnAControllerWithoutIt) {
   EXPECT_EQ(table.last_error().code, StatusCode::kDeviceError);
 }
 
-TEST_F(SerialTurntableTest, ErrorReplyIsMappedAndHomeRecovers) {
+TEST_F(SerialTurntable, ErrorReplyIsMappedAndHomeRecovers) {
   StartReady();
   emu_->RaiseAlarm(1);  // while idle: the next G-code is locked out
   std::this_thread::sleep_for(milliseconds(20));
@@ -252,7 +252,7 @@ TEST_F(SerialTurntableTest, ErrorReplyIsMappedAndHomeRecovers) {
   EXPECT_NEAR(emu_->machine_position_deg(), 3.0, 1e-9);
 }
 
-TEST_F(SerialTurntableTest, AlarmDuringMoveFaultsWithTheAlarmText) {
+TEST_F(SerialTurntable, AlarmDuringMoveFaultsWithTheAlarmText) {
   StartReady();
   auto move = std::async(std::launch::async, [&] { return table_->MoveTo(60); });  // 1 s
   std::this_thread::sleep_for(milliseconds(200));
@@ -269,7 +269,7 @@ TEST_F(SerialTurntableTest, AlarmDuringMoveFaultsWithTheAlarmText) {
   EXPECT_LT(emu_->machine_position_deg(), 30);  // really stopped
 }
 
-TEST_F(SerialTurntableTest, SilenceTimesOutWithinTheBoundThenDeviceIsLost) {
+TEST_F(SerialTurntable, SilenceTimesOutWithinTheBoundThenDeviceIsLost) {
   StartEmulator();
   GrblTurntableOptions o = DriverOptions(emu_->slave_path());
   o.timeouts_until_lost = 2;
@@ -303,7 +303,7 @@ TEST_F(SerialTurntableTest, SilenceTimesOutWithinTheBoundThenDeviceIsLost) {
   EXPECT_EQ(table_->state(), State::kUnhomed);
 }
 
-TEST_F(SerialTurntableTest, SilenceDuringMovePollingTimesOut) {
+TEST_F(SerialTurntable, SilenceDuringMovePollingTimesOut) {
   StartReady();
   auto move = std::async(std::launch::async, [&] { return table_->MoveTo(60); });
   std::this_thread::sleep_for(milliseconds(100));
@@ -316,7 +316,7 @@ TEST_F(SerialTurntableTest, SilenceDuringMovePollingTimesOut) {
   EXPECT_LT(SecondsSince(start), 0.3 + 0.1);
 }
 
-TEST_F(SerialTurntableTest, GarbageIsToleratedAndReported) {
+TEST_F(SerialTurntable, GarbageIsToleratedAndReported) {
   StartReady();
   emu_->InjectGarbage(std::string("\xff\xfe\x00#%garbage!\r\n", 14) + std::string(5000, 'Z') +
                       "\r\n");
@@ -334,7 +334,7 @@ TEST_F(SerialTurntableTest, GarbageIsToleratedAndReported) {
       << s.message;
 }
 
-TEST_F(SerialTurntableTest, WrongReportedPositionIsAMismatchFault) {
+TEST_F(SerialTurntable, WrongReportedPositionIsAMismatchFault) {
   StartReady();
   emu_->SetPositionOffset(2.5);
   Status s = table_->MoveTo(30);
@@ -349,7 +349,7 @@ TEST_F(SerialTurntableTest, WrongReportedPositionIsAMismatchFault) {
   EXPECT_TRUE(s.ok()) << ToString(s);
 }
 
-TEST_F(SerialTurntableTest, HangUpIsDeviceLostAndReconnectWorksOnANewPty) {
+TEST_F(SerialTurntable, HangUpIsDeviceLostAndReconnectWorksOnANewPty) {
   StartReady();
   auto move = std::async(std::launch::async, [&] { return table_->MoveTo(60); });
   std::this_thread::sleep_for(milliseconds(150));
@@ -382,7 +382,7 @@ TEST_F(SerialTurntableTest, HangUpIsDeviceLostAndReconnectWorksOnANewPty) {
   EXPECT_NEAR(emu_->machine_position_deg(), 2, 1e-9);
 }
 
-TEST_F(SerialTurntableTest, ReconnectThroughASymlinkTheEmulatorUpdates) {
+TEST_F(SerialTurntable, ReconnectThroughASymlinkTheEmulatorUpdates) {
   const std::string link = ::testing::TempDir() + "craftscan-ttyGRBL-" + std::to_string(::getpid());
   EmulatorOptions eo;
   eo.link_path = link;
@@ -402,7 +402,7 @@ TEST_F(SerialTurntableTest, ReconnectThroughASymlinkTheEmulatorUpdates) {
   std::filesystem::remove(link);
 }
 
-TEST_F(SerialTurntableTest, AbortDuringMoveStopsIt) {
+TEST_F(SerialTurntable, AbortDuringMoveStopsIt) {
   StartReady();
   auto move = std::async(std::launch::async, [&] { return table_->MoveTo(60); });  // 1 s
   std::this_thread::sleep_for(milliseconds(250));

@@ -1,5 +1,5 @@
-// Synthetic stereo rigs, board poses and rendered boards for the
-// calibration tests. Ground truth is exact; noise is explicit.
+// The calibration tests' boards, synthetic stereo rigs, board poses and
+// rendered boards. Ground truth is exact; noise is explicit.
 #pragma once
 
 #include <cmath>
@@ -14,6 +14,27 @@
 #include "craftscan/pipeline/calib/calibration.h"
 
 namespace craftscan::testing {
+
+// The boards the tests calibrate with.
+inline BoardSpec Chessboard9x6() {
+  BoardSpec board;
+  board.type = BoardSpec::Type::kChessboard;
+  board.cols = 9;
+  board.rows = 6;
+  board.square_mm = 25;
+  return board;
+}
+
+inline BoardSpec Charuco7x5() {
+  BoardSpec board;
+  board.type = BoardSpec::Type::kCharuco;
+  board.cols = 7;
+  board.rows = 5;
+  board.square_mm = 30;
+  board.marker_mm = 22;
+  board.aruco_dictionary = 0;  // DICT_4X4_50
+  return board;
+}
 
 // A converging stereo pair, 1280×960, with real-looking lenses.
 struct SyntheticRig {

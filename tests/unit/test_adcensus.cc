@@ -1,6 +1,7 @@
 // The AD-Census matcher: each stage against a brute-force reading of
 // method.md, then whole-matcher accuracy on synthetic pairs with known
-// disparity and on Middlebury scenes with ground truth.
+// disparity (real Middlebury scenes: tests/integration/test_middlebury.cc).
+// The executable also runs test_preprocess.cc.
 #include <gtest/gtest.h>
 
 #include <bit>

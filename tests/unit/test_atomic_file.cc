@@ -6,26 +6,24 @@
 #include <iterator>
 
 #include "craftscan/pipeline/common/atomic_file.h"
+#include "file_util.h"
 #include "test_util.h"
 
 namespace craftscan {
 namespace {
 
 namespace fs = std::filesystem;
-using AtomicFileTest = testing::TempDirTest;
+using AtomicFile = testing::TempDirTest;
 
-std::string ReadAll(const std::string& path) {
-  std::ifstream in(path, std::ios::binary);
-  return {std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>()};
-}
+using testing::ReadFile;
 
-TEST_F(AtomicFileTest, WritesAndReplacesLeavingNoTemporary) {
+TEST_F(AtomicFile, WritesAndReplacesLeavingNoTemporary) {
   std::string error;
   const std::string path = Path("a.bin");
   ASSERT_TRUE(WriteFileAtomically(path, std::string("first\0x", 7), &error)) << error;
-  EXPECT_EQ(ReadAll(path), std::string("first\0x", 7));
+  EXPECT_EQ(ReadFile(path), std::string("first\0x", 7));
   ASSERT_TRUE(WriteFileAtomically(path, "second", &error)) << error;
-  EXPECT_EQ(ReadAll(path), "second");
+  EXPECT_EQ(ReadFile(path), "second");
   EXPECT_EQ(fs::status(path).permissions() & fs::perms::all,
             fs::perms::owner_read | fs::perms::owner_write | fs::perms::group_read |
                 fs::perms::others_read);
@@ -34,7 +32,7 @@ TEST_F(AtomicFileTest, WritesAndReplacesLeavingNoTemporary) {
   EXPECT_EQ(files, 1);
 }
 
-TEST_F(AtomicFileTest, FailureNamesThePathAndKeepsWhatWasThere) {
+TEST_F(AtomicFile, FailureNamesThePathAndKeepsWhatWasThere) {
   std::string error;
   EXPECT_FALSE(WriteFileAtomically(Path("no/such/folder/x"), "data", &error));
   EXPECT_NE(error.find("no/such/folder"), std::string::npos) << error;
@@ -47,7 +45,7 @@ TEST_F(AtomicFileTest, FailureNamesThePathAndKeepsWhatWasThere) {
   WriteBytes("taken/keep.txt", "kept");
   EXPECT_FALSE(WriteFileAtomically(target, "data", &error));
   EXPECT_NE(error.find("cannot rename"), std::string::npos) << error;
-  EXPECT_EQ(ReadAll(Path("taken/keep.txt")), "kept");
+  EXPECT_EQ(ReadFile(Path("taken/keep.txt")), "kept");
   int entries = 0;
   for ([[maybe_unused]] const auto& entry : fs::directory_iterator(dir_)) ++entries;
   EXPECT_EQ(entries, 1);

@@ -20,6 +20,7 @@
 #include "calibration_test_util.h"
 #include "craftscan/pipeline/calib/calibration.h"
 #include "craftscan/pipeline/calib/rectify.h"
+#include "file_util.h"
 #include "test_util.h"
 
 namespace craftscan {
@@ -27,60 +28,19 @@ namespace {
 
 namespace fs = std::filesystem;
 using testing::BoardPose;
+using testing::Charuco7x5;
+using testing::Chessboard9x6;
 using testing::MakeRig;
+using testing::ReadFile;
 using testing::SyntheticRig;
+using testing::TempDir;
 
 constexpr double kRadToDeg = 180.0 / CV_PI;
-
-BoardSpec Chessboard9x6() {
-  BoardSpec board;
-  board.type = BoardSpec::Type::kChessboard;
-  board.cols = 9;
-  board.rows = 6;
-  board.square_mm = 25;
-  return board;
-}
-
-BoardSpec Charuco7x5() {
-  BoardSpec board;
-  board.type = BoardSpec::Type::kCharuco;
-  board.cols = 7;
-  board.rows = 5;
-  board.square_mm = 30;
-  board.marker_mm = 22;
-  board.aruco_dictionary = 0;  // DICT_4X4_50
-  return board;
-}
 
 double AngleBetweenRotationsDeg(const cv::Matx33d& a, const cv::Matx33d& b) {
   cv::Vec3d r;
   cv::Rodrigues(a * b.t(), r);
   return cv::norm(r) * kRadToDeg;
-}
-
-// A unique scratch folder per test, removed at the end.
-class ScratchDir {
- public:
-  ScratchDir() {
-    const auto* info = ::testing::UnitTest::GetInstance()->current_test_info();
-    path_ = fs::temp_directory_path() /
-            ("craftscan_calib_" + std::string(info->name()) + "_" + std::to_string(::getpid()));
-    fs::remove_all(path_);
-    fs::create_directories(path_);
-  }
-  ~ScratchDir() {
-    std::error_code ec;
-    fs::remove_all(path_, ec);
-  }
-  std::string File(const std::string& name) const { return (path_ / name).string(); }
-
- private:
-  fs::path path_;
-};
-
-std::string ReadText(const std::string& path) {
-  std::ifstream in(path, std::ios::binary);
-  return {std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>()};
 }
 
 void WriteText(const std::string& path, const std::string& text) {
@@ -567,7 +527,7 @@ void ExpectSameNumber(double a, double b, const std::string& name) {
 }
 
 TEST(CalibrationFile, RoundTripIsExact) {
-  ScratchDir dir;
+  TempDir dir("craftscan_calib");
   const StereoCalibration saved = FullCalibration();
   ASSERT_TRUE(saved.left.UsesRationalModel());
   const std::string path = dir.File("calibration.yaml");
@@ -580,7 +540,7 @@ TEST(CalibrationFile, RoundTripIsExact) {
     ++files;
   }
   EXPECT_EQ(files, 1);
-  EXPECT_NE(ReadText(path).find("format_version: 1"), std::string::npos);
+  EXPECT_NE(ReadFile(path).find("format_version: 1"), std::string::npos);
 
   StereoCalibration loaded;
   ASSERT_TRUE(LoadCalibration(path, &loaded, &error)) << error;
@@ -641,7 +601,7 @@ TEST(CalibrationFile, RoundTripIsExact) {
 }
 
 TEST(CalibrationFile, SaveRefusesInvalidCalibrationAndBadFolder) {
-  ScratchDir dir;
+  TempDir dir("craftscan_calib");
   std::string error;
   StereoCalibration empty;
   EXPECT_FALSE(SaveCalibration(dir.File("x.yaml"), empty, &error));
@@ -659,7 +619,7 @@ class CalibrationFileErrors : public ::testing::Test {
     std::string error;
     ASSERT_TRUE(SaveCalibration(path_, testing::RigCalibration(MakeRig(), Chessboard9x6()), &error))
         << error;
-    text_ = ReadText(path_);
+    text_ = ReadFile(path_);
   }
   // Loads `text` from a file and returns the error (empty if it loaded).
   std::string LoadError(const std::string& text) {
@@ -686,7 +646,7 @@ class CalibrationFileErrors : public ::testing::Test {
     return text_.substr(0, start + 1) + replacement + (replacement.empty() ? "" : "\n") + rest;
   }
 
-  ScratchDir dir_;
+  TempDir dir_{"craftscan_calib"};
   std::string path_;
   std::string text_;
 };

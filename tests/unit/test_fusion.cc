@@ -60,7 +60,7 @@ double RmsPlaneDistance(const PointCloud& cloud) {
 
 // ------------------------------------------------------------------ fusion ----
 
-TEST(FusionTest, TwoNoisyCopiesReduceNoise) {
+TEST(Fusion, TwoNoisyCopiesReduceNoise) {
   // Two views of one surface, sampled at interleaved positions, σ = 0.2 mm,
   // with opposite normal orientation and different colours.
   const PointCloud a = NoisyPlane(0.25, 0.0, 0.2, +1, {100, 50, 0}, 1);
@@ -107,7 +107,7 @@ TEST(FusionTest, TwoNoisyCopiesReduceNoise) {
   EXPECT_NEAR(red / static_cast<double>(fused.size()), 150, 5);
 }
 
-TEST(FusionTest, MultiViewSupportDropsSingleViewFloaters) {
+TEST(Fusion, MultiViewSupportDropsSingleViewFloaters) {
   // Two views of the plane; the first also carries a clump of 500 floaters
   // 10–20 mm above it (a stereo mismatch that only one view makes).
   PointCloud a = NoisyPlane(0.5, 0.0, 0.1, 1, {200, 100, 50}, 1);
@@ -145,7 +145,7 @@ TEST(FusionTest, MultiViewSupportDropsSingleViewFloaters) {
   EXPECT_NE(error.find("min_views"), std::string::npos) << error;
 }
 
-TEST(FusionTest, SparseVoxelsAndNonFinitePointsAreDropped) {
+TEST(Fusion, SparseVoxelsAndNonFinitePointsAreDropped) {
   PointCloud cloud = NoisyPlane(0.25, 0.0, 0.05, +1, {10, 20, 30}, 3);
   const std::size_t plane_points = cloud.size();
   // Isolated outliers far from the plane, one per voxel, and NaNs.
@@ -172,7 +172,7 @@ TEST(FusionTest, SparseVoxelsAndNonFinitePointsAreDropped) {
   for (const cv::Vec3b& c : fused.colors_rgb) ASSERT_EQ(c, cv::Vec3b(10, 20, 30));
 }
 
-TEST(FusionTest, AttributesOnlyWhenEveryInputHasThem) {
+TEST(Fusion, AttributesOnlyWhenEveryInputHasThem) {
   PointCloud a = NoisyPlane(0.5, 0.0, 0.0, +1, {1, 2, 3}, 4);
   PointCloud b = NoisyPlane(0.5, 0.25, 0.0, +1, {1, 2, 3}, 5);
   b.normals.clear();
@@ -189,7 +189,7 @@ TEST(FusionTest, AttributesOnlyWhenEveryInputHasThem) {
   for (std::size_t i = 0; i < fused.size(); ++i) ASSERT_EQ(again.points_mm[i], fused.points_mm[i]);
 }
 
-TEST(FusionTest, DegenerateInputsFail) {
+TEST(Fusion, DegenerateInputsFail) {
   std::string error;
   PointCloud out = FuseClouds({}, FusionOptions{}, &error);
   EXPECT_TRUE(out.empty());
@@ -258,9 +258,9 @@ PointCloud Sphere(int count, const cv::Vec3d& centre, double min_z = -1e9) {
   return cloud;
 }
 
-class MeshTest : public testing::TempDirTest {};
+class Mesh : public testing::TempDirTest {};
 
-TEST_F(MeshTest, PoissonSphere) {
+TEST_F(Mesh, PoissonSphere) {
   const cv::Vec3d centre(10, -20, 150);
   const PointCloud cloud = Sphere(12000, centre);  // ≈ 1 mm spacing
   const MeshResult r = PoissonMesh(cloud, PoissonOptions{});
@@ -302,7 +302,7 @@ TEST_F(MeshTest, PoissonSphere) {
   }
 }
 
-TEST_F(MeshTest, OpenSurfaceIsTrimmed) {
+TEST_F(Mesh, OpenSurfaceIsTrimmed) {
   // The upper half of the sphere only: Poisson closes it below; trimming
   // must remove what no input point supports.
   const cv::Vec3d centre(0, 0, 0);
@@ -324,7 +324,7 @@ TEST_F(MeshTest, OpenSurfaceIsTrimmed) {
   EXPECT_GT(q.trimmed_vertices, r.trimmed_vertices);
 }
 
-TEST_F(MeshTest, PlyAndObjRoundTrip) {
+TEST_F(Mesh, PlyAndObjRoundTrip) {
   PoissonOptions options;
   options.depth = 6;
   const MeshResult r = PoissonMesh(Sphere(3000, {0, 0, 0}), options);
@@ -373,7 +373,7 @@ TEST_F(MeshTest, PlyAndObjRoundTrip) {
   EXPECT_EQ(static_cast<std::size_t>(max_index), mesh.vertices_mm.size());  // 1-based
 }
 
-TEST_F(MeshTest, DegenerateInputsFail) {
+TEST_F(Mesh, DegenerateInputsFail) {
   MeshResult r = PoissonMesh(PointCloud{}, PoissonOptions{});
   EXPECT_FALSE(r.IsUsable());
   EXPECT_CONTAINS(r.message, "no normals");

@@ -1,3 +1,6 @@
+// The serial turntable driver's GRBL reply parser without a device: reply
+// kinds, status reports, line splitting across reads, garbage and overlong
+// lines, error/alarm messages, and random bytes.
 #include "craftscan/drivers/serial_turntable/grbl_reply_parser.h"
 
 #include <random>

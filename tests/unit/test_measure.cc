@@ -20,10 +20,13 @@
 #include "craftscan/pipeline/common/pose.h"
 #include "craftscan/pipeline/surface/measure.h"
 #include "craftscan/pipeline/surface/scan_reconstruction.h"
+#include "pose_util.h"
 #include "test_util.h"
 
 namespace craftscan {
 namespace {
+
+using testing::Pose;
 
 #define EXPECT_CONTAINS(text, part)                          \
   EXPECT_NE(std::string(text).find(part), std::string::npos) \
@@ -42,17 +45,6 @@ struct SyntheticBox {
   cv::Matx44d world_from_object = cv::Matx44d::eye();
   unsigned seed = 1;
 };
-
-cv::Matx44d Pose(const cv::Vec3d& rodrigues, const cv::Vec3d& t) {
-  cv::Matx33d r;
-  cv::Rodrigues(rodrigues, r);
-  cv::Matx44d m = cv::Matx44d::eye();
-  for (int i = 0; i < 3; ++i) {
-    for (int j = 0; j < 3; ++j) m(i, j) = r(i, j);
-    m(i, 3) = t[i];
-  }
-  return m;
-}
 
 // Depth of the pockets at face coordinates (u, v) ∈ [0, U] × [0, V], and its
 // gradient: square pyramids of half-size 5 mm on a 12 mm grid inside the
@@ -218,7 +210,7 @@ SyntheticBox RotatedBox(unsigned seed) {
 
 // ----------------------------------------------------------- oriented box ----
 
-TEST(OrientedBoxTest, NoiseFreeBoxExtentsAndAxes) {
+TEST(OrientedBox, NoiseFreeBoxExtentsAndAxes) {
   SyntheticBox box = RotatedBox(3);
   box.noise_mm = 0;
   box.cut_depth_mm = 0;
@@ -244,7 +236,7 @@ TEST(OrientedBoxTest, NoiseFreeBoxExtentsAndAxes) {
   EXPECT_LT(cv::norm(obb.center_mm - cv::Vec3d(c[0], c[1], c[2])), 0.5);
 }
 
-TEST(OrientedBoxTest, CubeAndOutliers) {
+TEST(OrientedBox, CubeAndOutliers) {
   SyntheticBox box = RotatedBox(5);
   box.width_mm = box.depth_mm = box.height_mm = 40;  // PCA is ambiguous for a cube
   box.noise_mm = 0;
@@ -262,7 +254,7 @@ TEST(OrientedBoxTest, CubeAndOutliers) {
   for (int k = 0; k < 3; ++k) EXPECT_NEAR(obb.extents_mm[k], 40, 0.5) << k;
 }
 
-TEST(OrientedBoxTest, DegenerateInputsFail) {
+TEST(OrientedBox, DegenerateInputsFail) {
   OrientedBox obb;
   std::string error;
   EXPECT_FALSE(ComputeOrientedBox(PointCloud{}, &obb, &error));
@@ -289,7 +281,7 @@ TEST(OrientedBoxTest, DegenerateInputsFail) {
 
 // The main case: carved box, σ = 0.2 mm, base unseen and given, platter and
 // junk points present, arbitrary pose.
-TEST(MeasureBoxTest, CarvedBoxWithBasePlane) {
+TEST(MeasureBox, CarvedBoxWithBasePlane) {
   const SyntheticBox box = RotatedBox(11);
   const PointCloud cloud = MakeBox(box);
   BoxMeasureOptions options;
@@ -332,7 +324,7 @@ TEST(MeasureBoxTest, CarvedBoxWithBasePlane) {
 }
 
 // Without input normals they are estimated; same accuracy.
-TEST(MeasureBoxTest, EstimatedNormals) {
+TEST(MeasureBox, EstimatedNormals) {
   SyntheticBox box = RotatedBox(12);
   box.normals = false;
   const PointCloud cloud = MakeBox(box);
@@ -346,7 +338,7 @@ TEST(MeasureBoxTest, EstimatedNormals) {
 }
 
 // A fully seen box (base sampled, no platter) needs no base plane.
-TEST(MeasureBoxTest, SixFacesWithoutBasePlane) {
+TEST(MeasureBox, SixFacesWithoutBasePlane) {
   SyntheticBox box = RotatedBox(13);
   box.base = true;
   box.platter_points = 0;
@@ -359,7 +351,7 @@ TEST(MeasureBoxTest, SixFacesWithoutBasePlane) {
 // Both vertex methods over several poses and noise draws: the plane
 // intersection is the more accurate one (hence the default), and both meet
 // the station goal (std ≤ 0.2 mm) on this data.
-TEST(MeasureBoxTest, VertexMethodsCompared) {
+TEST(MeasureBox, VertexMethodsCompared) {
   std::vector<double> plane_errors, circle_errors;
   for (unsigned seed = 21; seed < 26; ++seed) {
     const SyntheticBox box = RotatedBox(seed);
@@ -387,7 +379,7 @@ TEST(MeasureBoxTest, VertexMethodsCompared) {
   EXPECT_LT(plane_rms, circle_rms);
 }
 
-TEST(MeasureBoxTest, UnseenBaseWithoutBasePlaneFails) {
+TEST(MeasureBox, UnseenBaseWithoutBasePlaneFails) {
   SyntheticBox box = RotatedBox(14);
   box.platter_points = 0;
   const BoxMeasurement m = MeasureBox(MakeBox(box), BoxMeasureOptions{});
@@ -397,7 +389,7 @@ TEST(MeasureBoxTest, UnseenBaseWithoutBasePlaneFails) {
   EXPECT_GE(m.detected_planes.size(), 5u);
 }
 
-TEST(MeasureBoxTest, SinglePlaneFails) {
+TEST(MeasureBox, SinglePlaneFails) {
   PointCloud plane;
   std::mt19937 rng(3);
   std::normal_distribution<double> noise(0, 0.1);
@@ -409,7 +401,7 @@ TEST(MeasureBoxTest, SinglePlaneFails) {
   EXPECT_EQ(m.detected_planes.size(), 1u);
 }
 
-TEST(MeasureBoxTest, DegenerateInputsFail) {
+TEST(MeasureBox, DegenerateInputsFail) {
   BoxMeasurement m = MeasureBox(PointCloud{}, BoxMeasureOptions{});
   EXPECT_FALSE(m.IsUsable());
   EXPECT_CONTAINS(m.message, "at least 100 finite points");
@@ -454,7 +446,7 @@ TEST(MeasureBoxTest, DegenerateInputsFail) {
 }
 
 // A base plane tilted 20° to the box cannot be one of its faces.
-TEST(MeasureBoxTest, ObliqueBasePlaneFails) {
+TEST(MeasureBox, ObliqueBasePlaneFails) {
   const SyntheticBox box = RotatedBox(16);
   BoxMeasureOptions options;
   const cv::Matx44d tilted = box.world_from_object * Pose({0.35, 0, 0}, {0, 0, 0});
@@ -466,9 +458,9 @@ TEST(MeasureBoxTest, ObliqueBasePlaneFails) {
 
 // ----------------------------------------------------------------- report ----
 
-class ReportTest : public testing::TempDirTest {};
+class MeasurementReport : public testing::TempDirTest {};
 
-TEST_F(ReportTest, JsonHasBoxAndEdges) {
+TEST_F(MeasurementReport, JsonHasBoxAndEdges) {
   const SyntheticBox box = RotatedBox(17);
   const PointCloud cloud = MakeBox(box);
   OrientedBox obb;
@@ -513,7 +505,7 @@ TEST_F(ReportTest, JsonHasBoxAndEdges) {
 // UTF-8 (e.g. a file name) made nlohmann's dump() throw inside
 // ScanReportJson, and the whole report became {"ok": false, "message":
 // "report failed"}. The report keeps every figure and replaces the bytes.
-TEST(ScanReportTest, MessageThatIsNotUtf8KeepsTheReport) {
+TEST(ScanReport, MessageThatIsNotUtf8KeepsTheReport) {
   ScanResult result;
   result.message = "view 2: cannot read '/data/\xff\xfe.ply'";
   result.views.resize(2);
@@ -532,7 +524,7 @@ TEST(ScanReportTest, MessageThatIsNotUtf8KeepsTheReport) {
   EXPECT_TRUE(j.contains("times"));
 }
 
-TEST(VertexMethodTest, StringsRoundTrip) {
+TEST(VertexMethod, StringsRoundTrip) {
   for (VertexMethod m : {VertexMethod::kPlaneIntersection, VertexMethod::kPointCircle}) {
     VertexMethod back{};
     ASSERT_TRUE(VertexMethodFromString(ToString(m), &back));

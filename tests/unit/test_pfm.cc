@@ -1,4 +1,8 @@
+// PFM files (common/pfm.h): bit-exact round trips (one and three channels,
+// ROIs), byte order and row order, header tolerance, errors; a Middlebury
+// 2014 ground truth when ../shared/data is present.
 #include "craftscan/pipeline/common/pfm.h"
+#include "mat_util.h"
 #include "test_util.h"
 
 #include <cmath>
@@ -18,8 +22,9 @@ namespace craftscan {
 namespace {
 
 namespace fs = std::filesystem;
+using testing::BitExact;
 
-using PfmTest = testing::TempDirTest;
+using Pfm = testing::TempDirTest;
 
 // Bytes of `values` as float32 in the given byte order.
 std::string FloatBytes(const std::vector<float>& values, bool little_endian) {
@@ -35,22 +40,13 @@ std::string FloatBytes(const std::vector<float>& values, bool little_endian) {
   return out;
 }
 
-// Bitwise equality so NaN and ±inf round-trip checks are exact.
-bool BitwiseEqual(const cv::Mat& a, const cv::Mat& b) {
-  if (a.size() != b.size() || a.type() != b.type()) return false;
-  for (int y = 0; y < a.rows; ++y) {
-    if (std::memcmp(a.ptr(y), b.ptr(y), a.cols * a.elemSize()) != 0) return false;
-  }
-  return true;
-}
-
 cv::Mat RandomImage(int rows, int cols, int type) {
   cv::Mat image(rows, cols, type);
   cv::randu(image, -1000.0, 1000.0);
   return image;
 }
 
-TEST_F(PfmTest, RoundTripsOneChannel) {
+TEST_F(Pfm, RoundTripsOneChannel) {
   cv::Mat image = RandomImage(7, 5, CV_32FC1);
   image.at<float>(0, 0) = std::numeric_limits<float>::quiet_NaN();
   image.at<float>(6, 4) = std::numeric_limits<float>::infinity();
@@ -58,29 +54,29 @@ TEST_F(PfmTest, RoundTripsOneChannel) {
   ASSERT_TRUE(WritePfm(Path("a.pfm"), image, &error)) << error;
   cv::Mat back;
   ASSERT_TRUE(ReadPfm(Path("a.pfm"), &back, &error)) << error;
-  EXPECT_TRUE(BitwiseEqual(image, back));
+  EXPECT_TRUE(BitExact(image, back));
 }
 
-TEST_F(PfmTest, RoundTripsThreeChannels) {
+TEST_F(Pfm, RoundTripsThreeChannels) {
   const cv::Mat image = RandomImage(4, 9, CV_32FC3);
   std::string error;
   ASSERT_TRUE(WritePfm(Path("c.pfm"), image, &error)) << error;
   cv::Mat back;
   ASSERT_TRUE(ReadPfm(Path("c.pfm"), &back, &error)) << error;
-  EXPECT_TRUE(BitwiseEqual(image, back));
+  EXPECT_TRUE(BitExact(image, back));
 }
 
-TEST_F(PfmTest, RoundTripsNonContinuousRoi) {
+TEST_F(Pfm, RoundTripsNonContinuousRoi) {
   const cv::Mat big = RandomImage(10, 10, CV_32FC1);
   const cv::Mat roi = big(cv::Rect(2, 3, 5, 4));
   std::string error;
   ASSERT_TRUE(WritePfm(Path("roi.pfm"), roi, &error)) << error;
   cv::Mat back;
   ASSERT_TRUE(ReadPfm(Path("roi.pfm"), &back, &error)) << error;
-  EXPECT_TRUE(BitwiseEqual(roi.clone(), back));
+  EXPECT_TRUE(BitExact(roi.clone(), back));
 }
 
-TEST_F(PfmTest, WritesLittleEndianBottomRowFirst) {
+TEST_F(Pfm, WritesLittleEndianBottomRowFirst) {
   cv::Mat image = (cv::Mat_<float>(2, 2) << 1, 2, 3, 4);
   std::string error;
   ASSERT_TRUE(WritePfm(Path("w.pfm"), image, &error)) << error;
@@ -92,7 +88,7 @@ TEST_F(PfmTest, WritesLittleEndianBottomRowFirst) {
   EXPECT_EQ(bytes.substr(header.size()), FloatBytes({3, 4, 1, 2}, /*little_endian=*/true));
 }
 
-TEST_F(PfmTest, ReadsBigEndian) {
+TEST_F(Pfm, ReadsBigEndian) {
   // 3 wide, 2 high; stored bottom row (4 5 6) first.
   const std::string path =
       WriteBytes("be.pfm", "Pf\n3 2\n1.0\n" + FloatBytes({4, 5, 6, 1, 2, 3.5f}, false));
@@ -107,7 +103,7 @@ TEST_F(PfmTest, ReadsBigEndian) {
   EXPECT_EQ(image.at<float>(1, 2), 6);
 }
 
-TEST_F(PfmTest, ReadsLittleEndianColourAsBgr) {
+TEST_F(Pfm, ReadsLittleEndianColourAsBgr) {
   // One pixel, stored R G B = 1 2 3; scale magnitude is ignored.
   const std::string path =
       WriteBytes("le.pfm", "PF\n1 1\n-0.003922\n" + FloatBytes({1, 2, 3}, true));
@@ -118,7 +114,7 @@ TEST_F(PfmTest, ReadsLittleEndianColourAsBgr) {
   EXPECT_EQ(image.at<cv::Vec3f>(0, 0), cv::Vec3f(3, 2, 1));
 }
 
-TEST_F(PfmTest, ToleratesIrregularHeaderWhitespace) {
+TEST_F(Pfm, ToleratesIrregularHeaderWhitespace) {
   const std::string path = WriteBytes("ws.pfm", "Pf 2\t1\n\n-1\n" + FloatBytes({7, 8}, true));
   cv::Mat image;
   std::string error;
@@ -126,7 +122,7 @@ TEST_F(PfmTest, ToleratesIrregularHeaderWhitespace) {
   EXPECT_EQ(image.at<float>(0, 1), 8);
 }
 
-TEST_F(PfmTest, MissingFileIsAnError) {
+TEST_F(Pfm, MissingFileIsAnError) {
   cv::Mat image;
   std::string error;
   EXPECT_FALSE(ReadPfm(Path("nope.pfm"), &image, &error));
@@ -134,7 +130,7 @@ TEST_F(PfmTest, MissingFileIsAnError) {
   EXPECT_NE(error.find("cannot open"), std::string::npos) << error;
 }
 
-TEST_F(PfmTest, TruncatedDataIsAnError) {
+TEST_F(Pfm, TruncatedDataIsAnError) {
   const std::string path = WriteBytes("t.pfm", "Pf\n4 4\n-1\n" + FloatBytes({1, 2, 3}, true));
   cv::Mat image;
   std::string error;
@@ -149,7 +145,7 @@ struct MalformedCase {
   const char* expected;  // substring of the error
 };
 
-TEST_F(PfmTest, MalformedHeadersAreErrors) {
+TEST_F(Pfm, MalformedHeadersAreErrors) {
   const std::string pixel = FloatBytes({1}, true);
   const std::vector<MalformedCase> cases = {
       {"empty", "", "bad magic"},
@@ -177,7 +173,7 @@ TEST_F(PfmTest, MalformedHeadersAreErrors) {
   }
 }
 
-TEST_F(PfmTest, WriteRejectsBadInput) {
+TEST_F(Pfm, WriteRejectsBadInput) {
   std::string error;
   EXPECT_FALSE(WritePfm(Path("e.pfm"), cv::Mat(), &error));
   EXPECT_FALSE(WritePfm(Path("u8.pfm"), cv::Mat(2, 2, CV_8UC1, cv::Scalar(1)), &error));
@@ -192,7 +188,7 @@ TEST_F(PfmTest, WriteRejectsBadInput) {
   EXPECT_TRUE(WritePfm(Path("null_error.pfm"), cv::Mat(1, 1, CV_32FC1, cv::Scalar(0)), nullptr));
 }
 
-TEST_F(PfmTest, ReadsMiddlebury2014GroundTruth) {
+TEST_F(Pfm, ReadsMiddlebury2014GroundTruth) {
   const fs::path path =
       fs::path(CRAFTSCAN_SHARED_DATA) / "stereo" / "adirondack_2014_q" / "disp_left.pfm";
   if (!fs::exists(path)) GTEST_SKIP() << "shared data absent: " << path;

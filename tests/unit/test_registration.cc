@@ -9,9 +9,12 @@
 #include "craftscan/pipeline/common/pose.h"
 #include "craftscan/pipeline/registration/loop_closure.h"
 #include "craftscan/pipeline/registration/registration.h"
+#include "pose_util.h"
 
 namespace craftscan {
 namespace {
+
+using testing::Pose;
 
 // A bumpy, asymmetric height field z = f(x, y) over [−w/2, w/2]² (mm),
 // sampled every `step_mm`, seen from +z. Bumps are seeded.
@@ -45,17 +48,6 @@ void AddNoise(PointCloud* cloud, double sigma_mm, unsigned seed) {
   for (auto& p : cloud->points_mm) p += cv::Vec3f(n(rng), n(rng), n(rng));
 }
 
-cv::Matx44d Pose(cv::Vec3d rotation_rad, cv::Vec3d translation_mm) {
-  cv::Matx33d R;
-  cv::Rodrigues(rotation_rad, R);
-  cv::Matx44d T = cv::Matx44d::eye();
-  for (int r = 0; r < 3; ++r) {
-    for (int c = 0; c < 3; ++c) T(r, c) = R(r, c);
-    T(r, 3) = translation_mm[r];
-  }
-  return T;
-}
-
 ConditioningOptions Conditioning(cv::Vec3d viewpoint = {0, 0, 1000}) {
   ConditioningOptions o;
   o.viewpoint_mm = viewpoint;
@@ -86,7 +78,7 @@ Pair MakePair(unsigned seed, const cv::Matx44d& target_from_source, double noise
   return pair;
 }
 
-TEST(RegistrationTest, RecoversALargeRigidMotion) {
+TEST(Registration, RecoversALargeRigidMotion) {
   const cv::Matx44d truth = Pose({0.2, -0.35, 0.5}, {20, -15, 30});
   Pair pair = MakePair(7, truth);
   ASSERT_TRUE(pair.source.ok()) << pair.source.error;
@@ -106,7 +98,7 @@ TEST(RegistrationTest, RecoversALargeRigidMotion) {
   EXPECT_GT(r.correspondences, 20u);
 }
 
-TEST(RegistrationTest, PointToPlaneAgrees) {
+TEST(Registration, PointToPlaneAgrees) {
   const cv::Matx44d truth = Pose({0.1, 0.2, -0.3}, {-10, 5, 12});
   Pair pair = MakePair(11, truth);
   RegistrationOptions options;
@@ -118,7 +110,7 @@ TEST(RegistrationTest, PointToPlaneAgrees) {
   EXPECT_LT(TranslationErrorMm(r.target_from_source, truth), 0.05);
 }
 
-TEST(RegistrationTest, DeterministicForAnyThreadCount) {
+TEST(Registration, DeterministicForAnyThreadCount) {
   const cv::Matx44d truth = Pose({0.05, 0.3, 0.1}, {8, 3, -6});
   Pair pair = MakePair(3, truth, 0.2);
   RegistrationOptions one;
@@ -133,7 +125,7 @@ TEST(RegistrationTest, DeterministicForAnyThreadCount) {
   EXPECT_EQ(a.iterations, b.iterations);
 }
 
-TEST(RegistrationTest, CorrectPriorIsKeptAndWrongPriorReplaced) {
+TEST(Registration, CorrectPriorIsKeptAndWrongPriorReplaced) {
   const cv::Matx44d truth = Pose({0, 0, 0.6}, {0, 0, 0});
   Pair pair = MakePair(5, truth);
   RegistrationOptions options;
@@ -157,7 +149,7 @@ TEST(RegistrationTest, CorrectPriorIsKeptAndWrongPriorReplaced) {
   EXPECT_LT(TranslationErrorMm(r.target_from_source, truth), 0.05);
 }
 
-TEST(RegistrationTest, EmptyAndTinyInputsFailWithAReason) {
+TEST(Registration, EmptyAndTinyInputsFailWithAReason) {
   const ViewCloud empty = ConditionCloud(PointCloud{}, Conditioning());
   EXPECT_FALSE(empty.ok());
   EXPECT_NE(empty.error.find("no points"), std::string::npos) << empty.error;
@@ -182,7 +174,7 @@ TEST(RegistrationTest, EmptyAndTinyInputsFailWithAReason) {
   EXPECT_NE(r.message.find("too few points"), std::string::npos) << r.message;
 }
 
-TEST(RegistrationTest, FlatPlaneFailsInsteadOfAWrongSuccess) {
+TEST(Registration, FlatPlaneFailsInsteadOfAWrongSuccess) {
   PointCloud plane;
   for (double y = -50; y <= 50; y += 0.7)
     for (double x = -50; x <= 50; x += 0.7) plane.points_mm.emplace_back(x, y, 0);
@@ -196,7 +188,7 @@ TEST(RegistrationTest, FlatPlaneFailsInsteadOfAWrongSuccess) {
   EXPECT_NE(r.message.find("plane"), std::string::npos) << r.message;
 }
 
-TEST(RegistrationTest, SphereNeedsAPrior) {
+TEST(Registration, SphereNeedsAPrior) {
   PointCloud cap;
   for (double th = 0; th < 1.2; th += 0.012)
     for (double ph = 0; ph < 2 * M_PI; ph += 0.012 / std::max(0.05, std::sin(th)))
@@ -218,7 +210,7 @@ TEST(RegistrationTest, SphereNeedsAPrior) {
   EXPECT_LT(TranslationErrorMm(r.target_from_source, cv::Matx44d::eye()), 0.1);
 }
 
-TEST(RegistrationTest, NoOverlapFails) {
+TEST(Registration, NoOverlapFails) {
   // Two unrelated rough surfaces: no rigid motion lays one on the other.
   const ViewCloud a = ConditionCloud(BumpySurface(21, 100, 0.7, -1e9, 1e9, true), Conditioning());
   const ViewCloud b = ConditionCloud(BumpySurface(22, 100, 0.7, -1e9, 1e9, true), Conditioning());
@@ -230,7 +222,7 @@ TEST(RegistrationTest, NoOverlapFails) {
   EXPECT_NE(r.message.find("no overlap"), std::string::npos) << r.message;
 }
 
-TEST(RegistrationTest, InvalidOptionsAreNamed) {
+TEST(Registration, InvalidOptionsAreNamed) {
   RegistrationOptions options;
   options.coarse.confidence = 1.5;
   std::string why;
@@ -290,7 +282,7 @@ Ring MakeRing(const cv::Vec3d& axis, const cv::Vec3d& point, unsigned seed, doub
   return ring;
 }
 
-TEST(LoopClosureTest, TurntableAxisModelRemovesAccumulatedDrift) {
+TEST(LoopClosure, TurntableAxisModelRemovesAccumulatedDrift) {
   const cv::Vec3d axis = cv::normalize(cv::Vec3d(0.05, -0.86, -0.5));
   const cv::Vec3d point(3, 60, 400);
   const Ring ring = MakeRing(axis, point, 1, 0.0015, 0.08);
@@ -328,7 +320,7 @@ TEST(LoopClosureTest, TurntableAxisModelRemovesAccumulatedDrift) {
   EXPECT_NEAR(std::abs(r.angles_rad[3]), M_PI, 0.01);
 }
 
-TEST(LoopClosureTest, PoseGraphWhenTheObjectMoved) {
+TEST(LoopClosure, PoseGraphWhenTheObjectMoved) {
   // The object slips 3 mm sideways every other view: no single axis fits.
   const Ring ring = MakeRing(cv::Vec3d(0, -0.86, -0.5), cv::Vec3d(0, 60, 400), 2, 0.001, 0.05,
                              cv::Vec3d(3, 0, 0));
@@ -340,7 +332,7 @@ TEST(LoopClosureTest, PoseGraphWhenTheObjectMoved) {
   EXPECT_LT(r.rms_mm, r.open_loop_rms_mm);
 }
 
-TEST(LoopClosureTest, BadInputIsRejected) {
+TEST(LoopClosure, BadInputIsRejected) {
   const Ring ring = MakeRing(cv::Vec3d(0, 0, 1), cv::Vec3d(0, 0, 0), 3, 0.001, 0.05);
   EXPECT_FALSE(CloseLoop(1, ring.edges, ring.chained, Samples(), {}).IsUsable());
   EXPECT_FALSE(CloseLoop(6, ring.edges, {}, Samples(), {}).IsUsable());

@@ -1,3 +1,6 @@
+// Reprojection of disparity to points with Q (stereo/reproject.h): planes
+// through hand-built and stereoRectify Q matrices, invalid disparities, the
+// depth and texture filters, colour, and mismatched inputs.
 #include "craftscan/pipeline/stereo/reproject.h"
 
 #include <cmath>
@@ -77,7 +80,7 @@ void ExpectOnPlane(const std::vector<ColoredPoint>& points, const Plane& plane, 
   EXPECT_LT(worst, tol_mm);
 }
 
-TEST(ReprojectTest, PlaneWithHandBuiltQ) {
+TEST(Reproject, PlaneWithHandBuiltQ) {
   const RectifiedRig rig{700.0, 319.5, 239.5, 120.0};
   const cv::Size size(640, 480);
   const cv::Mat disparity = PlaneDisparity(rig, kTiltedPlane, size);
@@ -91,7 +94,7 @@ TEST(ReprojectTest, PlaneWithHandBuiltQ) {
   EXPECT_EQ(points[0].r, 255);
 }
 
-TEST(ReprojectTest, PlaneWithStereoRectifyQ) {
+TEST(Reproject, PlaneWithStereoRectifyQ) {
   const cv::Size size(640, 480);
   const cv::Matx33d k(690.0, 0, 322.0, 0, 690.0, 241.0, 0, 0, 1);
   const cv::Mat no_distortion = cv::Mat::zeros(1, 5, CV_64F);
@@ -120,7 +123,7 @@ TEST(ReprojectTest, PlaneWithStereoRectifyQ) {
   EXPECT_NEAR(p.z, ref[2], 1e-3);
 }
 
-TEST(ReprojectTest, SkipsInvalidDisparitiesAndPointsAtInfinity) {
+TEST(Reproject, SkipsInvalidDisparitiesAndPointsAtInfinity) {
   const RectifiedRig rig{500.0, 2.0, 1.0, 100.0};
   cv::Mat disparity(3, 4, CV_32FC1, cv::Scalar(50.0f));
   disparity.at<float>(0, 0) = kInvalidDisparity;
@@ -136,7 +139,7 @@ TEST(ReprojectTest, SkipsInvalidDisparitiesAndPointsAtInfinity) {
   }
 }
 
-TEST(ReprojectTest, DepthFilter) {
+TEST(Reproject, DepthFilter) {
   const RectifiedRig rig{500.0, 1.0, 0.0, 100.0};
   // z = f·B/d = 50000/d: 1000, 500, 250 mm.
   const cv::Mat disparity = (cv::Mat_<float>(1, 3) << 50, 100, 200);
@@ -149,7 +152,7 @@ TEST(ReprojectTest, DepthFilter) {
   EXPECT_NEAR(points[0].z, 500.0, 1e-3);
 }
 
-TEST(ReprojectTest, CarriesColour) {
+TEST(Reproject, CarriesColour) {
   const RectifiedRig rig{500.0, 1.0, 1.0, 100.0};
   cv::Mat disparity(2, 3, CV_32FC1, cv::Scalar(40.0f));
   disparity.at<float>(0, 1) = kNan;
@@ -178,7 +181,7 @@ TEST(ReprojectTest, CarriesColour) {
   EXPECT_EQ(points[4].b, 35);
 }
 
-TEST(ReprojectTest, RejectsMismatchedInputs) {
+TEST(Reproject, RejectsMismatchedInputs) {
   const RectifiedRig rig{500.0, 1.0, 1.0, 100.0};
   const cv::Mat q = HandQ(rig);
   const cv::Mat disparity(4, 4, CV_32FC1, cv::Scalar(10.0f));
@@ -199,7 +202,7 @@ TEST(ReprojectTest, RejectsMismatchedInputs) {
   ExpectInvalidInput(ReprojectToPoints(disparity, q, cv::Mat(), bad));
 }
 
-TEST(ReprojectTest, TextureFilterDropsFlatRegions) {
+TEST(Reproject, TextureFilterDropsFlatRegions) {
   const RectifiedRig rig{500.0, 1.0, 1.0, 100.0};
   const cv::Mat q = HandQ(rig);
   const cv::Mat disparity(40, 80, CV_32FC1, cv::Scalar(10.0f));

@@ -22,11 +22,15 @@
 #include "craftscan/pipeline/common/triangle_mesh.h"
 #include "craftscan/sim/calibration_scenes.h"
 #include "craftscan/sim/station.h"
+#include "file_util.h"
+#include "mat_util.h"
 
 namespace craftscan::sim {
 namespace {
 
 namespace fs = std::filesystem;
+using ::craftscan::testing::BitExact;
+using ::craftscan::testing::TempDir;
 constexpr double kPi = std::numbers::pi;
 
 // The default rig scaled down to width × height (focal length and principal
@@ -57,22 +61,14 @@ std::unique_ptr<Scene> MakeScene(const SceneOptions& options) {
   return scene;
 }
 
-bool BitIdentical(const cv::Mat& a, const cv::Mat& b) {
-  if (a.size() != b.size() || a.type() != b.type()) return false;
-  for (int y = 0; y < a.rows; ++y) {
-    if (std::memcmp(a.ptr(y), b.ptr(y), a.cols * a.elemSize()) != 0) return false;
-  }
-  return true;
-}
-
 void ExpectSameRender(const StereoRender& a, const StereoRender& b) {
-  EXPECT_TRUE(BitIdentical(a.left, b.left));
-  EXPECT_TRUE(BitIdentical(a.right, b.right));
-  EXPECT_TRUE(BitIdentical(a.left_depth_mm, b.left_depth_mm));
-  EXPECT_TRUE(BitIdentical(a.left_labels, b.left_labels));
-  EXPECT_TRUE(BitIdentical(a.rectified_disparity, b.rectified_disparity));
-  EXPECT_TRUE(BitIdentical(a.rectified_depth_mm, b.rectified_depth_mm));
-  EXPECT_TRUE(BitIdentical(a.rectified_visible_right, b.rectified_visible_right));
+  EXPECT_TRUE(BitExact(a.left, b.left));
+  EXPECT_TRUE(BitExact(a.right, b.right));
+  EXPECT_TRUE(BitExact(a.left_depth_mm, b.left_depth_mm));
+  EXPECT_TRUE(BitExact(a.left_labels, b.left_labels));
+  EXPECT_TRUE(BitExact(a.rectified_disparity, b.rectified_disparity));
+  EXPECT_TRUE(BitExact(a.rectified_depth_mm, b.rectified_depth_mm));
+  EXPECT_TRUE(BitExact(a.rectified_visible_right, b.rectified_visible_right));
 }
 
 cv::Vec3d Apply(const cv::Matx44d& T, const cv::Vec3d& p) {
@@ -235,17 +231,17 @@ TEST(SimRender, SameSeedGivesBitIdenticalImagesAndOtherSeedsDiffer) {
   other.seed = 8;
   auto scene3 = MakeScene(other);
   const StereoRender c = station->Render(*scene3);
-  EXPECT_FALSE(BitIdentical(a.left, c.left));
-  EXPECT_TRUE(BitIdentical(a.left_labels, c.left_labels));
+  EXPECT_FALSE(BitExact(a.left, c.left));
+  EXPECT_TRUE(BitExact(a.left_labels, c.left_labels));
 
   // Another noise seed or frame index changes the noise only.
   RigOptions noisy = rig;
   noisy.seed = 2;
   const StereoRender d = MakeStation(noisy)->Render(*scene);
-  EXPECT_FALSE(BitIdentical(a.left, d.left));
-  EXPECT_TRUE(BitIdentical(a.left_depth_mm, d.left_depth_mm));
+  EXPECT_FALSE(BitExact(a.left, d.left));
+  EXPECT_TRUE(BitExact(a.left_depth_mm, d.left_depth_mm));
   const StereoRender e = station->Render(*scene, /*frame_index=*/1);
-  EXPECT_FALSE(BitIdentical(a.right, e.right));
+  EXPECT_FALSE(BitExact(a.right, e.right));
   // Noise of sigma 1 around the same mean.
   cv::Mat diff;
   cv::absdiff(a.left, e.left, diff);
@@ -753,8 +749,8 @@ TEST(SimRender, ImagesOnlyRenderHasTheSameImagesAndNoGroundTruth) {
   const StereoRender full = station->Render(*scene, 5);
   const StereoRender images = station->Render(*scene, 5, RenderOutputs::kImagesOnly);
   ASSERT_TRUE(full.IsUsable() && images.IsUsable()) << images.message;
-  EXPECT_TRUE(BitIdentical(full.left, images.left));
-  EXPECT_TRUE(BitIdentical(full.right, images.right));
+  EXPECT_TRUE(BitExact(full.left, images.left));
+  EXPECT_TRUE(BitExact(full.right, images.right));
   EXPECT_TRUE(images.left_depth_mm.empty());
   EXPECT_TRUE(images.rectified_disparity.empty());
   EXPECT_TRUE(images.rectified_visible_right.empty());
@@ -763,25 +759,6 @@ TEST(SimRender, ImagesOnlyRenderHasTheSameImagesAndNoGroundTruth) {
 }
 
 // --- meshes -------------------------------------------------------------------
-
-class TempDir {
- public:
-  TempDir() {
-    path_ =
-        fs::temp_directory_path() /
-        ("craftscan_test_sim_" + std::to_string(::testing::UnitTest::GetInstance()->random_seed()) +
-         "_" + ::testing::UnitTest::GetInstance()->current_test_info()->name());
-    fs::create_directories(path_);
-  }
-  ~TempDir() {
-    std::error_code ec;
-    fs::remove_all(path_, ec);
-  }
-  std::string File(const std::string& name) const { return (path_ / name).string(); }
-
- private:
-  fs::path path_;
-};
 
 void WriteText(const std::string& path, const std::string& text) {
   std::ofstream(path, std::ios::binary) << text;

@@ -1,3 +1,6 @@
+// The benchmark's stereo evaluation (bench library): disparity metrics on
+// hand-computed cases, and LoadStereoScene on scene folders the tests write
+// (and on Teddy 2003 when ../shared/data is present).
 #include "stereo_scene.h"
 
 #include <cmath>
@@ -13,6 +16,7 @@
 #include <opencv2/imgcodecs.hpp>
 
 #include "craftscan/pipeline/common/pfm.h"
+#include "test_util.h"
 
 namespace craftscan {
 namespace {
@@ -37,7 +41,7 @@ struct Crafted {
       (cv::Mat_<std::uint8_t>(3, 4) << 255, 255, 255, 255, 255, 255, 255, 255, 255, 255, 128, 0);
 };
 
-TEST(EvaluateDisparityTest, HandComputedMetrics) {
+TEST(EvaluateDisparity, HandComputedMetrics) {
   const Crafted c;
   const DisparityMetrics m = EvaluateDisparity(c.disp, c.gt, c.mask);
   EXPECT_EQ(m.count, 8);
@@ -48,7 +52,7 @@ TEST(EvaluateDisparityTest, HandComputedMetrics) {
   EXPECT_DOUBLE_EQ(m.avgerr, (0.5 + 1.5 + 3 + 0 + 1 + 1 + 2) / 7);
 }
 
-TEST(EvaluateDisparityTest, EmptyMaskMeansAllPixelsWithGroundTruth) {
+TEST(EvaluateDisparity, EmptyMaskMeansAllPixelsWithGroundTruth) {
   const Crafted c;
   const DisparityMetrics m = EvaluateDisparity(c.disp, c.gt, cv::Mat());
   // Adds (2,2) error 95 and (2,3) error 0: 10 px, 9 estimated.
@@ -59,7 +63,7 @@ TEST(EvaluateDisparityTest, EmptyMaskMeansAllPixelsWithGroundTruth) {
   EXPECT_DOUBLE_EQ(m.avgerr, (9.0 + 95 + 0) / 9);
 }
 
-TEST(EvaluateDisparityTest, InfiniteEstimateCountsAsMissing) {
+TEST(EvaluateDisparity, InfiniteEstimateCountsAsMissing) {
   const cv::Mat gt = (cv::Mat_<float>(1, 2) << 4, 4);
   const cv::Mat disp = (cv::Mat_<float>(1, 2) << std::numeric_limits<float>::infinity(), 4);
   const DisparityMetrics m = EvaluateDisparity(disp, gt, cv::Mat());
@@ -68,7 +72,7 @@ TEST(EvaluateDisparityTest, InfiniteEstimateCountsAsMissing) {
   EXPECT_DOUBLE_EQ(m.avgerr, 0.0);
 }
 
-TEST(EvaluateDisparityTest, NothingToEvaluate) {
+TEST(EvaluateDisparity, NothingToEvaluate) {
   const cv::Mat gt(2, 2, CV_32FC1, cv::Scalar(0));
   const cv::Mat disp(2, 2, CV_32FC1, cv::Scalar(3));
   const DisparityMetrics m = EvaluateDisparity(disp, gt, cv::Mat());
@@ -86,7 +90,7 @@ TEST(EvaluateDisparityTest, NothingToEvaluate) {
   EXPECT_TRUE(std::isnan(m2.avgerr));
 }
 
-TEST(EvaluateDisparityTest, RejectsMismatchedInputs) {
+TEST(EvaluateDisparity, RejectsMismatchedInputs) {
   const cv::Mat f(2, 2, CV_32FC1, cv::Scalar(1));
   EXPECT_THROW(EvaluateDisparity(cv::Mat(2, 2, CV_16SC1), f, cv::Mat()), std::invalid_argument);
   EXPECT_THROW(EvaluateDisparity(f, cv::Mat(2, 3, CV_32FC1), cv::Mat()), std::invalid_argument);
@@ -97,15 +101,12 @@ TEST(EvaluateDisparityTest, RejectsMismatchedInputs) {
 // ---------------------------------------------------------------------------
 // LoadStereoScene on a scene folder written by the test
 
-class SceneFolderTest : public ::testing::Test {
+class SceneFolder : public testing::TempDirTest {
  protected:
   static constexpr int kWidth = 8, kHeight = 6;
 
   void SetUp() override {
-    const auto* info = ::testing::UnitTest::GetInstance()->current_test_info();
-    dir_ = fs::temp_directory_path() / ("craftscan_test_scene_" + std::string(info->name()) + "_" +
-                                        std::to_string(std::random_device{}()));
-    fs::create_directories(dir_);
+    TempDirTest::SetUp();
     // A valid scene: colour pair, 8-bit gt ×4 with a zero (unknown) pixel,
     // 2014-style nonocc mask (255 / 128 / 0).
     cv::Mat left(kHeight, kWidth, CV_8UC3), right(kHeight, kWidth, CV_8UC3);
@@ -124,8 +125,6 @@ class SceneFolderTest : public ::testing::Test {
     Json(R"({"name": "tiny", "left": "left.png", "right": "right.png", "gt": "gt.png",
              "gt_scale": 4.0, "ndisp": 16, "mask_nonocc": "mask.png"})");
   }
-  void TearDown() override { fs::remove_all(dir_); }
-
   void Write(const std::string& name, const cv::Mat& image) const {
     ASSERT_TRUE(cv::imwrite((dir_ / name).string(), image)) << name;
   }
@@ -141,11 +140,9 @@ class SceneFolderTest : public ::testing::Test {
       EXPECT_NE(error.find(needle), std::string::npos) << "'" << needle << "' not in: " << error;
     }
   }
-
-  fs::path dir_;
 };
 
-TEST_F(SceneFolderTest, LoadsValidScene) {
+TEST_F(SceneFolder, LoadsValidScene) {
   StereoScene scene;
   std::string error;
   ASSERT_TRUE(LoadStereoScene(dir_.string(), &scene, &error)) << error;
@@ -167,7 +164,7 @@ TEST_F(SceneFolderTest, LoadsValidScene) {
   EXPECT_DOUBLE_EQ(m.bad1, 0.0);
 }
 
-TEST_F(SceneFolderTest, DefaultsWithoutOptionalKeys) {
+TEST_F(SceneFolder, DefaultsWithoutOptionalKeys) {
   cv::Mat grey(kHeight, kWidth, CV_8UC1, cv::Scalar(9));
   Write("grey_l.png", grey);
   cv::Mat grey16(kHeight, kWidth, CV_16UC1, cv::Scalar(65535));
@@ -193,7 +190,7 @@ TEST_F(SceneFolderTest, DefaultsWithoutOptionalKeys) {
   EXPECT_TRUE(scene.HasAllAndDiscMasks());
 }
 
-TEST_F(SceneFolderTest, ColourAndGreyPairBecomesColour) {
+TEST_F(SceneFolder, ColourAndGreyPairBecomesColour) {
   Write("right.png", cv::Mat(kHeight, kWidth, CV_8UC1, cv::Scalar(7)));
   cv::Mat rgba(kHeight, kWidth, CV_8UC4, cv::Scalar(1, 2, 3, 4));
   Write("left.png", rgba);
@@ -206,7 +203,7 @@ TEST_F(SceneFolderTest, ColourAndGreyPairBecomesColour) {
   EXPECT_EQ(scene.right.at<cv::Vec3b>(0, 0), cv::Vec3b(7, 7, 7));
 }
 
-TEST_F(SceneFolderTest, MissingFolder) {
+TEST_F(SceneFolder, MissingFolder) {
   StereoScene scene;
   std::string error;
   EXPECT_FALSE(LoadStereoScene((dir_ / "absent").string(), &scene, &error));
@@ -214,19 +211,19 @@ TEST_F(SceneFolderTest, MissingFolder) {
   EXPECT_NE(error.find("absent"), std::string::npos) << error;
 }
 
-TEST_F(SceneFolderTest, MissingSceneJson) {
+TEST_F(SceneFolder, MissingSceneJson) {
   fs::remove(dir_ / "scene.json");
   ExpectError({"scene.json", "not found"});
 }
 
-TEST_F(SceneFolderTest, MalformedSceneJson) {
+TEST_F(SceneFolder, MalformedSceneJson) {
   Json(R"({"left": "left.png", )");
   ExpectError({"scene.json", "malformed JSON"});
   Json(R"(["left.png"])");
   ExpectError({"scene.json", "not a JSON object"});
 }
 
-TEST_F(SceneFolderTest, MissingKeys) {
+TEST_F(SceneFolder, MissingKeys) {
   Json(R"({"right": "right.png", "gt": "gt.png", "gt_scale": 4, "ndisp": 16})");
   ExpectError({"scene.json", "missing key \"left\""});
   Json(R"({"left": "left.png", "right": "right.png", "gt": "gt.png", "gt_scale": 4})");
@@ -235,7 +232,7 @@ TEST_F(SceneFolderTest, MissingKeys) {
   ExpectError({"missing key \"gt_scale\""});  // required for PNG ground truth
 }
 
-TEST_F(SceneFolderTest, MistypedKeys) {
+TEST_F(SceneFolder, MistypedKeys) {
   Json(R"({"left": 3, "right": "right.png", "gt": "gt.png", "gt_scale": 4, "ndisp": 16})");
   ExpectError({"\"left\" must be a non-empty string"});
   Json(R"({"left": "left.png", "right": "right.png", "gt": "gt.png", "gt_scale": 4,
@@ -249,7 +246,7 @@ TEST_F(SceneFolderTest, MistypedKeys) {
   ExpectError({"gt_scale"});
 }
 
-TEST_F(SceneFolderTest, NonPositiveNdisp) {
+TEST_F(SceneFolder, NonPositiveNdisp) {
   Json(R"({"left": "left.png", "right": "right.png", "gt": "gt.png", "gt_scale": 4,
            "ndisp": 0})");
   ExpectError({"\"ndisp\" must be in 1..100000"});
@@ -258,7 +255,7 @@ TEST_F(SceneFolderTest, NonPositiveNdisp) {
   ExpectError({"\"ndisp\" must be in 1..100000"});
 }
 
-TEST_F(SceneFolderTest, MissingAndUnreadableImages) {
+TEST_F(SceneFolder, MissingAndUnreadableImages) {
   fs::remove(dir_ / "right.png");
   ExpectError({"\"right\"", "right.png", "not found"});
   std::ofstream((dir_ / "right.png").string()) << "not a png";
@@ -268,7 +265,7 @@ TEST_F(SceneFolderTest, MissingAndUnreadableImages) {
   ExpectError({"mask.png", "mask_nonocc", "unreadable image"});
 }
 
-TEST_F(SceneFolderTest, SizeMismatch) {
+TEST_F(SceneFolder, SizeMismatch) {
   Write("right.png", cv::Mat(kHeight, kWidth + 1, CV_8UC3, cv::Scalar::all(0)));
   ExpectError({"\"right\" is 9x6", "\"left\" is 8x6"});
   Write("right.png", cv::Mat(kHeight, kWidth, CV_8UC3, cv::Scalar::all(0)));
@@ -279,7 +276,7 @@ TEST_F(SceneFolderTest, SizeMismatch) {
   ExpectError({"\"mask_nonocc\" is 1x1"});
 }
 
-TEST_F(SceneFolderTest, MalformedPfmGroundTruth) {
+TEST_F(SceneFolder, MalformedPfmGroundTruth) {
   std::ofstream((dir_ / "gt.pfm").string()) << "Pf\n8 6\n-1\nshort";
   Json(R"({"left": "left.png", "right": "right.png", "gt": "gt.pfm", "ndisp": 16})");
   ExpectError({"gt.pfm", "truncated", "\"gt\""});
@@ -288,7 +285,7 @@ TEST_F(SceneFolderTest, MalformedPfmGroundTruth) {
 // ---------------------------------------------------------------------------
 // Real data (found through CRAFTSCAN_SHARED_DATA, set at configure time)
 
-TEST(SharedSceneTest, LoadsTeddy2003) {
+TEST(SharedScene, LoadsTeddy2003) {
   const fs::path dir = fs::path(CRAFTSCAN_SHARED_DATA) / "stereo" / "teddy_2003";
   if (!fs::exists(dir / "scene.json")) {
     GTEST_SKIP() << "shared data absent: " << dir

@@ -17,6 +17,8 @@
 namespace craftscan {
 namespace {
 
+using testing::Chessboard9x6;
+
 constexpr double kDegToRad = CV_PI / 180.0;
 constexpr double kRadToDeg = 180.0 / CV_PI;
 
@@ -25,14 +27,6 @@ struct Scene {
   TurntableAxis truth;            // in the rig frame
   std::vector<double> angles_rad;
 };
-
-BoardSpec Chessboard9x6() {
-  BoardSpec board;
-  board.cols = 9;
-  board.rows = 6;
-  board.square_mm = 25;
-  return board;
-}
 
 // The platter is seen from ~40° above; the axis runs up (−y, towards the
 // camera) in the rig frame and meets the platter 600 mm away.

@@ -1,5 +1,7 @@
-// Shared helpers for tests: synthetic stereo pairs with known disparity and
-// the path of the shared data set.
+// Helpers for the unit tests (and the session and systemd-file tests that
+// include this file): a fixture with a fresh folder per test, synthetic
+// stereo pairs with known disparity, and the path of the shared data set.
+// Helpers for every test folder: tests/*_util.h.
 #pragma once
 
 #include <gtest/gtest.h>

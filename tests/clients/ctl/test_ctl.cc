@@ -19,17 +19,13 @@
 #include "craftscan/daemon/session_store.h"
 #include "ctl_runner.h"
 #include "daemon_fixture.h"
+#include "file_util.h"
 
 namespace craftscan::testing {
 namespace {
 
 using namespace std::chrono_literals;
 using nlohmann::json;
-
-std::string ReadFile(const std::string& path) {
-  std::ifstream in(path, std::ios::binary);
-  return std::string(std::istreambuf_iterator<char>(in), {});
-}
 
 // A daemon on the sim station and the arguments that reach it.
 class Station {
@@ -399,15 +395,14 @@ TEST(Craftscanctl, GetStreamsALargeOutputAndRefusesChangedFiles) {
 }
 
 TEST(Craftscanctl, WithoutADaemonExitsFiveWithinTheTimeoutAndSaysWhatToCheck) {
-  char dir[] = "/tmp/craftscanctl-test-XXXXXX";
-  ASSERT_NE(::mkdtemp(dir), nullptr);
+  const TempDir temp("craftscanctl-test");
+  ASSERT_FALSE(temp.path().empty());
+  const std::string& dir = temp.path();
   // A private domain nobody serves.
   const std::string domain = std::to_string(200 + ::getpid() % 30);
   const std::string config = dds::LoopbackOnlyConfigXml();
   const std::vector<std::vector<std::string>> commands = {
-      {"status"},
-      {"watch", "--count", "1"},
-      {"get", "20260101-000000-x", "--out", std::string(dir) + "/o"}};
+      {"status"}, {"watch", "--count", "1"}, {"get", "20260101-000000-x", "--out", dir + "/o"}};
   for (const auto& command : commands) {
     std::vector<std::string> args = {"--station", "nobody", "--domain", domain,
                                      "--timeout", "2",      "--token",  kObserverToken};
@@ -420,8 +415,6 @@ TEST(Craftscanctl, WithoutADaemonExitsFiveWithinTheTimeoutAndSaysWhatToCheck) {
     EXPECT_NE(r.err.find("domain " + domain), std::string::npos) << r.err;
     EXPECT_NE(r.err.find("CYCLONEDDS_URI"), std::string::npos) << r.err;
   }
-  std::error_code ignored;
-  std::filesystem::remove_all(dir, ignored);
 }
 
 }  // namespace

@@ -13,23 +13,16 @@
 #include <vector>
 
 #include "craftscan/client/file_assembler.h"
+#include "file_util.h"
 
 namespace craftscan::client {
 namespace {
 
 namespace fs = std::filesystem;
 
-class FileAssemblerTest : public ::testing::Test {
+class FileReassembly : public ::testing::Test {
  protected:
-  void SetUp() override {
-    char dir[] = "/tmp/craftscan-assembler-XXXXXX";
-    ASSERT_NE(::mkdtemp(dir), nullptr);
-    dir_ = dir;
-  }
-  void TearDown() override {
-    std::error_code ignored;
-    fs::remove_all(dir_, ignored);
-  }
+  void SetUp() override { ASSERT_FALSE(dir_.empty()); }
 
   static std::uint64_t Hash(const std::string& bytes) {
     Fnv1a64Hasher h;
@@ -59,10 +52,7 @@ class FileAssemblerTest : public ::testing::Test {
     } while (offset < content.size());
     return chunks;
   }
-  std::string Read(const std::string& name) const {
-    std::ifstream in(dir_ + "/" + name, std::ios::binary);
-    return std::string(std::istreambuf_iterator<char>(in), {});
-  }
+  std::string Read(const std::string& name) const { return testing::ReadFile(dir_ + "/" + name); }
   // Every regular file under dir_ (relative), hidden ones included.
   std::vector<std::string> Files() const {
     std::vector<std::string> names;
@@ -73,12 +63,13 @@ class FileAssemblerTest : public ::testing::Test {
     return names;
   }
 
-  std::string dir_;
+  const testing::TempDir temp_{"craftscan-assembler"};  // removed after each test
+  const std::string dir_ = temp_.path();
   const std::string ply_ = std::string(10000, 'p') + "end";
   const std::string png_ = "\x89PNG small";
 };
 
-TEST_F(FileAssemblerTest, WritesVerifiedFilesWhetherTheListComesFirstOrLast) {
+TEST_F(FileReassembly, WritesVerifiedFilesWhetherTheListComesFirstOrLast) {
   for (const bool list_first : {true, false}) {
     const std::string out = dir_ + (list_first ? "/first" : "/last");
     {
@@ -116,7 +107,7 @@ TEST_F(FileAssemblerTest, WritesVerifiedFilesWhetherTheListComesFirstOrLast) {
   EXPECT_EQ(Files().size(), 6u) << "no temporaries left";
 }
 
-TEST_F(FileAssemblerTest, ALostChunkFailsAndLeavesNoPartialFile) {
+TEST_F(FileReassembly, ALostChunkFailsAndLeavesNoPartialFile) {
   FileAssembler assembler(dir_);
   std::string error;
   ASSERT_TRUE(assembler.SetExpected({{"fused.ply", ply_.size(), Hash(ply_)}}, &error));
@@ -129,7 +120,7 @@ TEST_F(FileAssemblerTest, ALostChunkFailsAndLeavesNoPartialFile) {
   EXPECT_TRUE(Files().empty());
 }
 
-TEST_F(FileAssemblerTest, AChecksumMismatchIsRefused) {
+TEST_F(FileReassembly, AChecksumMismatchIsRefused) {
   FileAssembler assembler(dir_);
   std::string error;
   std::string damaged = ply_;
@@ -142,7 +133,7 @@ TEST_F(FileAssemblerTest, AChecksumMismatchIsRefused) {
   EXPECT_TRUE(Files().empty());
 }
 
-TEST_F(FileAssemblerTest, StationErrorsUnsafeNamesAndContradictionsFail) {
+TEST_F(FileReassembly, StationErrorsUnsafeNamesAndContradictionsFail) {
   std::string error;
   {
     FileAssembler assembler(dir_);
@@ -179,7 +170,7 @@ TEST_F(FileAssemblerTest, StationErrorsUnsafeNamesAndContradictionsFail) {
   EXPECT_TRUE(Files().empty());
 }
 
-TEST_F(FileAssemblerTest, AnUnfinishedFileIsRemovedWithTheAssembler) {
+TEST_F(FileReassembly, AnUnfinishedFileIsRemovedWithTheAssembler) {
   {
     FileAssembler assembler(dir_);
     std::string error;

@@ -3,15 +3,14 @@
 // the real craftscan-record binary runs as a subprocess and archives them.
 // Checks: files bit-exact, index lines, the file limit (stop) and the byte
 // limit (rotate), --count/--duration, hostile session names, malformed
-// samples skipped, SIGTERM → exit 0 with a summary, one recorder per archive.
+// samples skipped, SIGKILL mid-write leaves only whole files, SIGTERM → exit
+// 0 with a summary, bad arguments and one recorder per archive.
 //
 // No cross-talk with tests running in parallel: each process picks a random
 // domain id, traffic stays on loopback, and every test uses its own stations.
 #include <gtest/gtest.h>
 
-#include <fcntl.h>
 #include <signal.h>
-#include <spawn.h>
 #include <stdlib.h>
 #include <sys/wait.h>
 #include <unistd.h>
@@ -41,54 +40,31 @@
 #include "craftscan/pipeline/common/pfm.h"
 #include "craftscan/pipeline/common/point_cloud.h"
 #include "dds_test_util.h"
+#include "file_util.h"
+#include "mat_util.h"
+#include "process_util.h"
 #include "record_test_util.h"
-
-extern char** environ;
+#include "wait_util.h"
 
 namespace craftscan::dds {
 namespace {
 
 namespace fs = std::filesystem;
 using std::chrono::milliseconds;
+using testing::BitExact;
+using testing::ReadFile;
 using testing::ReadIndex;
-using testing::SameBytes;
+using testing::WaitFor;
 constexpr milliseconds kTimeout{20000};  // generous: the machine is shared
 
 using ::craftscan::testing::ProcessDomainId;
-std::string TestConfig() { return ::craftscan::testing::TestDdsConfig(); }
+using ::craftscan::testing::TestDdsConfig;
+using ::craftscan::testing::UniqueStation;
 
 // One participant per process: it creates the domain with the test config.
 std::shared_ptr<Participant> SharedParticipant() {
-  static const std::shared_ptr<Participant> participant = [] {
-    ParticipantOptions options;
-    options.domain_id = ProcessDomainId();
-    options.config = TestConfig();
-    std::string error;
-    auto created = Participant::Create(options, &error);
-    EXPECT_NE(created, nullptr) << error;
-    return created;
-  }();
+  static const std::shared_ptr<Participant> participant = testing::MakeTestParticipant();
   return participant;
-}
-
-std::string UniqueStation() {
-  static int counter = 0;
-  return "r" + std::to_string(getpid()) + "_" + std::to_string(counter++) + "_" +
-         std::to_string(std::random_device{}() % 100000);
-}
-
-bool WaitFor(const std::function<bool()>& done, milliseconds timeout = kTimeout) {
-  const auto deadline = std::chrono::steady_clock::now() + timeout;
-  while (!done()) {
-    if (std::chrono::steady_clock::now() > deadline) return false;
-    std::this_thread::sleep_for(milliseconds(20));
-  }
-  return true;
-}
-
-std::string ReadText(const fs::path& path) {
-  std::ifstream in(path);
-  return std::string(std::istreambuf_iterator<char>(in), {});
 }
 
 // A temporary folder with the archive in <root>/a/out (so that <root>/a
@@ -99,7 +75,7 @@ class TempRoot {
   std::string out() const { return dir_.path() + "/a/out"; }
 
  private:
-  testing::TempDir dir_;
+  testing::TempDir dir_{"craftscan-record-test"};
 };
 
 // craftscan-record as a child process; killed if still running at the end.
@@ -111,63 +87,41 @@ class RecorderProcess {
         stderr_path_(log_dir + "/" + name + ".stderr") {
     std::vector<std::string> args = {CRAFTSCAN_RECORD_PATH, "--domain",
                                      std::to_string(ProcessDomainId()), "--dds-config",
-                                     TestConfig()};
+                                     TestDdsConfig()};
     args.insert(args.end(), extra_args.begin(), extra_args.end());
-    std::vector<char*> argv;
-    for (std::string& arg : args) argv.push_back(arg.data());
-    argv.push_back(nullptr);
-    posix_spawn_file_actions_t actions;
-    posix_spawn_file_actions_init(&actions);
-    posix_spawn_file_actions_addopen(&actions, 1, stdout_path_.c_str(),
-                                     O_WRONLY | O_CREAT | O_TRUNC, 0644);
-    posix_spawn_file_actions_addopen(&actions, 2, stderr_path_.c_str(),
-                                     O_WRONLY | O_CREAT | O_TRUNC, 0644);
-    if (posix_spawn(&pid_, CRAFTSCAN_RECORD_PATH, &actions, nullptr, argv.data(), environ) != 0) {
-      pid_ = -1;
-    }
-    posix_spawn_file_actions_destroy(&actions);
+    testing::SpawnOptions options;
+    options.stdout_path = stdout_path_;
+    options.stderr_path = stderr_path_;
+    testing::Spawn(args, options, &child_);
   }
-  ~RecorderProcess() {
-    if (pid_ > 0) {
-      ::kill(pid_, SIGKILL);
-      ::waitpid(pid_, nullptr, 0);
-    }
-  }
-  bool started() const { return pid_ > 0; }
+  bool started() const { return child_.started(); }
 
   // The exit code (128 + signal if killed by one), or −1 if it did not exit
   // within `timeout` (then it is killed).
   int Wait(milliseconds timeout = kTimeout) {
-    if (pid_ <= 0) return -1;
-    int status = 0;
-    const bool exited = WaitFor([&] { return ::waitpid(pid_, &status, WNOHANG) == pid_; }, timeout);
-    if (!exited) {
-      ::kill(pid_, SIGKILL);
-      ::waitpid(pid_, nullptr, 0);
-      pid_ = -1;
-      return -1;
-    }
-    pid_ = -1;
-    return WIFEXITED(status) ? WEXITSTATUS(status) : 128 + WTERMSIG(status);
+    const int code = child_.Wait(timeout);
+    if (code == -1) child_.Kill();
+    return code;
   }
   int Terminate() {
-    if (pid_ > 0) ::kill(pid_, SIGTERM);
+    child_.Signal(SIGTERM);
     return Wait();
   }
 
   // True once the recorder has said it records (archive open, readers made).
   bool WaitUntilRecording() {
-    return WaitFor([&] { return Stderr().find("recording ") != std::string::npos || !Alive(); }) &&
+    return WaitFor([&] { return Stderr().find("recording ") != std::string::npos || !Alive(); },
+                   kTimeout) &&
            Alive();
   }
-  bool Alive() const { return pid_ > 0 && ::waitpid(pid_, nullptr, WNOHANG) == 0; }
+  bool Alive() { return child_.Running(); }
 
-  std::string Stdout() const { return ReadText(stdout_path_); }
-  std::string Stderr() const { return ReadText(stderr_path_); }
+  std::string Stdout() const { return ReadFile(stdout_path_); }
+  std::string Stderr() const { return ReadFile(stderr_path_); }
 
  private:
   std::string stdout_path_, stderr_path_;
-  pid_t pid_ = -1;
+  testing::ChildProcess child_;  // killed if still running
 };
 
 // Writers for one station's capture, cloud and disparity topics.
@@ -288,7 +242,7 @@ void ExpectOnlyWholeFilesInside(const std::string& out) {
 
 TEST(Record, TwoStationsBitExactThenSigtermGivesExitZeroAndASummary) {
   TempRoot temp;
-  StationPublisher a(UniqueStation()), b(UniqueStation());
+  StationPublisher a(UniqueStation("r")), b(UniqueStation("r"));
   ASSERT_TRUE(a.ok() && b.ok());
   RecorderProcess recorder(temp.root(), {"--station", a.station, "--station", b.station, "--out",
                                          temp.out(), "--what", "clouds,captures,disparity"});
@@ -315,17 +269,18 @@ TEST(Record, TwoStationsBitExactThenSigtermGivesExitZeroAndASummary) {
 
   const fs::path a_dir = fs::path(temp.out()) / a.station / session;
   const fs::path b_dir = fs::path(temp.out()) / b.station / session;
-  ASSERT_TRUE(WaitFor([&] { return ReadIndex(a_dir).size() == 5 && ReadIndex(b_dir).size() == 3; }))
+  ASSERT_TRUE(WaitFor([&] { return ReadIndex(a_dir).size() == 5 && ReadIndex(b_dir).size() == 3; },
+                      kTimeout))
       << recorder.Stderr();
 
   EXPECT_TRUE(
-      SameBytes(cv::imread((a_dir / "view_000_left.png").string(), cv::IMREAD_UNCHANGED), a_left));
-  EXPECT_TRUE(SameBytes(cv::imread((a_dir / "view_000_right.png").string(), cv::IMREAD_UNCHANGED),
-                        a_right));
+      BitExact(cv::imread((a_dir / "view_000_left.png").string(), cv::IMREAD_UNCHANGED), a_left));
   EXPECT_TRUE(
-      SameBytes(cv::imread((b_dir / "view_007_left.png").string(), cv::IMREAD_UNCHANGED), b_left));
-  EXPECT_TRUE(SameBytes(cv::imread((b_dir / "view_007_right.png").string(), cv::IMREAD_UNCHANGED),
-                        b_right));
+      BitExact(cv::imread((a_dir / "view_000_right.png").string(), cv::IMREAD_UNCHANGED), a_right));
+  EXPECT_TRUE(
+      BitExact(cv::imread((b_dir / "view_007_left.png").string(), cv::IMREAD_UNCHANGED), b_left));
+  EXPECT_TRUE(
+      BitExact(cv::imread((b_dir / "view_007_right.png").string(), cv::IMREAD_UNCHANGED), b_right));
   const std::vector<std::pair<fs::path, const PointCloud*>> clouds = {
       {a_dir / "cloud_000.ply", &a_view},
       {a_dir / "fused.ply", &a_fused},
@@ -341,7 +296,7 @@ TEST(Record, TwoStationsBitExactThenSigtermGivesExitZeroAndASummary) {
   cv::Mat got_disparity;
   std::string error;
   ASSERT_TRUE(ReadPfm((a_dir / "disparity_000.pfm").string(), &got_disparity, &error)) << error;
-  EXPECT_TRUE(SameBytes(got_disparity, disparity));
+  EXPECT_TRUE(BitExact(got_disparity, disparity));
 
   uint64_t a_bytes = 0;
   for (const nlohmann::json& line : ReadIndex(a_dir)) {
@@ -375,7 +330,7 @@ TEST(Record, TwoStationsBitExactThenSigtermGivesExitZeroAndASummary) {
 
 // One publishing station (a_), an archive folder (temp_.out()), and the
 // arguments that point craftscan-record at both.
-class RecordTest : public ::testing::Test {
+class RecordOneStation : public ::testing::Test {
  protected:
   void SetUp() override { ASSERT_TRUE(a_.ok()); }
 
@@ -387,10 +342,10 @@ class RecordTest : public ::testing::Test {
   }
 
   TempRoot temp_;
-  StationPublisher a_{UniqueStation()};
+  StationPublisher a_{UniqueStation("r")};
 };
 
-TEST_F(RecordTest, StopsAtTheFileLimitWithoutExceedingIt) {
+TEST_F(RecordOneStation, StopsAtTheFileLimitWithoutExceedingIt) {
   RecorderProcess recorder(temp_.root(), Args({"--what", "captures", "--max-files", "5"}));
   ASSERT_TRUE(a_.captures->WaitForReaders(1, kTimeout)) << recorder.Stderr();
   const cv::Mat image = RandomImage(CV_8UC1, 11);
@@ -406,7 +361,7 @@ TEST_F(RecordTest, StopsAtTheFileLimitWithoutExceedingIt) {
   ExpectOnlyWholeFilesInside(temp_.out());
 }
 
-TEST_F(RecordTest, RotatesTheOldestFilesToStayUnderTheByteLimit) {
+TEST_F(RecordOneStation, RotatesTheOldestFilesToStayUnderTheByteLimit) {
   const PointCloud cloud = RandomCloud(400, 12, true);
   std::string error;
   ASSERT_TRUE(WritePly(temp_.root() + "/probe.ply", cloud, true, &error)) << error;
@@ -418,10 +373,13 @@ TEST_F(RecordTest, RotatesTheOldestFilesToStayUnderTheByteLimit) {
   ASSERT_TRUE(a_.clouds->WaitForReaders(1, kTimeout)) << recorder.Stderr();
   for (int view = 0; view < 5; ++view) ASSERT_TRUE(a_.Cloud("s", view, cloud));
   const fs::path dir = fs::path(temp_.out()) / a_.station / "s";
-  ASSERT_TRUE(WaitFor([&] {
-    const auto index = ReadIndex(dir);
-    return !index.empty() && index.back()["file"] == "cloud_004.ply";
-  })) << recorder.Stderr();
+  ASSERT_TRUE(WaitFor(
+      [&] {
+        const auto index = ReadIndex(dir);
+        return !index.empty() && index.back()["file"] == "cloud_004.ply";
+      },
+      kTimeout))
+      << recorder.Stderr();
   EXPECT_EQ(recorder.Terminate(), 0) << recorder.Stderr();
 
   std::vector<std::string> files;
@@ -445,7 +403,7 @@ TEST_F(RecordTest, RotatesTheOldestFilesToStayUnderTheByteLimit) {
   EXPECT_EQ(SummaryRow(summary, a_.station).at(0), 5u);  // recorded this run
 }
 
-TEST_F(RecordTest, HostileSessionNamesStayInsideOut) {
+TEST_F(RecordOneStation, HostileSessionNamesStayInsideOut) {
   RecorderProcess recorder(temp_.root(), Args({"--what", "clouds"}));
   ASSERT_TRUE(a_.clouds->WaitForReaders(1, kTimeout)) << recorder.Stderr();
   const PointCloud cloud = RandomCloud(50, 13, false);
@@ -455,7 +413,7 @@ TEST_F(RecordTest, HostileSessionNamesStayInsideOut) {
   ASSERT_TRUE(a_.Cloud("evil/name\n", 2, cloud));
   ASSERT_TRUE(a_.Cloud("good", 3, cloud));
   const fs::path good = fs::path(temp_.out()) / a_.station / "good" / "cloud_003.ply";
-  ASSERT_TRUE(WaitFor([&] { return fs::exists(good); })) << recorder.Stderr();
+  ASSERT_TRUE(WaitFor([&] { return fs::exists(good); }, kTimeout)) << recorder.Stderr();
   EXPECT_EQ(recorder.Terminate(), 0) << recorder.Stderr();
 
   const std::string log = recorder.Stderr();
@@ -481,7 +439,7 @@ TEST_F(RecordTest, HostileSessionNamesStayInsideOut) {
   ExpectOnlyWholeFilesInside(temp_.out());
 }
 
-TEST_F(RecordTest, MalformedSamplesAreLoggedAndSkipped) {
+TEST_F(RecordOneStation, MalformedSamplesAreLoggedAndSkipped) {
   RecorderProcess recorder(temp_.root(), Args({"--what", "clouds,captures"}));
   ASSERT_TRUE(a_.clouds->WaitForReaders(1, kTimeout)) << recorder.Stderr();
   ASSERT_TRUE(a_.captures->WaitForReaders(1, kTimeout));
@@ -492,7 +450,7 @@ TEST_F(RecordTest, MalformedSamplesAreLoggedAndSkipped) {
   ASSERT_TRUE(a_.Cloud("s", 1, cloud));
   ASSERT_TRUE(a_.Capture("s", 1, image, image));
   const fs::path dir = fs::path(temp_.out()) / a_.station / "s";
-  ASSERT_TRUE(WaitFor([&] { return ReadIndex(dir).size() == 3; })) << recorder.Stderr();
+  ASSERT_TRUE(WaitFor([&] { return ReadIndex(dir).size() == 3; }, kTimeout)) << recorder.Stderr();
   EXPECT_EQ(recorder.Terminate(), 0) << recorder.Stderr();
 
   const std::string log = recorder.Stderr();
@@ -501,14 +459,14 @@ TEST_F(RecordTest, MalformedSamplesAreLoggedAndSkipped) {
   EXPECT_FALSE(fs::exists(dir / "cloud_000.ply"));
   EXPECT_FALSE(fs::exists(dir / "view_000_left.png"));
   EXPECT_TRUE(
-      SameBytes(cv::imread((dir / "view_001_left.png").string(), cv::IMREAD_UNCHANGED), image));
+      BitExact(cv::imread((dir / "view_001_left.png").string(), cv::IMREAD_UNCHANGED), image));
   const std::vector<uint64_t> row = SummaryRow(recorder.Stdout(), a_.station);
   ASSERT_EQ(row.size(), 7u) << recorder.Stdout();
   EXPECT_EQ(row[0], 3u);  // files
   EXPECT_EQ(row[5], 2u);  // malformed
 }
 
-TEST_F(RecordTest, KilledMidWriteLeavesOnlyWholeFiles) {
+TEST_F(RecordOneStation, KilledMidWriteLeavesOnlyWholeFiles) {
   // Incompressible 640×480 colour pairs (~1 MB of PNG per image): writing
   // them takes long enough for the kill to land while files are in flight.
   constexpr int kViews = 6;
@@ -526,7 +484,7 @@ TEST_F(RecordTest, KilledMidWriteLeavesOnlyWholeFiles) {
     for (int view = 0; view < kViews; ++view) {
       ASSERT_TRUE(a_.Capture("s", view, images[view], images[view]));
     }
-    ASSERT_TRUE(WaitFor([&] { return !ReadIndex(dir).empty(); })) << recorder.Stderr();
+    ASSERT_TRUE(WaitFor([&] { return !ReadIndex(dir).empty(); }, kTimeout)) << recorder.Stderr();
   }  // ~RecorderProcess: SIGKILL
   // Every data file decodes to what was sent; every index line names a file
   // of that size; no temporary sits in the session folder.
@@ -538,8 +496,8 @@ TEST_F(RecordTest, KilledMidWriteLeavesOnlyWholeFiles) {
     std::smatch match;
     ASSERT_TRUE(std::regex_match(name, match, std::regex("view_00([0-9])_(left|right)\\.png")))
         << name;
-    EXPECT_TRUE(SameBytes(cv::imread(entry.path().string(), cv::IMREAD_UNCHANGED),
-                          images[std::stoi(match[1].str())]))
+    EXPECT_TRUE(BitExact(cv::imread(entry.path().string(), cv::IMREAD_UNCHANGED),
+                         images[std::stoi(match[1].str())]))
         << name;
   }
   EXPECT_GE(files, 2);
@@ -556,7 +514,7 @@ TEST_F(RecordTest, KilledMidWriteLeavesOnlyWholeFiles) {
   EXPECT_FALSE(fs::exists(fs::path(temp_.out()) / ".staging"));
 }
 
-TEST_F(RecordTest, StopsAfterCountAndAfterDuration) {
+TEST_F(RecordOneStation, StopsAfterCountAndAfterDuration) {
   {
     RecorderProcess recorder(temp_.root(), Args({"--what", "clouds", "--count", "2"}));
     ASSERT_TRUE(a_.clouds->WaitForReaders(1, kTimeout)) << recorder.Stderr();
@@ -575,7 +533,7 @@ TEST_F(RecordTest, StopsAfterCountAndAfterDuration) {
   EXPECT_NE(recorder.Stdout().find(": 2 files,"), std::string::npos) << recorder.Stdout();
 }
 
-TEST_F(RecordTest, RefusesBadArgumentsAndASecondRecorderOnTheSameArchive) {
+TEST_F(RecordOneStation, RefusesBadArgumentsAndASecondRecorderOnTheSameArchive) {
   RecorderProcess bad_size(temp_.root(), Args({"--max-bytes", "12X"}), "bad_size");
   EXPECT_EQ(bad_size.Wait(), 2);
   EXPECT_NE(bad_size.Stderr().find("--max-bytes"), std::string::npos) << bad_size.Stderr();

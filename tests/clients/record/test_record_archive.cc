@@ -19,6 +19,8 @@
 #include "craftscan/pipeline/common/pfm.h"
 #include "craftscan/pipeline/common/point_cloud.h"
 #include "craftscan/record/archive.h"
+#include "file_util.h"
+#include "mat_util.h"
 #include "record_test_util.h"
 
 namespace craftscan::record {
@@ -26,8 +28,8 @@ namespace {
 
 namespace fs = std::filesystem;
 
+using testing::BitExact;
 using testing::ReadIndex;
-using testing::SameBytes;
 using testing::TempDir;
 
 std::unique_ptr<Archive> OpenArchive(const std::string& dir, uint64_t max_files = 0,
@@ -108,7 +110,7 @@ TEST(RecordWireName, PrintableForLogEscapes) {
 }
 
 TEST(RecordArchive, StoresCapturesCloudsAndDisparityBitExact) {
-  TempDir dir;
+  TempDir dir("craftscan-record-test");
   auto archive = OpenArchive(dir.path());
   ASSERT_NE(archive, nullptr);
   cv::RNG rng(7);
@@ -139,8 +141,8 @@ TEST(RecordArchive, StoresCapturesCloudsAndDisparityBitExact) {
       cv::imread((folder / "view_003_left.png").string(), cv::IMREAD_UNCHANGED);
   const cv::Mat got_right =
       cv::imread((folder / "view_003_right.png").string(), cv::IMREAD_UNCHANGED);
-  EXPECT_TRUE(SameBytes(got_left, left));
-  EXPECT_TRUE(SameBytes(got_right, right));
+  EXPECT_TRUE(BitExact(got_left, left));
+  EXPECT_TRUE(BitExact(got_right, right));
   for (const char* name : {"cloud_003.ply", "fused.ply"}) {
     PointCloud got;
     std::string error;
@@ -152,7 +154,7 @@ TEST(RecordArchive, StoresCapturesCloudsAndDisparityBitExact) {
   cv::Mat got_disparity;
   std::string error;
   ASSERT_TRUE(ReadPfm((folder / "disparity_003.pfm").string(), &got_disparity, &error)) << error;
-  EXPECT_TRUE(SameBytes(got_disparity, disparity));  // NaN bits included
+  EXPECT_TRUE(BitExact(got_disparity, disparity));  // NaN bits included
 
   const std::vector<nlohmann::json> index = ReadIndex(folder);
   ASSERT_EQ(index.size(), 5u);
@@ -183,7 +185,7 @@ TEST(RecordArchive, StoresCapturesCloudsAndDisparityBitExact) {
 }
 
 TEST(RecordArchive, HostileAndOddNamesStayInside) {
-  TempDir dir;
+  TempDir dir("craftscan-record-test");
   const std::string out = dir.path() + "/out";
   auto archive = OpenArchive(out);
   ASSERT_NE(archive, nullptr);
@@ -213,7 +215,7 @@ TEST(RecordArchive, HostileAndOddNamesStayInside) {
 }
 
 TEST(RecordArchive, RefusesInconsistentItems) {
-  TempDir dir;
+  TempDir dir("craftscan-record-test");
   auto archive = OpenArchive(dir.path());
   ASSERT_NE(archive, nullptr);
   const cv::Mat a(10, 10, CV_8UC1, cv::Scalar(1)), b(10, 12, CV_8UC1, cv::Scalar(2));
@@ -233,7 +235,7 @@ TEST(RecordArchive, RefusesInconsistentItems) {
 }
 
 TEST(RecordArchive, SameItemTwiceReplacesTheFile) {
-  TempDir dir;
+  TempDir dir("craftscan-record-test");
   auto archive = OpenArchive(dir.path(), /*max_files=*/1);
   ASSERT_NE(archive, nullptr);
   ASSERT_EQ(archive->StoreCloud({"st1", "s", 0, 0}, MakeCloud(10, 5), cv::Matx44d::eye()).status,
@@ -252,7 +254,7 @@ TEST(RecordArchive, SameItemTwiceReplacesTheFile) {
 }
 
 TEST(RecordArchive, StopPolicyRefusesTheItemThatWouldExceedAndStaysFull) {
-  TempDir dir;
+  TempDir dir("craftscan-record-test");
   auto archive = OpenArchive(dir.path(), /*max_files=*/3);
   ASSERT_NE(archive, nullptr);
   const cv::Mat image(8, 8, CV_8UC1, cv::Scalar(9));
@@ -271,7 +273,7 @@ TEST(RecordArchive, StopPolicyRefusesTheItemThatWouldExceedAndStaysFull) {
 }
 
 TEST(RecordArchive, RotatePolicyDeletesTheOldestAcrossSessions) {
-  TempDir dir;
+  TempDir dir("craftscan-record-test");
   const PointCloud cloud = MakeCloud(100, 8);
   std::string error;
   ASSERT_TRUE(WritePly(dir.path() + "/probe.ply", cloud, true, &error)) << error;
@@ -306,7 +308,7 @@ TEST(RecordArchive, RotatePolicyDeletesTheOldestAcrossSessions) {
 }
 
 TEST(RecordArchive, ReopenedArchiveCountsAndRotatesEarlierFiles) {
-  TempDir dir;
+  TempDir dir("craftscan-record-test");
   const PointCloud cloud = MakeCloud(10, 10);
   {
     auto archive = OpenArchive(dir.path());
@@ -341,7 +343,7 @@ TEST(RecordArchive, ReopenedArchiveCountsAndRotatesEarlierFiles) {
 }
 
 TEST(RecordArchive, OneWriterPerFolder) {
-  TempDir dir;
+  TempDir dir("craftscan-record-test");
   auto first = OpenArchive(dir.path());
   ASSERT_NE(first, nullptr);
   ArchiveOptions options;

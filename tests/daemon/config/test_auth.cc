@@ -88,13 +88,13 @@ TEST_F(TokensFile, ContentErrorsNameTheFileAndEntry) {
   EXPECT_EQ(error, path + ": tokens[1].token (eve): shorter than 16 characters");
 }
 
-struct BadTokens {
+struct BadTokensCase {
   std::string yaml;
   std::string expected;
 };
-class BadTokensTest : public ::testing::TestWithParam<BadTokens> {};
+class BadTokens : public ::testing::TestWithParam<BadTokensCase> {};
 
-TEST_P(BadTokensTest, IsRefused) {
+TEST_P(BadTokens, IsRefused) {
   std::string error;
   EXPECT_FALSE(TokenAuthority::Parse(GetParam().yaml, &error));
   EXPECT_THAT(error, HasSubstr(GetParam().expected)) << GetParam().yaml;
@@ -102,31 +102,31 @@ TEST_P(BadTokensTest, IsRefused) {
 }
 
 INSTANTIATE_TEST_SUITE_P(
-    Content, BadTokensTest,
+    Content, BadTokens,
     ::testing::Values(
-        BadTokens{"", "expected a mapping with a 'tokens' list"},
-        BadTokens{"tokens: 3\n", "tokens: must be a list"},
-        BadTokens{"users: []\n", "users: unknown key (expected only 'tokens')"},
-        BadTokens{"tokens:\n  - alice\n", "tokens[1]: must be a mapping {name, token, role}"},
-        BadTokens{"tokens:\n  - {name: a, role: admin}\n", "tokens[1].token: missing"},
-        BadTokens{"tokens:\n  - {name: a, token: 0123456789abcdef, role: admin, note: x}\n",
-                  "tokens[1].note: unknown key"},
-        BadTokens{"tokens:\n  - {name: a b, token: 0123456789abcdef, role: admin}\n",
-                  "tokens[1].name: must be 1 to 64 characters"},
-        BadTokens{"tokens:\n  - {name: a, token: 0123456789abcde, role: admin}\n",
-                  "tokens[1].token (a): shorter than 16 characters"},
-        BadTokens{
+        BadTokensCase{"", "expected a mapping with a 'tokens' list"},
+        BadTokensCase{"tokens: 3\n", "tokens: must be a list"},
+        BadTokensCase{"users: []\n", "users: unknown key (expected only 'tokens')"},
+        BadTokensCase{"tokens:\n  - alice\n", "tokens[1]: must be a mapping {name, token, role}"},
+        BadTokensCase{"tokens:\n  - {name: a, role: admin}\n", "tokens[1].token: missing"},
+        BadTokensCase{"tokens:\n  - {name: a, token: 0123456789abcdef, role: admin, note: x}\n",
+                      "tokens[1].note: unknown key"},
+        BadTokensCase{"tokens:\n  - {name: a b, token: 0123456789abcdef, role: admin}\n",
+                      "tokens[1].name: must be 1 to 64 characters"},
+        BadTokensCase{"tokens:\n  - {name: a, token: 0123456789abcde, role: admin}\n",
+                      "tokens[1].token (a): shorter than 16 characters"},
+        BadTokensCase{
             "tokens:\n  - {name: a, token: \"0123456789 abcdef\", role: admin}\n",
             "tokens[1].token (a): must be at most 128 printable ASCII characters without spaces"},
-        BadTokens{"tokens:\n  - {name: a, token: 0123456789abcdef, role: root}\n",
-                  "tokens[1].role (a): must be one of observer, operator, admin; got 'root'"},
-        BadTokens{"tokens:\n  - {name: a, token: 0123456789abcdef, role: admin}\n"
-                  "  - {name: b, token: 0123456789abcdef, role: observer}\n",
-                  "tokens[2].token (b): same token as a; every client needs its own token"},
-        BadTokens{"tokens:\n  - {name: a, token: 0123456789abcdef, role: admin}\n"
-                  "  - {name: a, token: 0123456789abcdeg, role: observer}\n",
-                  "tokens[2].name: 'a' is listed twice"},
-        BadTokens{"tokens: [\n", "YAML syntax error"}));
+        BadTokensCase{"tokens:\n  - {name: a, token: 0123456789abcdef, role: root}\n",
+                      "tokens[1].role (a): must be one of observer, operator, admin; got 'root'"},
+        BadTokensCase{"tokens:\n  - {name: a, token: 0123456789abcdef, role: admin}\n"
+                      "  - {name: b, token: 0123456789abcdef, role: observer}\n",
+                      "tokens[2].token (b): same token as a; every client needs its own token"},
+        BadTokensCase{"tokens:\n  - {name: a, token: 0123456789abcdef, role: admin}\n"
+                      "  - {name: a, token: 0123456789abcdeg, role: observer}\n",
+                      "tokens[2].name: 'a' is listed twice"},
+        BadTokensCase{"tokens: [\n", "YAML syntax error"}));
 
 TEST(TokenAuthority, AuthenticatesGoodTokensOnly) {
   std::string error;

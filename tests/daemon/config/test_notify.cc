@@ -17,9 +17,9 @@ using testing::FakeNotifySocket;
 using testing::ScopedEnv;
 using namespace std::chrono_literals;
 
-class NotifierTest : public ::testing::TestWithParam<FakeNotifySocket::Kind> {};
+class NotifierSockets : public ::testing::TestWithParam<FakeNotifySocket::Kind> {};
 
-TEST_P(NotifierTest, SendsTheLifecycleInOrder) {
+TEST_P(NotifierSockets, SendsTheLifecycleInOrder) {
   FakeNotifySocket manager(GetParam());
   ASSERT_TRUE(manager.ok()) << manager.error();
   ScopedEnv env("NOTIFY_SOCKET", manager.address());
@@ -53,7 +53,7 @@ TEST_P(NotifierTest, SendsTheLifecycleInOrder) {
   EXPECT_TRUE(manager.Drain().empty());
 }
 
-INSTANTIATE_TEST_SUITE_P(Sockets, NotifierTest,
+INSTANTIATE_TEST_SUITE_P(Sockets, NotifierSockets,
                          ::testing::Values(FakeNotifySocket::Kind::kPath,
                                            FakeNotifySocket::Kind::kAbstract),
                          [](const auto& info) {

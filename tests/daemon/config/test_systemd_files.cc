@@ -17,6 +17,7 @@
 #include <vector>
 
 #include "../../unit/test_util.h"
+#include "file_util.h"
 
 namespace craftscan {
 namespace {
@@ -26,12 +27,7 @@ namespace fs = std::filesystem;
 
 const fs::path kSystemdDir = CRAFTSCAN_SYSTEMD_DIR;
 
-std::string ReadText(const fs::path& path) {
-  std::ifstream in(path, std::ios::binary);
-  std::ostringstream text;
-  text << in.rdbuf();
-  return text.str();
-}
+using testing::ReadFile;
 
 std::vector<std::string> Lines(const std::string& text) {
   std::vector<std::string> lines;
@@ -66,8 +62,8 @@ ToolRun RunTool(const std::string& command, const fs::path& dir) {
   const int status = std::system(line.c_str());
   ToolRun run;
   run.exit_code = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
-  run.out = ReadText(out);
-  run.err = ReadText(err);
+  run.out = ReadFile(out);
+  run.err = ReadFile(err);
   return run;
 }
 
@@ -92,7 +88,7 @@ class SystemdFiles : public testing::TempDirTest {
   // The unit with ExecStart's binary replaced by an existing one (verify
   // checks that the binary is executable; craftscand is not installed here).
   std::string TestableUnit() {
-    std::string unit = ReadText(kSystemdDir / "craftscand.service");
+    std::string unit = ReadFile(kSystemdDir / "craftscand.service");
     const std::string exec = "ExecStart=/usr/bin/craftscand ";
     const auto at = unit.find(exec);
     EXPECT_NE(at, std::string::npos);
@@ -136,7 +132,7 @@ TEST_F(SystemdFiles, VerifyCatchesAnUnknownSetting) {
 }
 
 TEST_F(SystemdFiles, UnitRunsTheDaemonAsDocumented) {
-  const std::string unit = ReadText(kSystemdDir / "craftscand.service");
+  const std::string unit = ReadFile(kSystemdDir / "craftscand.service");
   for (const char* setting :
        {"Type=notify\n", "NotifyAccess=main\n",
         "ExecStart=/usr/bin/craftscand --config /etc/craftscan/craftscand.yaml\n",
@@ -171,7 +167,7 @@ TEST_F(SystemdFiles, SysusersCreatesTheUserAndGroups) {
 // here): check the rule syntax ourselves.
 TEST_F(SystemdFiles, UdevRulesAreWellFormed) {
   const fs::path rules = kSystemdDir / "udev" / "70-craftscan-cameras.rules";
-  const std::string text = ReadText(rules);
+  const std::string text = ReadFile(rules);
   ASSERT_FALSE(text.empty()) << rules;
   // KEY or KEY{attr}, an operator, a double-quoted value.
   static const std::regex kPair(
@@ -201,9 +197,9 @@ TEST_F(SystemdFiles, UdevRulesAreWellFormed) {
 }
 
 TEST_F(SystemdFiles, FilesAgreeOnUserAndGroups) {
-  const std::string unit = ReadText(kSystemdDir / "craftscand.service");
-  const std::string sysusers = ReadText(kSystemdDir / "craftscan.sysusers");
-  const std::string rules = ReadText(kSystemdDir / "udev" / "70-craftscan-cameras.rules");
+  const std::string unit = ReadFile(kSystemdDir / "craftscand.service");
+  const std::string sysusers = ReadFile(kSystemdDir / "craftscan.sysusers");
+  const std::string rules = ReadFile(kSystemdDir / "udev" / "70-craftscan-cameras.rules");
   EXPECT_TRUE(std::regex_search(sysusers, std::regex(R"((^|\n)u\s+craftscan\s)")));
   EXPECT_TRUE(std::regex_search(sysusers, std::regex(R"((^|\n)m\s+craftscan\s+plugdev)")));
   EXPECT_TRUE(std::regex_search(sysusers, std::regex(R"((^|\n)m\s+craftscan\s+dialout)")));
@@ -211,7 +207,7 @@ TEST_F(SystemdFiles, FilesAgreeOnUserAndGroups) {
   EXPECT_THAT(rules, HasSubstr("GROUP=\"plugdev\""));
   // The unit's StateDirectory is the sysusers home and the example data_dir.
   EXPECT_THAT(sysusers, HasSubstr("/var/lib/craftscan"));
-  EXPECT_THAT(ReadText(kSystemdDir / "craftscand.yaml"), HasSubstr("data_dir: /var/lib/craftscan"));
+  EXPECT_THAT(ReadFile(kSystemdDir / "craftscand.yaml"), HasSubstr("data_dir: /var/lib/craftscan"));
 }
 
 }  // namespace

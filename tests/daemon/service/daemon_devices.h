@@ -1,9 +1,9 @@
 // For the daemon tests with real device components instead of the sim
 // (test_daemon_devices.cc: the serial turntable through the PTY GRBL
 // emulator; test_daemon_aravis.cc: Aravis fake GigE cameras): a running
-// craftscand with its clients, a watcher of the StationStatus topic, and
-// the checks every fault case makes (the job's end, nothing acknowledged
-// lost, the daemon still serving).
+// craftscand with its clients (a StationClient and a StatusWatcher, both
+// from station_client.h), and the checks every fault case makes (the job's
+// end, nothing acknowledged lost, the daemon still serving).
 #pragma once
 
 #include <gtest/gtest.h>
@@ -29,70 +29,6 @@
 namespace craftscan::testing {
 
 using namespace std::chrono_literals;
-
-// The last StationStatus samples, from a second client of the station
-// (the test's StationClient keeps only the states). Thread-safe.
-class StatusWatcher {
- public:
-  // Joins the domain the StationClient already created in this process.
-  bool Start(std::uint32_t domain, const std::string& station, std::string* error) {
-    client::ConnectOptions options;
-    options.station = station;
-    options.domain_id = domain;
-    options.client_name = "watcher";
-    client_ = client::StationClient::Connect(options, error);
-    return client_ && client_->SubscribeStatus(
-                          [this](const client::StatusUpdate& s) {
-                            std::lock_guard lock(mutex_);
-                            seen_.push_back(s);
-                          },
-                          error);
-  }
-  ~StatusWatcher() { client_.reset(); }
-
-  // True once a sample satisfying `predicate` arrived (checked every 50 ms).
-  template <typename Predicate>
-  bool WaitFor(Predicate predicate, std::chrono::milliseconds timeout) {
-    const auto deadline = std::chrono::steady_clock::now() + timeout;
-    for (;;) {
-      {
-        std::lock_guard lock(mutex_);
-        if (std::any_of(seen_.begin(), seen_.end(), predicate)) return true;
-      }
-      if (std::chrono::steady_clock::now() >= deadline) return false;
-      std::this_thread::sleep_for(50ms);
-    }
-  }
-
-  client::StatusUpdate Last() {
-    std::lock_guard lock(mutex_);
-    return seen_.empty() ? client::StatusUpdate{} : seen_.back();
-  }
-
-  // True once the latest sample shows `device` in `state` (e.g.
-  // "turntable", "Fault"); polled every 50 ms.
-  bool WaitForDeviceState(const std::string& device, const std::string& state,
-                          std::chrono::milliseconds timeout = 10s) {
-    const auto deadline = std::chrono::steady_clock::now() + timeout;
-    while (Device(Last(), device).state != state) {
-      if (std::chrono::steady_clock::now() >= deadline) return false;
-      std::this_thread::sleep_for(50ms);
-    }
-    return true;
-  }
-
-  // The device's line in `s` ("camera", "turntable"); empty if absent.
-  static client::DeviceState Device(const client::StatusUpdate& s, const std::string& name) {
-    for (const client::DeviceState& d : s.devices)
-      if (d.name == name) return d;
-    return {};
-  }
-
- private:
-  std::mutex mutex_;
-  std::vector<client::StatusUpdate> seen_;
-  std::unique_ptr<client::StationClient> client_;
-};
 
 struct RunningDaemon {
   DaemonFixture fixture{"320x256"};
@@ -152,20 +88,6 @@ struct RunningDaemon {
       return nullptr;
     }
     return scan;
-  }
-
-  // Waits until job `id` has ended; its record from the status verb.
-  nlohmann::json WaitForJob(const std::string& id, std::chrono::seconds timeout) {
-    const auto deadline = std::chrono::steady_clock::now() + timeout;
-    while (std::chrono::steady_clock::now() < deadline) {
-      const auto reply = client.Send("status", nullptr, kObserverToken, 10s);
-      if (reply && reply->code == 0 && reply->result["job"]["id"] == id &&
-          reply->result["job"]["state"] != "running") {
-        return reply->result["job"];
-      }
-      std::this_thread::sleep_for(100ms);
-    }
-    return {{"state", "still running after the timeout"}};
   }
 
   // Waits until at least `count` captures of `session` were acknowledged.
@@ -269,7 +191,7 @@ struct RunningDaemon {
   // durable, none of `acknowledged` captured again.
   void ExpectResumed(const std::string& session, const std::string& id, int views,
                      const std::vector<CaptureRecord>& acknowledged) {
-    const nlohmann::json job = WaitForJob(id, 180s);
+    const nlohmann::json job = WaitForJobEnd(client, kObserverToken, id, 180s);
     ASSERT_EQ(job.value("state", ""), "done") << job.dump() << "\n" << fixture.Log();
     EXPECT_EQ(SessionStateOf(session), daemon::SessionState::kDone);
     const std::vector<CaptureRecord> all = Acknowledged(session);

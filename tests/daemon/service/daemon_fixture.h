@@ -26,6 +26,7 @@
 #include "craftscan/sim/driver_options.h"
 #include "craftscan/sim/station.h"
 #include "fake_notify_socket.h"
+#include "file_util.h"
 
 extern char** environ;
 
@@ -190,10 +191,7 @@ class DaemonFixture {
     return -1;
   }
 
-  std::string Log() const {
-    std::ifstream in(root_ + "/craftscand.log");
-    return std::string(std::istreambuf_iterator<char>(in), {});
-  }
+  std::string Log() const { return ReadFile(root_ + "/craftscand.log"); }
 
  private:
   std::string image_size_, extra_sim_;

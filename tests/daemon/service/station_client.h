@@ -2,8 +2,12 @@
 // library (craftscan/client/station_client.h): sends Commands and waits for
 // their Replies, and collects what the daemon publishes (progress, captures,
 // clouds, status) into vectors the tests read under Lock() or in WaitFor().
+// Also: a second client that keeps every StationStatus sample
+// (StatusWatcher), and waiting for a job's end through the status verb
+// (WaitForJobEnd).
 #pragma once
 
+#include <algorithm>
 #include <chrono>
 #include <condition_variable>
 #include <cstdint>
@@ -11,6 +15,7 @@
 #include <mutex>
 #include <optional>
 #include <string>
+#include <thread>
 #include <utility>
 #include <vector>
 
@@ -132,6 +137,94 @@ class StationClient {
 
   std::mutex mutex_;
   std::condition_variable changed_;
+  std::unique_ptr<client::StationClient> client_;
+};
+
+// Polls the status verb (as `token`, every 100 ms) until job `id` has left
+// the running state; returns the job's record then, or
+// {"state": "still running after the timeout", "last_status": the last reply}.
+inline nlohmann::json WaitForJobEnd(StationClient& client, const std::string& token,
+                                    const std::string& id, std::chrono::milliseconds timeout) {
+  const auto deadline = std::chrono::steady_clock::now() + timeout;
+  std::string last = "no reply";
+  while (std::chrono::steady_clock::now() < deadline) {
+    const auto reply = client.Send("status", nullptr, token, std::chrono::seconds(10));
+    if (reply && reply->code == 0) {
+      nlohmann::json job = reply->result["job"];
+      if (job["id"] == id && job["state"] != "running") return job;
+      last = reply->result.dump();
+    } else if (reply) {
+      last = reply->code_name + ": " + reply->message;
+    }
+    std::this_thread::sleep_for(std::chrono::milliseconds(100));
+  }
+  return {{"state", "still running after the timeout"}, {"last_status", last}};
+}
+
+// Every StationStatus sample, from a second client of the station (the
+// StationClient keeps only the latest states). Thread-safe.
+class StatusWatcher {
+ public:
+  // Joins the domain the StationClient already created in this process.
+  bool Start(std::uint32_t domain, const std::string& station, std::string* error) {
+    client::ConnectOptions options;
+    options.station = station;
+    options.domain_id = domain;
+    options.dds_config = "";  // the domain exists in this process: its config holds
+    options.client_name = "watcher";
+    client_ = client::StationClient::Connect(options, error);
+    return client_ && client_->SubscribeStatus(
+                          [this](const client::StatusUpdate& s) {
+                            std::lock_guard lock(mutex_);
+                            seen_.push_back(s);
+                            changed_.notify_all();
+                          },
+                          error);
+  }
+  // Stops the subscription thread before the samples it fills go.
+  ~StatusWatcher() { client_.reset(); }
+
+  // True once any sample so far satisfies `predicate` (StatusUpdate -> bool).
+  template <typename Predicate>
+  bool WaitFor(Predicate predicate, std::chrono::milliseconds timeout) {
+    std::unique_lock lock(mutex_);
+    return changed_.wait_for(lock, timeout,
+                             [&] { return std::any_of(seen_.begin(), seen_.end(), predicate); });
+  }
+
+  // True once the latest sample satisfies `predicate`.
+  template <typename Predicate>
+  bool WaitForLatest(Predicate predicate, std::chrono::milliseconds timeout) {
+    std::unique_lock lock(mutex_);
+    return changed_.wait_for(lock, timeout,
+                             [&] { return !seen_.empty() && predicate(seen_.back()); });
+  }
+
+  // True once the latest sample shows `device` in `state` (e.g.
+  // "turntable", "Fault").
+  bool WaitForDeviceState(const std::string& device, const std::string& state,
+                          std::chrono::milliseconds timeout = std::chrono::seconds(10)) {
+    return WaitForLatest(
+        [&](const client::StatusUpdate& s) { return Device(s, device).state == state; }, timeout);
+  }
+
+  // The latest sample (empty before the first).
+  client::StatusUpdate Last() {
+    std::lock_guard lock(mutex_);
+    return seen_.empty() ? client::StatusUpdate{} : seen_.back();
+  }
+
+  // The device's line in `s` ("camera", "turntable"); empty if absent.
+  static client::DeviceState Device(const client::StatusUpdate& s, const std::string& name) {
+    for (const client::DeviceState& d : s.devices)
+      if (d.name == name) return d;
+    return {};
+  }
+
+ private:
+  std::mutex mutex_;
+  std::condition_variable changed_;
+  std::vector<client::StatusUpdate> seen_;
   std::unique_ptr<client::StationClient> client_;
 };
 

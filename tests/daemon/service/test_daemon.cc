@@ -58,26 +58,6 @@ std::unique_ptr<Running> StartDaemon(const std::string& image_size, long watchdo
   return r;
 }
 
-// Waits until the job `id` leaves the running state; returns its final
-// state as reported by the status verb.
-nlohmann::json WaitForJob(StationClient& client, const std::string& id,
-                          std::chrono::seconds timeout) {
-  const auto deadline = std::chrono::steady_clock::now() + timeout;
-  std::string last = "no reply";
-  while (std::chrono::steady_clock::now() < deadline) {
-    const auto reply = client.Send("status", nullptr, kObserverToken, 10s);
-    if (reply && reply->code == 0) {
-      const nlohmann::json job = reply->result["job"];
-      if (job["id"] == id && job["state"] != "running") return job;
-      last = reply->result.dump();
-    } else if (reply) {
-      last = reply->code_name + ": " + reply->message;
-    }
-    std::this_thread::sleep_for(200ms);
-  }
-  return {{"state", "still running after the timeout"}, {"last_status", last}};
-}
-
 TEST(Daemon, ScanOfSixViewsPublishesEverythingAndStoresTheSession) {
   auto r = StartDaemon("1280x1024");
   ASSERT_TRUE(r);
@@ -91,7 +71,7 @@ TEST(Daemon, ScanOfSixViewsPublishesEverythingAndStoresTheSession) {
   const std::string session_id = reply->result["session"];
   EXPECT_EQ(session_id.substr(16), "carved_box");
 
-  const nlohmann::json job = WaitForJob(client, job_id, 600s);
+  const nlohmann::json job = WaitForJobEnd(client, kObserverToken, job_id, 600s);
   const double total_s =
       std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   ASSERT_EQ(job.value("state", ""), "done") << job.dump(2) << "\n" << r->fixture.Log();
@@ -198,7 +178,7 @@ TEST(Daemon, BadCommandsGetClearErrorsAndTheDaemonKeepsServing) {
   const auto busy = c.Send("scan", {{"views", 6}}, kOperatorToken);
   ASSERT_TRUE(busy);
   EXPECT_EQ(busy->code_name, "busy") << busy->message;
-  const nlohmann::json job = WaitForJob(c, scan->result["id"], 120s);
+  const nlohmann::json job = WaitForJobEnd(c, kObserverToken, scan->result["id"], 120s);
   EXPECT_EQ(job.value("state", ""), "done") << job.dump() << r->fixture.Log();
   EXPECT_TRUE(std::filesystem::exists(r->fixture.data_dir() + "/sessions/" + session +
                                       "/views/000/left.png"));
@@ -299,7 +279,7 @@ TEST(Daemon, CancelDuringAMoveAbortsTheMove) {
   const auto cancel = c.Send("cancel", nullptr, kOperatorToken);
   ASSERT_TRUE(cancel);
   ASSERT_EQ(cancel->code_name, "ok") << cancel->message;
-  const nlohmann::json job = WaitForJob(c, id, 60s);
+  const nlohmann::json job = WaitForJobEnd(c, kObserverToken, id, 60s);
   const double seconds =
       std::chrono::duration<double>(std::chrono::steady_clock::now() - move_started).count();
   EXPECT_NE(job.value("state", ""), "running");
@@ -366,7 +346,7 @@ TEST(Daemon, SigkillDuringAScanLosesNothingAndResumeCompletesItWithoutRecapturin
   const auto resume = r->client.Send("resume", {{"session", session_id}}, kOperatorToken);
   ASSERT_TRUE(resume);
   ASSERT_EQ(resume->code_name, "ok") << resume->message;
-  const nlohmann::json job = WaitForJob(r->client, resume->result["id"], 300s);
+  const nlohmann::json job = WaitForJobEnd(r->client, kObserverToken, resume->result["id"], 300s);
   ASSERT_EQ(job.value("state", ""), "done")
       << job.dump() << r->fixture.Log() << "\ndaemon alive: " << (::kill(r->fixture.pid(), 0) == 0);
   {
@@ -404,7 +384,7 @@ TEST(Daemon, CalibratesTheStationFromBoardViews) {
   const auto calibrate = c.Send("calibrate", nullptr, kAdminToken);
   ASSERT_TRUE(calibrate);
   ASSERT_EQ(calibrate->code_name, "ok") << calibrate->message;
-  nlohmann::json job = WaitForJob(c, calibrate->result["id"], 600s);
+  nlohmann::json job = WaitForJobEnd(c, kObserverToken, calibrate->result["id"], 600s);
   ASSERT_EQ(job.value("state", ""), "done") << job.dump(2) << r->fixture.Log();
   const nlohmann::json stereo = job["result"];
   std::printf("calibrate: %s\n", stereo.dump().c_str());
@@ -412,7 +392,7 @@ TEST(Daemon, CalibratesTheStationFromBoardViews) {
   const auto axis = c.Send("calibrate-turntable", nullptr, kAdminToken);
   ASSERT_TRUE(axis);
   ASSERT_EQ(axis->code_name, "ok") << axis->message;
-  job = WaitForJob(c, axis->result["id"], 300s);
+  job = WaitForJobEnd(c, kObserverToken, axis->result["id"], 300s);
   ASSERT_EQ(job.value("state", ""), "done") << job.dump(2) << r->fixture.Log();
   std::printf("calibrate-turntable: %s\n", job["result"].dump().c_str());
 
@@ -453,7 +433,7 @@ TEST(DaemonFaults, CameraLostMidScanIsRecoveredAndTheScanCompletes) {
   const auto reply = r->client.Send("scan", {{"object", "box"}, {"views", 6}}, kOperatorToken);
   ASSERT_TRUE(reply);
   ASSERT_EQ(reply->code_name, "ok") << reply->message;
-  const nlohmann::json job = WaitForJob(r->client, reply->result["id"], 300s);
+  const nlohmann::json job = WaitForJobEnd(r->client, kObserverToken, reply->result["id"], 300s);
   EXPECT_EQ(job.value("state", ""), "done") << job.dump() << r->fixture.Log();
   EXPECT_NE(r->fixture.Log().find("reconnected"), std::string::npos) << r->fixture.Log();
   std::string error;
@@ -477,7 +457,7 @@ TEST(DaemonFaults, CameraGoneForGoodInterruptsTheScanAndResumeFinishesIt) {
   ASSERT_TRUE(reply);
   ASSERT_EQ(reply->code_name, "ok") << reply->message;
   const std::string session_id = reply->result["session"];
-  const nlohmann::json job = WaitForJob(r->client, reply->result["id"], 300s);
+  const nlohmann::json job = WaitForJobEnd(r->client, kObserverToken, reply->result["id"], 300s);
   EXPECT_EQ(job.value("state", ""), "failed") << job.dump();
   EXPECT_NE(job.value("message", "").find("camera lost"), std::string::npos) << job.dump();
   const auto status = r->client.Send("status", nullptr, kObserverToken);
@@ -498,8 +478,7 @@ TEST(DaemonFaults, CameraGoneForGoodInterruptsTheScanAndResumeFinishesIt) {
   ASSERT_EQ(r->fixture.Stop(SIGTERM), 0) << r->fixture.Log();
   DaemonFixture& f = r->fixture;
   {
-    std::ifstream in(f.root() + "/craftscand.yaml");
-    std::string text((std::istreambuf_iterator<char>(in)), {});
+    std::string text = ReadFile(f.root() + "/craftscand.yaml");
     for (std::size_t at; (at = text.find(", disconnect_after")) != std::string::npos;) {
       text.erase(at, text.find('}', at) - at);
     }
@@ -511,7 +490,8 @@ TEST(DaemonFaults, CameraGoneForGoodInterruptsTheScanAndResumeFinishesIt) {
   const auto resume = r->client.Send("resume", {{"session", session_id}}, kOperatorToken);
   ASSERT_TRUE(resume);
   ASSERT_EQ(resume->code_name, "ok") << resume->message;
-  const nlohmann::json resumed = WaitForJob(r->client, resume->result["id"], 300s);
+  const nlohmann::json resumed =
+      WaitForJobEnd(r->client, kObserverToken, resume->result["id"], 300s);
   EXPECT_EQ(resumed.value("state", ""), "done") << resumed.dump() << f.Log();
 }
 
@@ -523,7 +503,7 @@ TEST(DaemonFaults, TurntableAlarmStopsTheScanWithTheReason) {
   const auto reply = r->client.Send("scan", {{"object", "box"}, {"views", 6}}, kOperatorToken);
   ASSERT_TRUE(reply);
   ASSERT_EQ(reply->code_name, "ok") << reply->message;
-  const nlohmann::json job = WaitForJob(r->client, reply->result["id"], 120s);
+  const nlohmann::json job = WaitForJobEnd(r->client, kObserverToken, reply->result["id"], 120s);
   EXPECT_EQ(job.value("state", ""), "failed") << job.dump();
   EXPECT_NE(job.value("message", "").find("ALARM"), std::string::npos) << job.dump();
   const auto status = r->client.Send("status", nullptr, kObserverToken);

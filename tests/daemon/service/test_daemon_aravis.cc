@@ -252,7 +252,7 @@ TEST_F(DaemonAravis, CameraKilledMidScanAndBackInTimeTheScanCompletes) {
       std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - asked).count();
   ASSERT_TRUE(right_->Start());
 
-  const nlohmann::json job = daemon_.WaitForJob(scan["id"], 180s);
+  const nlohmann::json job = WaitForJobEnd(daemon_.client, kObserverToken, scan["id"], 180s);
   const double total_s = SecondsSinceScan();
   ASSERT_EQ(job.value("state", ""), "done") << job.dump() << "\n" << daemon_.fixture.Log();
   EXPECT_NE(daemon_.fixture.Log().find("aravis/camera: reconnected (attempt"), std::string::npos);
@@ -276,7 +276,7 @@ TEST_F(DaemonAravis, CameraKilledForGoodFailsTheJobAndResumeFinishesOnceItIsBack
       ScanAndKillTheRightCamera("reconnect_attempts: 2, reconnect_delay_ms: 200", "gone");
   ASSERT_FALSE(scan.is_null());
   const std::string session = scan["session"];
-  const nlohmann::json job = daemon_.WaitForJob(scan["id"], 180s);
+  const nlohmann::json job = WaitForJobEnd(daemon_.client, kObserverToken, scan["id"], 180s);
   const double failed_s = SecondsSinceScan();
   ASSERT_EQ(job.value("state", ""), "failed") << job.dump() << "\n" << daemon_.fixture.Log();
   const std::vector<CaptureRecord> acknowledged = daemon_.Acknowledged(session);

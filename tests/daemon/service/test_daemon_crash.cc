@@ -24,20 +24,6 @@ namespace {
 
 using namespace std::chrono_literals;
 
-nlohmann::json WaitForJobEnd(StationClient& client, const std::string& id,
-                             std::chrono::seconds timeout) {
-  const auto deadline = std::chrono::steady_clock::now() + timeout;
-  while (std::chrono::steady_clock::now() < deadline) {
-    const auto reply = client.Send("status", nullptr, kObserverToken, 10s);
-    if (reply && reply->code == 0) {
-      const nlohmann::json job = reply->result["job"];
-      if (job["id"] == id && job["state"] != "running") return job;
-    }
-    std::this_thread::sleep_for(100ms);
-  }
-  return {{"state", "still running after the timeout"}};
-}
-
 TEST(DaemonCrash, TwentyScansKilledAtRandomMomentsLoseNothing) {
   // No mesh: Poisson is the slowest stage and not what this test is about.
   DaemonFixture fixture("320x256");
@@ -118,7 +104,7 @@ TEST(DaemonCrash, TwentyScansKilledAtRandomMomentsLoseNothing) {
     const auto resume = client.Send("resume", {{"session", session_id}}, kOperatorToken, 30s);
     ASSERT_TRUE(resume);
     ASSERT_EQ(resume->code_name, "ok") << resume->message;
-    const nlohmann::json job = WaitForJobEnd(client, resume->result["id"], 120s);
+    const nlohmann::json job = WaitForJobEnd(client, kObserverToken, resume->result["id"], 120s);
     ASSERT_EQ(job.value("state", ""), "done")
         << "scan " << scan << ": " << job.dump() << fixture.Log();
     {

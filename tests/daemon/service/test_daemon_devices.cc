@@ -94,7 +94,7 @@ void ExpectInterruptedThenResumed(SerialStation& s, const nlohmann::json& scan,
                                   const std::function<void()>& before_resume) {
   RunningDaemon& d = s.daemon;
   const std::string session = scan["session"];
-  const nlohmann::json job = d.WaitForJob(scan["id"], 120s);
+  const nlohmann::json job = WaitForJobEnd(d.client, kObserverToken, scan["id"], 120s);
   ASSERT_EQ(job.value("state", ""), "failed") << job.dump() << "\n" << d.fixture.Log();
   const std::vector<CaptureRecord> acknowledged = d.Acknowledged(session);
   ASSERT_GE(acknowledged.size(), 1u);
@@ -160,7 +160,7 @@ TEST(DaemonSerialTurntable, LineNoiseAndGarbageLinesAreTolerated) {
   ASSERT_FALSE(scan.is_null());
   s.emu->InjectGarbage(std::string("\xff\xfe\x01\x7f", 4));
   s.emu->InjectGarbage("#%garbage!\r\n");
-  const nlohmann::json job = s.daemon.WaitForJob(scan["id"], 120s);
+  const nlohmann::json job = WaitForJobEnd(s.daemon.client, kObserverToken, scan["id"], 120s);
   ASSERT_EQ(job.value("state", ""), "done") << job.dump() << "\n" << s.daemon.fixture.Log();
   EXPECT_EQ(
       s.daemon.ExpectNothingLost(scan["session"], s.daemon.Acknowledged(scan["session"])).size(),
@@ -199,7 +199,7 @@ TEST(DaemonSerialTurntable, HangUpMidMoveLosesTheTableAndResumeReconnects) {
     const std::vector<CaptureRecord> acknowledged = d.Acknowledged(session);
     const nlohmann::json early = d.Resume(session);
     ASSERT_FALSE(early.is_null());
-    const nlohmann::json job = d.WaitForJob(early["id"], 60s);
+    const nlohmann::json job = WaitForJobEnd(d.client, kObserverToken, early["id"], 60s);
     EXPECT_EQ(job.value("state", ""), "failed") << job.dump();
     EXPECT_NE(job.value("message", "").find("turntable"), std::string::npos) << job.dump();
     std::printf("  resume with the turntable gone: %s\n", job.value("message", "").c_str());

@@ -87,12 +87,8 @@ Finished RunToEnd(const std::vector<std::string>& argv, const std::string& dir,
     std::this_thread::sleep_for(10ms);
   }
   f.status = status;
-  auto slurp = [](const std::string& path) {
-    std::ifstream in(path);
-    return std::string(std::istreambuf_iterator<char>(in), {});
-  };
-  f.out = slurp(out);
-  f.err += slurp(err);
+  f.out = ReadFile(out);
+  f.err += ReadFile(err);
   return f;
 }
 

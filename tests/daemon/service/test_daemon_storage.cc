@@ -112,45 +112,6 @@ class ScopedTmpfs {
   bool mounted_ = false;
 };
 
-// StationStatus as the daemon publishes it (state, last_error), through the
-// client library.
-class StatusWatch {
- public:
-  bool Start(const DaemonFixture& f, std::string* error) {
-    client::ConnectOptions options;
-    options.station = f.station();
-    options.domain_id = f.domain();
-    options.dds_config = "";  // the domain exists in this process: its config holds
-    options.client_name = "status-watch";
-    client_ = client::StationClient::Connect(options, error);
-    return client_ && client_->SubscribeStatus(
-                          [this](const client::StatusUpdate& s) {
-                            std::lock_guard lock(mutex_);
-                            last_ = s;
-                            changed_.notify_all();
-                          },
-                          error);
-  }
-  ~StatusWatch() { client_.reset(); }
-
-  // Waits until the latest status satisfies `predicate`.
-  template <typename Predicate>
-  bool WaitFor(Predicate predicate, std::chrono::milliseconds timeout) {
-    std::unique_lock lock(mutex_);
-    return changed_.wait_for(lock, timeout, [&] { return predicate(last_); });
-  }
-  client::StatusUpdate Last() {
-    std::lock_guard lock(mutex_);
-    return last_;
-  }
-
- private:
-  std::unique_ptr<client::StationClient> client_;
-  std::mutex mutex_;
-  std::condition_variable changed_;
-  client::StatusUpdate last_;
-};
-
 // One test's station: the mount namespace, the tmpfs data directory, the
 // daemon (320x256, no mesh), a command client and a status watch.
 class StorageStation {
@@ -166,7 +127,7 @@ class StorageStation {
 
   DaemonFixture& fixture() { return fixture_; }
   StationClient& client() { return client_; }
-  StatusWatch& watch() { return watch_; }
+  StatusWatcher& watch() { return watch_; }
   ScopedTmpfs& tmpfs() { return *tmpfs_; }
   std::string data_dir() const { return fixture_.data_dir(); }
 
@@ -195,7 +156,7 @@ class StorageStation {
     if (!fixture_.Start(error, 0, notify)) return false;
     if (!client_started_) {
       if (!client_.Start(fixture_.domain(), fixture_.dds_config(), fixture_.station(), error) ||
-          !watch_.Start(fixture_, error)) {
+          !watch_.Start(fixture_.domain(), fixture_.station(), error)) {
         return false;
       }
       client_started_ = true;
@@ -214,20 +175,6 @@ class StorageStation {
     return *reply;
   }
 
-  // Waits until job `id` has left the running state; its last status.
-  nlohmann::json WaitForJobEnd(const std::string& id, std::chrono::seconds timeout) {
-    const auto deadline = std::chrono::steady_clock::now() + timeout;
-    while (std::chrono::steady_clock::now() < deadline) {
-      const ReplyRecord reply = Send("status", nullptr, kObserverToken);
-      if (reply.code == 0 && reply.result["job"].value("id", "") == id &&
-          reply.result["job"].value("state", "") != "running") {
-        return reply.result["job"];
-      }
-      std::this_thread::sleep_for(100ms);
-    }
-    return {{"state", "still running after the timeout"}};
-  }
-
   // Starts `verb` (scan, capture, resume) and waits for the job's end.
   nlohmann::json RunJob(const std::string& verb, const nlohmann::json& args,
                         std::chrono::seconds timeout = 180s) {
@@ -235,7 +182,8 @@ class StorageStation {
     if (reply.code_name != "ok") {
       return {{"state", "refused"}, {"message", reply.code_name + ": " + reply.message}};
     }
-    nlohmann::json job = WaitForJobEnd(reply.result.value("id", ""), timeout);
+    nlohmann::json job =
+        WaitForJobEnd(client_, kObserverToken, reply.result.value("id", ""), timeout);
     job["session"] = reply.result.value("session", "");
     return job;
   }
@@ -265,7 +213,7 @@ class StorageStation {
   DaemonFixture fixture_;
   std::unique_ptr<ScopedTmpfs> tmpfs_;  // unmounted before the fixture removes its folder
   StationClient client_;
-  StatusWatch watch_;
+  StatusWatcher watch_;
   bool client_started_ = false;
   int ctl_runs_ = 0;
 };
@@ -400,7 +348,7 @@ TEST(DaemonStorage, DiskFullInterruptsTheScanAndResumeCompletesItOnceSpaceIsFree
     }
     EXPECT_TRUE(found) << "no JobProgress 'failed' naming the full disk";
   }
-  EXPECT_TRUE(station.watch().WaitFor(
+  EXPECT_TRUE(station.watch().WaitForLatest(
       [&](const client::StatusUpdate& s) { return Contains(s.last_error, kNoSpace); }, 10s))
       << station.watch().Last().last_error;
   const CtlRun ctl = station.Ctl({"status"});
@@ -481,7 +429,7 @@ TEST(DaemonStorage, ACaptureOnACompletelyFullDiskIsStillRecordedInterrupted) {
   ASSERT_EQ(Fill(filler, FreeBytes(data_dir)), "");
   EXPECT_EQ(FreeBytes(data_dir), 0u);
 
-  const nlohmann::json job = station.WaitForJobEnd(job_id, 60s);
+  const nlohmann::json job = WaitForJobEnd(station.client(), kObserverToken, job_id, 60s);
   const std::string message = job.value("message", "");
   ASSERT_EQ(job.value("state", ""), "failed") << job.dump() << station.fixture().Log();
   EXPECT_TRUE(Contains(message, "session " + id + " interrupted: view 0: ")) << message;
@@ -531,7 +479,8 @@ TEST(DaemonStorage, DataDirTurningReadOnlyStopsTheScanClearlyAndResumeCompletesI
       60s))
       << station.fixture().Log();
   ASSERT_TRUE(station.tmpfs().SetReadOnly(true, &error)) << error;
-  const nlohmann::json job = station.WaitForJobEnd(scan.result["id"], 120s);
+  const nlohmann::json job =
+      WaitForJobEnd(station.client(), kObserverToken, scan.result["id"], 120s);
   const std::string message = job.value("message", "");
   ASSERT_EQ(job.value("state", ""), "failed") << job.dump() << station.fixture().Log();
   EXPECT_TRUE(Contains(message, kReadOnly)) << message;
@@ -609,7 +558,7 @@ TEST(DaemonStorage, StartsDegradedOnAReadOnlyDataDirAndRecoversWhenItIsWritable)
   EXPECT_EQ(ready_status.rfind("degraded: ", 0), 0u) << ready_status;
   EXPECT_TRUE(Contains(ready_status, data_dir)) << ready_status;
   EXPECT_TRUE(Contains(ready_status, kReadOnly)) << ready_status;
-  EXPECT_TRUE(station.watch().WaitFor(
+  EXPECT_TRUE(station.watch().WaitForLatest(
       [&](const client::StatusUpdate& s) {
         return s.state == "degraded" && Contains(s.last_error, kReadOnly);
       },
@@ -654,7 +603,7 @@ TEST(DaemonStorage, StartsDegradedOnAReadOnlyDataDirAndRecoversWhenItIsWritable)
   // Writable: within one retry (10 s) the station is idle and serves sessions.
   ASSERT_TRUE(station.tmpfs().SetReadOnly(false, &error)) << error;
   const auto writable = std::chrono::steady_clock::now();
-  EXPECT_TRUE(station.watch().WaitFor(
+  EXPECT_TRUE(station.watch().WaitForLatest(
       [&](const client::StatusUpdate& s) { return s.state == "idle" && s.last_error.empty(); },
       30s))
       << station.watch().Last().state << ": " << station.watch().Last().last_error;
@@ -681,7 +630,7 @@ TEST(DaemonStorage, StartsDegradedWithoutItsDataDirAndRecoversWhenItAppears) {
   fs::rename(data_dir, data_dir + ".later");
   std::string error;
   ASSERT_TRUE(station.Start(&error)) << error;
-  ASSERT_TRUE(station.watch().WaitFor(
+  ASSERT_TRUE(station.watch().WaitForLatest(
       [](const client::StatusUpdate& s) { return s.state == "degraded"; }, 20s))
       << station.fixture().Log();
   const ReplyRecord refused =
@@ -693,7 +642,7 @@ TEST(DaemonStorage, StartsDegradedWithoutItsDataDirAndRecoversWhenItAppears) {
             "");
 
   fs::rename(data_dir + ".later", data_dir);
-  ASSERT_TRUE(station.watch().WaitFor(
+  ASSERT_TRUE(station.watch().WaitForLatest(
       [](const client::StatusUpdate& s) { return s.state == "idle" && s.last_error.empty(); }, 30s))
       << station.fixture().Log();
   const ReplyRecord status = station.Send("status", nullptr, kObserverToken);

@@ -23,9 +23,7 @@
 // the local participant is complete, and is then retried): expected.
 #include <gtest/gtest.h>
 
-#include <fcntl.h>
 #include <signal.h>
-#include <spawn.h>
 #include <sys/wait.h>
 #include <unistd.h>
 
@@ -53,9 +51,9 @@
 #include "craftscan/dds/participant.h"
 #include "craftscan/dds/topics.h"
 #include "dds_test_util.h"
+#include "file_util.h"
+#include "process_util.h"
 #include "security_test_util.h"
-
-extern char** environ;
 
 namespace craftscan::dds {
 namespace {
@@ -69,35 +67,9 @@ constexpr milliseconds kTimeout{20000};  // for what must happen; generous (shar
 constexpr milliseconds kWindow{3000};
 
 using ::craftscan::testing::ProcessDomainId;
-
-std::string UniqueStation() {
-  static int counter = 0;
-  return "s" + std::to_string(getpid()) + "_" + std::to_string(counter++) + "_" +
-         std::to_string(std::random_device{}() % 100000);
-}
-
-class TempDir {
- public:
-  TempDir() {
-    std::string pattern = (fs::temp_directory_path() / "craftscan-ddssec-XXXXXX").string();
-    if (mkdtemp(pattern.data())) path_ = pattern;
-  }
-  ~TempDir() {
-    std::error_code ec;
-    if (!path_.empty()) fs::remove_all(path_, ec);
-  }
-  const std::string& path() const { return path_; }
-
- private:
-  std::string path_;
-};
-
-std::string ReadFile(const std::string& path) {
-  std::ifstream in(path, std::ios::binary);
-  std::ostringstream text;
-  text << in.rdbuf();
-  return text.str();
-}
+using ::craftscan::testing::ReadFile;
+using ::craftscan::testing::TempDir;
+using ::craftscan::testing::UniqueStation;
 
 // A child process with stdout (and stderr, if asked) to a file. Killed and
 // reaped on destruction if still running.
@@ -107,19 +79,10 @@ class Process {
   Process(const Process&) = delete;
   Process& operator=(const Process&) = delete;
   bool Start(const std::vector<std::string>& args, const std::string& output, bool with_stderr) {
-    std::vector<char*> argv;
-    for (const std::string& arg : args) argv.push_back(const_cast<char*>(arg.c_str()));
-    argv.push_back(nullptr);
-    posix_spawn_file_actions_t actions;
-    posix_spawn_file_actions_init(&actions);
-    posix_spawn_file_actions_addopen(&actions, STDOUT_FILENO, output.c_str(),
-                                     O_WRONLY | O_CREAT | O_TRUNC, 0644);
-    if (with_stderr) posix_spawn_file_actions_adddup2(&actions, STDOUT_FILENO, STDERR_FILENO);
-    const int rc =
-        posix_spawn(child_.pid_slot(), args[0].c_str(), &actions, nullptr, argv.data(), environ);
-    posix_spawn_file_actions_destroy(&actions);
-    if (rc != 0) *child_.pid_slot() = -1;
-    return child_.started();
+    ::craftscan::testing::SpawnOptions options;
+    options.stdout_path = output;
+    options.stderr_to_stdout = with_stderr;
+    return ::craftscan::testing::Spawn(args, options, &child_);
   }
 
   void Terminate() { child_.Signal(SIGTERM); }
@@ -350,7 +313,7 @@ constexpr char kSecuredHint[] =
 
 class DdsSecurity : public ::testing::Test {
  protected:
-  static void SetUpTestSuite() { suite_dir_ = std::make_unique<TempDir>(); }
+  static void SetUpTestSuite() { suite_dir_ = std::make_unique<TempDir>("craftscan-ddssec"); }
   static void TearDownTestSuite() {
     suite_dir_.reset();
     made_.clear();
@@ -386,7 +349,7 @@ class DdsSecurity : public ::testing::Test {
     return ::testing::AssertionSuccess();
   }
 
-  TempDir temp_;  // this test's own files (peer reports)
+  TempDir temp_{"craftscan-ddssec"};  // this test's own files (peer reports)
 
  private:
   static ::testing::AssertionResult SharedPki(const std::string& subdir,
@@ -406,7 +369,7 @@ class DdsSecurity : public ::testing::Test {
 
   static inline std::unique_ptr<TempDir> suite_dir_;
   static inline std::set<std::string> made_;  // SharedPki subdirs made so far
-  static inline const std::string station_ = UniqueStation();
+  static inline const std::string station_ = UniqueStation("s");
 };
 
 TEST_F(DdsSecurity, AuthenticatedClientsReadAndCommandAsTheirPermissionsAllow) {

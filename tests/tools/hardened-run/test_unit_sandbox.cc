@@ -10,17 +10,13 @@
 #include <fstream>
 #include <sstream>
 
+#include "file_util.h"
 #include "unit_sandbox.h"
 
 namespace craftscan::hardened {
 namespace {
 
-std::string ReadFile(const std::string& path) {
-  std::ifstream in(path);
-  std::stringstream s;
-  s << in.rdbuf();
-  return s.str();
-}
+using ::craftscan::testing::ReadFile;
 
 bool Has(const std::vector<std::string>& list, const std::string& prefix) {
   return std::any_of(list.begin(), list.end(),

@@ -11,6 +11,7 @@
 #include <unistd.h>
 
 #include <chrono>
+#include <cstdio>
 #include <cstdlib>
 #include <cstring>
 #include <filesystem>
@@ -46,12 +47,28 @@ inline int TestThreads() {
   return n >= 1 ? n : 2;
 }
 
+// The sim camera's image size for a daemon test that asks for `wanted`
+// ("WxH"): `wanted`, or CRAFTSCAN_TEST_IMAGE_SIZE when that is set and has
+// fewer pixels. scripts/sanitize sets it (320x256) under ASan: the daemon's
+// own code -- jobs, sessions, DDS, devices -- runs the same at any size,
+// while the instrumented matcher and sim renderer take minutes a view at
+// 640x512 there.
+inline std::string TestImageSize(const std::string& wanted) {
+  const auto pixels = [](const std::string& size) {
+    int w = 0, h = 0;
+    return std::sscanf(size.c_str(), "%dx%d", &w, &h) == 2 ? static_cast<long>(w) * h : -1L;
+  };
+  const char* cap = std::getenv("CRAFTSCAN_TEST_IMAGE_SIZE");
+  if (cap == nullptr || pixels(cap) <= 0) return wanted;
+  return pixels(cap) < pixels(wanted) ? std::string(cap) : wanted;
+}
+
 class DaemonFixture {
  public:
-  // image_size of the sim camera, e.g. "1280x1024".
-  // extra_sim: more sim driver keys (", key: value…").
+  // image_size of the sim camera, e.g. "1280x1024" (TestImageSize may make
+  // it smaller). extra_sim: more sim driver keys (", key: value…").
   explicit DaemonFixture(std::string image_size = "1280x1024", std::string extra_sim = "")
-      : image_size_(std::move(image_size)), extra_sim_(std::move(extra_sim)) {
+      : image_size_(TestImageSize(image_size)), extra_sim_(std::move(extra_sim)) {
     std::random_device rd;
     domain_ = 1 + rd() % 200;
     station_ = "t" + std::to_string(rd() % 1000000);

@@ -145,7 +145,7 @@ struct BoxMeasureOptions {
   // Which vertex set the edge lengths and dims_mm are taken from (both sets
   // are always reported). Plane intersection is the default: on synthetic
   // 80×60×50 mm boxes (σ = 0.2 mm noise, 2 mm deep cuts, base given; 5 poses,
-  // 60 edges; MeasureBoxTest.VertexMethodsCompared) its edge-length RMS error
+  // 60 edges; MeasureBox.VertexMethodsCompared) its edge-length RMS error
   // is 0.005 mm against 0.085 mm for point-circle fitting: each face plane is
   // fitted to thousands of points, while an edge line sees only a thin band
   // near its vertex and the circle through three nearly coincident midpoints

@@ -27,7 +27,7 @@ namespace fs = std::filesystem;
   EXPECT_NE(std::string(text).find(part), std::string::npos) \
       << "message: " << (text) << "\nexpected to contain: " << (part)
 
-class PlyTest : public testing::TempDirTest {
+class PlyFiles : public testing::TempDirTest {
  protected:
   // Expects ReadPly to fail with a message naming the file and containing
   // `what`, leaving the cloud empty.
@@ -87,7 +87,7 @@ bool BitwiseEqual(const std::vector<cv::Vec3f>& a, const std::vector<cv::Vec3f>&
 
 // --- round trips ---------------------------------------------------------------
 
-TEST_F(PlyTest, RoundTripsAsciiAndBinaryBitExactly) {
+TEST_F(PlyFiles, RoundTripsAsciiAndBinaryBitExactly) {
   for (bool binary : {false, true}) {
     for (int variant = 0; variant < 4; ++variant) {
       const bool normals = variant & 1, colors = variant & 2;
@@ -107,7 +107,7 @@ TEST_F(PlyTest, RoundTripsAsciiAndBinaryBitExactly) {
   }
 }
 
-TEST_F(PlyTest, RoundTripsAnEmptyCloudAndSpecialValues) {
+TEST_F(PlyFiles, RoundTripsAnEmptyCloudAndSpecialValues) {
   std::string error;
   PointCloud empty;
   ASSERT_TRUE(WritePly(Path("empty.ply"), empty, false, &error)) << error;
@@ -126,7 +126,7 @@ TEST_F(PlyTest, RoundTripsAnEmptyCloudAndSpecialValues) {
   }
 }
 
-TEST_F(PlyTest, WriteIsAtomicReplacesAndLeavesNoTemporaries) {
+TEST_F(PlyFiles, WriteIsAtomicReplacesAndLeavesNoTemporaries) {
   std::string error;
   const std::string path = Path("out.ply");
   ASSERT_TRUE(WritePly(path, MakeCloud(10, false, false, 1), true, &error)) << error;
@@ -144,7 +144,7 @@ TEST_F(PlyTest, WriteIsAtomicReplacesAndLeavesNoTemporaries) {
   EXPECT_EQ(fs::status(path).permissions() & fs::perms::others_read, fs::perms::others_read);
 }
 
-TEST_F(PlyTest, WriteRejectsInvalidCloudsAndBadFolders) {
+TEST_F(PlyFiles, WriteRejectsInvalidCloudsAndBadFolders) {
   std::string error;
   PointCloud bad = MakeCloud(5, true, true, 3);
   bad.normals.pop_back();
@@ -164,7 +164,7 @@ TEST_F(PlyTest, WriteRejectsInvalidCloudsAndBadFolders) {
 
 // --- hand-written files -----------------------------------------------------------
 
-TEST_F(PlyTest, ReadsAsciiWithFacesExtrasAnyOrderAndCrlf) {
+TEST_F(PlyFiles, ReadsAsciiWithFacesExtrasAnyOrderAndCrlf) {
   const std::string text =
       "ply\r\n"
       "format ascii 1.0\r\n"
@@ -211,7 +211,7 @@ TEST_F(PlyTest, ReadsAsciiWithFacesExtrasAnyOrderAndCrlf) {
   EXPECT_EQ(cloud.colors_rgb[2], cv::Vec3b(12, 22, 32));
 }
 
-TEST_F(PlyTest, FloatColoursAreScaledAndPartialGroupsIgnored) {
+TEST_F(PlyFiles, FloatColoursAreScaledAndPartialGroupsIgnored) {
   const std::string text =
       "ply\nformat ascii 1.0\nelement vertex 1\n"
       "property float x\nproperty float y\nproperty float z\n"
@@ -269,7 +269,7 @@ std::string HandBinary(bool little) {
   return text + b.str();
 }
 
-TEST_F(PlyTest, ReadsBinaryBothEndiannessesWithFacesAndMixedTypes) {
+TEST_F(PlyFiles, ReadsBinaryBothEndiannessesWithFacesAndMixedTypes) {
   for (bool little : {true, false}) {
     SCOPED_TRACE(little ? "little endian" : "big endian");
     PointCloud cloud;
@@ -287,7 +287,7 @@ TEST_F(PlyTest, ReadsBinaryBothEndiannessesWithFacesAndMixedTypes) {
 
 // --- errors -------------------------------------------------------------------
 
-TEST_F(PlyTest, FailsClearlyOnBadFiles) {
+TEST_F(PlyFiles, FailsClearlyOnBadFiles) {
   const std::string xyz = "property float x\nproperty float y\nproperty float z\n";
   ExpectReadFails(Path("missing.ply"), "no such file");
   fs::create_directories(Path("a_folder.ply"));
@@ -331,7 +331,7 @@ TEST_F(PlyTest, FailsClearlyOnBadFiles) {
                   "property before any element");
 }
 
-TEST_F(PlyTest, FailsOnTruncatedData) {
+TEST_F(PlyFiles, FailsOnTruncatedData) {
   const std::string header =
       "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\n"
       "property float y\nproperty float z\nelement face 1\n"
@@ -357,7 +357,7 @@ TEST_F(PlyTest, FailsOnTruncatedData) {
   EXPECT_TRUE(ReadPly(WriteBytes("whole.ply", full), &cloud, &error)) << error;
 }
 
-TEST_F(PlyTest, FailsOnAbsurdCountsWithoutAllocating) {
+TEST_F(PlyFiles, FailsOnAbsurdCountsWithoutAllocating) {
   const std::string xyz = "property float x\nproperty float y\nproperty float z\n";
   ExpectReadFails(WriteBytes("huge_a.ply", "ply\nformat ascii 1.0\nelement vertex 1000000000000\n" +
                                                xyz + "end_header\n1 2 3\n"),
@@ -398,7 +398,7 @@ TEST_F(PlyTest, FailsOnAbsurdCountsWithoutAllocating) {
       << error;
 }
 
-TEST_F(PlyTest, FailsOnNonNumericAsciiValues) {
+TEST_F(PlyFiles, FailsOnNonNumericAsciiValues) {
   const std::string header =
       "ply\nformat ascii 1.0\nelement vertex 2\nproperty float x\n"
       "property float y\nproperty float z\nproperty uchar red\n"
@@ -415,7 +415,7 @@ TEST_F(PlyTest, FailsOnNonNumericAsciiValues) {
       "too long");
 }
 
-TEST_F(PlyTest, SurvivesRandomCorruption) {
+TEST_F(PlyFiles, SurvivesRandomCorruption) {
   const std::string good = HandBinary(false);
   std::mt19937 rng(42);
   for (int trial = 0; trial < 500; ++trial) {
@@ -431,7 +431,7 @@ TEST_F(PlyTest, SurvivesRandomCorruption) {
   }
 }
 
-TEST_F(PlyTest, RejectsBadScaleAndNullOutput) {
+TEST_F(PlyFiles, RejectsBadScaleAndNullOutput) {
   const std::string path = WriteBytes("ok.ply",
                                       "ply\nformat ascii 1.0\nelement vertex 1\n"
                                       "property float x\nproperty float y\n"
@@ -465,7 +465,7 @@ cv::Matx33d AxisAngle(cv::Vec3d axis, double deg) {
                                 axis[2] * std::sin(half));
 }
 
-TEST(PoseMetricsTest, QuaternionRotationIsActiveHamilton) {
+TEST(PoseMetrics, QuaternionRotationIsActiveHamilton) {
   // 90° about z maps x to y.
   const cv::Matx33d r = AxisAngle({0, 0, 1}, 90);
   const cv::Vec3d y = r * cv::Vec3d(1, 0, 0);
@@ -477,7 +477,7 @@ TEST(PoseMetricsTest, QuaternionRotationIsActiveHamilton) {
   EXPECT_LT(cv::norm(RotationFromQuaternion(2, 0, 0, 2) - AxisAngle({0, 0, 1}, 90)), 1e-12);
 }
 
-TEST(PoseMetricsTest, RotationAndTranslationErrors) {
+TEST(PoseMetrics, RotationAndTranslationErrors) {
   const cv::Matx44d a = Pose(AxisAngle({1, 2, 3}, 20), {10, 20, 30});
   for (double deg : {0.0, 1e-4, 0.1, 34.3, 90.0, 179.0, 180.0}) {
     const cv::Matx44d b =
@@ -488,7 +488,7 @@ TEST(PoseMetricsTest, RotationAndTranslationErrors) {
   }
 }
 
-TEST(PoseMetricsTest, RelativePoseMapsSourceIntoTarget) {
+TEST(PoseMetrics, RelativePoseMapsSourceIntoTarget) {
   const cv::Matx44d world_from_target = Pose(AxisAngle({0, 1, 0}, 30), {5, -2, 100});
   const cv::Matx44d world_from_source = Pose(AxisAngle({1, 1, 0}, -70), {-40, 8, 3});
   const cv::Matx44d target_from_source = RelativePose(world_from_target, world_from_source);
@@ -513,7 +513,7 @@ TEST(PoseMetricsTest, RelativePoseMapsSourceIntoTarget) {
 
 // --- Stanford scan sets -------------------------------------------------------------
 
-class StanfordTest : public PlyTest {
+class StanfordScans : public PlyFiles {
  protected:
   void WriteConf(const std::string& text) const { WriteBytes("bun.conf", text); }
   void ExpectLoadFails(const std::string& what) const {
@@ -525,7 +525,7 @@ class StanfordTest : public PlyTest {
   }
 };
 
-TEST_F(StanfordTest, ConvertsUnitsAndUsesTheConjugateQuaternion) {
+TEST_F(StanfordScans, ConvertsUnitsAndUsesTheConjugateQuaternion) {
   WriteBytes("a.ply",
              "ply\nformat ascii 1.0\nelement vertex 1\nproperty float x\n"
              "property float y\nproperty float z\nend_header\n0.1 0 0\n");
@@ -546,7 +546,7 @@ TEST_F(StanfordTest, ConvertsUnitsAndUsesTheConjugateQuaternion) {
   EXPECT_NEAR(p[2], 30, 1e-4);
 }
 
-TEST_F(StanfordTest, FailsClearlyOnBadConfFiles) {
+TEST_F(StanfordScans, FailsClearlyOnBadConfFiles) {
   ExpectLoadFails("bun.conf': no such file");
   WriteBytes("a.ply",
              "ply\nformat ascii 1.0\nelement vertex 1\nproperty float x\n"
@@ -594,7 +594,7 @@ void NearestNeighbourStats(const std::vector<cv::Vec3f>& query,
       d.size();
 }
 
-TEST(StanfordBunnyTest, LoadsScansWithConsistentGroundTruth) {
+TEST(StanfordBunny, LoadsScansWithConsistentGroundTruth) {
   const fs::path dir = craftscan::testing::SharedData() / "clouds" / "bunny";
   if (!fs::exists(dir / "bun.conf")) {
     GTEST_SKIP() << "Stanford bunny not found at " << dir << " (set -DCRAFTSCAN_SHARED_DATA=...)";

@@ -185,8 +185,11 @@ TEST(RecordArchive, StoresCapturesCloudsAndDisparityBitExact) {
 }
 
 TEST(RecordArchive, HostileAndOddNamesStayInside) {
+  // The archive two levels down in the test's own folder, so that a name
+  // escaping one or two levels would land where the test can see it (and
+  // not in a shared /tmp, where another program's /tmp/x made it fail).
   TempDir dir("craftscan-record-test");
-  const std::string out = dir.path() + "/out";
+  const std::string out = dir.path() + "/a/out";
   auto archive = OpenArchive(out);
   ASSERT_NE(archive, nullptr);
   const PointCloud cloud = MakeCloud(10, 2);
@@ -206,12 +209,15 @@ TEST(RecordArchive, HostileAndOddNamesStayInside) {
   const std::vector<nlohmann::json> index = ReadIndex(fs::path(out) / "st1" / "_etc");
   ASSERT_EQ(index.size(), 1u);
   EXPECT_EQ(index[0]["session_raw"], "/etc");
-  // Nothing but the archive in the temporary folder; nothing above it.
-  std::vector<std::string> top;
-  for (const auto& entry : fs::directory_iterator(dir.path()))
-    top.push_back(entry.path().filename());
-  EXPECT_EQ(top, std::vector<std::string>{"out"});
-  EXPECT_FALSE(fs::exists(fs::path(dir.path()).parent_path() / "x"));
+  // Nothing but the archive in the two folders above it.
+  const auto names = [](const fs::path& folder) {
+    std::vector<std::string> found;
+    for (const auto& entry : fs::directory_iterator(folder))
+      found.push_back(entry.path().filename());
+    return found;
+  };
+  EXPECT_EQ(names(dir.path()), std::vector<std::string>{"a"});
+  EXPECT_EQ(names(fs::path(dir.path()) / "a"), std::vector<std::string>{"out"});
 }
 
 TEST(RecordArchive, RefusesInconsistentItems) {

@@ -238,7 +238,7 @@ TEST(Daemon, ResumeOfADoneSessionNamedUnknownIsFailedNotNotFound) {
   ASSERT_EQ(capture->code_name, "ok") << capture->message;
   const std::string session = capture->result["session"];
   ASSERT_NE(session.find("unknown"), std::string::npos) << session;
-  const nlohmann::json job = WaitForJob(c, capture->result["id"], 120s);
+  const nlohmann::json job = WaitForJobEnd(c, kObserverToken, capture->result["id"], 120s);
   ASSERT_EQ(job.value("state", ""), "done") << job.dump() << r->fixture.Log();
   const auto resume = c.Send("resume", {{"session", session}}, kOperatorToken);
   ASSERT_TRUE(resume);

@@ -30,11 +30,15 @@
 #include <thread>
 #include <vector>
 
+#include "../sessions/status_util.h"
 #include "craftscan/client/station_client.h"
 #include "craftscan/daemon/session_store.h"
 #include "ctl_runner.h"
 #include "daemon_fixture.h"
 #include "station_client.h"
+
+using craftscan::testing::Ok;
+using craftscan::testing::StatusInto;
 
 namespace craftscan::testing {
 namespace {
@@ -291,12 +295,12 @@ struct OnDisk {
 
 OnDisk Inspect(const std::string& data_dir, const std::string& id) {
   OnDisk out;
-  auto store = daemon::SessionStore::Open(data_dir, &out.error);
+  auto store = daemon::SessionStore::Open(data_dir, StatusInto(&out.error));
   if (!store) return out;
   const daemon::VerifyResult verify = store->Verify(id);
   out.intact = verify.IsIntact();
   if (!verify.problems.empty()) out.error = verify.problems[0];
-  auto session = store->OpenSession(id, &out.error);
+  auto session = store->OpenSession(id, StatusInto(&out.error));
   if (!session) return out;
   out.state = daemon::ToString(session->state());
   if (out.error.empty()) out.error = session->manifest().error;
@@ -591,12 +595,12 @@ TEST(DaemonStorage, StartsDegradedOnAReadOnlyDataDirAndRecoversWhenItIsWritable)
   const std::string data_dir = station.data_dir();
   std::string error, left_over;
   {
-    auto store = daemon::SessionStore::Open(data_dir, &error);
+    auto store = daemon::SessionStore::Open(data_dir, StatusInto(&error));
     ASSERT_TRUE(store) << error;
     auto session = store->Create("left over", "scan", {{"views", 2}, {"step_deg", 180.0}},
-                                 std::chrono::system_clock::now(), &error);
+                                 std::chrono::system_clock::now(), StatusInto(&error));
     ASSERT_TRUE(session) << error;
-    ASSERT_TRUE(session->SetState(SessionState::kCapturing, "", &error)) << error;
+    ASSERT_TRUE(Ok(session->SetState(SessionState::kCapturing, ""), &error)) << error;
     left_over = session->id();
   }
   ASSERT_TRUE(station.tmpfs().SetReadOnly(true, &error)) << error;

@@ -54,5 +54,24 @@ TEST_F(AtomicFile, FailureNamesThePathAndKeepsWhatWasThere) {
   EXPECT_NE(error.find("empty path"), std::string::npos) << error;
 }
 
+TEST_F(AtomicFile, StatusCarriesTheCodeOfTheFailingCall) {
+  EXPECT_TRUE(WriteFileAtomically(Path("ok.bin"), "data").ok());
+  const Status missing = WriteFileAtomically(Path("no/such/folder/x"), "data");
+  EXPECT_EQ(missing.code(), ErrorCode::kNotFound) << missing.ToString();
+  EXPECT_NE(missing.message().find("cannot create a temporary file"), std::string::npos)
+      << missing.message();
+  // rename(2) over a non-empty folder: EISDIR, an I/O error, not the unlink's errno.
+  fs::create_directories(Path("taken"));
+  WriteBytes("taken/keep.txt", "kept");
+  const Status taken = WriteFileAtomically(Path("taken"), "data");
+  EXPECT_EQ(taken.code(), ErrorCode::kIoError) << taken.ToString();
+  EXPECT_NE(taken.message().find("cannot rename"), std::string::npos) << taken.message();
+  EXPECT_EQ(WriteFileAtomically("", "data").code(), ErrorCode::kInvalidArgument);
+  // The text version reports the Status's message.
+  std::string error;
+  EXPECT_FALSE(WriteFileAtomically(Path("taken"), "data", &error));
+  EXPECT_EQ(error, taken.message());
+}
+
 }  // namespace
 }  // namespace craftscan

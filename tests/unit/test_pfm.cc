@@ -10,6 +10,7 @@
 #include <cstring>
 #include <filesystem>
 #include <fstream>
+#include <iterator>
 #include <limits>
 #include <random>
 #include <string>
@@ -186,6 +187,26 @@ TEST_F(Pfm, WriteRejectsBadInput) {
   EXPECT_NE(error.find("cannot create a temporary file"), std::string::npos) << error;
   EXPECT_NE(error.find("no_such_dir"), std::string::npos) << error;
   EXPECT_TRUE(WritePfm(Path("null_error.pfm"), cv::Mat(1, 1, CV_32FC1, cv::Scalar(0)), nullptr));
+}
+
+TEST_F(Pfm, EncodeGivesTheBytesWritePfmWrites) {
+  for (int type : {CV_32FC1, CV_32FC3}) {
+    const cv::Mat image = RandomImage(5, 7, type);
+    std::string bytes, error;
+    ASSERT_TRUE(EncodePfm(image, &bytes, &error)) << error;
+    const std::string path = Path("encoded.pfm");
+    ASSERT_TRUE(WritePfm(path, image, &error)) << error;
+    std::ifstream in(path, std::ios::binary);
+    const std::string written{std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>()};
+    EXPECT_EQ(bytes, written);
+  }
+  std::string bytes = "stale", error;
+  EXPECT_FALSE(EncodePfm(cv::Mat(), &bytes, &error));
+  EXPECT_TRUE(bytes.empty());
+  EXPECT_NE(error.find("empty image"), std::string::npos) << error;
+  EXPECT_FALSE(EncodePfm(cv::Mat(2, 2, CV_8UC1, cv::Scalar(1)), &bytes, &error));
+  EXPECT_NE(error.find("CV_32FC1"), std::string::npos) << error;
+  EXPECT_FALSE(EncodePfm(cv::Mat(2, 2, CV_32FC1), nullptr, nullptr));
 }
 
 TEST_F(Pfm, ReadsMiddlebury2014GroundTruth) {

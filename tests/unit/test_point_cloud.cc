@@ -6,6 +6,7 @@
 #include <cstring>
 #include <filesystem>
 #include <fstream>
+#include <iterator>
 #include <limits>
 #include <opencv2/core.hpp>
 #include <random>
@@ -15,6 +16,7 @@
 #include "craftscan/pipeline/common/ply.h"
 #include "craftscan/pipeline/common/point_cloud.h"
 #include "craftscan/pipeline/common/pose.h"
+#include "craftscan/pipeline/common/triangle_mesh.h"
 #include "craftscan/pipeline/registration/scan_dataset.h"
 #include "test_util.h"
 
@@ -105,6 +107,32 @@ TEST_F(PlyFiles, RoundTripsAsciiAndBinaryBitExactly) {
       EXPECT_TRUE(back.colors_rgb == cloud.colors_rgb);
     }
   }
+}
+
+TEST_F(PlyFiles, EncodersGiveTheBytesTheWritersWrite) {
+  const auto read_all = [](const std::string& path) {
+    std::ifstream in(path, std::ios::binary);
+    return std::string{std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>()};
+  };
+  const PointCloud cloud = MakeCloud(50, true, true, 3);
+  TriangleMesh mesh;
+  mesh.vertices_mm = cloud.points_mm;
+  mesh.faces = {{0, 1, 2}, {2, 3, 4}};
+  std::string error;
+  for (bool binary : {false, true}) {
+    SCOPED_TRACE(::testing::Message() << "binary " << binary);
+    ASSERT_TRUE(WritePly(Path("c.ply"), cloud, binary, &error)) << error;
+    EXPECT_EQ(EncodePly(cloud, binary), read_all(Path("c.ply")));
+    ASSERT_TRUE(WriteMeshPly(Path("m.ply"), mesh, binary, &error)) << error;
+    EXPECT_EQ(EncodeMeshPly(mesh, binary), read_all(Path("m.ply")));
+  }
+  // Invalid input gives no bytes (and no out-of-range read).
+  PointCloud bad = cloud;
+  bad.normals.pop_back();
+  EXPECT_EQ(EncodePly(bad, true), "");
+  TriangleMesh bad_mesh = mesh;
+  bad_mesh.faces.push_back({0, 1, 50});
+  EXPECT_EQ(EncodeMeshPly(bad_mesh, false), "");
 }
 
 TEST_F(PlyFiles, RoundTripsAnEmptyCloudAndSpecialValues) {

@@ -199,9 +199,10 @@ std::string Daemon::Impl::Problems() const {
 }
 
 bool Daemon::Impl::OpenStore() {
-  std::string why;
-  store = SessionStore::Open(config.data_dir, &why);
+  Status opened;
+  store = SessionStore::Open(config.data_dir, &opened);
   if (!store) {
+    const std::string& why = opened.message();
     storage_error = "data_dir: " + why;
     handler->SetStore(nullptr, "storage unavailable: " + why + " (craftscand retries every " +
                                    std::to_string(kStoreRetryInterval.count()) + " s)");

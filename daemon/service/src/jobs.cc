@@ -26,27 +26,38 @@ bool Fail(std::string* error, std::string message) {
   return false;
 }
 
-// The operator's next step after a storage error about a path below `dir`
-// (recognised by that path and the strerror text the store's messages end
-// with), as " (disk full: free space in ..., <then>)"; "" for other errors
-// (a device error may say "Permission denied" too).
-std::string StorageAdvice(const std::string& error, const std::string& dir,
-                          const std::string& data_dir, const std::string& then) {
-  if (dir.empty() || error.find(dir) == std::string::npos) return {};
-  const auto says = [&](int code) { return error.find(std::strerror(code)) != std::string::npos; };
+// The operator's next step after the session store (or the data disk under
+// it) refused a write with `code` (from the errno of the failing call), as
+// " (disk full: free space in ..., <then>)"; "" for the codes that are not
+// the disk's (a busy session, a forbidden transition, a corrupt manifest).
+// Only called with codes that come from the store: a device error's
+// kIoError is not the disk's (StageOutcome::storage says which).
+std::string StorageAdvice(ErrorCode code, const std::string& data_dir, const std::string& then) {
   std::string what;
-  if (says(ENOSPC) || says(EDQUOT)) {
-    what = "disk full: free space in the data directory '" + data_dir + "'";
-  } else if (says(EROFS)) {
-    what = "the data directory '" + data_dir + "' is read-only: make it writable";
-  } else if (says(EACCES) || says(EPERM)) {
-    what = "craftscand may not write in the data directory '" + data_dir + "': fix its permissions";
-  } else if (says(EIO)) {
-    what = "I/O error on the data disk '" + data_dir + "': check the disk";
-  } else {
-    return {};
+  switch (code) {
+    case ErrorCode::kDiskFull:
+      what = "disk full: free space in the data directory '" + data_dir + "'";
+      break;
+    case ErrorCode::kReadOnly:
+      what = "the data directory '" + data_dir + "' is read-only: make it writable";
+      break;
+    case ErrorCode::kPermissionDenied:
+      what =
+          "craftscand may not write in the data directory '" + data_dir + "': fix its permissions";
+      break;
+    case ErrorCode::kIoError:
+      what = "I/O error on the data disk '" + data_dir + "': check the disk";
+      break;
+    default:
+      return {};
   }
   return " (" + what + ", then " + then + ")";
+}
+
+// The same for a failed Status of the store.
+std::string StorageAdvice(const Status& status, const std::string& data_dir,
+                          const std::string& then) {
+  return StorageAdvice(status.code(), data_dir, then);
 }
 
 // See JobEngine::kReserveBytes.
@@ -119,20 +130,17 @@ void JobEngine::EnsureReserve() {
   }
 }
 
-bool JobEngine::RecordState(Session& session, SessionState state, const std::string& detail,
-                            std::string* error) {
-  std::string why;
-  if (session.SetState(state, detail, &why)) return true;
-  const bool full = why.find(std::strerror(ENOSPC)) != std::string::npos ||
-                    why.find(std::strerror(EDQUOT)) != std::string::npos;
-  if (full && ::unlink(ReservePath(options_.data_dir).c_str()) == 0) {
+Status JobEngine::RecordState(Session& session, SessionState state, const std::string& detail) {
+  Status set = session.SetState(state, detail);
+  if (set.ok()) return set;
+  if (set.code() == ErrorCode::kDiskFull && ::unlink(ReservePath(options_.data_dir).c_str()) == 0) {
     if (log_) {
       log_(drivers::LogLevel::kWarning,
            "disk full: freed the reserve to mark session " + session.id() + " " + ToString(state));
     }
-    if (session.SetState(state, detail, &why)) return true;
+    set = session.SetState(state, detail);
   }
-  return Fail(error, why);
+  return set;
 }
 
 void JobEngine::JoinFinishedWorker() {
@@ -331,16 +339,16 @@ bool JobEngine::StartSessionJob(const std::string& verb, const std::string& obje
   SessionStore* store = Store(error);
   if (!store) return false;
   EnsureReserve();
-  plan->session = store->Create(object, verb, params, std::chrono::system_clock::now(), error);
+  Status created;
+  plan->session = store->Create(object, verb, params, std::chrono::system_clock::now(), &created);
   if (!plan->session) {
-    *error += StorageAdvice(*error, store->sessions_dir(), options_.data_dir, "try again");
-    return false;
+    return Fail(error, created.message() + StorageAdvice(created, options_.data_dir, "try again"));
   }
-  if (!plan->session->CopyCalibration(options_.data_dir + "/calibration/current.yaml",
-                                      calibration_id(), error)) {
-    RecordState(*plan->session, SessionState::kFailed, *error, nullptr);
-    *error += StorageAdvice(*error, store->sessions_dir(), options_.data_dir, "try again");
-    return false;
+  const Status copied = plan->session->CopyCalibration(
+      options_.data_dir + "/calibration/current.yaml", calibration_id());
+  if (!copied.ok()) {
+    RecordState(*plan->session, SessionState::kFailed, copied.message());
+    return Fail(error, copied.message() + StorageAdvice(copied, options_.data_dir, "try again"));
   }
   const std::string session = plan->session->id();
   return Launch(
@@ -354,18 +362,20 @@ bool JobEngine::StartResume(const std::string& session_id, JobInfo* info, std::s
   JoinFinishedWorker();  // the last job's session lock goes with its thread
   EnsureReserve();
   auto plan = std::make_shared<ScanPlan>();
-  plan->session = store->OpenSession(session_id, error);
-  if (!plan->session) return false;
+  Status opened;
+  plan->session = store->OpenSession(session_id, &opened);
+  if (!plan->session) return Fail(error, opened.message());
   const SessionState state = plan->session->state();
   if (state == SessionState::kDone)
     return Fail(error, "session " + session_id + " is already done");
   if (IsActive(state)) {
     // Its lock is ours, so no job runs it: the one that did could not
     // record its end (e.g. the disk was full).
-    if (!RecordState(*plan->session, SessionState::kInterrupted,
-                     std::string("found ") + ToString(state) + " with no job running it", error)) {
-      *error += StorageAdvice(*error, plan->session->dir(), options_.data_dir, "resume it");
-      return false;
+    const Status marked =
+        RecordState(*plan->session, SessionState::kInterrupted,
+                    std::string("found ") + ToString(state) + " with no job running it");
+    if (!marked.ok()) {
+      return Fail(error, marked.message() + StorageAdvice(marked, options_.data_dir, "resume it"));
     }
   }
   const nlohmann::json params = plan->session->params();
@@ -459,9 +469,9 @@ JobEngine::JobOutcome JobEngine::RunScanStages(ScanPlan& plan) {
   if (!processor.Init(plan.calibration, view_options, &error)) {
     return EndSession(session, StageOutcome::Error(ErrorCode::kInvalidArgument, error, false));
   }
-  if (!session.SetState(SessionState::kCapturing, "job " + Current().id, &error)) {
+  if (Status set = session.SetState(SessionState::kCapturing, "job " + Current().id); !set.ok()) {
     return {JobState::kFailed,
-            error + StorageAdvice(error, session.dir(), options_.data_dir, "resume " + sid),
+            set.message() + StorageAdvice(set, options_.data_dir, "resume " + sid),
             {{"session", sid}}};
   }
 
@@ -524,13 +534,13 @@ JobEngine::JobOutcome JobEngine::RunScanStages(ScanPlan& plan) {
 JobEngine::JobOutcome JobEngine::EndSession(Session& session, const StageOutcome& outcome) {
   const std::string sid = session.id();
   const SessionState state = outcome.resumable ? SessionState::kInterrupted : SessionState::kFailed;
-  std::string message = outcome.message + StorageAdvice(outcome.message, session.dir(),
-                                                        options_.data_dir, "resume " + sid);
-  std::string why;
-  const bool recorded = RecordState(session, state, outcome.message, &why);
+  std::string message = outcome.message;
+  if (outcome.storage) message += StorageAdvice(outcome.code, options_.data_dir, "resume " + sid);
+  const Status marked = RecordState(session, state, outcome.message);
+  const bool recorded = marked.ok();
   if (!recorded) {
-    message += "; it could not be marked " + std::string(ToString(state)) + " (" + why +
-               "): resume marks it";
+    message += "; it could not be marked " + std::string(ToString(state)) + " (" +
+               marked.message() + "): resume marks it";
   }
   return {outcome.cancelled() ? JobState::kCancelled : JobState::kFailed,
           "session " + sid + " " + (recorded ? ToString(state) : "stopped") + ": " + message,
@@ -539,12 +549,12 @@ JobEngine::JobOutcome JobEngine::EndSession(Session& session, const StageOutcome
 
 JobEngine::JobOutcome JobEngine::EndSessionDone(Session& session, const std::string& detail,
                                                 const std::string& stored, JobOutcome done) {
-  std::string error;
-  if (RecordState(session, SessionState::kDone, detail, &error)) return done;
+  const Status marked = RecordState(session, SessionState::kDone, detail);
+  if (marked.ok()) return done;
   return {JobState::kFailed,
           "session " + session.id() + ": " + stored +
-              " but the session could not be marked done: " + error +
-              StorageAdvice(error, session.dir(), options_.data_dir, "resume " + session.id()),
+              " but the session could not be marked done: " + marked.message() +
+              StorageAdvice(marked, options_.data_dir, "resume " + session.id()),
           {{"session", session.id()}}};
 }
 

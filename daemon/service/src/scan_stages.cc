@@ -7,6 +7,9 @@
 #include "craftscan/daemon/jobs.h"
 #include "craftscan/daemon/report.h"
 #include "craftscan/daemon/stages.h"
+#include "craftscan/pipeline/common/atomic_file.h"
+#include "craftscan/pipeline/common/ply.h"
+#include "craftscan/pipeline/surface/mesh.h"
 
 namespace craftscan::daemon {
 namespace {
@@ -30,10 +33,10 @@ nlohmann::json FrameMeta(const drivers::StereoFrame& frame, double angle_deg) {
       {"right", {{"timestamp_ns", frame.right.timestamp_ns}, {"frame_id", frame.right.frame_id}}}};
 }
 
-// A storage error of the session store: resumable once the operator fixes
-// the disk. (Its code is not carried yet: kIoError.)
-StageOutcome StorageError(int view, const std::string& why) {
-  return StageOutcome::Error(ErrorCode::kIoError, ViewPrefix(view) + why, true);
+// A storage error of the session store, with the code of the failing
+// system call: resumable once the operator fixes the disk.
+StageOutcome StorageError(int view, const Status& status) {
+  return StageOutcome::Storage(status, ViewPrefix(view));
 }
 
 }  // namespace
@@ -124,10 +127,10 @@ StageOutcome CaptureStage::CaptureView(int k, double angle, CapturedView* item) 
   drivers::StereoFrame frame;
   const drivers::DriverStatus captured = devices_->Capture(&frame, context_.StopFlag());
   if (!captured.ok()) return device_error(captured);
-  std::string why;
-  if (!context_.session->StoreCapture(k, angle, frame.left.image, frame.right.image,
-                                      FrameMeta(frame, angle), &why)) {
-    return StorageError(k, why);
+  if (Status stored = context_.session->StoreCapture(k, angle, frame.left.image, frame.right.image,
+                                                     FrameMeta(frame, angle));
+      !stored.ok()) {
+    return StorageError(k, stored);
   }
   capture_ms_ += MsSince(start);
   if (context_.sink) context_.sink->Capture(context_.session->id(), k, angle, frame);  // durable
@@ -172,10 +175,9 @@ StageOutcome MatchStage::MatchView(CapturedView& item, MatchedView* out) {
     return StageOutcome::Error(ErrorCode::kInvalidArgument, ViewPrefix(item.view) + v.message,
                                false);
   }
-  if (!session.StoreDisparity(item.view, v.disparity, &why) ||
-      !session.StoreCloud(item.view, v.cloud_in_rig, &why)) {
-    return StorageError(item.view, why);
-  }
+  Status stored = session.StoreDisparity(item.view, v.disparity);
+  if (stored.ok()) stored = session.StoreCloud(item.view, v.cloud_in_rig);
+  if (!stored.ok()) return StorageError(item.view, stored);
   match_ms_ += MsSince(start);
   if (context_.sink) {
     context_.sink->Disparity(session.id(), item.view, v.disparity, processor_->focal_px(),
@@ -218,9 +220,9 @@ ReconstructOutcome ReconstructStage::Run(BoundedQueue<MatchedView>& in) {
     views.push_back(std::move(v));
   }
   Session& session = *context_.session;
-  std::string error;
-  if (!session.SetState(SessionState::kReconstructing, "registration, fusion, mesh", &error)) {
-    out.status = StageOutcome::Error(ErrorCode::kIoError, error, true);
+  if (Status set = session.SetState(SessionState::kReconstructing, "registration, fusion, mesh");
+      !set.ok()) {
+    out.status = StageOutcome::Storage(set, "");
     return out;
   }
   const int n = options_.views;
@@ -240,28 +242,21 @@ ReconstructOutcome ReconstructStage::Run(BoundedQueue<MatchedView>& in) {
   context_.Progress("write", 0, 1, "writing fused cloud, mesh and report");
   const bool mesh = r.mesh.status == MeshResult::Status::kOk;
   const std::string report = ScanReportJson(r);
-  const bool written = session.StoreOutputWith(
-                           "fused.ply",
-                           [&](const std::string& path, std::string* why) {
-                             return WritePly(path, r.fused, true, why);
-                           },
-                           &error) &&
-                       (!mesh || session.StoreOutputWith(
-                                     "mesh.ply",
-                                     [&](const std::string& path, std::string* why) {
-                                       return WriteMeshPly(path, r.mesh.mesh, true, why);
-                                     },
-                                     &error)) &&
-                       (!mesh || session.StoreOutputWith(
-                                     "mesh.obj",
-                                     [&](const std::string& path, std::string* why) {
-                                       return WriteMeshObj(path, r.mesh.mesh, why);
-                                     },
-                                     &error)) &&
-                       session.StoreOutput("report.json", report, &error);
-  if (!written) {
+  // Encoded here and written with the Status-returning WriteFileAtomically,
+  // so a full or read-only disk reaches the job as its code.
+  const auto encoded = [&](const std::string& bytes) {
+    return [&bytes](const std::string& path) { return WriteFileAtomically(path, bytes); };
+  };
+  const std::string fused_ply = EncodePly(r.fused, true);
+  const std::string mesh_ply = mesh ? EncodeMeshPly(r.mesh.mesh, true) : std::string();
+  const std::string mesh_obj = mesh ? EncodeMeshObj(r.mesh.mesh) : std::string();
+  Status written = session.StoreOutputWith("fused.ply", encoded(fused_ply));
+  if (written.ok() && mesh) written = session.StoreOutputWith("mesh.ply", encoded(mesh_ply));
+  if (written.ok() && mesh) written = session.StoreOutputWith("mesh.obj", encoded(mesh_obj));
+  if (written.ok()) written = session.StoreOutput("report.json", report);
+  if (!written.ok()) {
     // Storage, not the pipeline: resumable like a capture that failed.
-    out.status = StageOutcome::Error(ErrorCode::kIoError, "outputs: " + error, true);
+    out.status = StageOutcome::Storage(written, "outputs: ");
     return out;
   }
   StoreReport(report, r, &out.result);
@@ -314,7 +309,9 @@ void ReconstructStage::StoreReport(const std::string& report_json, const ScanRes
   std::string why;
   bool ok = report_(inputs, &files, &why);
   for (std::size_t i = 0; ok && i < files.files.size(); ++i) {
-    ok = session.StoreOutput(files.files[i].name, files.files[i].bytes, &why);
+    const Status stored = session.StoreOutput(files.files[i].name, files.files[i].bytes);
+    ok = stored.ok();
+    if (!ok) why = stored.message();
   }
   if (!ok)
     context_.Log(drivers::LogLevel::kWarning, "session " + session.id() + ": report: " + why);

@@ -16,9 +16,9 @@
 namespace craftscan::daemon::internal {
 namespace {
 
-bool Fail(std::string* error, const std::string& path, const char* what, int err) {
-  if (error) *error = "'" + path + "': " + what + ": " + std::strerror(err);
-  return false;
+// "'<path>': <what>: <strerror(err)>" with err's code.
+Status Fail(const std::string& path, const char* what, int err) {
+  return Status::FromErrno(err, "'" + path + "': " + what);
 }
 
 std::tm UtcTm(std::chrono::system_clock::time_point t) {
@@ -30,14 +30,14 @@ std::tm UtcTm(std::chrono::system_clock::time_point t) {
 
 }  // namespace
 
-bool ReadFileBytes(const std::string& path, std::string* bytes, std::string* error) {
+Status ReadFileBytes(const std::string& path, std::string* bytes) {
   const int fd = ::open(path.c_str(), O_RDONLY | O_CLOEXEC);
-  if (fd < 0) return Fail(error, path, "cannot open", errno);
+  if (fd < 0) return Fail(path, "cannot open", errno);
   struct stat st {};
   if (::fstat(fd, &st) != 0) {
     const int err = errno;
     ::close(fd);
-    return Fail(error, path, "cannot stat", err);
+    return Fail(path, "cannot stat", err);
   }
   bytes->clear();
   bytes->reserve(static_cast<std::size_t>(st.st_size));
@@ -48,52 +48,51 @@ bool ReadFileBytes(const std::string& path, std::string* bytes, std::string* err
       if (errno == EINTR) continue;
       const int err = errno;
       ::close(fd);
-      return Fail(error, path, "cannot read", err);
+      return Fail(path, "cannot read", err);
     }
     if (n == 0) break;
     bytes->append(buffer, static_cast<std::size_t>(n));
   }
   ::close(fd);
-  return true;
+  return Status::Ok();
 }
 
-bool FsyncDir(const std::string& path, std::string* error) {
+Status FsyncDir(const std::string& path) {
   const int fd = ::open(path.c_str(), O_RDONLY | O_DIRECTORY | O_CLOEXEC);
-  if (fd < 0) return Fail(error, path, "cannot open the folder", errno);
+  if (fd < 0) return Fail(path, "cannot open the folder", errno);
   const int rc = ::fsync(fd);
   const int err = errno;
   ::close(fd);
-  return rc == 0 || Fail(error, path, "cannot fsync the folder", err);
+  if (rc != 0) return Fail(path, "cannot fsync the folder", err);
+  return Status::Ok();
 }
 
-bool MakeDurableDir(const std::string& path, std::string* error) {
+Status MakeDurableDir(const std::string& path) {
   if (::mkdir(path.c_str(), 0755) != 0) {
     const int err = errno;
     struct stat st {};
     if (err != EEXIST || ::stat(path.c_str(), &st) != 0 || !S_ISDIR(st.st_mode)) {
-      return Fail(error, path, "cannot create the folder", err);
+      return Fail(path, "cannot create the folder", err);
     }
   }
   const std::filesystem::path parent = std::filesystem::path(path).parent_path();
-  return FsyncDir(parent.empty() ? std::string(".") : parent.string(), error);
+  return FsyncDir(parent.empty() ? std::string(".") : parent.string());
 }
 
-bool DirLock::Acquire(const std::string& path, bool* busy, std::string* error) {
-  if (busy) *busy = false;
+Status DirLock::Acquire(const std::string& path) {
   fd_ = ::open(path.c_str(), O_RDONLY | O_DIRECTORY | O_CLOEXEC);
-  if (fd_ < 0) return Fail(error, path, "cannot open the folder", errno);
+  if (fd_ < 0) return Fail(path, "cannot open the folder", errno);
   if (::flock(fd_, LOCK_EX | LOCK_NB) != 0) {
     const int err = errno;
     ::close(fd_);
     fd_ = -1;
     if (err == EWOULDBLOCK) {
-      if (busy) *busy = true;
-      if (error) *error = "'" + path + "' is open elsewhere (locked by another session object)";
-      return false;
+      return Status(ErrorCode::kFailedPrecondition,
+                    "'" + path + "' is open elsewhere (locked by another session object)");
     }
-    return Fail(error, path, "cannot lock the folder", err);
+    return Fail(path, "cannot lock the folder", err);
   }
-  return true;
+  return Status::Ok();
 }
 
 DirLock::~DirLock() {

@@ -1,31 +1,34 @@
 // File-system helpers of the session store: whole-file reads, durable folder
 // creation, folder locks, UTC timestamps and the clean-up of temporaries left
-// by a crash. Errors name the path and carry strerror; nothing throws.
+// by a crash. Errors name the path and carry strerror, with the errno's code
+// (ErrorCodeFromErrno); nothing throws.
 #pragma once
 
 #include <chrono>
 #include <string>
 
+#include "craftscan/pipeline/common/status.h"
+
 namespace craftscan::daemon::internal {
 
-// Reads the whole file. False with *error "'<path>': cannot read: <strerror>".
-bool ReadFileBytes(const std::string& path, std::string* bytes, std::string* error);
+// Reads the whole file. A failed Status "'<path>': cannot read: <strerror>".
+Status ReadFileBytes(const std::string& path, std::string* bytes);
 
 // Creates the folder `path` (mode 0755) if it does not exist and fsyncs its
 // parent so the entry is durable (also when it existed: another thread may
 // have created it and not yet synced). Its parent must exist.
-bool MakeDurableDir(const std::string& path, std::string* error);
+Status MakeDurableDir(const std::string& path);
 
 // fsyncs a folder (makes renames and new entries in it durable).
-bool FsyncDir(const std::string& path, std::string* error);
+Status FsyncDir(const std::string& path);
 
 // An exclusive, non-blocking flock on a folder, released on destruction (and
 // by the kernel when the process dies).
 class DirLock {
  public:
-  // Returns false with *error; *busy (may be null) is set when another open
-  // file description holds the lock (as opposed to an I/O error).
-  bool Acquire(const std::string& path, bool* busy, std::string* error);
+  // A failed Status with kFailedPrecondition when another open file
+  // description holds the lock, else the errno's code (an I/O error).
+  Status Acquire(const std::string& path);
   ~DirLock();
   DirLock() = default;
   DirLock(const DirLock&) = delete;

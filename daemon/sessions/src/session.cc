@@ -10,6 +10,7 @@
 
 #include "craftscan/pipeline/common/atomic_file.h"
 #include "craftscan/pipeline/common/pfm.h"
+#include "craftscan/pipeline/common/ply.h"
 #include "session_internal.h"
 
 namespace craftscan::daemon {
@@ -22,16 +23,25 @@ bool SetError(std::string* error, const std::string& message) {
   return false;
 }
 
+// A failed Status with `code` and `message`.
+Status Error(ErrorCode code, std::string message) { return Status(code, std::move(message)); }
+
+// The same code with `prefix` put before the message (no separator), as
+// WritePfm and WritePly word their failures: "PFM '<path>': ...".
+Status Prefixed(const char* prefix, const Status& status) {
+  if (status.ok()) return status;
+  return Status(status.code(), prefix + status.message());
+}
+
 std::string NowUtc() { return internal::IsoUtc(std::chrono::system_clock::now()); }
 
 // The record of a file as it is on disk now.
-bool RecordOf(const std::string& path, FileRecord* record, std::string* bytes, std::string* error) {
-  std::string local;
-  std::string* data = bytes ? bytes : &local;
-  if (!internal::ReadFileBytes(path, data, error)) return false;
-  record->size_bytes = data->size();
-  record->fnv1a64 = Fnv1a64(*data);
-  return true;
+Status RecordOf(const std::string& path, FileRecord* record) {
+  std::string data;
+  if (Status read = internal::ReadFileBytes(path, &data); !read.ok()) return read;
+  record->size_bytes = data.size();
+  record->fnv1a64 = Fnv1a64(data);
+  return Status::Ok();
 }
 
 // Empty if the bytes match the record, else what differs.
@@ -93,27 +103,26 @@ std::string ViewFolder(int view) {
   return text;
 }
 
-bool ReadManifest(const std::string& dir, const std::string& id, Manifest* manifest,
-                  std::string* error) {
+Status ReadManifest(const std::string& dir, const std::string& id, Manifest* manifest) {
   std::string text;
-  if (!ReadFileBytes(dir + "/" + kManifestJson, &text, error)) return false;
+  if (Status read = ReadFileBytes(dir + "/" + kManifestJson, &text); !read.ok()) return read;
   std::string why;
   if (!ManifestFromJson(text, manifest, &why)) {
-    return SetError(error, "'" + dir + "/" + kManifestJson + "': " + why);
+    return Error(ErrorCode::kCorrupt, "'" + dir + "/" + kManifestJson + "': " + why);
   }
   if (manifest->id != id) {
-    return SetError(error, "'" + dir + "/" + kManifestJson + "': id '" + manifest->id +
-                               "' differs from the folder name '" + id + "'");
+    return Error(ErrorCode::kCorrupt, "'" + dir + "/" + kManifestJson + "': id '" + manifest->id +
+                                          "' differs from the folder name '" + id + "'");
   }
-  return true;
+  return Status::Ok();
 }
 
 void VerifyFiles(const std::string& dir, const Manifest& manifest, VerifyResult* result,
                  std::set<std::string>* damaged) {
   const auto check = [&](const std::string& relative, const FileRecord& record) {
     std::string bytes, why;
-    if (!ReadFileBytes(dir + "/" + relative, &bytes, &why)) {
-      result->problems.push_back(relative + ": " + why);
+    if (Status read = ReadFileBytes(dir + "/" + relative, &bytes); !read.ok()) {
+      result->problems.push_back(relative + ": " + read.message());
     } else {
       ++result->files_checked;
       result->bytes_checked += bytes.size();
@@ -165,58 +174,57 @@ std::string Session::CalibrationPath() const {
   return manifest_.calibration ? dir_ + "/" + internal::kCalibrationYaml : std::string();
 }
 
-bool Session::WriteLocked(Manifest next, std::string* error) {
+Status Session::WriteLocked(Manifest next) {
   next.updated_utc = NowUtc();
-  std::string why;
-  if (!WriteFileAtomically(dir_ + "/" + internal::kManifestJson, ManifestToJson(next), &why)) {
-    return SetError(error, Prefix() + "cannot update the manifest: " + why);
-  }
+  const Status written =
+      WriteFileAtomically(dir_ + "/" + internal::kManifestJson, ManifestToJson(next));
+  if (!written.ok()) return written.WithContext(Prefix() + "cannot update the manifest");
   manifest_ = std::move(next);
-  return true;
+  return Status::Ok();
 }
 
-bool Session::Commit(const std::function<bool(Manifest*, std::string*)>& change,
-                     std::string* error) {
+Status Session::Commit(const std::function<Status(Manifest*)>& change) {
   std::lock_guard lock(mutex_);
   Manifest next = manifest_;
-  return change(&next, error) && WriteLocked(std::move(next), error);
+  if (Status changed = change(&next); !changed.ok()) return changed;
+  return WriteLocked(std::move(next));
 }
 
-bool Session::SetState(SessionState state, const std::string& detail, std::string* error) {
-  return Commit(
-      [&](Manifest* m, std::string* why) {
-        if (!IsAllowedTransition(m->state, state)) {
-          return SetError(
-              why, Prefix() + "cannot go from " + ToString(m->state) + " to " + ToString(state));
-        }
-        m->state = state;
-        m->error = state == SessionState::kFailed || state == SessionState::kInterrupted
-                       ? detail
-                       : std::string();
-        m->journal.push_back({NowUtc(), ToString(state), detail});
-        return true;
-      },
-      error);
+Status Session::SetState(SessionState state, const std::string& detail) {
+  return Commit([&](Manifest* m) {
+    if (!IsAllowedTransition(m->state, state)) {
+      return Error(ErrorCode::kFailedPrecondition,
+                   Prefix() + "cannot go from " + ToString(m->state) + " to " + ToString(state));
+    }
+    m->state = state;
+    m->error = state == SessionState::kFailed || state == SessionState::kInterrupted
+                   ? detail
+                   : std::string();
+    m->journal.push_back({NowUtc(), ToString(state), detail});
+    return Status::Ok();
+  });
 }
 
-bool Session::Unlist(const std::function<bool(Manifest*)>& remove, std::string* error) {
+Status Session::Unlist(const std::function<bool(Manifest*)>& remove) {
   std::lock_guard lock(mutex_);
   Manifest next = manifest_;
   // Nothing listed: nothing to write.
-  return !remove(&next) || WriteLocked(std::move(next), error);
+  if (!remove(&next)) return Status::Ok();
+  return WriteLocked(std::move(next));
 }
 
-bool Session::Claim(const std::string& key, std::string* error) {
+Status Session::Claim(const std::string& key) {
   std::lock_guard lock(mutex_);
   if (!IsActive(manifest_.state)) {
-    return SetError(error, Prefix() + "cannot store " + key + " in state " +
-                               ToString(manifest_.state) +
-                               " (only created, capturing or reconstructing)");
+    return Error(ErrorCode::kFailedPrecondition,
+                 Prefix() + "cannot store " + key + " in state " + ToString(manifest_.state) +
+                     " (only created, capturing or reconstructing)");
   }
   if (!busy_.insert(key).second) {
-    return SetError(error, Prefix() + key + " is being stored by another call");
+    return Error(ErrorCode::kFailedPrecondition,
+                 Prefix() + key + " is being stored by another call");
   }
-  return true;
+  return Status::Ok();
 }
 
 void Session::Release(const std::string& key) {
@@ -224,45 +232,46 @@ void Session::Release(const std::string& key) {
   busy_.erase(key);
 }
 
-bool Session::Store(const StoreStep& step, std::string* error) {
-  if (!Claim(step.key, error)) return false;
+Status Session::Store(const StoreStep& step) {
+  if (Status claimed = Claim(step.key); !claimed.ok()) return claimed;
   // A file the manifest lists is taken off it before being replaced, so the
   // manifest never points at bytes it has no checksum for.
-  if (!Unlist(step.unlist, error)) {
+  if (Status unlisted = Unlist(step.unlist); !unlisted.ok()) {
     Release(step.key);
-    return false;
+    return unlisted;
   }
-  std::string why;
-  bool ok = step.write(&why);
-  if (!ok) SetError(error, Prefix() + "cannot store the " + step.what + ": " + why);
-  ok = ok && Commit(step.list, error);
-  if (!ok) {
+  Status status = step.write();
+  if (!status.ok()) {
+    status = status.WithContext(Prefix() + "cannot store the " + step.what);
+  } else {
+    status = Commit(step.list);
+  }
+  if (!status.ok()) {
     // Whatever this call wrote is listed nowhere: remove it (frees a full disk).
     for (const std::string& path : step.paths) ::unlink(path.c_str());
   }
   Release(step.key);
-  return ok;
+  return status;
 }
 
-bool Session::CheckView(int view, const std::string& what, bool needs_capture,
-                        std::string* error) const {
+Status Session::CheckView(int view, const std::string& what, bool needs_capture) const {
   if (view < 0 || view > kMaxViewIndex) {
-    return SetError(error, Prefix() + what + ": view index " + std::to_string(view) +
-                               " is outside 0.." + std::to_string(kMaxViewIndex));
+    return Error(ErrorCode::kInvalidArgument, Prefix() + what + ": view index " +
+                                                  std::to_string(view) + " is outside 0.." +
+                                                  std::to_string(kMaxViewIndex));
   }
-  if (!needs_capture) return true;
+  if (!needs_capture) return Status::Ok();
   std::lock_guard lock(mutex_);
   const auto it = manifest_.views.find(view);
-  return (it != manifest_.views.end() && it->second.HasCapture()) ||
-         SetError(error,
-                  Prefix() + what + ": view " + std::to_string(view) + " has no durable capture");
+  if (it != manifest_.views.end() && it->second.HasCapture()) return Status::Ok();
+  return Error(ErrorCode::kFailedPrecondition,
+               Prefix() + what + ": view " + std::to_string(view) + " has no durable capture");
 }
 
-bool Session::CopyCalibration(const std::string& source_path, const std::string& calibration_id,
-                              std::string* error) {
-  std::string bytes, why;
-  if (!internal::ReadFileBytes(source_path, &bytes, &why)) {
-    return SetError(error, Prefix() + "cannot copy the calibration: " + why);
+Status Session::CopyCalibration(const std::string& source_path, const std::string& calibration_id) {
+  std::string bytes;
+  if (Status read = internal::ReadFileBytes(source_path, &bytes); !read.ok()) {
+    return read.WithContext(Prefix() + "cannot copy the calibration");
   }
   const std::string path = dir_ + "/" + internal::kCalibrationYaml;
   StoreStep step;
@@ -274,33 +283,33 @@ bool Session::CopyCalibration(const std::string& source_path, const std::string&
     m->calibration.reset();
     return listed;
   };
-  step.write = [&](std::string* e) { return WriteFileAtomically(path, bytes, e); };
-  step.list = [&](Manifest* m, std::string*) {
+  step.write = [&] { return WriteFileAtomically(path, bytes); };
+  step.list = [&](Manifest* m) {
     m->calibration = FileRecord{bytes.size(), Fnv1a64(bytes)};
     m->calibration_id = calibration_id;
     m->journal.push_back({NowUtc(), "calibration",
                           "copied from '" + source_path + "' (id '" + calibration_id + "')"});
-    return true;
+    return Status::Ok();
   };
-  return Store(step, error);
+  return Store(step);
 }
 
-bool Session::StoreCapture(int view, double angle_deg, const cv::Mat& left, const cv::Mat& right,
-                           const nlohmann::json& meta, std::string* error) {
+Status Session::StoreCapture(int view, double angle_deg, const cv::Mat& left, const cv::Mat& right,
+                             const nlohmann::json& meta) {
   StoreStep step;
   step.what = "capture of view " + std::to_string(view);
-  if (!CheckView(view, step.what, false, error)) return false;
+  if (Status checked = CheckView(view, step.what, false); !checked.ok()) return checked;
   std::string why;
   if (!CheckPngImage(left, "left", &why) || !CheckPngImage(right, "right", &why)) {
-    return SetError(error, Prefix() + step.what + ": " + why);
+    return Error(ErrorCode::kInvalidArgument, Prefix() + step.what + ": " + why);
   }
   if (!meta.is_object()) {
-    return SetError(error, Prefix() + step.what + ": meta is not a JSON object");
+    return Error(ErrorCode::kInvalidArgument, Prefix() + step.what + ": meta is not a JSON object");
   }
   // Encode before claiming: slow, and needs no lock.
   std::string files[3];
   if (!EncodePng(left, &files[0], &why) || !EncodePng(right, &files[1], &why)) {
-    return SetError(error, Prefix() + step.what + ": " + why);
+    return Error(ErrorCode::kInternal, Prefix() + step.what + ": " + why);
   }
   files[2] = meta.dump(2, ' ', false, nlohmann::json::error_handler_t::replace) + "\n";
 
@@ -310,27 +319,29 @@ bool Session::StoreCapture(int view, double angle_deg, const cv::Mat& left, cons
   for (const char* name : names) step.paths.push_back(folder + "/" + name);
   // A new capture makes the view's disparity and cloud stale: all of it goes.
   step.unlist = [view](Manifest* m) { return m->views.erase(view) > 0; };
-  step.write = [&](std::string* e) {
-    bool ok = internal::MakeDurableDir(dir_ + "/views", e) && internal::MakeDurableDir(folder, e);
-    for (int i = 0; ok && i < 3; ++i) ok = WriteFileAtomically(step.paths[i], files[i], e);
-    return ok;
+  step.write = [&] {
+    Status status = internal::MakeDurableDir(dir_ + "/views");
+    if (status.ok()) status = internal::MakeDurableDir(folder);
+    for (int i = 0; status.ok() && i < 3; ++i) {
+      status = WriteFileAtomically(step.paths[i], files[i]);
+    }
+    return status;
   };
-  step.list = [&](Manifest* m, std::string*) {
+  step.list = [&](Manifest* m) {
     ViewRecord& v = m->views[view];
     v.index = view;
     v.angle_deg = angle_deg;
     v.captured_utc = NowUtc();
     for (int i = 0; i < 3; ++i) v.files[names[i]] = {files[i].size(), Fnv1a64(files[i])};
-    return true;
+    return Status::Ok();
   };
-  return Store(step, error);
+  return Store(step);
 }
 
-bool Session::StoreViewFile(int view, const char* file, const OutputWriter& writer,
-                            std::string* error) {
+Status Session::StoreViewFile(int view, const char* file, const OutputWriter& writer) {
   StoreStep step;
   step.what = std::string(file) + " of view " + std::to_string(view);
-  if (!CheckView(view, step.what, true, error)) return false;
+  if (Status checked = CheckView(view, step.what, true); !checked.ok()) return checked;
   step.key = ViewFolder(view);
   const std::string path = dir_ + "/" + step.key + "/" + file;
   step.paths = {path};
@@ -343,55 +354,69 @@ bool Session::StoreViewFile(int view, const char* file, const OutputWriter& writ
     return (drops_cloud && it->second.files.erase(kCloudPly) > 0) || listed;
   };
   FileRecord record;
-  step.write = [&](std::string* e) {
-    return writer(path, e) && RecordOf(path, &record, nullptr, e);
+  step.write = [&] {
+    Status written = writer(path);
+    if (written.ok()) written = RecordOf(path, &record);
+    return written;
   };
-  step.list = [&](Manifest* m, std::string* e) {
+  step.list = [&](Manifest* m) {
     const auto it = m->views.find(view);
     if (it == m->views.end() || !it->second.HasCapture()) {  // a failed recapture meanwhile
-      return SetError(e, Prefix() + step.what + ": the view's capture is gone");
+      return Error(ErrorCode::kFailedPrecondition,
+                   Prefix() + step.what + ": the view's capture is gone");
     }
     it->second.files[file] = record;
-    return true;
+    return Status::Ok();
   };
-  return Store(step, error);
+  return Store(step);
 }
 
-bool Session::StoreDisparity(int view, const cv::Mat& disparity_px, std::string* error) {
+Status Session::StoreDisparity(int view, const cv::Mat& disparity_px) {
   if (disparity_px.empty() || disparity_px.type() != CV_32FC1) {
-    return SetError(error, Prefix() + "disparity of view " + std::to_string(view) + " must be " +
-                               "a non-empty CV_32FC1 image, got " +
-                               (disparity_px.empty() ? std::string("an empty one")
-                                                     : cv::typeToString(disparity_px.type())));
+    return Error(ErrorCode::kInvalidArgument,
+                 Prefix() + "disparity of view " + std::to_string(view) + " must be " +
+                     "a non-empty CV_32FC1 image, got " +
+                     (disparity_px.empty() ? std::string("an empty one")
+                                           : cv::typeToString(disparity_px.type())));
   }
-  return StoreViewFile(
-      view, kDisparityPfm,
-      [&](const std::string& path, std::string* e) { return WritePfm(path, disparity_px, e); },
-      error);
+  // Encoded here, written with the Status-returning WriteFileAtomically so
+  // the errno's code reaches the caller.
+  std::string bytes, why;
+  if (!EncodePfm(disparity_px, &bytes, &why)) {
+    return Error(ErrorCode::kInvalidArgument,
+                 Prefix() + "disparity of view " + std::to_string(view) + ": " + why);
+  }
+  return StoreViewFile(view, kDisparityPfm, [&](const std::string& path) {
+    return Prefixed("PFM ", WriteFileAtomically(path, bytes));
+  });
 }
 
-bool Session::StoreCloud(int view, const PointCloud& cloud, std::string* error) {
+Status Session::StoreCloud(int view, const PointCloud& cloud) {
   std::string why;
   if (!cloud.IsValid(&why)) {
-    return SetError(error, Prefix() + "cloud of view " + std::to_string(view) + ": " + why);
+    return Error(ErrorCode::kInvalidArgument,
+                 Prefix() + "cloud of view " + std::to_string(view) + ": " + why);
   }
-  return StoreViewFile(
-      view, kCloudPly,
-      [&](const std::string& path, std::string* e) { return WritePly(path, cloud, true, e); },
-      error);
+  std::string bytes;
+  try {
+    bytes = EncodePly(cloud, true);
+  } catch (const std::exception& e) {  // std::bad_alloc
+    return Error(ErrorCode::kInternal,
+                 Prefix() + "cloud of view " + std::to_string(view) + ": " + e.what());
+  }
+  return StoreViewFile(view, kCloudPly, [&](const std::string& path) {
+    return Prefixed("PLY ", WriteFileAtomically(path, bytes));
+  });
 }
 
-bool Session::StoreOutput(const std::string& name, std::string_view bytes, std::string* error) {
-  return StoreOutputWith(
-      name,
-      [&](const std::string& path, std::string* e) { return WriteFileAtomically(path, bytes, e); },
-      error);
+Status Session::StoreOutput(const std::string& name, std::string_view bytes) {
+  return StoreOutputWith(name,
+                         [&](const std::string& path) { return WriteFileAtomically(path, bytes); });
 }
 
-bool Session::StoreOutputWith(const std::string& name, const OutputWriter& writer,
-                              std::string* error) {
+Status Session::StoreOutputWith(const std::string& name, const OutputWriter& writer) {
   std::string why;
-  if (!IsValidOutputName(name, &why)) return SetError(error, Prefix() + why);
+  if (!IsValidOutputName(name, &why)) return Error(ErrorCode::kInvalidArgument, Prefix() + why);
   StoreStep step;
   step.key = name;
   step.what = "output " + name;
@@ -399,20 +424,23 @@ bool Session::StoreOutputWith(const std::string& name, const OutputWriter& write
   step.paths = {path};
   step.unlist = [&](Manifest* m) { return m->outputs.erase(name) > 0; };
   FileRecord record;
-  step.write = [&](std::string* e) {
+  step.write = [&] {
     // The output's folders, outermost first.
     for (std::size_t slash = name.find('/'); slash != std::string::npos;
          slash = name.find('/', slash + 1)) {
-      if (!internal::MakeDurableDir(dir_ + "/" + name.substr(0, slash), e)) return false;
+      Status made = internal::MakeDurableDir(dir_ + "/" + name.substr(0, slash));
+      if (!made.ok()) return made;
     }
-    return writer(path, e) && RecordOf(path, &record, nullptr, e);
+    Status written = writer(path);
+    if (written.ok()) written = RecordOf(path, &record);
+    return written;
   };
-  step.list = [&](Manifest* m, std::string*) {
+  step.list = [&](Manifest* m) {
     m->outputs[name] = record;
     m->journal.push_back({NowUtc(), "output", name});
-    return true;
+    return Status::Ok();
   };
-  return Store(step, error);
+  return Store(step);
 }
 
 bool Session::FindViewFile(int view, const char* file, FileRecord* record,
@@ -429,11 +457,10 @@ bool Session::FindViewFile(int view, const char* file, FileRecord* record,
 
 bool Session::LoadVerified(const std::string& relative, const FileRecord& record,
                            std::string* bytes, std::string* error) const {
-  std::string why;
-  if (!internal::ReadFileBytes(dir_ + "/" + relative, bytes, &why)) {
-    return SetError(error, Prefix() + why);
+  if (Status read = internal::ReadFileBytes(dir_ + "/" + relative, bytes); !read.ok()) {
+    return SetError(error, Prefix() + read.message());
   }
-  why = Mismatch(*bytes, record);
+  const std::string why = Mismatch(*bytes, record);
   return why.empty() || SetError(error, Prefix() + "'" + dir_ + "/" + relative + "': " + why);
 }
 

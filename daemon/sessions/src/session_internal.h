@@ -23,8 +23,9 @@ inline constexpr const char* kCalibrationYaml = "calibration.yaml";
 std::string ViewFolder(int view);
 
 // Reads and validates <dir>/manifest.json and checks that its id is `id`.
-bool ReadManifest(const std::string& dir, const std::string& id, Manifest* manifest,
-                  std::string* error);
+// A failed Status with the errno's code when it cannot be read, kCorrupt
+// when it is invalid or names another id.
+Status ReadManifest(const std::string& dir, const std::string& id, Manifest* manifest);
 
 // Checks every file `manifest` lists under `dir`; damaged files are added to
 // result->problems ("<relative path>: <what>") and, if `damaged` is not null,

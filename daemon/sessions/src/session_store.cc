@@ -19,9 +19,9 @@ namespace fs = std::filesystem;
 // Collision suffixes "-2" .. "-999" (IsValidSessionId allows 4 bytes).
 constexpr int kMaxIdSuffix = 999;
 
-bool SetError(std::string* error, const std::string& message) {
-  if (error) *error = message;
-  return false;
+// Stores `status` in *out (may be null); for the functions returning null.
+void SetStatus(Status* out, Status status) {
+  if (out) *out = std::move(status);
 }
 
 // An id as a client sent it, quoted and escaped for an error message.
@@ -38,27 +38,27 @@ bool IsJobVerb(std::string_view job) {
 
 }  // namespace
 
-std::unique_ptr<SessionStore> SessionStore::Open(const std::string& data_dir, std::string* error) {
+std::unique_ptr<SessionStore> SessionStore::Open(const std::string& data_dir, Status* status) {
   struct stat st {};
   if (data_dir.empty()) {
-    SetError(error, "data dir is empty");
+    SetStatus(status, Status(ErrorCode::kInvalidArgument, "data dir is empty"));
     return nullptr;
   }
   if (::stat(data_dir.c_str(), &st) != 0) {
-    SetError(error, "data dir '" + data_dir + "': " + std::strerror(errno));
+    SetStatus(status, Status::FromErrno(errno, "data dir '" + data_dir + "'"));
     return nullptr;
   }
   if (!S_ISDIR(st.st_mode)) {
-    SetError(error, "data dir '" + data_dir + "' is not a directory");
+    SetStatus(status, Status(ErrorCode::kInvalidArgument,
+                             "data dir '" + data_dir + "' is not a directory"));
     return nullptr;
   }
   std::error_code ec;
   const fs::path absolute = fs::absolute(data_dir, ec);
   const std::string sessions =
       ((ec ? fs::path(data_dir) : absolute).lexically_normal() / "sessions").string();
-  std::string why;
-  if (!internal::MakeDurableDir(sessions, &why)) {
-    SetError(error, "data dir '" + data_dir + "' is not usable: " + why);
+  if (Status made = internal::MakeDurableDir(sessions); !made.ok()) {
+    SetStatus(status, made.WithContext("data dir '" + data_dir + "' is not usable"));
     return nullptr;
   }
   // Probe: can a file be created? (access(2) says yes to root on 0555 and
@@ -66,8 +66,8 @@ std::unique_ptr<SessionStore> SessionStore::Open(const std::string& data_dir, st
   std::string probe = sessions + "/.probe.tmp-XXXXXX";
   const int fd = ::mkstemp(probe.data());
   if (fd < 0) {
-    SetError(error, "data dir '" + data_dir + "': '" + sessions +
-                        "' is not writable: " + std::strerror(errno));
+    SetStatus(status, Status::FromErrno(errno, "data dir '" + data_dir + "': '" + sessions +
+                                                   "' is not writable"));
     return nullptr;
   }
   ::close(fd);
@@ -78,14 +78,17 @@ std::unique_ptr<SessionStore> SessionStore::Open(const std::string& data_dir, st
 std::unique_ptr<Session> SessionStore::Create(std::string_view object_name, std::string_view job,
                                               const nlohmann::json& params,
                                               std::chrono::system_clock::time_point now,
-                                              std::string* error) {
+                                              Status* status) {
   if (!IsJobVerb(job)) {
-    SetError(error, "job verb '" + std::string(job.substr(0, 40)) +
-                        "' is not a lower-case word ([a-z_], 1 to 32 characters)");
+    SetStatus(status, Status(ErrorCode::kInvalidArgument,
+                             "job verb '" + std::string(job.substr(0, 40)) +
+                                 "' is not a lower-case word ([a-z_], 1 to 32 characters)"));
     return nullptr;
   }
   if (!params.is_object()) {
-    SetError(error, "job parameters must be a JSON object, got " + std::string(params.type_name()));
+    SetStatus(status,
+              Status(ErrorCode::kInvalidArgument, "job parameters must be a JSON object, got " +
+                                                      std::string(params.type_name())));
     return nullptr;
   }
   Manifest m;
@@ -103,15 +106,17 @@ std::unique_ptr<Session> SessionStore::Create(std::string_view object_name, std:
   // across processes).
   std::string tmp = sessions_dir_ + "/." + base + ".tmp-XXXXXX";
   if (::mkdtemp(tmp.data()) == nullptr) {
-    SetError(error,
-             "cannot create a session folder in '" + sessions_dir_ + "': " + std::strerror(errno));
+    SetStatus(status, Status::FromErrno(
+                          errno, "cannot create a session folder in '" + sessions_dir_ + "'"));
     return nullptr;
   }
   auto lock = std::make_unique<Session::Lock>();
-  std::string why;
-  bool ok = ::chmod(tmp.c_str(), 0777 & ~ProcessUmask()) == 0;  // mkdtemp gives 0700
-  if (!ok) why = "'" + tmp + "': cannot set permissions: " + std::strerror(errno);
-  ok = ok && lock->dir.Acquire(tmp, nullptr, &why);
+  Status why;                                               // the first failure, with its code
+  if (::chmod(tmp.c_str(), 0777 & ~ProcessUmask()) != 0) {  // mkdtemp gives 0700
+    why = Status::FromErrno(errno, "'" + tmp + "': cannot set permissions");
+  }
+  if (why.ok()) why = lock->dir.Acquire(tmp);
+  bool ok = why.ok();
   std::string id;
   for (int n = 1; ok && n <= kMaxIdSuffix; ++n) {
     id = n == 1 ? base : base + "-" + std::to_string(n);
@@ -122,59 +127,68 @@ std::unique_ptr<Session> SessionStore::Create(std::string_view object_name, std:
     m.journal = {{m.updated_utc, "created",
                   m.job + " of '" + m.object_name + "' (" +
                       params.dump(-1, ' ', false, nlohmann::json::error_handler_t::replace) + ")"}};
-    ok = WriteFileAtomically(tmp + "/" + internal::kManifestJson, ManifestToJson(m), &why);
+    why = WriteFileAtomically(tmp + "/" + internal::kManifestJson, ManifestToJson(m));
+    ok = why.ok();
     if (!ok) break;
     if (::renameat2(AT_FDCWD, tmp.c_str(), AT_FDCWD, dir.c_str(), RENAME_NOREPLACE) == 0) {
-      ok = internal::FsyncDir(sessions_dir_, &why);
+      why = internal::FsyncDir(sessions_dir_);
+      ok = why.ok();
       if (!ok) break;
-      return MakeSession(id, dir, std::move(lock), error);
+      return MakeSession(id, dir, std::move(lock), status);
     }
-    if (errno != EEXIST && errno != ENOTEMPTY) {
-      why = "cannot rename '" + tmp + "' to '" + dir + "': " + std::strerror(errno);
+    const int err = errno;
+    if (err != EEXIST && err != ENOTEMPTY) {
+      why = Status::FromErrno(err, "cannot rename '" + tmp + "' to '" + dir + "'");
       ok = false;
     }
   }
-  if (ok)
-    why = "all ids '" + base + "' to '" + base + "-" + std::to_string(kMaxIdSuffix) + "' are taken";
+  if (ok) {
+    why = Status(ErrorCode::kAlreadyExists, "all ids '" + base + "' to '" + base + "-" +
+                                                std::to_string(kMaxIdSuffix) + "' are taken");
+  }
   std::error_code ec;
   fs::remove_all(tmp, ec);
-  SetError(error, "cannot create a session for '" + m.object + "': " + why);
+  SetStatus(status, why.WithContext("cannot create a session for '" + m.object + "'"));
   return nullptr;
 }
 
 std::unique_ptr<Session> SessionStore::MakeSession(const std::string& id, const std::string& dir,
                                                    std::unique_ptr<Session::Lock> lock,
-                                                   std::string* error) {
+                                                   Status* status) {
   Manifest manifest;
-  std::string why;
-  if (!internal::ReadManifest(dir, id, &manifest, &why)) {
-    SetError(error, "session " + id + " is corrupt: " + why);
+  if (Status read = internal::ReadManifest(dir, id, &manifest); !read.ok()) {
+    // Unreadable or invalid: either way the session cannot be used as it is.
+    // An invalid manifest is kCorrupt; a read error keeps the errno's code.
+    SetStatus(status, read.WithContext("session " + id + " is corrupt"));
     return nullptr;
   }
   return std::unique_ptr<Session>(new Session(id, dir, std::move(lock), std::move(manifest)));
 }
 
-std::unique_ptr<Session> SessionStore::OpenSession(const std::string& id, std::string* error) {
+std::unique_ptr<Session> SessionStore::OpenSession(const std::string& id, Status* status) {
   if (!IsValidSessionId(id)) {
-    SetError(error, "invalid session id " + Quoted(id) + " (expected YYYYMMDD-HHMMSS-<name>)");
+    SetStatus(status,
+              Status(ErrorCode::kInvalidArgument,
+                     "invalid session id " + Quoted(id) + " (expected YYYYMMDD-HHMMSS-<name>)"));
     return nullptr;
   }
   const std::string dir = sessions_dir_ + "/" + id;
   struct stat st {};
   if (::stat(dir.c_str(), &st) != 0 || !S_ISDIR(st.st_mode)) {
-    SetError(error, "unknown session " + id + " (no folder '" + dir + "')");
+    SetStatus(status,
+              Status(ErrorCode::kNotFound, "unknown session " + id + " (no folder '" + dir + "')"));
     return nullptr;
   }
   auto lock = std::make_unique<Session::Lock>();
-  bool busy = false;
-  std::string why;
-  if (!lock->dir.Acquire(dir, &busy, &why)) {
-    SetError(error, busy
-                        ? "session " + id + " is open elsewhere (a job or another process holds it)"
-                        : "session " + id + ": " + why);
+  if (Status locked = lock->dir.Acquire(dir); !locked.ok()) {
+    const bool busy = locked.code() == ErrorCode::kFailedPrecondition;
+    SetStatus(status, busy ? Status(ErrorCode::kFailedPrecondition,
+                                    "session " + id +
+                                        " is open elsewhere (a job or another process holds it)")
+                           : locked.WithContext("session " + id));
     return nullptr;
   }
-  return MakeSession(id, dir, std::move(lock), error);
+  return MakeSession(id, dir, std::move(lock), status);
 }
 
 std::vector<std::string> SessionStore::MarkInterrupted(std::vector<std::string>* problems) {
@@ -191,32 +205,34 @@ std::vector<std::string> SessionStore::MarkInterrupted(std::vector<std::string>*
     const std::string dir = sessions_dir_ + "/" + name;
     if (internal::IsTemporaryName(name)) {  // a Create that crashed, or the open probe
       internal::DirLock lock;
-      bool busy = false;
-      if (lock.Acquire(dir, &busy, nullptr) || (!busy && !fs::is_directory(dir, ec))) {
+      const Status locked = lock.Acquire(dir);
+      const bool busy = locked.code() == ErrorCode::kFailedPrecondition;
+      if (locked.ok() || (!busy && !fs::is_directory(dir, ec))) {
         fs::remove_all(dir, ec);
       }
       continue;
     }
     if (!IsValidSessionId(name)) continue;
     auto lock = std::make_unique<Session::Lock>();
-    bool busy = false;
-    std::string why;
-    if (!lock->dir.Acquire(dir, &busy, &why)) {
-      if (!busy && problems) problems->push_back("session " + name + ": " + why);
+    if (Status locked = lock->dir.Acquire(dir); !locked.ok()) {
+      const bool busy = locked.code() == ErrorCode::kFailedPrecondition;
+      if (!busy && problems) problems->push_back("session " + name + ": " + locked.message());
       continue;  // busy: a live job holds it
     }
     internal::RemoveTemporaries(dir);
+    Status why;
     auto session = MakeSession(name, dir, std::move(lock), &why);
     if (!session) {
-      if (problems) problems->push_back(why);
+      if (problems) problems->push_back(why.message());
       continue;
     }
     const SessionState state = session->state();
     if (!IsActive(state)) continue;
-    if (!session->SetState(
-            SessionState::kInterrupted,
-            std::string("craftscand stopped while the session was ") + ToString(state), &why)) {
-      if (problems) problems->push_back(why);
+    why = session->SetState(
+        SessionState::kInterrupted,
+        std::string("craftscand stopped while the session was ") + ToString(state));
+    if (!why.ok()) {
+      if (problems) problems->push_back(why.message());
       continue;
     }
     marked.push_back(name);
@@ -234,13 +250,13 @@ std::vector<SessionSummary> SessionStore::List() const {
     SessionSummary s;
     s.id = name;
     Manifest m;
-    std::string why;
+    Status read;
     if (!IsValidSessionId(name)) {
       s.state = "corrupt";
       s.problem = "folder name is not a session id";
-    } else if (!internal::ReadManifest(it->path().string(), name, &m, &why)) {
+    } else if (read = internal::ReadManifest(it->path().string(), name, &m); !read.ok()) {
       s.state = "corrupt";
-      s.problem = why;
+      s.problem = read.message();
     } else {
       s.object_name = m.object_name;
       s.job = m.job;
@@ -264,9 +280,8 @@ VerifyResult SessionStore::Verify(const std::string& id) const {
   }
   const std::string dir = sessions_dir_ + "/" + id;
   Manifest manifest;
-  std::string why;
-  if (!internal::ReadManifest(dir, id, &manifest, &why)) {
-    result.problems.push_back(why);
+  if (Status read = internal::ReadManifest(dir, id, &manifest); !read.ok()) {
+    result.problems.push_back(read.message());
     return result;
   }
   result.manifest_ok = true;

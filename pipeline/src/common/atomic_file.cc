@@ -15,10 +15,9 @@
 namespace craftscan {
 namespace {
 
-// "'<path>': <what>: <strerror(errno)>" in *error; false.
-bool FailErrno(std::string* error, const std::string& what, const std::string& path) {
-  if (error) *error = "'" + path + "': " + what + ": " + std::strerror(errno);
-  return false;
+// "'<path>': <what>: <strerror(errnum)>" with the errno's code.
+Status ErrnoStatus(int errnum, const std::string& what, const std::string& path) {
+  return Status::FromErrno(errnum, "'" + path + "': " + what);
 }
 
 bool WriteAll(int fd, std::string_view bytes) {
@@ -50,13 +49,10 @@ unsigned ProcessUmask() {
   return umask;
 }
 
-bool WriteFileAtomically(const std::string& path, std::string_view bytes, std::string* error) {
-  return NoThrowBool("WriteFileAtomically", error, [&]() -> bool {
+Status WriteFileAtomically(const std::string& path, std::string_view bytes) {
+  try {
     namespace fs = std::filesystem;
-    if (path.empty()) {
-      if (error) *error = "empty path";
-      return false;
-    }
+    if (path.empty()) return Status(ErrorCode::kInvalidArgument, "empty path");
     const fs::path target(path);
     const fs::path folder = target.has_parent_path() ? target.parent_path() : fs::path(".");
     // Hidden temporary beside the target: same file system, so rename is atomic.
@@ -65,40 +61,45 @@ bool WriteFileAtomically(const std::string& path, std::string_view bytes, std::s
     tmp_name.append(target.filename().string()).append(".tmp-XXXXXX");
     std::string tmp = (folder / tmp_name).string();
     const int fd = ::mkstemp(tmp.data());
-    if (fd < 0) return FailErrno(error, "cannot create a temporary file", tmp);
+    if (fd < 0) return ErrnoStatus(errno, "cannot create a temporary file", tmp);
 
     // Each step runs only if the ones before succeeded; the descriptor is
-    // closed either way.
-    const char* failed = nullptr;
+    // closed either way. The errno is taken right after the failing call:
+    // close() and unlink() below may change it.
+    Status failed;
     if (!WriteAll(fd, bytes)) {
-      failed = "cannot write";
+      failed = ErrnoStatus(errno, "cannot write", tmp);
     } else if (::fchmod(fd, 0666 & ~ProcessUmask()) != 0) {  // mkstemp creates 0600
-      failed = "cannot set permissions";
+      failed = ErrnoStatus(errno, "cannot set permissions", tmp);
     } else if (::fsync(fd) != 0) {
-      failed = "cannot fsync";
+      failed = ErrnoStatus(errno, "cannot fsync", tmp);
     }
-    if (failed) FailErrno(error, failed, tmp);
-    if (::close(fd) != 0 && !failed) {
-      failed = "cannot close";
-      FailErrno(error, failed, tmp);
-    }
-    if (!failed && ::rename(tmp.c_str(), path.c_str()) != 0) {
-      failed = "cannot rename the temporary file to it";
-      FailErrno(error, failed, path);
-    }
-    const bool ok = failed == nullptr;
-    if (!ok) {
+    if (::close(fd) != 0 && failed.ok()) failed = ErrnoStatus(errno, "cannot close", tmp);
+    if (failed.ok() && ::rename(tmp.c_str(), path.c_str()) != 0)
+      failed = ErrnoStatus(errno, "cannot rename the temporary file to it", path);
+    if (!failed.ok()) {
       ::unlink(tmp.c_str());
-      return false;
+      return failed;
     }
     const int dir_fd = ::open(folder.c_str(), O_RDONLY | O_DIRECTORY);
     if (dir_fd >= 0) {
       const int rc = ::fsync(dir_fd);
+      const int fsync_errno = errno;
       ::close(dir_fd);
-      if (rc != 0) return FailErrno(error, "cannot fsync the folder of", path);
+      if (rc != 0) return ErrnoStatus(fsync_errno, "cannot fsync the folder of", path);
     }
-    return true;
-  });
+    return Status::Ok();
+  } catch (const std::exception& e) {
+    return Status(ErrorCode::kInternal, std::string("WriteFileAtomically: ") + e.what());
+  } catch (...) {
+    return Status(ErrorCode::kInternal, "WriteFileAtomically: unknown exception");
+  }
+}
+
+bool WriteFileAtomically(const std::string& path, std::string_view bytes, std::string* error) {
+  const Status status = WriteFileAtomically(path, bytes);
+  if (status.ok()) return true;
+  return Fail(error, status.message());
 }
 
 }  // namespace craftscan

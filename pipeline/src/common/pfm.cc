@@ -139,8 +139,9 @@ bool ReadPfmImpl(const std::string& path, cv::Mat* image, std::string* error) {
   return true;
 }
 
-bool WritePfmImpl(const std::string& path, const cv::Mat& image, std::string* error) {
-  const std::string where = "PFM '" + path + "': ";
+// `where` starts each message ("PFM '<path>': " or "PFM: ").
+bool EncodePfmImpl(const cv::Mat& image, const std::string& where, std::string* bytes,
+                   std::string* error) {
   if (image.empty()) return Fail(error, where + "cannot write an empty image");
   if (image.type() != CV_32FC1 && image.type() != CV_32FC3) {
     return Fail(error, where + "image must be CV_32FC1 or CV_32FC3");
@@ -168,8 +169,15 @@ bool WritePfmImpl(const std::string& path, const cv::Mat& image, std::string* er
     out.write(reinterpret_cast<const char*>(row.data()),
               static_cast<std::streamsize>(row_floats * sizeof(float)));
   }
-  std::string why;
-  if (!WriteFileAtomically(path, out.view(), &why)) return Fail(error, "PFM " + why);
+  *bytes = std::move(out).str();
+  return true;
+}
+
+bool WritePfmImpl(const std::string& path, const cv::Mat& image, std::string* error) {
+  std::string bytes;
+  if (!EncodePfmImpl(image, "PFM '" + path + "': ", &bytes, error)) return false;
+  const Status status = WriteFileAtomically(path, bytes);
+  if (!status.ok()) return Fail(error, "PFM " + status.message());
   return true;
 }
 
@@ -181,6 +189,17 @@ bool ReadPfm(const std::string& path, cv::Mat* image, std::string* error) {
     return ReadPfmImpl(path, image, error);
   } catch (const std::exception& e) {  // bad_alloc, cv::Exception: report, never throw
     return Fail(error, "PFM '" + path + "': " + e.what());
+  }
+}
+
+bool EncodePfm(const cv::Mat& image, std::string* bytes, std::string* error) {
+  if (bytes == nullptr) return Fail(error, "EncodePfm: bytes is null");
+  bytes->clear();
+  try {
+    return EncodePfmImpl(image, "PFM: ", bytes, error);
+  } catch (const std::exception& e) {
+    bytes->clear();
+    return Fail(error, std::string("PFM: ") + e.what());
   }
 }
 

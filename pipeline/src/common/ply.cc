@@ -672,12 +672,6 @@ std::string FormatPly(const Vertices& vertices, const std::vector<cv::Vec3i>* fa
   return text;
 }
 
-bool WriteText(const std::string& path, const std::string& text, std::string* error) {
-  std::string why;
-  if (!WriteFileAtomically(path, text, &why)) return Fail(error, "PLY " + why);
-  return true;
-}
-
 }  // namespace
 
 bool ReadPly(const std::string& path, PointCloud* cloud, std::string* error, double scale_to_mm) {
@@ -714,15 +708,34 @@ bool ReadMeshPly(const std::string& path, TriangleMesh* mesh, std::string* error
   }
 }
 
+std::string EncodePly(const PointCloud& cloud, bool binary) {
+  if (!cloud.IsValid(nullptr)) return {};
+  return FormatPly({cloud.points_mm, cloud.normals, cloud.colors_rgb}, nullptr, binary,
+                   "craftscan point cloud, units mm");
+}
+
+std::string EncodeMeshPly(const TriangleMesh& mesh, bool binary) {
+  if (!mesh.IsValid(nullptr)) return {};
+  return FormatPly({mesh.vertices_mm, mesh.normals, mesh.colors_rgb}, &mesh.faces, binary,
+                   "craftscan mesh, units mm");
+}
+
+namespace {
+
+bool WriteBytes(const std::string& path, const std::string& bytes, std::string* error) {
+  const Status status = WriteFileAtomically(path, bytes);
+  if (!status.ok()) return Fail(error, "PLY " + status.message());
+  return true;
+}
+
+}  // namespace
+
 bool WritePly(const std::string& path, const PointCloud& cloud, bool binary, std::string* error) {
   try {
     std::string why;
     if (path.empty()) return Fail(error, "WritePly: empty path");
     if (!cloud.IsValid(&why)) return Fail(error, "PLY '" + path + "': invalid cloud: " + why);
-    return WriteText(path,
-                     FormatPly({cloud.points_mm, cloud.normals, cloud.colors_rgb}, nullptr, binary,
-                               "craftscan point cloud, units mm"),
-                     error);
+    return WriteBytes(path, EncodePly(cloud, binary), error);
   } catch (const std::exception& e) {
     return Fail(error, "PLY '" + path + "': " + e.what());
   }
@@ -734,10 +747,7 @@ bool WriteMeshPly(const std::string& path, const TriangleMesh& mesh, bool binary
     std::string why;
     if (path.empty()) return Fail(error, "WriteMeshPly: empty path");
     if (!mesh.IsValid(&why)) return Fail(error, "WriteMeshPly '" + path + "': " + why);
-    return WriteText(path,
-                     FormatPly({mesh.vertices_mm, mesh.normals, mesh.colors_rgb}, &mesh.faces,
-                               binary, "craftscan mesh, units mm"),
-                     error);
+    return WriteBytes(path, EncodeMeshPly(mesh, binary), error);
   } catch (const std::exception& e) {
     return Fail(error, "PLY '" + path + "': " + e.what());
   }

@@ -252,46 +252,51 @@ MeshResult PoissonMesh(const PointCloud& cloud, const PoissonOptions& options) {
   });
 }
 
+std::string EncodeMeshObj(const TriangleMesh& mesh) {
+  if (!mesh.IsValid(nullptr)) return {};
+  const bool normals = !mesh.normals.empty(), colors = !mesh.colors_rgb.empty();
+  std::string out = "# craftscan mesh, units mm\n";
+  out += "# " + std::to_string(mesh.vertices_mm.size()) + " vertices, " +
+         std::to_string(mesh.faces.size()) + " faces\n";
+  for (std::size_t v = 0; v < mesh.vertices_mm.size(); ++v) {
+    out += 'v';
+    for (int k = 0; k < 3; ++k) {
+      out += ' ';
+      AppendFloat(&out, mesh.vertices_mm[v][k]);
+    }
+    if (colors)
+      for (int k = 0; k < 3; ++k) {
+        out += ' ';
+        AppendFloat(&out, static_cast<float>(mesh.colors_rgb[v][k]) / 255.0f);
+      }
+    out += '\n';
+  }
+  if (normals)
+    for (const cv::Vec3f& n : mesh.normals) {
+      out += "vn";
+      for (int k = 0; k < 3; ++k) {
+        out += ' ';
+        AppendFloat(&out, n[k]);
+      }
+      out += '\n';
+    }
+  for (const cv::Vec3i& f : mesh.faces) {
+    out += 'f';
+    for (int k = 0; k < 3; ++k) {
+      const std::string i = std::to_string(f[k] + 1);
+      out += ' ' + i;
+      if (normals) out += "//" + i;
+    }
+    out += '\n';
+  }
+  return out;
+}
+
 bool WriteMeshObj(const std::string& path, const TriangleMesh& mesh, std::string* error) {
   return NoThrowBool("WriteMeshObj", error, [&]() -> bool {
     std::string why;
     if (!mesh.IsValid(&why)) return Fail(error, "WriteMeshObj '" + path + "': " + why);
-    const bool normals = !mesh.normals.empty(), colors = !mesh.colors_rgb.empty();
-    std::string out = "# craftscan mesh, units mm\n";
-    out += "# " + std::to_string(mesh.vertices_mm.size()) + " vertices, " +
-           std::to_string(mesh.faces.size()) + " faces\n";
-    for (std::size_t v = 0; v < mesh.vertices_mm.size(); ++v) {
-      out += 'v';
-      for (int k = 0; k < 3; ++k) {
-        out += ' ';
-        AppendFloat(&out, mesh.vertices_mm[v][k]);
-      }
-      if (colors)
-        for (int k = 0; k < 3; ++k) {
-          out += ' ';
-          AppendFloat(&out, static_cast<float>(mesh.colors_rgb[v][k]) / 255.0f);
-        }
-      out += '\n';
-    }
-    if (normals)
-      for (const cv::Vec3f& n : mesh.normals) {
-        out += "vn";
-        for (int k = 0; k < 3; ++k) {
-          out += ' ';
-          AppendFloat(&out, n[k]);
-        }
-        out += '\n';
-      }
-    for (const cv::Vec3i& f : mesh.faces) {
-      out += 'f';
-      for (int k = 0; k < 3; ++k) {
-        const std::string i = std::to_string(f[k] + 1);
-        out += ' ' + i;
-        if (normals) out += "//" + i;
-      }
-      out += '\n';
-    }
-    return WriteFileAtomically(path, out, error);
+    return WriteFileAtomically(path, EncodeMeshObj(mesh), error);
   });
 }
 

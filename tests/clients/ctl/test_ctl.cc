@@ -16,10 +16,14 @@
 
 #include <nlohmann/json.hpp>
 
+#include "../../daemon/sessions/status_util.h"
 #include "craftscan/daemon/session_store.h"
 #include "ctl_runner.h"
 #include "daemon_fixture.h"
 #include "file_util.h"
+
+using craftscan::testing::Ok;
+using craftscan::testing::StatusInto;
 
 namespace craftscan::testing {
 namespace {
@@ -246,9 +250,9 @@ TEST(Craftscanctl, ScanThenGetEveryOutputByteForByte) {
   std::printf("4-view 640x512 scan through craftscanctl: %.1f s\n", r.seconds);
 
   // get: every durable output, byte for byte.
-  auto store = daemon::SessionStore::Open(station.fixture().data_dir(), &error);
+  auto store = daemon::SessionStore::Open(station.fixture().data_dir(), StatusInto(&error));
   ASSERT_TRUE(store) << error;
-  auto opened = store->OpenSession(session, &error);
+  auto opened = store->OpenSession(session, StatusInto(&error));
   ASSERT_TRUE(opened) << error;
   const daemon::Manifest manifest = opened->manifest();
   opened.reset();
@@ -351,17 +355,18 @@ TEST(Craftscanctl, GetStreamsALargeOutputAndRefusesChangedFiles) {
   }
   std::string id;
   {
-    auto store = daemon::SessionStore::Open(station.fixture().data_dir(), &error);
+    auto store = daemon::SessionStore::Open(station.fixture().data_dir(), StatusInto(&error));
     ASSERT_TRUE(store) << error;
-    auto session =
-        store->Create("big", "scan", {{"views", 2}}, std::chrono::system_clock::now(), &error);
+    auto session = store->Create("big", "scan", {{"views", 2}}, std::chrono::system_clock::now(),
+                                 StatusInto(&error));
     ASSERT_TRUE(session) << error;
     id = session->id();
-    ASSERT_TRUE(session->SetState(daemon::SessionState::kReconstructing, "", &error)) << error;
-    ASSERT_TRUE(session->StoreOutput("fused.ply", big, &error)) << error;
-    ASSERT_TRUE(session->StoreOutput("report.json", "{\"ok\": true}", &error)) << error;
-    ASSERT_TRUE(session->StoreOutput("previews/top.png", std::string(5000, 'x'), &error)) << error;
-    ASSERT_TRUE(session->SetState(daemon::SessionState::kDone, "", &error)) << error;
+    ASSERT_TRUE(Ok(session->SetState(daemon::SessionState::kReconstructing, ""), &error)) << error;
+    ASSERT_TRUE(Ok(session->StoreOutput("fused.ply", big), &error)) << error;
+    ASSERT_TRUE(Ok(session->StoreOutput("report.json", "{\"ok\": true}"), &error)) << error;
+    ASSERT_TRUE(Ok(session->StoreOutput("previews/top.png", std::string(5000, 'x')), &error))
+        << error;
+    ASSERT_TRUE(Ok(session->SetState(daemon::SessionState::kDone, ""), &error)) << error;
   }
   ASSERT_TRUE(station.Launch(&error)) << error;
 

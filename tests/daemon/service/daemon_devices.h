@@ -21,10 +21,13 @@
 #include <nlohmann/json.hpp>
 #include <opencv2/core.hpp>
 
+#include "../sessions/status_util.h"
 #include "craftscan/client/station_client.h"
 #include "craftscan/daemon/session_store.h"
 #include "daemon_fixture.h"
 #include "station_client.h"
+
+using craftscan::testing::StatusInto;
 
 namespace craftscan::testing {
 
@@ -118,7 +121,7 @@ struct RunningDaemon {
   std::vector<int> ExpectNothingLost(const std::string& session,
                                      const std::vector<CaptureRecord>& acknowledged) {
     std::string error;
-    auto store = daemon::SessionStore::Open(fixture.data_dir(), &error);
+    auto store = daemon::SessionStore::Open(fixture.data_dir(), StatusInto(&error));
     if (!store) {
       ADD_FAILURE() << error;
       return {};
@@ -126,7 +129,7 @@ struct RunningDaemon {
     const daemon::VerifyResult verify = store->Verify(session);
     EXPECT_TRUE(verify.IsIntact())
         << session << ": " << (verify.problems.empty() ? "manifest" : verify.problems[0]);
-    auto opened = store->OpenSession(session, &error);
+    auto opened = store->OpenSession(session, StatusInto(&error));
     if (!opened) {
       ADD_FAILURE() << error;
       return {};
@@ -150,8 +153,8 @@ struct RunningDaemon {
 
   daemon::SessionState SessionStateOf(const std::string& session) {
     std::string error;
-    auto store = daemon::SessionStore::Open(fixture.data_dir(), &error);
-    auto opened = store ? store->OpenSession(session, &error) : nullptr;
+    auto store = daemon::SessionStore::Open(fixture.data_dir(), StatusInto(&error));
+    auto opened = store ? store->OpenSession(session, StatusInto(&error)) : nullptr;
     if (!opened) {
       ADD_FAILURE() << error;
       return daemon::SessionState::kFailed;

@@ -1,6 +1,6 @@
 // A private mount namespace and a small tmpfs in it, for tests that fill or
 // remount a data directory without touching the host (the disk-full stage
-// test; test_daemon_storage.cc has its own copy, to be moved here).
+// tests, the daemon's storage tests).
 #pragma once
 
 #include <sched.h>
@@ -8,15 +8,18 @@
 #include <unistd.h>
 
 #include <cerrno>
+#include <chrono>
 #include <cstring>
 #include <fstream>
 #include <string>
+#include <thread>
 
 namespace craftscan::testing {
 
 // Moves the calling thread into a private mount namespace: directly as root,
 // else through a new user namespace (which needs a single-threaded process,
-// as at the start of a test). Returns "" or why not (the test then skips).
+// as at the start of a test). Processes started from this thread afterwards
+// share it. Returns "" or why not (the test then skips).
 inline std::string EnterPrivateMountNamespace() {
   if (::unshare(CLONE_NEWNS) != 0) {
     const uid_t uid = ::geteuid();
@@ -36,7 +39,7 @@ inline std::string EnterPrivateMountNamespace() {
 }
 
 // A tmpfs of `size` ("16m") on `dir` (an existing folder) for the life of
-// the object; unmounted lazily.
+// the object; unmounted lazily, so a child still inside cannot keep it.
 class ScopedTmpfs {
  public:
   ScopedTmpfs(std::string dir, const std::string& size) : dir_(std::move(dir)) {
@@ -54,6 +57,24 @@ class ScopedTmpfs {
   ScopedTmpfs& operator=(const ScopedTmpfs&) = delete;
 
   const std::string& error() const { return error_; }
+
+  // Remounts it read-only or read-write. A read-only remount is refused
+  // (EBUSY) while a file on it is open for writing: tried again every
+  // millisecond for up to `patience`.
+  bool SetReadOnly(bool read_only, std::string* error,
+                   std::chrono::milliseconds patience = std::chrono::seconds(20)) {
+    const unsigned long flags = MS_REMOUNT | MS_BIND | (read_only ? MS_RDONLY : 0);
+    const auto deadline = std::chrono::steady_clock::now() + patience;
+    for (;;) {
+      if (::mount(nullptr, dir_.c_str(), nullptr, flags, nullptr) == 0) return true;
+      if (errno != EBUSY || std::chrono::steady_clock::now() > deadline) {
+        *error = std::string("remount ") + (read_only ? "ro" : "rw") + " " + dir_ + ": " +
+                 std::strerror(errno);
+        return false;
+      }
+      std::this_thread::sleep_for(std::chrono::milliseconds(1));
+    }
+  }
 
  private:
   std::string dir_, error_;

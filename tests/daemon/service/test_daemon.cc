@@ -14,10 +14,13 @@
 
 #include <opencv2/core.hpp>
 
+#include "../sessions/status_util.h"
 #include "craftscan/daemon/session_store.h"
 #include "craftscan/pipeline/common/point_cloud.h"
 #include "daemon_fixture.h"
 #include "station_client.h"
+
+using craftscan::testing::StatusInto;
 
 namespace craftscan::testing {
 namespace {
@@ -106,10 +109,10 @@ TEST(Daemon, ScanOfSixViewsPublishesEverythingAndStoresTheSession) {
 
   // The session on disk is done, intact, and holds what was published.
   std::string error;
-  auto store = daemon::SessionStore::Open(r->fixture.data_dir(), &error);
+  auto store = daemon::SessionStore::Open(r->fixture.data_dir(), StatusInto(&error));
   ASSERT_TRUE(store) << error;
   EXPECT_TRUE(store->Verify(session_id).IsIntact());
-  auto session = store->OpenSession(session_id, &error);
+  auto session = store->OpenSession(session_id, StatusInto(&error));
   ASSERT_TRUE(session) << error;
   EXPECT_EQ(session->state(), SessionState::kDone);
   EXPECT_EQ(session->DurableViews().size(), 6u);
@@ -288,9 +291,9 @@ TEST(Daemon, CancelDuringAMoveAbortsTheMove) {
   EXPECT_LT(seconds, 8.0) << "the cancel waited for the move to end";
   const std::string session = scan->result["session"];
   std::string error;
-  auto store = daemon::SessionStore::Open(r->fixture.data_dir(), &error);
+  auto store = daemon::SessionStore::Open(r->fixture.data_dir(), StatusInto(&error));
   ASSERT_TRUE(store) << error;
-  auto opened = store->OpenSession(session, &error);
+  auto opened = store->OpenSession(session, StatusInto(&error));
   ASSERT_TRUE(opened) << error;
   EXPECT_EQ(opened->state(), SessionState::kInterrupted);
   EXPECT_EQ(opened->DurableViews().size(), 1u);
@@ -317,11 +320,11 @@ TEST(Daemon, SigkillDuringAScanLosesNothingAndResumeCompletesItWithoutRecapturin
   // Every acknowledged capture is on disk and intact.
   std::string error;
   {
-    auto store = daemon::SessionStore::Open(r->fixture.data_dir(), &error);
+    auto store = daemon::SessionStore::Open(r->fixture.data_dir(), StatusInto(&error));
     ASSERT_TRUE(store) << error;
     const daemon::VerifyResult verify = store->Verify(session_id);
     EXPECT_TRUE(verify.IsIntact()) << (verify.problems.empty() ? "" : verify.problems[0]);
-    auto session = store->OpenSession(session_id, &error);
+    auto session = store->OpenSession(session_id, StatusInto(&error));
     ASSERT_TRUE(session) << error;
     const std::vector<int> durable = session->DurableViews();
     for (const CaptureRecord& ack : acknowledged) {
@@ -360,9 +363,9 @@ TEST(Daemon, SigkillDuringAScanLosesNothingAndResumeCompletesItWithoutRecapturin
     }
     EXPECT_EQ(recaptured.size() + acknowledged.size(), 6u);
   }
-  auto store = daemon::SessionStore::Open(r->fixture.data_dir(), &error);
+  auto store = daemon::SessionStore::Open(r->fixture.data_dir(), StatusInto(&error));
   ASSERT_TRUE(store);
-  auto session = store->OpenSession(session_id, &error);
+  auto session = store->OpenSession(session_id, StatusInto(&error));
   ASSERT_TRUE(session) << error;
   EXPECT_EQ(session->state(), SessionState::kDone);
   EXPECT_EQ(session->DurableViews().size(), 6u);
@@ -437,9 +440,9 @@ TEST(DaemonFaults, CameraLostMidScanIsRecoveredAndTheScanCompletes) {
   EXPECT_EQ(job.value("state", ""), "done") << job.dump() << r->fixture.Log();
   EXPECT_NE(r->fixture.Log().find("reconnected"), std::string::npos) << r->fixture.Log();
   std::string error;
-  auto store = daemon::SessionStore::Open(r->fixture.data_dir(), &error);
+  auto store = daemon::SessionStore::Open(r->fixture.data_dir(), StatusInto(&error));
   ASSERT_TRUE(store);
-  auto session = store->OpenSession(reply->result["session"], &error);
+  auto session = store->OpenSession(reply->result["session"], StatusInto(&error));
   ASSERT_TRUE(session) << error;
   EXPECT_EQ(session->DurableViews().size(), 6u);
   EXPECT_TRUE(session->Verify().IsIntact());
@@ -466,9 +469,9 @@ TEST(DaemonFaults, CameraGoneForGoodInterruptsTheScanAndResumeFinishesIt) {
       << status->result.dump();
   std::string error;
   {
-    auto store = daemon::SessionStore::Open(r->fixture.data_dir(), &error);
+    auto store = daemon::SessionStore::Open(r->fixture.data_dir(), StatusInto(&error));
     ASSERT_TRUE(store);
-    auto session = store->OpenSession(session_id, &error);
+    auto session = store->OpenSession(session_id, StatusInto(&error));
     ASSERT_TRUE(session) << error;
     EXPECT_EQ(session->state(), SessionState::kInterrupted);
     EXPECT_EQ(session->DurableViews(), (std::vector<int>{0, 1}));
@@ -510,9 +513,9 @@ TEST(DaemonFaults, TurntableAlarmStopsTheScanWithTheReason) {
   ASSERT_TRUE(status);
   EXPECT_EQ(status->result["state"], "idle");
   std::string error;
-  auto store = daemon::SessionStore::Open(r->fixture.data_dir(), &error);
+  auto store = daemon::SessionStore::Open(r->fixture.data_dir(), StatusInto(&error));
   ASSERT_TRUE(store);
-  auto session = store->OpenSession(reply->result["session"], &error);
+  auto session = store->OpenSession(reply->result["session"], StatusInto(&error));
   ASSERT_TRUE(session) << error;
   EXPECT_EQ(session->state(), SessionState::kInterrupted);
   EXPECT_TRUE(session->Verify().IsIntact());

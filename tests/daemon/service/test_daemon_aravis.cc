@@ -27,11 +27,14 @@
 
 #include <opencv2/core.hpp>
 
+#include "../sessions/status_util.h"
 #include "aravis_fakes.h"
 #include "craftscan/sim/driver_options.h"
 #include "craftscan/sim/station.h"
 #include "daemon_devices.h"
 #include "turntable_emulator.h"
+
+using craftscan::testing::StatusInto;
 
 namespace craftscan::testing {
 namespace {
@@ -207,9 +210,9 @@ class DaemonAravis : public ::testing::Test {
   // Every durable capture of `session` is its view's render, bit-exact.
   void ExpectCapturesAreTheRenders(const std::string& session) {
     std::string error;
-    auto store = daemon::SessionStore::Open(daemon_.fixture.data_dir(), &error);
+    auto store = daemon::SessionStore::Open(daemon_.fixture.data_dir(), StatusInto(&error));
     ASSERT_TRUE(store) << error;
-    auto opened = store->OpenSession(session, &error);
+    auto opened = store->OpenSession(session, StatusInto(&error));
     ASSERT_TRUE(opened) << error;
     for (int k : opened->DurableViews()) {
       cv::Mat left, right;

@@ -15,9 +15,12 @@
 #include <string>
 #include <thread>
 
+#include "../sessions/status_util.h"
 #include "craftscan/daemon/session_store.h"
 #include "daemon_fixture.h"
 #include "station_client.h"
+
+using craftscan::testing::StatusInto;
 
 namespace craftscan::testing {
 namespace {
@@ -69,12 +72,12 @@ TEST(DaemonCrash, TwentyScansKilledAtRandomMomentsLoseNothing) {
 
     // On disk, before the restart: every acknowledged capture is listed and readable.
     {
-      auto store = daemon::SessionStore::Open(fixture.data_dir(), &error);
+      auto store = daemon::SessionStore::Open(fixture.data_dir(), StatusInto(&error));
       ASSERT_TRUE(store) << error;
       const daemon::VerifyResult verify = store->Verify(session_id);
       ASSERT_TRUE(verify.IsIntact())
           << "scan " << scan << ": " << (verify.problems.empty() ? "manifest" : verify.problems[0]);
-      auto session = store->OpenSession(session_id, &error);
+      auto session = store->OpenSession(session_id, StatusInto(&error));
       ASSERT_TRUE(session) << error;
       const std::vector<int> durable = session->DurableViews();
       for (int view : acknowledged) {
@@ -122,7 +125,7 @@ TEST(DaemonCrash, TwentyScansKilledAtRandomMomentsLoseNothing) {
   std::printf(
       "20 scans killed: %d during capture, %d later; %d acknowledged captures, all intact\n",
       killed_mid_capture, killed_later, acknowledged_total);
-  auto store = daemon::SessionStore::Open(fixture.data_dir(), &error);
+  auto store = daemon::SessionStore::Open(fixture.data_dir(), StatusInto(&error));
   ASSERT_TRUE(store);
   int done = 0;
   for (const daemon::SessionSummary& s : store->List()) done += s.state == "done";

@@ -30,9 +30,12 @@
 #include <thread>
 #include <vector>
 
+#include "../sessions/status_util.h"
 #include "craftscan/daemon/session_store.h"
 #include "daemon_fixture.h"
 #include "station_client.h"
+
+using craftscan::testing::StatusInto;
 
 #if defined(__SANITIZE_ADDRESS__) || defined(__SANITIZE_THREAD__)
 #define CRAFTSCAN_HARDENED_SANITIZED 1
@@ -311,11 +314,11 @@ TEST(HardenedService, DaemonScansAndStopsCleanlyUnderTheUnitsSandbox) {
     ASSERT_EQ(client.last_job_state, "done") << f.Log();
   }
 
-  auto store = daemon::SessionStore::Open(f.data_dir(), &error);
+  auto store = daemon::SessionStore::Open(f.data_dir(), StatusInto(&error));
   ASSERT_TRUE(store) << error;
   const daemon::VerifyResult verify = store->Verify(session_id);
   EXPECT_TRUE(verify.IsIntact()) << (verify.problems.empty() ? "manifest" : verify.problems[0]);
-  auto session = store->OpenSession(session_id, &error);
+  auto session = store->OpenSession(session_id, StatusInto(&error));
   ASSERT_TRUE(session) << error;
   EXPECT_EQ(session->state(), daemon::SessionState::kDone);
   EXPECT_EQ(session->DurableViews().size(), 3u);

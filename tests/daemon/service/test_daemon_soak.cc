@@ -18,10 +18,13 @@
 #include <thread>
 #include <vector>
 
+#include "../sessions/status_util.h"
 #include "craftscan/daemon/session_store.h"
 #include "daemon_fixture.h"
 #include "daemon_probe.h"
 #include "station_client.h"
+
+using craftscan::testing::StatusInto;
 
 namespace craftscan::testing {
 namespace {
@@ -182,7 +185,7 @@ TEST(DaemonSoak, FiftyScansBackToBackWithClientsComingAndGoingLeakNothing) {
   EXPECT_GT(churn->rounds(), scans);  // clients came and went all along
 
   // Every session is on disk, done and intact.
-  auto store = daemon::SessionStore::Open(fixture.data_dir(), &error);
+  auto store = daemon::SessionStore::Open(fixture.data_dir(), StatusInto(&error));
   ASSERT_TRUE(store) << error;
   const auto listed = client.Send("sessions", nullptr, kObserverToken);
   ASSERT_TRUE(listed);
@@ -191,7 +194,7 @@ TEST(DaemonSoak, FiftyScansBackToBackWithClientsComingAndGoingLeakNothing) {
     const daemon::VerifyResult verify = store->Verify(id);
     EXPECT_TRUE(verify.IsIntact())
         << id << ": " << (verify.problems.empty() ? "" : verify.problems[0]);
-    auto session = store->OpenSession(id, &error);
+    auto session = store->OpenSession(id, StatusInto(&error));
     ASSERT_TRUE(session) << error;
     EXPECT_EQ(session->state(), daemon::SessionState::kDone) << id;
     EXPECT_EQ(session->DurableViews().size(), 4u) << id;

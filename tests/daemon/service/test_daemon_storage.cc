@@ -30,11 +30,16 @@
 #include <thread>
 #include <vector>
 
+#include "../sessions/status_util.h"
 #include "craftscan/client/station_client.h"
 #include "craftscan/daemon/session_store.h"
 #include "ctl_runner.h"
 #include "daemon_fixture.h"
+#include "private_mount.h"
 #include "station_client.h"
+
+using craftscan::testing::Ok;
+using craftscan::testing::StatusInto;
 
 namespace craftscan::testing {
 namespace {
@@ -42,75 +47,12 @@ namespace {
 namespace fs = std::filesystem;
 using namespace std::chrono_literals;
 using daemon::SessionState;
+using testing::EnterPrivateMountNamespace;
+using testing::ScopedTmpfs;
 
 bool Contains(const std::string& text, const std::string& part) {
   return text.find(part) != std::string::npos;
 }
-
-// Moves the calling thread into a private mount namespace: directly as root,
-// else through a new user namespace (which needs a single-threaded process,
-// as at the start of a test). Processes started from this thread afterwards
-// share it. Returns "" or why not (the test then skips).
-std::string EnterPrivateMountNamespace() {
-  if (::unshare(CLONE_NEWNS) != 0) {
-    const uid_t uid = ::geteuid();
-    const gid_t gid = ::getegid();
-    if (::unshare(CLONE_NEWUSER | CLONE_NEWNS) != 0) {
-      return std::string("no mount namespace (unshare: ") + std::strerror(errno) + ")";
-    }
-    std::ofstream("/proc/self/setgroups") << "deny";
-    std::ofstream("/proc/self/uid_map") << "0 " << uid << " 1";
-    std::ofstream("/proc/self/gid_map") << "0 " << gid << " 1";
-  }
-  // Private, so that nothing mounted here propagates to the host.
-  if (::mount(nullptr, "/", nullptr, MS_REC | MS_PRIVATE, nullptr) != 0) {
-    return std::string("cannot make mounts private: ") + std::strerror(errno);
-  }
-  return {};
-}
-
-// A tmpfs of `size` ("40m") on `dir` (an existing folder) for the life of
-// the object; unmounted lazily, so a child still inside cannot keep it.
-class ScopedTmpfs {
- public:
-  ScopedTmpfs(std::string dir, const std::string& size) : dir_(std::move(dir)) {
-    const std::string options = "size=" + size + ",mode=0755";
-    if (::mount("craftscan-test", dir_.c_str(), "tmpfs", 0, options.c_str()) != 0) {
-      error_ = "mount tmpfs on " + dir_ + ": " + std::strerror(errno);
-      return;
-    }
-    mounted_ = true;
-  }
-  ~ScopedTmpfs() {
-    if (mounted_) ::umount2(dir_.c_str(), MNT_DETACH);
-  }
-  ScopedTmpfs(const ScopedTmpfs&) = delete;
-  ScopedTmpfs& operator=(const ScopedTmpfs&) = delete;
-
-  const std::string& error() const { return error_; }
-
-  // Remounts it read-only or read-write. A read-only remount is refused
-  // (EBUSY) while a file on it is open for writing: tried again every
-  // millisecond for up to `patience`.
-  bool SetReadOnly(bool read_only, std::string* error,
-                   std::chrono::milliseconds patience = 20000ms) {
-    const unsigned long flags = MS_REMOUNT | MS_BIND | (read_only ? MS_RDONLY : 0);
-    const auto deadline = std::chrono::steady_clock::now() + patience;
-    for (;;) {
-      if (::mount(nullptr, dir_.c_str(), nullptr, flags, nullptr) == 0) return true;
-      if (errno != EBUSY || std::chrono::steady_clock::now() > deadline) {
-        *error = std::string("remount ") + (read_only ? "ro" : "rw") + " " + dir_ + ": " +
-                 std::strerror(errno);
-        return false;
-      }
-      std::this_thread::sleep_for(1ms);
-    }
-  }
-
- private:
-  std::string dir_, error_;
-  bool mounted_ = false;
-};
 
 // One test's station: the mount namespace, the tmpfs data directory, the
 // daemon (320x256, no mesh), a command client and a status watch.
@@ -239,12 +181,12 @@ struct OnDisk {
 
 OnDisk Inspect(const std::string& data_dir, const std::string& id) {
   OnDisk out;
-  auto store = daemon::SessionStore::Open(data_dir, &out.error);
+  auto store = daemon::SessionStore::Open(data_dir, StatusInto(&out.error));
   if (!store) return out;
   const daemon::VerifyResult verify = store->Verify(id);
   out.intact = verify.IsIntact();
   if (!verify.problems.empty()) out.error = verify.problems[0];
-  auto session = store->OpenSession(id, &out.error);
+  auto session = store->OpenSession(id, StatusInto(&out.error));
   if (!session) return out;
   out.state = daemon::ToString(session->state());
   if (out.error.empty()) out.error = session->manifest().error;
@@ -540,12 +482,12 @@ TEST(DaemonStorage, StartsDegradedOnAReadOnlyDataDirAndRecoversWhenItIsWritable)
   const std::string data_dir = station.data_dir();
   std::string error, left_over;
   {
-    auto store = daemon::SessionStore::Open(data_dir, &error);
+    auto store = daemon::SessionStore::Open(data_dir, StatusInto(&error));
     ASSERT_TRUE(store) << error;
     auto session = store->Create("left over", "scan", {{"views", 2}, {"step_deg", 180.0}},
-                                 std::chrono::system_clock::now(), &error);
+                                 std::chrono::system_clock::now(), StatusInto(&error));
     ASSERT_TRUE(session) << error;
-    ASSERT_TRUE(session->SetState(SessionState::kCapturing, "", &error)) << error;
+    ASSERT_TRUE(Ok(session->SetState(SessionState::kCapturing, ""), &error)) << error;
     left_over = session->id();
   }
   ASSERT_TRUE(station.tmpfs().SetReadOnly(true, &error)) << error;

@@ -19,11 +19,13 @@
 #include <functional>
 #include <memory>
 #include <mutex>
+#include <optional>
 #include <random>
 #include <string>
 #include <thread>
 #include <vector>
 
+#include "../sessions/status_util.h"
 #include "craftscan/daemon/config.h"
 #include "craftscan/daemon/devices.h"
 #include "craftscan/daemon/jobs.h"
@@ -33,6 +35,9 @@
 #include "craftscan/sim/driver_options.h"
 #include "craftscan/sim/station.h"
 #include "private_mount.h"
+
+using craftscan::testing::Ok;
+using craftscan::testing::StatusInto;
 
 namespace craftscan::daemon {
 namespace {
@@ -177,7 +182,7 @@ class Station {
     setup.turntable = {"sim", config};
     devices_ = std::make_unique<DeviceManager>(setup, Logger(), nullptr);
     if (!devices_->Open(&error)) return "devices: " + error;
-    store_ = SessionStore::Open(data_dir_, &error);
+    store_ = SessionStore::Open(data_dir_, StatusInto(&error));
     if (!store_) return "store: " + error;
 
     JobEngineOptions options;
@@ -252,7 +257,7 @@ class Station {
   // job holds it).
   Manifest ManifestOf(const std::string& id) {
     std::string error;
-    std::unique_ptr<Session> session = store_->OpenSession(id, &error);
+    std::unique_ptr<Session> session = store_->OpenSession(id, StatusInto(&error));
     EXPECT_TRUE(session) << error;
     return session ? session->manifest() : Manifest{};
   }
@@ -329,7 +334,8 @@ class Station {
       if (previous) previous(event);
       if (!IsTerminal(event.stage)) return;
       std::string error;
-      const bool opened = store_->OpenSession(engine_->Current().session, &error) != nullptr;
+      const bool opened =
+          store_->OpenSession(engine_->Current().session, StatusInto(&error)) != nullptr;
       std::lock_guard lock(mutex_);
       opened_at_end_ = opened;
       open_error_ = error;
@@ -545,6 +551,16 @@ TEST_F(JobStages, CameraLostMidScanInterruptsTheScanAndResumeCompletesIt) {
   station.ExpectResumeCompletes(started.session);
 }
 
+// Enters a private mount namespace and mounts a tmpfs of `size` on `dir`
+// (in *tmpfs, unmounted when it goes); "" or why not (the test skips).
+std::string OnPrivateTmpfs(const std::string& dir, const std::string& size,
+                           std::optional<testing::ScopedTmpfs>* tmpfs) {
+  std::string why = testing::EnterPrivateMountNamespace();
+  if (!why.empty()) return why;
+  tmpfs->emplace(dir, size);
+  return (*tmpfs)->error();
+}
+
 // Fills the file system of `dir` (a tmpfs) up to the last block.
 std::string FillDisk(const std::string& path) {
   struct statvfs vfs {};
@@ -561,10 +577,9 @@ std::string FillDisk(const std::string& path) {
 
 TEST_F(JobStages, DiskFullMidScanInterruptsTheScanAndResumeCompletesOnceSpaceIsFreed) {
   // Before any thread exists: a user namespace needs a single-threaded process.
-  const std::string why = testing::EnterPrivateMountNamespace();
+  std::optional<testing::ScopedTmpfs> tmpfs;
+  const std::string why = OnPrivateTmpfs(data_dir(), "24m", &tmpfs);
   if (!why.empty()) GTEST_SKIP() << why;
-  testing::ScopedTmpfs tmpfs(data_dir(), "24m");
-  if (!tmpfs.error().empty()) GTEST_SKIP() << tmpfs.error();
   Station station(data_dir());
   OPEN_STATION(station);
   const std::string filler = data_dir() + "/filler";
@@ -597,21 +612,33 @@ TEST_F(JobStages, DiskFullMidScanInterruptsTheScanAndResumeCompletesOnceSpaceIsF
   station.ExpectResumeCompletes(started.session);
 }
 
+// A scan session of kViews views in state capturing; null with *error.
+std::unique_ptr<Session> CapturingSession(SessionStore& store, std::string* error) {
+  std::unique_ptr<Session> session =
+      store.Create("box", "scan", {{"views", kViews}, {"step_deg", 90}},
+                   std::chrono::system_clock::now(), StatusInto(error));
+  if (session && !Ok(session->SetState(SessionState::kCapturing, "test"), error)) return nullptr;
+  return session;
+}
+
+// The context a stage runs in: `session`, `sink`, stopped by *stop.
+StageContext ContextFor(Session* session, JobSink* sink, std::atomic<bool>* stop) {
+  StageContext context;
+  context.session = session;
+  context.sink = sink;
+  context.stop = stop;
+  return context;
+}
+
 // The stages alone, without the engine: Run() on queues.
 TEST_F(JobStages, CaptureStageStopsAtItsNextViewAndMatchStageFinishesTheViewInHand) {
   Station station(data_dir());
   OPEN_STATION(station);
   std::string error;
-  std::unique_ptr<Session> session =
-      station.store().Create("box", "scan", {{"views", kViews}, {"step_deg", 90}},
-                             std::chrono::system_clock::now(), &error);
+  std::unique_ptr<Session> session = CapturingSession(station.store(), &error);
   ASSERT_TRUE(session) << error;
-  ASSERT_TRUE(session->SetState(SessionState::kCapturing, "test", &error)) << error;
   std::atomic<bool> stop{false};
-  StageContext context;
-  context.session = session.get();
-  context.sink = &station.sink();
-  context.stop = &stop;
+  const StageContext context = ContextFor(session.get(), &station.sink(), &stop);
   station.sink().on_capture = [&](int view) {
     if (view == 0) stop = true;
   };
@@ -642,6 +669,33 @@ TEST_F(JobStages, CaptureStageStopsAtItsNextViewAndMatchStageFinishesTheViewInHa
   const Manifest manifest = session->manifest();
   ASSERT_TRUE(manifest.views.count(0));
   EXPECT_TRUE(manifest.views.at(0).HasCloud());
+}
+
+// A store the disk refuses: the stage's outcome carries the code of the
+// failing write (kDiskFull from ENOSPC), marked as the data disk's, and is
+// resumable; a device's kIoError is not marked so.
+TEST_F(JobStages, CaptureStageOnAFullDiskCarriesDiskFull) {
+  // Before any thread exists: a user namespace needs a single-threaded process.
+  std::optional<testing::ScopedTmpfs> tmpfs;
+  const std::string why = OnPrivateTmpfs(data_dir(), "24m", &tmpfs);
+  if (!why.empty()) GTEST_SKIP() << why;
+  Station station(data_dir());
+  OPEN_STATION(station);
+  std::string error;
+  std::unique_ptr<Session> session = CapturingSession(station.store(), &error);
+  ASSERT_TRUE(session) << error;
+  ASSERT_EQ(FillDisk(data_dir() + "/filler"), "");
+  std::atomic<bool> stop{false};
+  const StageContext context = ContextFor(session.get(), &station.sink(), &stop);
+  BoundedQueue<CapturedView> q1(kViews);
+  CaptureStage capture(context, &station.devices(), {kViews, 90, 0ms});
+  const StageOutcome captured = capture.Run(q1);
+  EXPECT_EQ(captured.code, ErrorCode::kDiskFull) << captured.message;
+  EXPECT_TRUE(captured.storage);
+  EXPECT_TRUE(captured.resumable);
+  EXPECT_TRUE(Contains(captured.message, "view 0")) << captured.message;
+  EXPECT_TRUE(session->DurableViews().empty());
+  EXPECT_FALSE(StageOutcome::Error(ErrorCode::kIoError, "camera", true).storage);
 }
 
 TEST_F(JobStages, DeviceErrorsKeepTheirCodes) {

@@ -22,7 +22,11 @@
 #include <opencv2/core.hpp>
 
 #include "craftscan/daemon/session_store.h"
+#include "status_util.h"
 #include "test_util.h"
+
+using craftscan::testing::Ok;
+using craftscan::testing::StatusInto;
 
 namespace craftscan::daemon::testing {
 
@@ -69,14 +73,14 @@ inline int CountTemporaries(const std::filesystem::path& dir) {
 }
 
 // A fixture with a data dir and an open store in it.
-class SessionTest : public craftscan::testing::TempDirTest {
+class SessionFiles : public craftscan::testing::TempDirTest {
  protected:
   void SetUp() override {
     TempDirTest::SetUp();
     data_dir_ = Path("data");
     std::filesystem::create_directories(data_dir_);
     std::string error;
-    store_ = SessionStore::Open(data_dir_, &error);
+    store_ = SessionStore::Open(data_dir_, StatusInto(&error));
     ASSERT_NE(store_, nullptr) << error;
   }
 
@@ -84,10 +88,10 @@ class SessionTest : public craftscan::testing::TempDirTest {
   std::unique_ptr<Session> NewCapturing(const std::string& object, int views = 4) {
     std::string error;
     auto session = store_->Create(object, "scan", {{"views", views}, {"step_deg", 90.0}},
-                                  std::chrono::system_clock::now(), &error);
+                                  std::chrono::system_clock::now(), StatusInto(&error));
     EXPECT_NE(session, nullptr) << error;
     if (session) {
-      EXPECT_TRUE(session->SetState(SessionState::kCapturing, "", &error)) << error;
+      EXPECT_TRUE(Ok(session->SetState(SessionState::kCapturing, ""), &error)) << error;
     }
     return session;
   }

@@ -3,6 +3,7 @@
 // while captures are being stored.
 #include <gtest/gtest.h>
 
+#include <grp.h>
 #include <signal.h>
 #include <sys/mount.h>
 #include <sys/stat.h>
@@ -18,6 +19,10 @@
 #include <sstream>
 
 #include "session_test_util.h"
+#include "status_util.h"
+
+using craftscan::testing::Ok;
+using craftscan::testing::StatusInto;
 
 namespace craftscan::daemon {
 namespace {
@@ -52,41 +57,68 @@ std::string ReadOnlyScenario(SessionStore& store, const std::string& data_dir,
   std::string error;
   const bool root = ::geteuid() == 0;
   const std::string reason = root ? "Read-only file system" : "Permission denied";
-  f.Check(SessionStore::Open(data_dir, &error) == nullptr, "Open succeeded on a read-only dir");
+  // The code travels from the failing system call: EROFS (a read-only
+  // mount) or EACCES (permissions).
+  const ErrorCode code = root ? ErrorCode::kReadOnly : ErrorCode::kPermissionDenied;
+  const auto check_code = [&](const Status& status, const std::string& what) {
+    f.Check(status.code() == code, what + " code: " + status.ToString());
+    if (!status.ok()) error = status.message();
+    return status.ok();
+  };
+  Status status;
+  f.Check(SessionStore::Open(data_dir, &status) == nullptr, "Open succeeded on a read-only dir");
+  check_code(status, "Open");
   f.Check(Contains(error, "is not writable") && Contains(error, reason), "Open error: " + error);
-  f.Check(store.Create("more", "scan", nlohmann::json::object(), Clock::now(), &error) == nullptr,
+  f.Check(store.Create("more", "scan", nlohmann::json::object(), Clock::now(), &status) == nullptr,
           "Create succeeded");
+  check_code(status, "Create");
   f.Check(Contains(error, store.sessions_dir()) && Contains(error, reason),
           "Create error: " + error);
-  auto session = store.OpenSession(id, &error);  // reading works
+  auto session = store.OpenSession(id, StatusInto(&error));  // reading works
   f.Check(session != nullptr, "OpenSession failed: " + error);
   if (!session) return f.str();
-  const bool stored = session->StoreCapture(1, 90.0, NoiseImage(32, 24, CV_8UC1, 5),
-                                            NoiseImage(32, 24, CV_8UC1, 6), {{"view", 1}}, &error);
+  const bool stored =
+      check_code(session->StoreCapture(1, 90.0, NoiseImage(32, 24, CV_8UC1, 5),
+                                       NoiseImage(32, 24, CV_8UC1, 6), {{"view", 1}}),
+                 "StoreCapture");
   f.Check(!stored, "StoreCapture succeeded");
   f.Check(Contains(error, "capture of view 1") && Contains(error, "views/001") &&
               Contains(error, reason),
           "StoreCapture error: " + error);
-  f.Check(!session->SetState(SessionState::kFailed, "x", &error), "SetState succeeded");
+  f.Check(!check_code(session->SetState(SessionState::kFailed, "x"), "SetState"),
+          "SetState succeeded");
   f.Check(Contains(error, "cannot update the manifest") && Contains(error, "manifest.json") &&
               Contains(error, reason),
           "SetState error: " + error);
   f.Check(session->state() == SessionState::kCapturing, "state changed in memory");
-  f.Check(!session->StoreOutput("report.json", "{}", &error) && Contains(error, reason),
+  f.Check(!check_code(session->StoreOutput("report.json", "{}"), "StoreOutput") &&
+              Contains(error, reason),
           "StoreOutput error: " + error);
+  f.Check(!check_code(session->StoreDisparity(0, cv::Mat(4, 4, CV_32FC1, cv::Scalar(1))),
+                      "StoreDisparity"),
+          "StoreDisparity succeeded");
+  PointCloud cloud;
+  cloud.points_mm = {{1, 2, 3}};
+  f.Check(!check_code(session->StoreCloud(0, cloud), "StoreCloud"), "StoreCloud succeeded");
   cv::Mat left, right;
   f.Check(session->LoadCapture(0, &left, &right, nullptr, &error), "LoadCapture: " + error);
   f.Check(BitExact(left, NoiseImage(32, 24, CV_8UC1, 1)), "view 0 changed");
   return f.str();
 }
 
-TEST_F(SessionTest, ReadOnlyDataDirFailsClearlyAndLeavesEarlierFilesIntact) {
+// Stores view 0 with the images the scenarios check; "" or what failed.
+std::string StoreViewZero(Session& s) {
+  std::string error;
+  Ok(s.StoreCapture(0, 0.0, NoiseImage(32, 24, CV_8UC1, 1), NoiseImage(32, 24, CV_8UC1, 2),
+                    {{"view", 0}}),
+     &error);
+  return error;
+}
+
+TEST_F(SessionFiles, ReadOnlyDataDirFailsClearlyAndLeavesEarlierFilesIntact) {
   auto s = NewCapturing("readonly", 2);
   ASSERT_NE(s, nullptr);
-  std::string error;
-  ASSERT_TRUE(s->StoreCapture(0, 0.0, NoiseImage(32, 24, CV_8UC1, 1),
-                              NoiseImage(32, 24, CV_8UC1, 2), {{"view", 0}}, &error))
-      << error;
+  ASSERT_EQ(StoreViewZero(*s), "");
   const std::string id = s->id();
   const std::string manifest_path = s->dir() + "/manifest.json";
   const std::string before = ReadAll(manifest_path);
@@ -139,24 +171,31 @@ bool FillUp(const std::string& dir) {
 std::string DiskFullScenario(const std::string& data_dir, const std::string& calibration) {
   Failures f;
   std::string error;
-  auto store = SessionStore::Open(data_dir, &error);
+  Status status;
+  auto store = SessionStore::Open(data_dir, StatusInto(&error));
   f.Check(store != nullptr, "Open: " + error);
   if (!store) return f.str();
-  auto s = store->Create("full", "scan", {{"views", 3}}, Clock::now(), &error);
+  auto s = store->Create("full", "scan", {{"views", 3}}, Clock::now(), StatusInto(&error));
   f.Check(s != nullptr, "Create: " + error);
   if (!s) return f.str();
-  f.Check(s->SetState(SessionState::kCapturing, "", &error), "SetState: " + error);
-  f.Check(s->CopyCalibration(calibration, "rig", &error), "CopyCalibration: " + error);
+  f.Check(Ok(s->SetState(SessionState::kCapturing, ""), &error), "SetState: " + error);
+  f.Check(Ok(s->CopyCalibration(calibration, "rig"), &error), "CopyCalibration: " + error);
   const cv::Mat small_left = NoiseImage(40, 30, CV_8UC3, 1);
   const cv::Mat small_right = NoiseImage(40, 30, CV_8UC3, 2);
-  f.Check(s->StoreCapture(0, 0.0, small_left, small_right, {{"view", 0}}, &error),
+  f.Check(Ok(s->StoreCapture(0, 0.0, small_left, small_right, {{"view", 0}}), &error),
           "capture 0: " + error);
   const std::string manifest_before = ReadAll(s->dir() + "/manifest.json");
 
   // Two incompressible 256×256 colour images (~197 KB each as PNG) do not
   // fit in what is left of 320 KiB.
-  const bool stored = s->StoreCapture(1, 120.0, NoiseImage(256, 256, CV_8UC3, 3),
-                                      NoiseImage(256, 256, CV_8UC3, 4), {{"view", 1}}, &error);
+  const auto full = [&](const Status& status, const std::string& what) {
+    f.Check(status.code() == ErrorCode::kDiskFull, what + " code: " + status.ToString());
+    if (!status.ok()) error = status.message();
+    return status.ok();
+  };
+  const bool stored = full(s->StoreCapture(1, 120.0, NoiseImage(256, 256, CV_8UC3, 3),
+                                           NoiseImage(256, 256, CV_8UC3, 4), {{"view", 1}}),
+                           "capture 1");
   f.Check(!stored, "capture 1 fit on the small disk");
   f.Check(Contains(error, "No space left on device") && Contains(error, s->dir() + "/views/001/"),
           "capture 1 error: " + error);
@@ -172,31 +211,37 @@ std::string DiskFullScenario(const std::string& data_dir, const std::string& cal
   // outputs and even a recapture of view 0 (which first unlists it) fail
   // without touching what is there.
   f.Check(FillUp(data_dir), "could not fill the disk");
-  f.Check(!s->SetState(SessionState::kFailed, "disk full", &error), "SetState on a full disk");
+  f.Check(!full(s->SetState(SessionState::kFailed, "disk full"), "SetState"),
+          "SetState on a full disk");
   f.Check(Contains(error, "cannot update the manifest") && Contains(error, "No space left"),
           "SetState error: " + error);
   f.Check(s->state() == SessionState::kCapturing, "state changed in memory");
-  f.Check(!s->StoreOutput("report.json", std::string(8192, 'r'), &error) &&
+  f.Check(!full(s->StoreOutput("report.json", std::string(8192, 'r')), "StoreOutput") &&
               Contains(error, "No space left on device") && Contains(error, "report.json"),
           "StoreOutput error: " + error);
-  f.Check(!s->StoreCapture(0, 0.0, small_left, small_right, {{"view", 0}}, &error),
+  f.Check(!full(s->StoreCapture(0, 0.0, small_left, small_right, {{"view", 0}}), "recapture"),
           "recapture on a full disk");
+  f.Check(!full(s->StoreDisparity(0, NoiseImage(64, 64, CV_32FC1, 9)), "StoreDisparity"),
+          "disparity on a full disk");
+  f.Check(store->Create("more", "scan", nlohmann::json::object(), Clock::now(), &status) == nullptr,
+          "Create on a full disk");
+  full(status, "Create");
   f.Check(ReadAll(s->dir() + "/manifest.json") == manifest_before, "manifest changed");
   f.Check(s->Verify().IsIntact(), "Verify on a full disk");
   f.Check(testing::CountTemporaries(data_dir) == 0, "temporaries left behind");
 
   // Space again: the job can record its failure.
   fs::remove(data_dir + "/filler");
-  f.Check(s->SetState(SessionState::kFailed, "disk was full", &error), "SetState: " + error);
+  f.Check(Ok(s->SetState(SessionState::kFailed, "disk was full"), &error), "SetState: " + error);
   const std::string id = s->id();
   s.reset();
-  auto again = store->OpenSession(id, &error);
+  auto again = store->OpenSession(id, StatusInto(&error));
   f.Check(again && again->state() == SessionState::kFailed && again->Verify().IsIntact(),
           "reopen: " + error);
   return f.str();
 }
 
-TEST_F(SessionTest, FullDiskFailsClearlyAndLeavesEarlierFilesIntact) {
+TEST_F(SessionFiles, FullDiskFailsClearlyAndLeavesEarlierFilesIntact) {
   const std::string small = Path("small");
   fs::create_directories(small);
   WriteBytes("rig.yaml", "baseline_mm: 60\n");
@@ -212,15 +257,16 @@ TEST_F(SessionTest, FullDiskFailsClearlyAndLeavesEarlierFilesIntact) {
 // are missing, reporting each acknowledged view index through `ack_fd`.
 [[noreturn]] void CaptureLoop(SessionStore& store, const std::string& id, int ack_fd) {
   std::string error;
-  auto s = store.OpenSession(id, &error);
+  auto s = store.OpenSession(id, StatusInto(&error));
   if (!s) ::_exit(2);
   if (s->state() != SessionState::kCapturing &&
-      !s->SetState(SessionState::kCapturing, "resume", &error)) {
+      !Ok(s->SetState(SessionState::kCapturing, "resume"), &error)) {
     ::_exit(3);
   }
   for (const int view : s->GetResumePoint(false).to_capture) {
-    if (!s->StoreCapture(view, view * 10.0, NoiseImage(64, 48, CV_8UC3, 2 * view),
-                         NoiseImage(64, 48, CV_8UC3, 2 * view + 1), {{"view", view}}, &error)) {
+    if (!Ok(s->StoreCapture(view, view * 10.0, NoiseImage(64, 48, CV_8UC3, 2 * view),
+                            NoiseImage(64, 48, CV_8UC3, 2 * view + 1), {{"view", view}}),
+            &error)) {
       ::_exit(4);
     }
     if (::write(ack_fd, &view, sizeof view) != sizeof view) ::_exit(5);
@@ -228,7 +274,85 @@ TEST_F(SessionTest, FullDiskFailsClearlyAndLeavesEarlierFilesIntact) {
   ::_exit(0);
 }
 
-TEST_F(SessionTest, SigkillAtRandomMomentsNeverLosesAnAcknowledgedCapture) {
+// A folder the daemon may not write in (EACCES): every write path reports
+// kPermissionDenied, none kIoError, and nothing changes. Root ignores
+// permission bits, so as root the scenario runs in a child that has
+// dropped to an unprivileged user (uid/gid 65534) in a private mount
+// namespace; it is skipped when that is not possible.
+std::string PermissionDeniedScenario(SessionStore& store, const std::string& data_dir,
+                                     const std::string& id) {
+  Failures f;
+  const auto denied = [&](const Status& status, const std::string& what) {
+    f.Check(status.code() == ErrorCode::kPermissionDenied, what + " code: " + status.ToString());
+    f.Check(Contains(status.message(), "Permission denied"),
+            what + " message: " + status.message());
+  };
+  Status status;
+  f.Check(SessionStore::Open(data_dir, &status) == nullptr, "Open succeeded");
+  denied(status, "Open");
+  f.Check(store.Create("more", "scan", nlohmann::json::object(), Clock::now(), &status) == nullptr,
+          "Create succeeded");
+  denied(status, "Create");
+  auto session = store.OpenSession(id, &status);  // reading works
+  f.Check(session != nullptr, "OpenSession failed: " + status.ToString());
+  if (!session) return f.str();
+  denied(session->StoreCapture(1, 90.0, NoiseImage(32, 24, CV_8UC1, 5),
+                               NoiseImage(32, 24, CV_8UC1, 6), {{"view", 1}}),
+         "StoreCapture");
+  denied(session->SetState(SessionState::kFailed, "x"), "SetState");
+  denied(session->StoreOutput("report.json", "{}"), "StoreOutput");
+  f.Check(session->state() == SessionState::kCapturing, "state changed in memory");
+  return f.str();
+}
+
+TEST_F(SessionFiles, PermissionDeniedFolderGivesPermissionDenied) {
+  auto s = NewCapturing("denied", 2);
+  ASSERT_NE(s, nullptr);
+  ASSERT_EQ(StoreViewZero(*s), "");
+  const std::string id = s->id();
+  const std::string before = ReadAll(s->dir() + "/manifest.json");
+  s.reset();
+  // Readable and searchable by anyone, writable by no one but root.
+  const fs::path dirs[] = {store_->sessions_dir(), fs::path(store_->sessions_dir()) / id,
+                           fs::path(store_->sessions_dir()) / id / "views"};
+  for (const auto& d : dirs) fs::permissions(d, fs::perms(0555));
+  std::string failures;
+  bool skipped = false;
+  std::string skip_reason;
+  if (::geteuid() != 0) {
+    failures = PermissionDeniedScenario(*store_, data_dir_, id);
+  } else {
+    const testing::ChildOutcome outcome = testing::RunInMountNamespace(
+        [&]() -> std::string {
+          // Every folder above the data dir must be searchable by the user.
+          for (fs::path p = fs::path(data_dir_); p != p.root_path(); p = p.parent_path()) {
+            struct stat st {};
+            if (::stat(p.c_str(), &st) != 0 || (st.st_mode & S_IXOTH) == 0) {
+              // (Built with append: GCC 12 warns falsely on `"'" + string`, PR 105651.)
+              std::string why("'");
+              return why.append(p.string()).append("' is not searchable by an unprivileged user");
+            }
+          }
+          if (::setgroups(0, nullptr) != 0 || ::setresgid(65534, 65534, 65534) != 0 ||
+              ::setresuid(65534, 65534, 65534) != 0) {
+            return std::string("cannot drop to uid 65534: ") + std::strerror(errno);
+          }
+          return std::string();
+        },
+        [&] { return PermissionDeniedScenario(*store_, data_dir_, id); });
+    skipped = outcome.skipped;
+    skip_reason = outcome.message;
+    failures = outcome.message;
+  }
+  for (const auto& d : dirs) fs::permissions(d, fs::perms(0755));
+  if (skipped) GTEST_SKIP() << "no unprivileged child: " << skip_reason;
+  EXPECT_EQ(failures, "");
+  EXPECT_EQ(ReadAll(fs::path(store_->sessions_dir()) / id / "manifest.json"), before);
+  EXPECT_TRUE(store_->Verify(id).IsIntact());
+  EXPECT_EQ(testing::CountTemporaries(data_dir_), 0);
+}
+
+TEST_F(SessionFiles, SigkillAtRandomMomentsNeverLosesAnAcknowledgedCapture) {
   constexpr int kViews = 36;
   constexpr int kRounds = 10;
   auto created = NewCapturing("crash", kViews);
@@ -280,7 +404,7 @@ TEST_F(SessionTest, SigkillAtRandomMomentsNeverLosesAnAcknowledgedCapture) {
     ASSERT_TRUE(verify.IsIntact())
         << "round " << round << ": " << ::testing::PrintToString(verify.problems);
     std::string error;
-    auto s = store_->OpenSession(id, &error);
+    auto s = store_->OpenSession(id, StatusInto(&error));
     ASSERT_NE(s, nullptr) << error;
     EXPECT_EQ(s->state(), SessionState::kInterrupted);  // marked on "restart", even if finished
     const std::vector<int> durable = s->DurableViews();

@@ -10,7 +10,7 @@
 namespace craftscan::daemon {
 namespace {
 
-TEST(SanitizeObjectNameTest, KeepsSafeNamesAndNeutralisesTraversal) {
+TEST(SanitizeObjectName, KeepsSafeNamesAndNeutralisesTraversal) {
   const std::pair<std::string, std::string> cases[] = {
       {"carved-egg_01.v2", "carved-egg_01.v2"},
       {"carved egg", "carved_egg"},
@@ -40,7 +40,7 @@ TEST(SanitizeObjectNameTest, KeepsSafeNamesAndNeutralisesTraversal) {
   }
 }
 
-TEST(SanitizeObjectNameTest, EveryResultMakesAValidIdThatIsOneFolderComponent) {
+TEST(SanitizeObjectName, EveryResultMakesAValidIdThatIsOneFolderComponent) {
   const std::string inputs[] = {"../../etc",
                                 "a/b",
                                 ".hidden",
@@ -69,7 +69,7 @@ TEST(SanitizeObjectNameTest, EveryResultMakesAValidIdThatIsOneFolderComponent) {
   }
 }
 
-TEST(SessionIdTest, AcceptsOnlyTheExactShape) {
+TEST(SessionId, AcceptsOnlyTheExactShape) {
   EXPECT_TRUE(IsValidSessionId("20240501-093000-egg"));
   EXPECT_TRUE(IsValidSessionId("20240501-093000-egg-2"));
   EXPECT_TRUE(IsValidSessionId("20240501-093000-" + std::string(64, 'a') + "-999"));
@@ -91,7 +91,7 @@ TEST(SessionIdTest, AcceptsOnlyTheExactShape) {
   EXPECT_FALSE(IsValidSessionId(std::string("20240501-093000-egg\0x", 21)));
 }
 
-TEST(OutputNameTest, AcceptsOutputsAndRefusesEscapesAndReservedNames) {
+TEST(OutputName, AcceptsOutputsAndRefusesEscapesAndReservedNames) {
   for (const char* ok : {"fused.ply", "mesh.ply", "report.json", "report.html",
                          "previews/view003.png", "a/b/c/d.txt"}) {
     std::string why;
@@ -124,7 +124,7 @@ TEST(OutputNameTest, AcceptsOutputsAndRefusesEscapesAndReservedNames) {
   EXPECT_FALSE(IsValidOutputName(std::string(201, 'a'), &why));
 }
 
-TEST(SessionStateTest, NamesRoundTripAndTransitionsFollowTheMachine) {
+TEST(SessionStateNames, NamesRoundTripAndTransitionsFollowTheMachine) {
   using S = SessionState;
   for (S s :
        {S::kCreated, S::kCapturing, S::kReconstructing, S::kDone, S::kInterrupted, S::kFailed}) {
@@ -150,7 +150,7 @@ TEST(SessionStateTest, NamesRoundTripAndTransitionsFollowTheMachine) {
   EXPECT_FALSE(IsActive(S::kDone) || IsActive(S::kInterrupted) || IsActive(S::kFailed));
 }
 
-TEST(Fnv1a64Test, MatchesPublishedValues) {
+TEST(Fnv1a64, MatchesPublishedValues) {
   // Reference values of the FNV-1a 64-bit hash (offset basis for "").
   EXPECT_EQ(Fnv1a64(""), 0xcbf29ce484222325ULL);
   EXPECT_EQ(Fnv1a64("a"), 0xaf63dc4c8601ec8cULL);
@@ -185,7 +185,7 @@ Manifest SampleManifest() {
   return m;
 }
 
-TEST(ManifestJsonTest, RoundTripsEveryField) {
+TEST(ManifestJson, RoundTripsEveryField) {
   const Manifest m = SampleManifest();
   const std::string text = ManifestToJson(m);
   Manifest back;
@@ -215,7 +215,7 @@ TEST(ManifestJsonTest, RoundTripsEveryField) {
   EXPECT_NE(text.find("\"fnv1a64\": \"ffffffffffffffff\""), std::string::npos) << text;
 }
 
-TEST(ManifestJsonTest, RefusesCorruptManifestsNamingTheField) {
+TEST(ManifestJson, RefusesCorruptManifestsNamingTheField) {
   const std::string good = ManifestToJson(SampleManifest());
   const auto broken = [&](const std::string& from, const std::string& to) {
     std::string text = good;

@@ -17,8 +17,13 @@
 #include <nlohmann/json.hpp>
 
 #include "craftscan/pipeline/common/atomic_file.h"
+#include "craftscan/pipeline/common/ply.h"
 #include "craftscan/pipeline/common/point_cloud.h"
 #include "session_test_util.h"
+#include "status_util.h"
+
+using craftscan::testing::Ok;
+using craftscan::testing::StatusInto;
 
 namespace craftscan::daemon {
 namespace {
@@ -31,28 +36,29 @@ nlohmann::json Meta(int view) {
 }
 
 bool Capture(Session& s, int view, std::string* error) {
-  return s.StoreCapture(view, view * 90.0, NoiseImage(40, 30, CV_8UC3, 2 * view),
-                        NoiseImage(40, 30, CV_8UC3, 2 * view + 1), Meta(view), error);
+  return Ok(s.StoreCapture(view, view * 90.0, NoiseImage(40, 30, CV_8UC3, 2 * view),
+                           NoiseImage(40, 30, CV_8UC3, 2 * view + 1), Meta(view)),
+            error);
 }
 
-TEST_F(SessionTest, OpenRefusesDataDirsThatAreMissingOrNotDirectories) {
+TEST_F(SessionFiles, OpenRefusesDataDirsThatAreMissingOrNotDirectories) {
   std::string error;
-  EXPECT_EQ(SessionStore::Open(Path("missing"), &error), nullptr);
+  EXPECT_EQ(SessionStore::Open(Path("missing"), StatusInto(&error)), nullptr);
   EXPECT_TRUE(Contains(error, "missing") && Contains(error, "No such file or directory")) << error;
   WriteBytes("plain", "x");
-  EXPECT_EQ(SessionStore::Open(Path("plain"), &error), nullptr);
+  EXPECT_EQ(SessionStore::Open(Path("plain"), StatusInto(&error)), nullptr);
   EXPECT_TRUE(Contains(error, "is not a directory")) << error;
-  EXPECT_EQ(SessionStore::Open("", &error), nullptr);
+  EXPECT_EQ(SessionStore::Open("", StatusInto(&error)), nullptr);
   // data_dir/sessions exists as a file: not usable.
   fs::create_directories(Path("odd"));
   WriteBytes("odd/sessions", "x");
-  EXPECT_EQ(SessionStore::Open(Path("odd"), &error), nullptr);
+  EXPECT_EQ(SessionStore::Open(Path("odd"), StatusInto(&error)), nullptr);
   EXPECT_TRUE(Contains(error, "odd/sessions") && Contains(error, "File exists")) << error;
   EXPECT_TRUE(fs::is_directory(fs::path(data_dir_) / "sessions"));
   EXPECT_EQ(testing::CountTemporaries(data_dir_), 0);  // the writability probe is gone
 }
 
-TEST_F(SessionTest, HostileObjectNamesStayInsideTheSessionsFolder) {
+TEST_F(SessionFiles, HostileObjectNamesStayInsideTheSessionsFolder) {
   const auto now = Clock::now();
   const std::string names[] = {
       "../../etc",           "a/b", ".hidden",   "-rf", "\xc3\x84gg \xe5\xb5\x8c",
@@ -60,7 +66,7 @@ TEST_F(SessionTest, HostileObjectNamesStayInsideTheSessionsFolder) {
   std::set<std::string> ids;
   for (const auto& name : names) {
     std::string error;
-    auto s = store_->Create(name, "capture", nlohmann::json::object(), now, &error);
+    auto s = store_->Create(name, "capture", nlohmann::json::object(), now, StatusInto(&error));
     ASSERT_NE(s, nullptr) << name << ": " << error;
     EXPECT_TRUE(IsValidSessionId(s->id())) << s->id();
     EXPECT_EQ(fs::path(s->dir()).parent_path(), fs::path(store_->sessions_dir()));
@@ -85,13 +91,13 @@ TEST_F(SessionTest, HostileObjectNamesStayInsideTheSessionsFolder) {
   EXPECT_EQ(sessions, static_cast<int>(std::size(names)));
 }
 
-TEST_F(SessionTest, IdsGetSuffixesOnCollisionAndInvalidArgumentsAreRefused) {
+TEST_F(SessionFiles, IdsGetSuffixesOnCollisionAndInvalidArgumentsAreRefused) {
   // 2024-05-01 09:30:00 UTC.
   const Clock::time_point now{std::chrono::seconds(1714555800)};
   std::string error;
-  auto a = store_->Create("egg", "scan", {{"views", 3}}, now, &error);
-  auto b = store_->Create("egg", "scan", {{"views", 3}}, now, &error);
-  auto c = store_->Create("egg", "scan", {{"views", 3}}, now, &error);
+  auto a = store_->Create("egg", "scan", {{"views", 3}}, now, StatusInto(&error));
+  auto b = store_->Create("egg", "scan", {{"views", 3}}, now, StatusInto(&error));
+  auto c = store_->Create("egg", "scan", {{"views", 3}}, now, StatusInto(&error));
   ASSERT_TRUE(a && b && c) << error;
   EXPECT_EQ(a->id(), "20240501-093000-egg");
   EXPECT_EQ(b->id(), "20240501-093000-egg-2");
@@ -101,20 +107,22 @@ TEST_F(SessionTest, IdsGetSuffixesOnCollisionAndInvalidArgumentsAreRefused) {
   EXPECT_EQ(a->state(), SessionState::kCreated);
   EXPECT_EQ(a->params()["views"], 3);
 
-  EXPECT_EQ(store_->Create("egg", "Scan!", nlohmann::json::object(), now, &error), nullptr);
+  EXPECT_EQ(store_->Create("egg", "Scan!", nlohmann::json::object(), now, StatusInto(&error)),
+            nullptr);
   EXPECT_TRUE(Contains(error, "job verb")) << error;
-  EXPECT_EQ(store_->Create("egg", "", nlohmann::json::object(), now, &error), nullptr);
-  EXPECT_EQ(store_->Create("egg", "scan", nlohmann::json::array({1}), now, &error), nullptr);
+  EXPECT_EQ(store_->Create("egg", "", nlohmann::json::object(), now, StatusInto(&error)), nullptr);
+  EXPECT_EQ(store_->Create("egg", "scan", nlohmann::json::array({1}), now, StatusInto(&error)),
+            nullptr);
   EXPECT_TRUE(Contains(error, "JSON object") && Contains(error, "array")) << error;
   EXPECT_EQ(store_->List().size(), 3u);
 }
 
-TEST_F(SessionTest, StoreAndLoadRoundTripBitExactly) {
+TEST_F(SessionFiles, StoreAndLoadRoundTripBitExactly) {
   auto s = NewCapturing("round trip", 3);
   ASSERT_NE(s, nullptr);
   std::string error;
   WriteBytes("rig.yaml", "%YAML:1.0\nbaseline_mm: 60.25\n");
-  ASSERT_TRUE(s->CopyCalibration(Path("rig.yaml"), "rig-a", &error)) << error;
+  ASSERT_TRUE(Ok(s->CopyCalibration(Path("rig.yaml"), "rig-a"), &error)) << error;
   EXPECT_EQ(ReadAll(s->CalibrationPath()), "%YAML:1.0\nbaseline_mm: 60.25\n");
   fs::remove(Path("rig.yaml"));  // copied, never referenced
   EXPECT_TRUE(fs::exists(fs::path(s->dir()) / "calibration.yaml"));
@@ -125,28 +133,29 @@ TEST_F(SessionTest, StoreAndLoadRoundTripBitExactly) {
   for (int v = 0; v < 3; ++v) {
     lefts.push_back(NoiseImage(97, 61, types[v], 10 * v));
     rights.push_back(NoiseImage(97, 61, types[v], 10 * v + 1));
-    ASSERT_TRUE(s->StoreCapture(v, 120.0 * v, lefts[v], rights[v], Meta(v), &error)) << error;
+    ASSERT_TRUE(Ok(s->StoreCapture(v, 120.0 * v, lefts[v], rights[v], Meta(v)), &error)) << error;
   }
   cv::Mat disparity = NoiseImage(97, 61, CV_32FC1, 99);
   disparity.at<float>(0, 0) = std::numeric_limits<float>::quiet_NaN();
   disparity.at<float>(1, 1) = -std::numeric_limits<float>::infinity();
   disparity.at<float>(2, 2) = 1e-42f;  // denormal
-  ASSERT_TRUE(s->StoreDisparity(1, disparity, &error)) << error;
+  ASSERT_TRUE(Ok(s->StoreDisparity(1, disparity), &error)) << error;
   PointCloud cloud;
   for (int i = 0; i < 500; ++i) {
     cloud.points_mm.push_back({i * 0.1f, -i * 1e-3f, 300.0f + i / 7.0f});
     cloud.normals.push_back({0, std::sin(i * 0.1f), std::cos(i * 0.1f)});
     cloud.colors_rgb.push_back({static_cast<uchar>(i), 7, static_cast<uchar>(255 - i % 256)});
   }
-  ASSERT_TRUE(s->StoreCloud(1, cloud, &error)) << error;
+  ASSERT_TRUE(Ok(s->StoreCloud(1, cloud), &error)) << error;
   const std::string report = "{\"length_mm\": 81.5}\n";
-  ASSERT_TRUE(s->StoreOutput("report.json", report, &error)) << error;
-  ASSERT_TRUE(s->StoreOutput("previews/view001.png", std::string("\x89PNG\0\1", 6), &error))
+  ASSERT_TRUE(Ok(s->StoreOutput("report.json", report), &error)) << error;
+  ASSERT_TRUE(Ok(s->StoreOutput("previews/view001.png", std::string("\x89PNG\0\1", 6)), &error))
       << error;
-  ASSERT_TRUE(s->StoreOutputWith(
-      "fused.ply",
-      [&](const std::string& path, std::string* e) { return WritePly(path, cloud, true, e); },
-      &error))
+  ASSERT_TRUE(Ok(s->StoreOutputWith("fused.ply",
+                                    [&](const std::string& path) {
+                                      return WriteFileAtomically(path, EncodePly(cloud, true));
+                                    }),
+                 &error))
       << error;
 
   const auto check = [&](const Session& session) {
@@ -191,7 +200,7 @@ TEST_F(SessionTest, StoreAndLoadRoundTripBitExactly) {
   // The same after closing and reopening from disk.
   const std::string id = s->id();
   s.reset();
-  auto reopened = store_->OpenSession(id, &error);
+  auto reopened = store_->OpenSession(id, StatusInto(&error));
   ASSERT_NE(reopened, nullptr) << error;
   check(*reopened);
   EXPECT_TRUE(store_->Verify(id).IsIntact());
@@ -207,16 +216,17 @@ TEST_F(SessionTest, StoreAndLoadRoundTripBitExactly) {
   EXPECT_EQ(testing::CountTemporaries(dir), 0);
 }
 
-TEST_F(SessionTest, ManifestJournalFollowsTheJobAndDoneIsFinal) {
+TEST_F(SessionFiles, ManifestJournalFollowsTheJobAndDoneIsFinal) {
   auto s = NewCapturing("journal", 1);
   ASSERT_NE(s, nullptr);
   std::string error;
   WriteBytes("rig.yaml", "calib");
-  ASSERT_TRUE(s->CopyCalibration(Path("rig.yaml"), "rig-b", &error)) << error;
+  ASSERT_TRUE(Ok(s->CopyCalibration(Path("rig.yaml"), "rig-b"), &error)) << error;
   ASSERT_TRUE(Capture(*s, 0, &error)) << error;
-  ASSERT_TRUE(s->SetState(SessionState::kReconstructing, "registering 1 view", &error)) << error;
-  ASSERT_TRUE(s->StoreOutput("fused.ply", "ply", &error)) << error;
-  ASSERT_TRUE(s->SetState(SessionState::kDone, "", &error)) << error;
+  ASSERT_TRUE(Ok(s->SetState(SessionState::kReconstructing, "registering 1 view"), &error))
+      << error;
+  ASSERT_TRUE(Ok(s->StoreOutput("fused.ply", "ply"), &error)) << error;
+  ASSERT_TRUE(Ok(s->SetState(SessionState::kDone, ""), &error)) << error;
 
   // The manifest on disk, read as plain JSON.
   const auto j = nlohmann::json::parse(ReadAll(s->dir() + "/manifest.json"));
@@ -244,29 +254,29 @@ TEST_F(SessionTest, ManifestJournalFollowsTheJobAndDoneIsFinal) {
 
   // Done is final: no transitions, no stores; nothing on disk changes.
   const std::string before = ReadAll(s->dir() + "/manifest.json");
-  EXPECT_FALSE(s->SetState(SessionState::kCapturing, "", &error));
+  EXPECT_FALSE(Ok(s->SetState(SessionState::kCapturing, ""), &error));
   EXPECT_TRUE(Contains(error, "cannot go from done to capturing")) << error;
   EXPECT_FALSE(Capture(*s, 1, &error));
   EXPECT_TRUE(Contains(error, "in state done")) << error;
-  EXPECT_FALSE(s->StoreOutput("mesh.ply", "ply", &error));
+  EXPECT_FALSE(Ok(s->StoreOutput("mesh.ply", "ply"), &error));
   EXPECT_EQ(ReadAll(s->dir() + "/manifest.json"), before);
   EXPECT_EQ(s->state(), SessionState::kDone);
 
   // Failure keeps its reason; resume clears it.
   auto f = NewCapturing("fails", 1);
   ASSERT_NE(f, nullptr);
-  ASSERT_TRUE(f->SetState(SessionState::kFailed, "camera lost", &error)) << error;
+  ASSERT_TRUE(Ok(f->SetState(SessionState::kFailed, "camera lost"), &error)) << error;
   EXPECT_EQ(f->manifest().error, "camera lost");
-  ASSERT_TRUE(f->SetState(SessionState::kCapturing, "resume", &error)) << error;
+  ASSERT_TRUE(Ok(f->SetState(SessionState::kCapturing, "resume"), &error)) << error;
   EXPECT_EQ(f->manifest().error, "");
 }
 
-TEST_F(SessionTest, MarkInterruptedMarksOnlyUnfinishedSessionsNotHeldOpen) {
+TEST_F(SessionFiles, MarkInterruptedMarksOnlyUnfinishedSessionsNotHeldOpen) {
   std::string error;
   const auto make = [&](const std::string& name, std::vector<SessionState> path) {
-    auto s = store_->Create(name, "scan", {{"views", 2}}, Clock::now(), &error);
+    auto s = store_->Create(name, "scan", {{"views", 2}}, Clock::now(), StatusInto(&error));
     EXPECT_NE(s, nullptr) << error;
-    for (SessionState state : path) EXPECT_TRUE(s->SetState(state, "test", &error)) << error;
+    for (SessionState state : path) EXPECT_TRUE(Ok(s->SetState(state, "test"), &error)) << error;
     return s;
   };
   using S = SessionState;
@@ -305,18 +315,18 @@ TEST_F(SessionTest, MarkInterruptedMarksOnlyUnfinishedSessionsNotHeldOpen) {
   EXPECT_EQ(states[corrupt_id], "corrupt");
   EXPECT_EQ(live->state(), SessionState::kCapturing);
 
-  auto s = store_->OpenSession(reconstructing, &error);
+  auto s = store_->OpenSession(reconstructing, StatusInto(&error));
   ASSERT_NE(s, nullptr) << error;
   const Manifest m = s->manifest();
   EXPECT_EQ(m.journal.back().event, "interrupted");
   EXPECT_EQ(m.journal.back().detail, "craftscand stopped while the session was reconstructing");
   EXPECT_EQ(m.error, m.journal.back().detail);
   // The interrupted journal entry of the already-interrupted session was not repeated.
-  auto i = store_->OpenSession(interrupted, &error);
+  auto i = store_->OpenSession(interrupted, StatusInto(&error));
   ASSERT_NE(i, nullptr) << error;
   EXPECT_EQ(i->manifest().journal.size(), 2u);
   // Resume.
-  EXPECT_TRUE(s->SetState(SessionState::kReconstructing, "resume", &error)) << error;
+  EXPECT_TRUE(Ok(s->SetState(SessionState::kReconstructing, "resume"), &error)) << error;
   // The next start marks what was active then: the resumed one and the
   // live one, now that nobody holds them.
   s.reset();
@@ -326,7 +336,7 @@ TEST_F(SessionTest, MarkInterruptedMarksOnlyUnfinishedSessionsNotHeldOpen) {
   EXPECT_EQ(store_->MarkInterrupted(nullptr), expected);
 }
 
-TEST_F(SessionTest, LeftoverTemporariesFromACrashDoNotConfuseLoadingAndAreCleanedUp) {
+TEST_F(SessionFiles, LeftoverTemporariesFromACrashDoNotConfuseLoadingAndAreCleanedUp) {
   auto s = NewCapturing("leftovers", 2);
   ASSERT_NE(s, nullptr);
   std::string error;
@@ -351,7 +361,7 @@ TEST_F(SessionTest, LeftoverTemporariesFromACrashDoNotConfuseLoadingAndAreCleane
   EXPECT_EQ(list[0].id, id);
   EXPECT_EQ(list[0].views_captured, 1);
   EXPECT_TRUE(store_->Verify(id).IsIntact());
-  auto again = store_->OpenSession(id, &error);
+  auto again = store_->OpenSession(id, StatusInto(&error));
   ASSERT_NE(again, nullptr) << error;
   cv::Mat left, right;
   ASSERT_TRUE(again->LoadCapture(0, &left, &right, nullptr, &error)) << error;
@@ -368,7 +378,7 @@ TEST_F(SessionTest, LeftoverTemporariesFromACrashDoNotConfuseLoadingAndAreCleane
   EXPECT_TRUE(store_->Verify(id).IsIntact());
 }
 
-TEST_F(SessionTest, CorruptManifestsAreListedWithTheReasonNotFatal) {
+TEST_F(SessionFiles, CorruptManifestsAreListedWithTheReasonNotFatal) {
   std::string error;
   const std::string good = NewCapturing("good", 1)->id();
   const std::string truncated = NewCapturing("truncated", 1)->id();
@@ -398,23 +408,23 @@ TEST_F(SessionTest, CorruptManifestsAreListedWithTheReasonNotFatal) {
   EXPECT_EQ(by_id["notes"].state, "corrupt");
   EXPECT_TRUE(Contains(by_id["notes"].problem, "not a session id"));
 
-  EXPECT_EQ(store_->OpenSession(truncated, &error), nullptr);
+  EXPECT_EQ(store_->OpenSession(truncated, StatusInto(&error)), nullptr);
   EXPECT_TRUE(Contains(error, "session " + truncated + " is corrupt") &&
               Contains(error, "manifest.json"))
       << error;
   EXPECT_FALSE(store_->Verify(truncated).IsIntact());
   EXPECT_FALSE(store_->Verify(truncated).manifest_ok);
   EXPECT_TRUE(store_->Verify(good).IsIntact());
-  EXPECT_NE(store_->OpenSession(good, &error), nullptr) << error;
+  EXPECT_NE(store_->OpenSession(good, StatusInto(&error)), nullptr) << error;
 }
 
-TEST_F(SessionTest, VerifyDetectsTruncatedModifiedAndMissingFiles) {
+TEST_F(SessionFiles, VerifyDetectsTruncatedModifiedAndMissingFiles) {
   auto s = NewCapturing("verify", 3);
   ASSERT_NE(s, nullptr);
   std::string error;
   for (int v = 0; v < 3; ++v) {
     ASSERT_TRUE(Capture(*s, v, &error)) << error;
-    ASSERT_TRUE(s->StoreDisparity(v, NoiseImage(40, 30, CV_32FC1, 50 + v), &error)) << error;
+    ASSERT_TRUE(Ok(s->StoreDisparity(v, NoiseImage(40, 30, CV_32FC1, 50 + v)), &error)) << error;
   }
   ASSERT_TRUE(s->Verify().IsIntact());
   const fs::path dir = s->dir();
@@ -462,15 +472,15 @@ TEST_F(SessionTest, VerifyDetectsTruncatedModifiedAndMissingFiles) {
   EXPECT_TRUE(s->GetResumePoint(false).to_capture.empty());
 }
 
-TEST_F(SessionTest, ResumePointNamesTheFirstStepNotYetDurable) {
+TEST_F(SessionFiles, ResumePointNamesTheFirstStepNotYetDurable) {
   auto s = NewCapturing("resume", 5);
   ASSERT_NE(s, nullptr);
   std::string error;
   for (int v : {0, 1, 2, 4}) ASSERT_TRUE(Capture(*s, v, &error)) << error;
-  for (int v : {0, 1}) ASSERT_TRUE(s->StoreDisparity(v, NoiseImage(8, 8, CV_32FC1, v), &error));
+  for (int v : {0, 1}) ASSERT_TRUE(Ok(s->StoreDisparity(v, NoiseImage(8, 8, CV_32FC1, v)), &error));
   PointCloud cloud;
   cloud.points_mm = {{1, 2, 3}};
-  ASSERT_TRUE(s->StoreCloud(0, cloud, &error)) << error;
+  ASSERT_TRUE(Ok(s->StoreCloud(0, cloud), &error)) << error;
 
   ResumePoint r = s->GetResumePoint(false);
   EXPECT_EQ(r.planned_views, 5);
@@ -483,7 +493,7 @@ TEST_F(SessionTest, ResumePointNamesTheFirstStepNotYetDurable) {
   // A new capture of view 1 makes its disparity stale; a new disparity of
   // view 0 makes its cloud stale.
   ASSERT_TRUE(Capture(*s, 1, &error)) << error;
-  ASSERT_TRUE(s->StoreDisparity(0, NoiseImage(8, 8, CV_32FC1, 7), &error)) << error;
+  ASSERT_TRUE(Ok(s->StoreDisparity(0, NoiseImage(8, 8, CV_32FC1, 7)), &error)) << error;
   ASSERT_TRUE(Capture(*s, 3, &error)) << error;
   r = s->GetResumePoint(true);
   EXPECT_EQ(r.next_capture, 5);
@@ -493,17 +503,18 @@ TEST_F(SessionTest, ResumePointNamesTheFirstStepNotYetDurable) {
   EXPECT_EQ(r.to_reproject, (std::vector<int>{0}));
 
   // Derived files need a capture; indices are range-checked.
-  EXPECT_FALSE(s->StoreDisparity(7, NoiseImage(8, 8, CV_32FC1, 1), &error));
+  EXPECT_FALSE(Ok(s->StoreDisparity(7, NoiseImage(8, 8, CV_32FC1, 1)), &error));
   EXPECT_TRUE(Contains(error, "view 7 has no durable capture")) << error;
-  EXPECT_FALSE(s->StoreCloud(9, cloud, &error));
+  EXPECT_FALSE(Ok(s->StoreCloud(9, cloud), &error));
   EXPECT_FALSE(Capture(*s, 1000, &error));
   EXPECT_TRUE(Contains(error, "outside 0..999")) << error;
   EXPECT_FALSE(Capture(*s, -1, &error));
 
   // Without a planned view count the next capture is the first gap.
-  auto open = store_->Create("open", "capture", nlohmann::json::object(), Clock::now(), &error);
+  auto open =
+      store_->Create("open", "capture", nlohmann::json::object(), Clock::now(), StatusInto(&error));
   ASSERT_NE(open, nullptr) << error;
-  ASSERT_TRUE(open->SetState(SessionState::kCapturing, "", &error));
+  ASSERT_TRUE(Ok(open->SetState(SessionState::kCapturing, ""), &error));
   for (int v : {0, 1, 3}) ASSERT_TRUE(Capture(*open, v, &error)) << error;
   r = open->GetResumePoint(false);
   EXPECT_EQ(r.planned_views, -1);
@@ -512,66 +523,110 @@ TEST_F(SessionTest, ResumePointNamesTheFirstStepNotYetDurable) {
   EXPECT_FALSE(r.CapturesComplete());
 }
 
-TEST_F(SessionTest, BadInputsAndBadIdsGiveClearErrors) {
+TEST_F(SessionFiles, BadInputsAndBadIdsGiveClearErrors) {
   auto s = NewCapturing("inputs", 2);
   ASSERT_NE(s, nullptr);
   std::string error;
   const cv::Mat ok = NoiseImage(8, 8, CV_8UC1, 1);
-  EXPECT_FALSE(s->StoreCapture(0, 0, cv::Mat(), ok, Meta(0), &error));
+  EXPECT_FALSE(Ok(s->StoreCapture(0, 0, cv::Mat(), ok, Meta(0)), &error));
   EXPECT_TRUE(Contains(error, "left image is empty")) << error;
-  EXPECT_FALSE(s->StoreCapture(0, 0, ok, NoiseImage(8, 8, CV_32FC1, 1), Meta(0), &error));
+  EXPECT_FALSE(Ok(s->StoreCapture(0, 0, ok, NoiseImage(8, 8, CV_32FC1, 1), Meta(0)), &error));
   EXPECT_TRUE(Contains(error, "right image has type CV_32FC1")) << error;
-  EXPECT_FALSE(s->StoreCapture(0, 0, ok, ok, nlohmann::json::array(), &error));
+  EXPECT_FALSE(Ok(s->StoreCapture(0, 0, ok, ok, nlohmann::json::array()), &error));
   EXPECT_TRUE(Contains(error, "meta is not a JSON object")) << error;
-  ASSERT_TRUE(s->StoreCapture(0, 0, ok, ok, Meta(0), &error)) << error;
-  EXPECT_FALSE(s->StoreDisparity(0, NoiseImage(8, 8, CV_8UC1, 1), &error));
+  ASSERT_TRUE(Ok(s->StoreCapture(0, 0, ok, ok, Meta(0)), &error)) << error;
+  EXPECT_FALSE(Ok(s->StoreDisparity(0, NoiseImage(8, 8, CV_8UC1, 1)), &error));
   EXPECT_TRUE(Contains(error, "CV_32FC1")) << error;
   PointCloud bad;
   bad.points_mm = {{1, 2, 3}};
   bad.normals = {{0, 0, 1}, {0, 1, 0}};
-  EXPECT_FALSE(s->StoreCloud(0, bad, &error));
+  EXPECT_FALSE(Ok(s->StoreCloud(0, bad), &error));
   for (const char* name : {"../escape.txt", "/tmp/x", "manifest.json", "views/000/left.png"}) {
-    EXPECT_FALSE(s->StoreOutput(name, "x", &error)) << name;
+    EXPECT_FALSE(Ok(s->StoreOutput(name, "x"), &error)) << name;
     EXPECT_TRUE(Contains(error, "output name")) << error;
   }
   EXPECT_FALSE(fs::exists(fs::path(dir_) / "escape.txt"));
-  EXPECT_FALSE(s->CopyCalibration(Path("nope.yaml"), "x", &error));
+  EXPECT_FALSE(Ok(s->CopyCalibration(Path("nope.yaml"), "x"), &error));
   EXPECT_TRUE(Contains(error, "nope.yaml") && Contains(error, "No such file")) << error;
   // A writer that fails: its error is passed on and nothing is recorded.
-  EXPECT_FALSE(s->StoreOutputWith(
-      "mesh.ply", [](const std::string&, std::string* e) { return (*e = "mesher gave up", false); },
-      &error));
+  EXPECT_FALSE(Ok(s->StoreOutputWith("mesh.ply",
+                                     [](const std::string&) {
+                                       return Status(ErrorCode::kInternal, "mesher gave up");
+                                     }),
+                  &error));
   EXPECT_TRUE(Contains(error, "mesher gave up")) << error;
   EXPECT_TRUE(s->manifest().outputs.empty());
   // A store of the same output while one is in progress is refused.
   bool inner = true;
-  ASSERT_TRUE(s->StoreOutputWith(
-      "report.json",
-      [&](const std::string& path, std::string* e) {
-        std::string nested;
-        inner = s->StoreOutput("report.json", "{}", &nested);
-        EXPECT_TRUE(Contains(nested, "report.json is being stored by another call")) << nested;
-        return WriteFileAtomically(path, "{}", e);
-      },
+  ASSERT_TRUE(Ok(
+      s->StoreOutputWith(
+          "report.json",
+          [&](const std::string& path) {
+            const Status nested = s->StoreOutput("report.json", "{}");
+            inner = nested.ok();
+            EXPECT_EQ(nested.code(), ErrorCode::kFailedPrecondition);
+            EXPECT_TRUE(Contains(nested.message(), "report.json is being stored by another call"))
+                << nested.message();
+            return WriteFileAtomically(path, "{}");
+          }),
       &error))
       << error;
   EXPECT_FALSE(inner);
 
   for (const std::string id : {"../x", "a/b", "..", "", "20240501-093000-../../etc"}) {
-    EXPECT_EQ(store_->OpenSession(id, &error), nullptr) << id;
+    EXPECT_EQ(store_->OpenSession(id, StatusInto(&error)), nullptr) << id;
     EXPECT_TRUE(Contains(error, "invalid session id")) << error;
     EXPECT_FALSE(store_->Verify(id).IsIntact());
   }
-  EXPECT_EQ(store_->OpenSession("20000101-000000-nothing", &error), nullptr);
+  EXPECT_EQ(store_->OpenSession("20000101-000000-nothing", StatusInto(&error)), nullptr);
   EXPECT_TRUE(Contains(error, "unknown session 20000101-000000-nothing")) << error;
-  EXPECT_EQ(store_->OpenSession(s->id(), &error), nullptr);
+  EXPECT_EQ(store_->OpenSession(s->id(), StatusInto(&error)), nullptr);
   EXPECT_TRUE(Contains(error, "is open elsewhere")) << error;
   const std::string id = s->id();
   s.reset();
-  EXPECT_NE(store_->OpenSession(id, &error), nullptr) << error;
+  EXPECT_NE(store_->OpenSession(id, StatusInto(&error)), nullptr) << error;
 }
 
-TEST_F(SessionTest, StoresOfDistinctViewsRunConcurrently) {
+// The refusals that are not the disk's carry their own codes, so the daemon
+// never gives storage advice for them.
+TEST_F(SessionFiles, RefusalsCarryTheirCodes) {
+  Status status;
+  EXPECT_EQ(SessionStore::Open("", &status), nullptr);
+  EXPECT_EQ(status.code(), ErrorCode::kInvalidArgument) << status.ToString();
+  EXPECT_EQ(SessionStore::Open(Path("missing"), &status), nullptr);
+  EXPECT_EQ(status.code(), ErrorCode::kNotFound) << status.ToString();
+  WriteBytes("plain", "x");
+  EXPECT_EQ(SessionStore::Open(Path("plain"), &status), nullptr);
+  EXPECT_EQ(status.code(), ErrorCode::kInvalidArgument) << status.ToString();
+  EXPECT_EQ(store_->Create("egg", "Scan!", nlohmann::json::object(), Clock::now(), &status),
+            nullptr);
+  EXPECT_EQ(status.code(), ErrorCode::kInvalidArgument) << status.ToString();
+  EXPECT_EQ(store_->OpenSession("../etc", &status), nullptr);
+  EXPECT_EQ(status.code(), ErrorCode::kInvalidArgument) << status.ToString();
+  EXPECT_EQ(store_->OpenSession("20000101-000000-nothing", &status), nullptr);
+  EXPECT_EQ(status.code(), ErrorCode::kNotFound) << status.ToString();
+
+  auto s = NewCapturing("codes", 2);
+  ASSERT_NE(s, nullptr);
+  EXPECT_EQ(store_->OpenSession(s->id(), &status), nullptr);  // held by `s`
+  EXPECT_EQ(status.code(), ErrorCode::kFailedPrecondition) << status.ToString();
+  EXPECT_EQ(s->StoreDisparity(0, NoiseImage(8, 8, CV_32FC1, 1)).code(),
+            ErrorCode::kFailedPrecondition);  // no capture yet
+  EXPECT_EQ(s->StoreDisparity(0, NoiseImage(8, 8, CV_8UC1, 1)).code(), ErrorCode::kInvalidArgument);
+  EXPECT_EQ(
+      s->StoreCapture(-1, 0, NoiseImage(8, 8, CV_8UC1, 1), NoiseImage(8, 8, CV_8UC1, 1), Meta(0))
+          .code(),
+      ErrorCode::kInvalidArgument);
+  EXPECT_EQ(s->StoreOutput("../escape.txt", "x").code(), ErrorCode::kInvalidArgument);
+  EXPECT_EQ(s->CopyCalibration(Path("nope.yaml"), "x").code(), ErrorCode::kNotFound);
+  ASSERT_TRUE(s->SetState(SessionState::kDone, "").ok());
+  const Status refused = s->SetState(SessionState::kCapturing, "");
+  EXPECT_EQ(refused.code(), ErrorCode::kFailedPrecondition) << refused.ToString();
+  EXPECT_TRUE(Contains(refused.message(), "cannot go from done to capturing")) << refused.message();
+  EXPECT_EQ(s->StoreOutput("report.json", "{}").code(), ErrorCode::kFailedPrecondition);
+}
+
+TEST_F(SessionFiles, StoresOfDistinctViewsRunConcurrently) {
   constexpr int kThreads = 4;
   constexpr int kViewsPerThread = 6;
   auto s = NewCapturing("threads", kThreads * kViewsPerThread);
@@ -586,8 +641,8 @@ TEST_F(SessionTest, StoresOfDistinctViewsRunConcurrently) {
         PointCloud cloud;
         cloud.points_mm = {{static_cast<float>(view), 0, 0}};
         if (!Capture(*s, view, &error) ||
-            !s->StoreDisparity(view, NoiseImage(16, 8, CV_32FC1, view), &error) ||
-            !s->StoreCloud(view, cloud, &error)) {
+            !Ok(s->StoreDisparity(view, NoiseImage(16, 8, CV_32FC1, view)), &error) ||
+            !Ok(s->StoreCloud(view, cloud), &error)) {
           ADD_FAILURE() << error;
           ++failures;
         }
@@ -604,7 +659,7 @@ TEST_F(SessionTest, StoresOfDistinctViewsRunConcurrently) {
   const std::string id = s->id();
   s.reset();
   std::string error;
-  auto back = store_->OpenSession(id, &error);
+  auto back = store_->OpenSession(id, StatusInto(&error));
   ASSERT_NE(back, nullptr) << error;
   EXPECT_EQ(back->manifest().views.size(), static_cast<std::size_t>(kThreads * kViewsPerThread));
   for (const auto& [index, view] : back->manifest().views) EXPECT_EQ(view.files.size(), 5u);

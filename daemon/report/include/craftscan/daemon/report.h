@@ -15,7 +15,7 @@
 //   in.disparities.push_back({k, angle_deg, disparity_px, min_d, max_d});
 //   ReportFiles files;
 //   if (!MakeReportFiles(in, &files, &error)) ...;
-//   for (const ReportFile& f : files.files) session.StoreOutput(f.name, f.bytes, &error);
+//   for (const ReportFile& f : files.files) Status stored = session.StoreOutput(f.name, f.bytes);
 //
 // The files come pictures first and report.html last, so storing them in
 // order lists the page only once every picture it shows is durable.

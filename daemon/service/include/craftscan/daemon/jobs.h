@@ -206,9 +206,9 @@ class JobEngine {
   // Makes the reserve file if it is missing (best effort).
   void EnsureReserve();
   // Session::SetState; when that fails, frees the reserve and tries once
-  // more. The end of a job is then recorded even on a full disk.
-  bool RecordState(Session& session, SessionState state, const std::string& detail,
-                   std::string* error);
+  // more when its code is kDiskFull. The end of a job is then recorded even
+  // on a full disk. The failed Status of the last try otherwise.
+  Status RecordState(Session& session, SessionState state, const std::string& detail);
   // Joins the worker of the last job if it has finished (its session lock
   // is released once its thread ends).
   void JoinFinishedWorker();

@@ -57,13 +57,23 @@ struct StageOutcome {
   // for an outcome the same data would give again (the pipeline, unreadable
   // stored data): the session is marked failed.
   bool resumable = true;
+  // The data disk refused a write (the session store's Status, its code from
+  // the errno): the job's message then says what the operator fixes
+  // (JobEngine's storage advice). False for device and pipeline errors,
+  // whose kIoError is not the disk's.
+  bool storage = false;
 
   bool ok() const { return code == ErrorCode::kOk; }
   bool cancelled() const { return code == ErrorCode::kCancelled; }
   static StageOutcome Ok() { return {}; }
   static StageOutcome Cancelled() { return {ErrorCode::kCancelled, "cancelled", true}; }
   static StageOutcome Error(ErrorCode code, std::string message, bool resumable) {
-    return {code, std::move(message), resumable};
+    return {code, std::move(message), resumable, false};
+  }
+  // A failed store: the Status's code, `prefix` before its message;
+  // resumable once the operator fixes the disk.
+  static StageOutcome Storage(const Status& status, const std::string& prefix) {
+    return {status.code(), prefix + status.message(), true, true};
   }
 };
 

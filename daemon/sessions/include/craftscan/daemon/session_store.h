@@ -11,20 +11,29 @@
 // Durability: every file is written to a hidden temporary beside it, fsync'ed
 // and renamed (WriteFileAtomically), and new folders are fsync'ed into their
 // parent; the manifest is rewritten (atomically) only after the files it
-// lists are durable. So a Store* call that returned true survives a crash or
+// lists are durable. So a Store* call that returned ok survives a crash or
 // power loss, and after any crash the manifest lists only intact files.
 // Leftover temporaries (".<name>.tmp-XXXXXX") are ignored by every reader and
 // removed by SessionStore::MarkInterrupted.
 //
 // Typical use in the daemon:
-//   auto store = SessionStore::Open(config.data_dir, &error);   // refuses a bad dir
+//   auto store = SessionStore::Open(config.data_dir, &status);  // refuses a bad dir
 //   store->MarkInterrupted();                                   // once, at start
-//   auto s = store->Create("carved egg", "scan", {{"views", 24}}, now, &error);
-//   s->CopyCalibration(calibration_path, "rig-a", &error);
-//   s->SetState(SessionState::kCapturing, "", &error);
-//   s->StoreCapture(0, 0.0, left, right, meta, &error);  // true = acknowledged
+//   auto s = store->Create("carved egg", "scan", {{"views", 24}}, now, &status);
+//   s->CopyCalibration(calibration_path, "rig-a");
+//   s->SetState(SessionState::kCapturing, "");
+//   Status stored = s->StoreCapture(0, 0.0, left, right, meta);  // ok = acknowledged
 //   ...
-//   resume: s = store->OpenSession(id, &error); s->GetResumePoint(true) ...
+//   resume: s = store->OpenSession(id, &status); s->GetResumePoint(true) ...
+//
+// Errors: the calls that write (and Open, Create, OpenSession) return a
+// craftscan::Status whose code comes from the errno of the failing system
+// call (kDiskFull for ENOSPC/EDQUOT, kReadOnly for EROFS, kPermissionDenied
+// for EACCES/EPERM, kIoError, ...) or names the refusal (kInvalidArgument,
+// kFailedPrecondition for a forbidden transition, a busy file or a session
+// held elsewhere, kNotFound, kCorrupt); the message says which file and why,
+// ending in strerror for system errors. Callers branch on the code. The
+// Load* calls read only and report text (bool + *error).
 //
 // A Session holds an exclusive lock (flock) on its folder: one Session object
 // per session at a time, in this or any other process. A SIGKILL releases it.
@@ -45,6 +54,7 @@
 
 #include "craftscan/daemon/session_manifest.h"
 #include "craftscan/pipeline/common/point_cloud.h"
+#include "craftscan/pipeline/common/status.h"
 
 namespace craftscan::daemon {
 
@@ -86,9 +96,10 @@ struct SessionSummary {
 };
 
 // Writes one output file at `path` (a path inside the session folder chosen
-// by the store); must write atomically (e.g. WritePly, WriteMeshPly,
-// WriteFileAtomically) and return false with *error on failure.
-using OutputWriter = std::function<bool(const std::string& path, std::string* error)>;
+// by the store); must write atomically (e.g. WriteFileAtomically with the
+// bytes of EncodePly / EncodeMeshPly) and return a failed Status, with the
+// errno's code, on failure.
+using OutputWriter = std::function<Status(const std::string& path)>;
 
 class Session {
  public:
@@ -111,45 +122,45 @@ class Session {
   // Moves to `state` (see the state machine in session_manifest.h) and
   // appends a journal entry {now, ToString(state), detail}. For failed and
   // interrupted, `detail` becomes the manifest's error; other states clear
-  // it. Returns false with *error for a transition the machine forbids
-  // ("session X: cannot go from done to capturing") or an I/O failure, in
-  // which case the state on disk and in memory is unchanged.
-  bool SetState(SessionState state, const std::string& detail, std::string* error);
+  // it. A failed Status (kFailedPrecondition) for a transition the machine
+  // forbids ("session X: cannot go from done to capturing") or an I/O
+  // failure (the errno's code), in which case the state on disk and in
+  // memory is unchanged.
+  Status SetState(SessionState state, const std::string& detail);
 
   // Copies the calibration file at `source_path` into calibration.yaml and
   // records `calibration_id` (free text, e.g. the calibration's name or date).
   // Requires an active state. Errors name the file and strerror.
-  bool CopyCalibration(const std::string& source_path, const std::string& calibration_id,
-                       std::string* error);
+  Status CopyCalibration(const std::string& source_path, const std::string& calibration_id);
 
   // Stores view `view` (0..999): left.png and right.png (lossless PNG; 8- or
   // 16-bit, 1, 3 or 4 channels, OpenCV BGR order), meta.json (`meta` as
   // given, must be a JSON object), then the manifest entry with
-  // `angle_deg`. Returns true only once all of it is durable: that is the
+  // `angle_deg`. Returns ok only once all of it is durable: that is the
   // acknowledgement a client may be given. Storing a view again replaces it
   // and drops its disparity and cloud from the manifest (they are stale).
-  // Requires an active state. On false (*error: which file, path, strerror,
-  // e.g. "No space left on device") the files this call wrote are removed
-  // and every other listed file is untouched.
+  // Requires an active state. On failure (the message: which file, path,
+  // strerror, e.g. "No space left on device"; the code: kDiskFull) the files this call wrote are
+  // removed and every other listed file is untouched.
   //
   // Replacing (all Store* calls): files the manifest lists are first taken
   // off it (one manifest rewrite), then replaced; so a failed or interrupted
   // replacement leaves the old version unlisted, never a listed file with a
   // wrong checksum. If that first rewrite fails nothing is touched.
-  bool StoreCapture(int view, double angle_deg, const cv::Mat& left, const cv::Mat& right,
-                    const nlohmann::json& meta, std::string* error);
+  Status StoreCapture(int view, double angle_deg, const cv::Mat& left, const cv::Mat& right,
+                      const nlohmann::json& meta);
   // Stores the view's disparity map (CV_32FC1, pixels) as disparity.pfm.
   // Requires a durable capture of the view and an active state; storing again
   // drops the view's cloud from the manifest.
-  bool StoreDisparity(int view, const cv::Mat& disparity_px, std::string* error);
+  Status StoreDisparity(int view, const cv::Mat& disparity_px);
   // Stores the view's cloud (mm) as binary PLY cloud.ply. Requires a durable
   // capture of the view and an active state.
-  bool StoreCloud(int view, const PointCloud& cloud, std::string* error);
+  Status StoreCloud(int view, const PointCloud& cloud);
   // Stores an output ("fused.ply", "report.json", "previews/view003.png", ...;
   // see IsValidOutputName), creating its folders. Requires an active state.
-  bool StoreOutput(const std::string& name, std::string_view bytes, std::string* error);
+  Status StoreOutput(const std::string& name, std::string_view bytes);
   // The same with the bytes written by `writer` at the output's path.
-  bool StoreOutputWith(const std::string& name, const OutputWriter& writer, std::string* error);
+  Status StoreOutputWith(const std::string& name, const OutputWriter& writer);
 
   // Load*: read a durable file back, checking its size and checksum against
   // the manifest first; bit-exact with what was stored. False with *error
@@ -174,7 +185,7 @@ class Session {
   // calls for distinct views (and for outputs) run concurrently; the
   // manifest rewrite is serialised by one mutex. A Store* call for a view or
   // output that another call is still storing fails with "... is being
-  // stored by another call". SetState may run concurrently with Store*.
+  // stored by another call" (kFailedPrecondition). SetState may run concurrently with Store*.
 
  private:
   friend class SessionStore;
@@ -183,27 +194,27 @@ class Session {
 
   // One file-storing step (see Store).
   struct StoreStep {
-    std::string key;                                    // busy key: "views/003" or the output name
-    std::string what;                                   // for messages: "capture of view 3"
-    std::vector<std::string> paths;                     // files the step writes
-    std::function<bool(Manifest*)> unlist;              // drops stale records; true if any
-    std::function<bool(std::string*)> write;            // writes the files durably
-    std::function<bool(Manifest*, std::string*)> list;  // records the new files
+    std::string key;                        // busy key: "views/003" or the output name
+    std::string what;                       // for messages: "capture of view 3"
+    std::vector<std::string> paths;         // files the step writes
+    std::function<bool(Manifest*)> unlist;  // drops stale records; true if any
+    std::function<Status()> write;          // writes the files durably
+    std::function<Status(Manifest*)> list;  // records the new files
   };
   // Writes `next` as the manifest and keeps it if that succeeded; mutex_ held.
-  bool WriteLocked(Manifest next, std::string* error);
+  Status WriteLocked(Manifest next);
   // Runs `change` on a copy of the manifest, writes it, and keeps it only if
   // the write succeeded.
-  bool Commit(const std::function<bool(Manifest*, std::string*)>& change, std::string* error);
+  Status Commit(const std::function<Status(Manifest*)>& change);
   // The same for removals; writes nothing when `remove` returns false.
-  bool Unlist(const std::function<bool(Manifest*)>& remove, std::string* error);
+  Status Unlist(const std::function<bool(Manifest*)>& remove);
   // Checks the state allows stores and marks `key` busy (released by Release).
-  bool Claim(const std::string& key, std::string* error);
+  Status Claim(const std::string& key);
   void Release(const std::string& key);
   // Claim, unlist, write, list; on failure removes what it wrote.
-  bool Store(const StoreStep& step, std::string* error);
-  bool CheckView(int view, const std::string& what, bool needs_capture, std::string* error) const;
-  bool StoreViewFile(int view, const char* file, const OutputWriter& writer, std::string* error);
+  Status Store(const StoreStep& step);
+  Status CheckView(int view, const std::string& what, bool needs_capture) const;
+  Status StoreViewFile(int view, const char* file, const OutputWriter& writer);
   bool LoadVerified(const std::string& relative, const FileRecord& record, std::string* bytes,
                     std::string* error) const;
   bool FindViewFile(int view, const char* file, FileRecord* record, std::string* error) const;
@@ -221,10 +232,10 @@ class SessionStore {
  public:
   // Opens the store at `data_dir` (an existing directory), creating
   // data_dir/sessions if missing and probing that a file can be created
-  // there. Returns null with *error (may be null) naming the path and the
-  // reason ("... is not a directory", "... is not writable: Read-only file
-  // system", ...). Thread-safe.
-  static std::unique_ptr<SessionStore> Open(const std::string& data_dir, std::string* error);
+  // there. Returns null with *status (may be null) naming the path and the
+  // reason ("... is not a directory" kInvalidArgument, "... is not
+  // writable: Read-only file system" kReadOnly, ...). Thread-safe.
+  static std::unique_ptr<SessionStore> Open(const std::string& data_dir, Status* status);
 
   // Absolute path of data_dir/sessions.
   const std::string& sessions_dir() const { return sessions_dir_; }
@@ -242,12 +253,13 @@ class SessionStore {
   // `job` (non-empty [a-z_]) and `params` (a JSON object) with id
   // "<YYYYMMDD-HHMMSS>-<object>" (time `now` in UTC), suffixed "-2", "-3", ...
   // when taken. The folder appears atomically with its manifest in state
-  // created (journal: "created"). Returns null with *error on invalid
-  // arguments or an I/O failure (nothing is left behind). Thread-safe,
+  // created (journal: "created"). Returns null with *status (may be null)
+  // on invalid arguments (kInvalidArgument) or an I/O failure (the errno's
+  // code; nothing is left behind). Thread-safe,
   // also across processes (ids never collide).
   std::unique_ptr<Session> Create(std::string_view object_name, std::string_view job,
                                   const nlohmann::json& params,
-                                  std::chrono::system_clock::time_point now, std::string* error);
+                                  std::chrono::system_clock::time_point now, Status* status);
 
   // Every session folder, sorted by id (oldest first). A folder whose
   // manifest is missing, unreadable or invalid is listed with state "corrupt"
@@ -255,10 +267,12 @@ class SessionStore {
   std::vector<SessionSummary> List() const;
 
   // Opens an existing session for writing or reading (takes its lock).
-  // Returns null with *error for an invalid id (IsValidSessionId), an unknown
-  // id, a corrupt manifest (with the reason) or a session held open
-  // elsewhere. Thread-safe.
-  std::unique_ptr<Session> OpenSession(const std::string& id, std::string* error);
+  // Returns null with *status (may be null) for an invalid id
+  // (IsValidSessionId; kInvalidArgument), an unknown id (kNotFound), a
+  // corrupt manifest (kCorrupt, with the reason), a session held open
+  // elsewhere (kFailedPrecondition) or an I/O error (the errno's code).
+  // Thread-safe.
+  std::unique_ptr<Session> OpenSession(const std::string& id, Status* status);
 
   // Checks the files of session `id` against its manifest without taking its
   // lock (reads only; meaningful when no one is writing it). An invalid or
@@ -269,8 +283,7 @@ class SessionStore {
   explicit SessionStore(std::string sessions_dir) : sessions_dir_(std::move(sessions_dir)) {}
   // Reads the manifest of session folder `dir`, whose lock is already held.
   static std::unique_ptr<Session> MakeSession(const std::string& id, const std::string& dir,
-                                              std::unique_ptr<Session::Lock> lock,
-                                              std::string* error);
+                                              std::unique_ptr<Session::Lock> lock, Status* status);
   const std::string sessions_dir_;
 };
 

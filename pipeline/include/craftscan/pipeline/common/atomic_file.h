@@ -4,6 +4,8 @@
 #include <string>
 #include <string_view>
 
+#include "craftscan/pipeline/common/status.h"
+
 namespace craftscan {
 
 // Writes `bytes` to `path` atomically: a hidden temporary beside `path` (same
@@ -12,8 +14,15 @@ namespace craftscan {
 // and renamed over `path`;
 // then the folder is fsync'ed so the rename is durable. On failure the
 // temporary is removed and any previous file at `path` is untouched. Returns
-// false and sets *error (may be null) to "'<path or temporary>': <what>:
-// <strerror>". Never throws. Thread-safe for distinct paths.
+// a failed Status with the message "'<path or temporary>': <what>:
+// <strerror>" with the code of the errno of the failing call (kDiskFull,
+// kReadOnly, kPermissionDenied, kNotFound, kIoError...; kInvalidArgument for
+// an empty path, kInternal for an escaping exception). Never throws.
+// Thread-safe for distinct paths.
+Status WriteFileAtomically(const std::string& path, std::string_view bytes);
+
+// The same, for callers that need only the text: false with *error (may be
+// null) set to the Status's message.
 bool WriteFileAtomically(const std::string& path, std::string_view bytes, std::string* error);
 
 // The process umask, read without changing it (umask() would, racing other

@@ -15,6 +15,12 @@ namespace craftscan {
 // > 32768 px. Never throws. Thread-safe.
 bool ReadPfm(const std::string& path, cv::Mat* image, std::string* error);
 
+// The bytes WritePfm writes for `image`, in *bytes, for a caller that writes
+// them itself (with the Status-returning WriteFileAtomically). Returns false
+// with *error (may be null; "PFM: <what>") and *bytes empty for an empty
+// image, another type or a side > 32768 px. Never throws. Thread-safe.
+bool EncodePfm(const cv::Mat& image, std::string* bytes, std::string* error);
+
 // Writes CV_32FC1/CV_32FC3 (BGR) as little-endian PFM (scale -1, rows
 // bottom-to-top, RGB). Returns false with *error (may be null) for an empty
 // image, another type, a side > 32768 px or an I/O failure. The write is

@@ -22,8 +22,8 @@
 // unsupported format, a missing vertex element or x/y/z, a list-typed x/y/z,
 // an impossible element count, truncated data, or a non-numeric /
 // out-of-range ASCII value. The output is left empty on failure. None of
-// these functions throws; all are thread-safe (the writers for distinct
-// paths).
+// these functions throws (except the encoders' std::bad_alloc); all are thread-safe (the writers
+// for distinct paths).
 #pragma once
 
 #include <string>
@@ -47,6 +47,17 @@ bool ReadPly(const std::string& path, PointCloud* cloud, std::string* error,
 // non-finite vertex position.
 bool ReadMeshPly(const std::string& path, TriangleMesh* mesh, std::string* error,
                  double scale_to_mm = 1.0);
+
+// The bytes WritePly writes for `cloud` (header and data), for a caller that
+// writes them itself (the session store, with the Status-returning
+// WriteFileAtomically). `cloud` must be valid (PointCloud::IsValid; an
+// invalid one gives an empty string, never an out-of-range read). Throws
+// only std::bad_alloc.
+std::string EncodePly(const PointCloud& cloud, bool binary);
+
+// The same for WriteMeshPly: the bytes for a valid `mesh` (empty for an
+// invalid one). Throws only std::bad_alloc.
+std::string EncodeMeshPly(const TriangleMesh& mesh, bool binary);
 
 // Writes `cloud` as a PLY with one "vertex" element: float x y z (mm, as
 // stored), float nx ny nz if present, uchar red green blue if present.

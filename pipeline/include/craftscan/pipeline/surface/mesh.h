@@ -79,4 +79,9 @@ MeshResult PoissonMesh(const PointCloud& cloud_with_normals, const PoissonOption
 // distinct paths.
 bool WriteMeshObj(const std::string& path, const TriangleMesh& mesh, std::string* error);
 
+// The bytes WriteMeshObj writes for a valid `mesh` (empty for an invalid
+// one), for a caller that writes them with the Status-returning
+// WriteFileAtomically. Throws only std::bad_alloc. Thread-safe.
+std::string EncodeMeshObj(const TriangleMesh& mesh);
+
 }  // namespace craftscan

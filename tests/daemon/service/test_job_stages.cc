@@ -656,6 +656,9 @@ TEST_F(JobStages, CaptureStageStopsAtItsNextViewAndMatchStageFinishesTheViewInHa
   ASSERT_TRUE(calibration);
   ViewProcessor processor;
   ViewProcessorOptions view_options;
+  // The threads the daemon fixtures use (1 under TSan: TBB's workers
+  // synchronise inside libtbb, where TSan cannot see it).
+  view_options.num_threads = TestThreads();
   view_options.volume.radius_mm = 65;
   view_options.volume.max_height_mm = 70;
   ASSERT_TRUE(processor.Init(*calibration, view_options, &error)) << error;

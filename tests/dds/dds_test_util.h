@@ -2,7 +2,7 @@
 // tests/clients/record): the loopback-only Cyclone configuration, one random
 // domain per test process and a participant on it, and station names no
 // other test uses. (Child processes: tests/process_util.h.)
-// Needs CRAFTSCAN_CYCLONEDDS_XML (the shipped systemd/cyclonedds.xml).
+// Uses the shipped systemd/cyclonedds.xml (test_paths.h).
 #pragma once
 
 #include <gtest/gtest.h>
@@ -14,12 +14,14 @@
 #include <string>
 
 #include "craftscan/dds/participant.h"
+#include "test_paths.h"
 
 namespace craftscan::testing {
 
 // The shipped configuration plus the loopback-only fragment.
 inline std::string TestDdsConfig() {
-  return dds::ConfigFileUri(CRAFTSCAN_CYCLONEDDS_XML) + "," + dds::LoopbackOnlyConfigXml();
+  return dds::ConfigFileUri(::craftscan::testing::CycloneDdsXml()) + "," +
+         dds::LoopbackOnlyConfigXml();
 }
 
 // One random domain per test process (1..kMaxDomainId; 0 is the usual default).

@@ -34,6 +34,7 @@
 #include "dds_test_util.h"
 #include "mat_util.h"
 #include "process_util.h"
+#include "test_paths.h"
 
 namespace craftscan::dds {
 namespace {
@@ -52,7 +53,7 @@ using ::craftscan::testing::UniqueStation;
 class Peer {
  public:
   Peer(const std::string& station, const std::string& mode, int count) {
-    const std::vector<std::string> args = {CRAFTSCAN_DDS_PEER,
+    const std::vector<std::string> args = {::craftscan::testing::DdsPeerPath(),
                                            "--domain",
                                            std::to_string(ProcessDomainId()),
                                            "--config",

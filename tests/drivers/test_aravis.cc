@@ -31,6 +31,7 @@
 #include "fake_usb_source.h"
 #include "pairing.h"
 #include "pixel_conversion.h"
+#include "test_paths.h"
 
 namespace craftscan::aravis {
 namespace {
@@ -532,7 +533,7 @@ TEST_F(Aravis, BadConfigIsRejected) {
 }
 
 TEST_F(Aravis, LoadsAsPlugin) {
-  drivers::PluginLoader loader(CRAFTSCAN_PLUGIN_DIR);
+  drivers::PluginLoader loader(::craftscan::testing::PluginDir());
   std::shared_ptr<const drivers::Plugin> plugin;
   auto status = loader.Load("aravis", &plugin);
   ASSERT_TRUE(status.ok()) << status.ToString();

@@ -30,6 +30,7 @@
 #include "aravis_fakes.h"
 #include "craftscan/drivers/plugin_loader.h"
 #include "fake_host.h"
+#include "test_paths.h"
 #include "turntable_emulator.h"
 
 namespace craftscan::drivers {
@@ -208,7 +209,7 @@ class DriverConformance : public ::testing::TestWithParam<DriverProfile> {
 
   // Creates a driver instance with the profile's config, the rig's, then `extra`.
   std::unique_ptr<DriverInstance> MakeInstance(const DriverConfig& extra = {}) {
-    PluginLoader loader(CRAFTSCAN_PLUGIN_DIR);
+    PluginLoader loader(::craftscan::testing::PluginDir());
     std::shared_ptr<const Plugin> plugin;
     DriverStatus status = loader.Load(GetParam().plugin, &plugin);
     EXPECT_TRUE(status.ok()) << status.ToString();
@@ -608,7 +609,7 @@ TEST_P(DriverConformance, TurntableMoveTimeoutStopsAndFaults) {
 class SerialTurntablePlugin : public ::testing::Test {
  protected:
   DriverStatus Create(const DriverConfig& config, std::unique_ptr<DriverInstance>* instance) {
-    PluginLoader loader(CRAFTSCAN_PLUGIN_DIR);
+    PluginLoader loader(::craftscan::testing::PluginDir());
     std::shared_ptr<const Plugin> plugin;
     DriverStatus status = loader.Load("serial_turntable", &plugin);
     EXPECT_TRUE(status.ok()) << status.ToString();

@@ -10,12 +10,13 @@
 
 #include "craftscan/drivers/plugin_loader.h"
 #include "fake_host.h"
+#include "test_paths.h"
 
 namespace craftscan::drivers {
 namespace {
 
-const std::string kPluginDir = CRAFTSCAN_PLUGIN_DIR;
-const std::string kBadDir = CRAFTSCAN_BAD_PLUGIN_DIR;
+const std::string kPluginDir = ::craftscan::testing::PluginDir();
+const std::string kBadDir = ::craftscan::testing::BadPluginDir();
 
 bool Contains(const std::string& text, const std::string& part) {
   return text.find(part) != std::string::npos;

@@ -26,6 +26,7 @@
 #include "craftscan/sim/station.h"
 #include "fake_host.h"
 #include "mat_util.h"
+#include "test_paths.h"
 
 namespace craftscan::sim {
 namespace {
@@ -56,7 +57,7 @@ class SimDriver : public ::testing::Test {
   // Loads craftscan-driver-sim.so and creates an instance with `config`,
   // its camera (opened, configured, streaming) and its turntable (opened).
   void Create(const DriverConfig& config, const CameraSettings& settings = {}) {
-    drivers::PluginLoader loader(CRAFTSCAN_PLUGIN_DIR);
+    drivers::PluginLoader loader(::craftscan::testing::PluginDir());
     std::shared_ptr<const drivers::Plugin> plugin;
     DriverStatus status = loader.Load("sim", &plugin);
     ASSERT_TRUE(status.ok()) << status.ToString();
@@ -149,7 +150,7 @@ TEST_F(SimDriver, InstantaneousMovesDoNotWait) {
 TEST(SimDriverThreads, AbortFromAnotherThreadOnTheRealClock) {
   // The one test on the real clock: a 9 s move aborted from a second thread
   // as soon as it is Moving; MoveTo must return within a few ms of that.
-  drivers::PluginLoader loader(CRAFTSCAN_PLUGIN_DIR);
+  drivers::PluginLoader loader(::craftscan::testing::PluginDir());
   std::shared_ptr<const drivers::Plugin> plugin;
   ASSERT_TRUE(loader.Load("sim", &plugin).ok());
   std::unique_ptr<drivers::DriverInstance> instance;

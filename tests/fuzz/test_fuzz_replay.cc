@@ -17,6 +17,7 @@
 #include <set>
 #include <string>
 #include <vector>
+#include "test_paths.h"
 
 #define CRAFTSCAN_DECLARE_FUZZ_TARGET(name)                     \
   namespace craftscan::fuzz::name {                             \
@@ -133,7 +134,7 @@ void PrintTo(const Target& target, std::ostream* out) { *out << target.name; }
 class FuzzReplay : public testing::TestWithParam<Target> {};
 
 TEST_P(FuzzReplay, CorpusAndRegressionInputsPass) {
-  const fs::path root = CRAFTSCAN_FUZZ_DIR;
+  const fs::path root = ::craftscan::testing::FuzzDir();
   const std::size_t seeds = Replay(GetParam(), root / "corpus" / GetParam().name);
   EXPECT_GE(seeds, 3u) << "corpus/" << GetParam().name << " needs seed inputs";
   Replay(GetParam(), root / "regression" / GetParam().name);
@@ -153,7 +154,7 @@ TEST(FuzzReplaySetup, MemoryLimitedAndEveryInputFolderNamesATarget) {
 #endif
   std::set<std::string> names;
   for (const Target& target : Targets()) names.insert(target.name);
-  const fs::path root = CRAFTSCAN_FUZZ_DIR;
+  const fs::path root = ::craftscan::testing::FuzzDir();
   for (const char* kind : {"corpus", "regression"}) {
     for (const fs::directory_entry& entry : fs::directory_iterator(root / kind)) {
       EXPECT_TRUE(entry.is_directory() && names.count(entry.path().filename().string()) == 1)

@@ -7,13 +7,14 @@
 
 #include "craftscan/pipeline/stereo/adcensus.h"
 #include "stereo_scene.h"
+#include "test_paths.h"
 
 namespace craftscan {
 namespace {
 
 namespace fs = std::filesystem;
 
-const fs::path kStereo = fs::path(CRAFTSCAN_SHARED_DATA) / "stereo";
+const fs::path kStereo = fs::path(::craftscan::testing::SharedDataDir()) / "stereo";
 
 DisparityMetrics MatchScene(const std::string& scene_name, ArmRule rule) {
   StereoScene scene;

@@ -21,6 +21,7 @@
 #include "craftscan/pipeline/calib/calibration.h"
 #include "craftscan/pipeline/calib/rectify.h"
 #include "file_util.h"
+#include "test_paths.h"
 #include "test_util.h"
 
 namespace craftscan {
@@ -743,7 +744,7 @@ bool HaveOpenCvPairs() {
   if (!HaveOpenCvPairs())                                                      \
   GTEST_SKIP() << "no OpenCV stereo sample images at "                         \
                << (testing::SharedData() / "calib" / "opencv_stereo").string() \
-               << " (set CRAFTSCAN_SHARED_DATA at configure time)"
+               << " (configure with -DCRAFTSCAN_SHARED_DATA=...)"
 
 void PrintReport(const char* what, const StereoCalibrationResult& result) {
   const CalibrationReport& r = result.report();

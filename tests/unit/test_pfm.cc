@@ -18,6 +18,7 @@
 
 #include <gtest/gtest.h>
 #include <opencv2/core.hpp>
+#include "test_paths.h"
 
 namespace craftscan {
 namespace {
@@ -210,8 +211,8 @@ TEST_F(Pfm, EncodeGivesTheBytesWritePfmWrites) {
 }
 
 TEST_F(Pfm, ReadsMiddlebury2014GroundTruth) {
-  const fs::path path =
-      fs::path(CRAFTSCAN_SHARED_DATA) / "stereo" / "adirondack_2014_q" / "disp_left.pfm";
+  const fs::path path = fs::path(::craftscan::testing::SharedDataDir()) / "stereo" /
+                        "adirondack_2014_q" / "disp_left.pfm";
   if (!fs::exists(path)) GTEST_SKIP() << "shared data absent: " << path;
   cv::Mat gt;
   std::string error;

@@ -16,6 +16,7 @@
 #include <opencv2/imgcodecs.hpp>
 
 #include "craftscan/pipeline/common/pfm.h"
+#include "test_paths.h"
 #include "test_util.h"
 
 namespace craftscan {
@@ -286,7 +287,7 @@ TEST_F(SceneFolder, MalformedPfmGroundTruth) {
 // Real data (found through CRAFTSCAN_SHARED_DATA, set at configure time)
 
 TEST(SharedScene, LoadsTeddy2003) {
-  const fs::path dir = fs::path(CRAFTSCAN_SHARED_DATA) / "stereo" / "teddy_2003";
+  const fs::path dir = fs::path(::craftscan::testing::SharedDataDir()) / "stereo" / "teddy_2003";
   if (!fs::exists(dir / "scene.json")) {
     GTEST_SKIP() << "shared data absent: " << dir
                  << " (configure with -DCRAFTSCAN_SHARED_DATA=...)";

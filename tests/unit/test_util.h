@@ -12,10 +12,11 @@
 #include <opencv2/imgproc.hpp>
 #include <random>
 #include <string>
+#include "test_paths.h"
 
 namespace craftscan::testing {
 
-inline std::filesystem::path SharedData() { return CRAFTSCAN_SHARED_DATA; }
+inline std::filesystem::path SharedData() { return ::craftscan::testing::SharedDataDir(); }
 
 // A fixture with a fresh temporary folder per test, removed afterwards.
 class TempDirTest : public ::testing::Test {

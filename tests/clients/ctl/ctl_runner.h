@@ -12,6 +12,7 @@
 
 #include "file_util.h"
 #include "process_util.h"
+#include "test_paths.h"
 
 extern char** environ;
 
@@ -39,7 +40,7 @@ class CtlProcess {
       environment.push_back(v);
     }
     environment.insert(environment.end(), env.begin(), env.end());
-    std::vector<std::string> argv = {CRAFTSCANCTL_PATH};
+    std::vector<std::string> argv = {::craftscan::testing::CraftscanctlPath()};
     argv.insert(argv.end(), args.begin(), args.end());
     std::vector<char*> envp;
     for (std::string& v : environment) envp.push_back(v.data());

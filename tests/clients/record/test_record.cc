@@ -44,6 +44,7 @@
 #include "mat_util.h"
 #include "process_util.h"
 #include "record_test_util.h"
+#include "test_paths.h"
 #include "wait_util.h"
 
 namespace craftscan::dds {
@@ -85,7 +86,7 @@ class RecorderProcess {
                   const std::string& name = "recorder")
       : stdout_path_(log_dir + "/" + name + ".stdout"),
         stderr_path_(log_dir + "/" + name + ".stderr") {
-    std::vector<std::string> args = {CRAFTSCAN_RECORD_PATH, "--domain",
+    std::vector<std::string> args = {::craftscan::testing::RecordPath(), "--domain",
                                      std::to_string(ProcessDomainId()), "--dds-config",
                                      TestDdsConfig()};
     args.insert(args.end(), extra_args.begin(), extra_args.end());

@@ -12,6 +12,7 @@
 #include "../../unit/test_util.h"
 #include "craftscan/daemon/config.h"
 #include "fake_notify_socket.h"
+#include "test_paths.h"
 
 namespace craftscan::daemon {
 namespace {
@@ -426,7 +427,7 @@ TEST_F(DaemonConfigFile, LoadPrefixesThePathAndReadsTheEnvironment) {
 }
 
 TEST(DaemonConfig, ShippedExampleValidates) {
-  const std::string path = std::string(CRAFTSCAN_SYSTEMD_DIR) + "/craftscand.yaml";
+  const std::string path = std::string(::craftscan::testing::SystemdDir()) + "/craftscand.yaml";
   DaemonConfig c;
   std::string error;
   // Not LoadDaemonConfig: CRAFTSCAN_* variables of the test environment must

@@ -18,6 +18,7 @@
 
 #include "../../unit/test_util.h"
 #include "file_util.h"
+#include "test_paths.h"
 
 namespace craftscan {
 namespace {
@@ -25,7 +26,7 @@ namespace {
 using ::testing::HasSubstr;
 namespace fs = std::filesystem;
 
-const fs::path kSystemdDir = CRAFTSCAN_SYSTEMD_DIR;
+const fs::path kSystemdDir = ::craftscan::testing::SystemdDir();
 
 using testing::ReadFile;
 

@@ -28,6 +28,7 @@
 #include "craftscan/sim/station.h"
 #include "fake_notify_socket.h"
 #include "file_util.h"
+#include "test_paths.h"
 
 extern char** environ;
 
@@ -87,7 +88,7 @@ class DaemonFixture {
   const std::string& station() const { return station_; }
   std::uint32_t domain() const { return domain_; }
   std::string dds_config() const {
-    return dds::ConfigFileUri(CRAFTSCAN_SOURCE_DIR "/systemd/cyclonedds.xml") + "," +
+    return dds::ConfigFileUri(::craftscan::testing::CycloneDdsXml()) + "," +
            dds::LoopbackOnlyConfigXml();
   }
   FakeNotifySocket& notify() { return notify_; }
@@ -120,7 +121,7 @@ class DaemonFixture {
            << "log_level: debug\n"
            << "dds: {domain: " << domain_ << "}\n"
            << "auth: {tokens_file: " << root_ << "/tokens.yaml}\n"
-           << "plugins: {path: [" << CRAFTSCAN_PLUGIN_DIR << "]}\n"
+           << "plugins: {path: [" << ::craftscan::testing::PluginDir() << "]}\n"
            << "devices:\n";
     if (devices_yaml.empty()) {
       config << "  camera: {driver: sim, config: {image_size: " << image_size_
@@ -166,7 +167,7 @@ class DaemonFixture {
     const std::string config = root_ + "/craftscand.yaml";
     const std::string log = root_ + "/craftscand.log";
     std::vector<std::string> args = launcher;
-    for (const char* a : {CRAFTSCAND_PATH, "--config"}) args.push_back(a);
+    for (const char* a : {::craftscan::testing::CraftscandPath(), "--config"}) args.push_back(a);
     args.push_back(config);
     std::vector<char*> argv;
     for (std::string& a : args) argv.push_back(a.data());

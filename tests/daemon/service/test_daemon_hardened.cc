@@ -34,6 +34,7 @@
 #include "craftscan/daemon/session_store.h"
 #include "daemon_fixture.h"
 #include "station_client.h"
+#include "test_paths.h"
 
 using craftscan::testing::StatusInto;
 
@@ -50,7 +51,7 @@ namespace {
 
 using namespace std::chrono_literals;
 
-constexpr const char* kUnit = CRAFTSCAN_SOURCE_DIR "/systemd/craftscand.service";
+const char* const kUnit = ::craftscan::testing::UnitFilePath();
 
 struct Finished {
   int status = -1;  // wait status; -1 when it had to be killed
@@ -99,11 +100,14 @@ Finished RunToEnd(const std::vector<std::string>& argv, const std::string& dir,
 // its folder (config, tokens) and the build and source trees kept reachable
 // read-only wherever they are (/tmp and /home are masked inside).
 std::vector<std::string> Launcher(const DaemonFixture& f, std::vector<std::string> more_ro = {}) {
-  std::vector<std::string> l = {HARDENED_RUN_PATH, "--unit", kUnit, "--state-dir", f.data_dir()};
-  more_ro.insert(more_ro.end(),
-                 {f.root(), std::filesystem::path(CRAFTSCAND_PATH).parent_path().string(),
-                  CRAFTSCAN_PLUGIN_DIR, CRAFTSCAN_SOURCE_DIR "/systemd",
-                  std::filesystem::path(HARDENED_PROBE_PATH).parent_path().string()});
+  std::vector<std::string> l = {::craftscan::testing::HardenedRunPath(), "--unit", kUnit,
+                                "--state-dir", f.data_dir()};
+  more_ro.insert(
+      more_ro.end(),
+      {f.root(),
+       std::filesystem::path(::craftscan::testing::CraftscandPath()).parent_path().string(),
+       ::craftscan::testing::PluginDir(), ::craftscan::testing::SystemdDir(),
+       std::filesystem::path(::craftscan::testing::HardenedProbePath()).parent_path().string()});
   for (const std::string& p : more_ro) l.insert(l.end(), {"--ro", p});
   l.push_back("--");
   return l;
@@ -129,7 +133,7 @@ bool SandboxUnavailable(const DaemonFixture& f, std::string* why) {
   return true;
 #else
   std::vector<std::string> argv = Launcher(f);
-  argv.insert(argv.end(), {HARDENED_PROBE_PATH, "status"});
+  argv.insert(argv.end(), {::craftscan::testing::HardenedProbePath(), "status"});
   const Finished run = RunToEnd(argv, f.root());
   if (WIFEXITED(run.status) && WEXITSTATUS(run.status) == 77) {
     *why = "no user namespaces or seccomp here: " + run.err;
@@ -201,7 +205,7 @@ TEST(HardenedService, TheUnitsSandboxIsInForce) {
   };
   std::vector<std::string> argv = Launcher(f);
   argv.insert(argv.end() - 1, "--explain");  // before the "--"
-  argv.insert(argv.end(), HARDENED_PROBE_PATH);
+  argv.insert(argv.end(), ::craftscan::testing::HardenedProbePath());
   for (const auto& [action, result] : expected) argv.push_back(action);
   for (const char* more : {"list:/home", "list:/root", "status"}) argv.push_back(more);
   const Finished run = RunToEnd(argv, root);
@@ -235,9 +239,9 @@ TEST(HardenedService, TheUnitsSandboxIsInForce) {
   // The same probe outside the sandbox: the confined operations go through
   // (or fail otherwise), so the answers above came from the sandbox.
   const Finished control =
-      RunToEnd({HARDENED_PROBE_PATH, "write:" + root + "/probe", "mmap-wx", "mprotect-exec",
-                "setuid-self", "personality", "chmod-suid:" + data + "/suid", "unshare-user",
-                "clone3", "socket:packet", "stat:" + host_marker + "-gone"},
+      RunToEnd({::craftscan::testing::HardenedProbePath(), "write:" + root + "/probe", "mmap-wx",
+                "mprotect-exec", "setuid-self", "personality", "chmod-suid:" + data + "/suid",
+                "unshare-user", "clone3", "socket:packet", "stat:" + host_marker + "-gone"},
                root);
   ASSERT_TRUE(WIFEXITED(control.status) && WEXITSTATUS(control.status) == 0) << control.err;
   const auto outside = ProbeResults(control.out);

@@ -35,6 +35,7 @@
 #include "craftscan/sim/driver_options.h"
 #include "craftscan/sim/station.h"
 #include "private_mount.h"
+#include "test_paths.h"
 
 using craftscan::testing::Ok;
 using craftscan::testing::StatusInto;
@@ -174,7 +175,7 @@ class Station {
       return error;
 
     DeviceSetup setup;
-    setup.plugin_path = CRAFTSCAN_PLUGIN_DIR;
+    setup.plugin_path = ::craftscan::testing::PluginDir();
     drivers::DriverConfig config = {{"image_size", kImageSize},
                                     {"threads", std::to_string(TestThreads())}};
     for (const auto& [key, value] : extra_) config[key] = value;

@@ -54,6 +54,7 @@
 #include "file_util.h"
 #include "process_util.h"
 #include "security_test_util.h"
+#include "test_paths.h"
 
 namespace craftscan::dds {
 namespace {
@@ -104,7 +105,7 @@ struct ScriptRun {
 // <ProcessDomainId> --base-config <the shipped cyclonedds.xml> <extra...>.
 ScriptRun RunSetup(const std::string& out, const std::string& station,
                    const std::vector<std::string>& extra) {
-  std::vector<std::string> args = {CRAFTSCAN_DDS_SECURITY_SETUP,
+  std::vector<std::string> args = {::craftscan::testing::DdsSecuritySetupPath(),
                                    "--out",
                                    out,
                                    "--station",
@@ -112,7 +113,7 @@ ScriptRun RunSetup(const std::string& out, const std::string& station,
                                    "--domain",
                                    std::to_string(ProcessDomainId()),
                                    "--base-config",
-                                   CRAFTSCAN_CYCLONEDDS_XML};
+                                   ::craftscan::testing::CycloneDdsXml()};
   args.insert(args.end(), extra.begin(), extra.end());
   const std::string log = out + ".log";
   ScriptRun run;
@@ -124,12 +125,12 @@ ScriptRun RunSetup(const std::string& out, const std::string& station,
 }
 
 std::string PlainConfig() {
-  return ConfigFileUri(CRAFTSCAN_CYCLONEDDS_XML) + "," + LoopbackOnlyConfigXml();
+  return ConfigFileUri(::craftscan::testing::CycloneDdsXml()) + "," + LoopbackOnlyConfigXml();
 }
 
 // The shipped config, an identity's generated security fragment, loopback.
 std::string SecuredConfig(const std::string& identity_dir) {
-  return ConfigFileUri(CRAFTSCAN_CYCLONEDDS_XML) + "," +
+  return ConfigFileUri(::craftscan::testing::CycloneDdsXml()) + "," +
          ConfigFileUri(identity_dir + "/cyclonedds-security.xml") + "," + LoopbackOnlyConfigXml();
 }
 
@@ -155,8 +156,8 @@ class Peer {
        const std::string& station)
       : name_(name), report_path_(work_dir + "/" + name + ".report") {
     started_ = process_.Start(
-        {CRAFTSCAN_DDS_SECURITY_PEER, "--domain", std::to_string(ProcessDomainId()), "--config",
-         config, "--station", station, "--name", name, "--max-ms", "60000"},
+        {::craftscan::testing::DdsSecurityPeerPath(), "--domain", std::to_string(ProcessDomainId()),
+         "--config", config, "--station", station, "--name", name, "--max-ms", "60000"},
         report_path_, /*with_stderr=*/false);
   }
   bool started() const { return started_; }
@@ -460,7 +461,7 @@ TEST_F(DdsSecurity, ParticipantsWithAnotherCasCertificateAreRefused) {
   // identity certificate's issuer is wrong.
   const std::string fake = Identity(other, "console"), real = Identity(pki, "console");
   const std::string impostor_config =
-      ConfigFileUri(CRAFTSCAN_CYCLONEDDS_XML) + "," +
+      ConfigFileUri(::craftscan::testing::CycloneDdsXml()) + "," +
       SecurityXml(fake + "/ca.pem", fake + "/cert.pem", fake + "/key.pem", real + "/ca.pem",
                   real + "/governance.p7s", real + "/permissions.p7s") +
       "," + LoopbackOnlyConfigXml();

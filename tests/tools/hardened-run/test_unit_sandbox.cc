@@ -11,6 +11,7 @@
 #include <sstream>
 
 #include "file_util.h"
+#include "test_paths.h"
 #include "unit_sandbox.h"
 
 namespace craftscan::hardened {
@@ -24,8 +25,8 @@ bool Has(const std::vector<std::string>& list, const std::string& prefix) {
 }
 
 TEST(HardenedUnit, CraftscandServiceKeepsItsHardening) {
-  const std::string text = ReadFile(CRAFTSCAN_UNIT_PATH);
-  ASSERT_FALSE(text.empty()) << CRAFTSCAN_UNIT_PATH;
+  const std::string text = ReadFile(::craftscan::testing::UnitFilePath());
+  ASSERT_FALSE(text.empty()) << ::craftscan::testing::UnitFilePath();
   UnitSandbox u;
   std::string error;
   ASSERT_TRUE(ParseUnit(text, &u, &error)) << error;

@@ -10,15 +10,15 @@
 
 namespace craftscan::testing {
 
-const char* SharedDataDir();        // ../shared/data beside the source tree
-const char* SourceDir();            // the source tree's root
-const char* SystemdDir();           // <source>/systemd
-const char* CycloneDdsXml();        // <source>/systemd/cyclonedds.xml
-const char* UnitFilePath();         // <source>/systemd/craftscand.service
-const char* FuzzDir();              // <source>/tests/fuzz (corpora, regressions)
-const char* DdsSecuritySetupPath(); // <source>/scripts/dds-security-setup
-const char* PluginDir();            // the built driver plugins
-const char* BadPluginDir();         // the deliberately broken test plugins
+const char* SharedDataDir();         // ../shared/data beside the source tree
+const char* SourceDir();             // the source tree's root
+const char* SystemdDir();            // <source>/systemd
+const char* CycloneDdsXml();         // <source>/systemd/cyclonedds.xml
+const char* UnitFilePath();          // <source>/systemd/craftscand.service
+const char* FuzzDir();               // <source>/tests/fuzz (corpora, regressions)
+const char* DdsSecuritySetupPath();  // <source>/scripts/dds-security-setup
+const char* PluginDir();             // the built driver plugins
+const char* BadPluginDir();          // the deliberately broken test plugins
 const char* CraftscandPath();
 const char* CraftscanctlPath();
 const char* RecordPath();           // craftscan-record

@@ -166,6 +166,130 @@ const char* ToString(LoopClosureResult::Model model) {
   return "none";
 }
 
+namespace {
+
+// The problem of CloseLoop's inputs: edges that join views, connected to
+// view 0, finite positive weights, at least three finite sample points not
+// on one line. Returns what is wrong, empty when the problem is sound.
+std::string BuildProblem(int num_views, const std::vector<PoseEdge>& edges,
+                         const std::vector<cv::Vec3d>& sample_points_mm, Problem* p) {
+  if (edges.empty()) return "no edges";
+  p->num_views = num_views;
+  std::vector<int> parent(num_views);  // connectivity: union-find over views
+  for (int i = 0; i < num_views; ++i) parent[i] = i;
+  std::function<int(int)> find = [&](int i) {
+    return parent[i] == i ? i : parent[i] = find(parent[i]);
+  };
+  for (const PoseEdge& e : edges) {
+    if (e.source < 0 || e.source >= num_views || e.target < 0 || e.target >= num_views ||
+        e.source == e.target)
+      return "edge " + std::to_string(e.source) + " → " + std::to_string(e.target) +
+             " does not join two of the " + std::to_string(num_views) + " views";
+    if (!(e.weight > 0) || !std::isfinite(e.weight)) return "edge weights must be finite and > 0";
+    parent[find(e.source)] = find(e.target);
+    p->edges.push_back(e);
+    p->measured.push_back(ToEigen(e.target_from_source));
+  }
+  for (int i = 1; i < num_views; ++i)
+    if (find(i) != find(0))
+      return "view " + std::to_string(i) + " is not connected to view 0 by any edge";
+  for (const auto& s : sample_points_mm) {
+    if (!std::isfinite(s[0]) || !std::isfinite(s[1]) || !std::isfinite(s[2]))
+      return "sample points must be finite";
+    p->samples.emplace_back(s[0], s[1], s[2]);
+  }
+  if (p->samples.size() < 3) return "need at least 3 sample points";
+  const Eigen::Vector3d a = p->samples[1] - p->samples[0];
+  for (std::size_t i = 2; i < p->samples.size(); ++i)
+    if (a.cross(p->samples[i] - p->samples[0]).norm() > 1e-6 * std::max(1.0, a.squaredNorm()))
+      return {};
+  return "sample points lie on one line";
+}
+
+// The turntable-axis model: every view a rotation about one axis. Starts
+// from the mean of the views' rotation axes (sign-aligned, weighted by their
+// angle up to 90°) and the least-squares point of t_k = (I − R_k)·c, then
+// fits axis, point and one angle per view k ≥ 1. Fills the result's axis
+// figures; returns the poses, empty when no axis could be fitted.
+std::vector<Mat4> FitTurntableAxis(const Problem& p, const std::vector<Mat4>& initial,
+                                   const LoopClosureOptions& options, LoopClosureResult* result) {
+  const int num_views = p.num_views;
+  Eigen::Vector3d axis = Eigen::Vector3d::Zero();
+  for (int k = 1; k < num_views; ++k) {
+    const Eigen::AngleAxisd aa(Eigen::Matrix3d(initial[k].topLeftCorner<3, 3>()));
+    Eigen::Vector3d a = aa.axis() * std::min(aa.angle(), M_PI / 2);  // small angles: ill-defined
+    if (axis.norm() > 0 && a.dot(axis) < 0) a = -a;
+    axis += a;
+  }
+  if (!(axis.norm() > 1e-9)) return {};
+  axis.normalize();
+  Eigen::MatrixXd A(3 * (num_views - 1) + 1, 3);
+  Eigen::VectorXd b(3 * (num_views - 1) + 1);
+  std::vector<double> angles(num_views, 0.0);
+  for (int k = 1; k < num_views; ++k) {
+    const Eigen::Matrix3d R = initial[k].topLeftCorner<3, 3>();
+    A.block<3, 3>(3 * (k - 1), 0) = Eigen::Matrix3d::Identity() - R;
+    b.segment<3>(3 * (k - 1)) = initial[k].topRightCorner<3, 1>();
+    const Eigen::AngleAxisd aa(R);
+    angles[k] = aa.axis().dot(axis) >= 0 ? aa.angle() : -aa.angle();
+  }
+  A.row(A.rows() - 1) = axis.transpose();
+  b[b.size() - 1] = 0;
+  Eigen::Vector3d center = A.colPivHouseholderQr().solve(b);
+  // Local parametrisation: [u v] tilt the axis in its normal plane, [cu cv]
+  // move the point in that plane, then one angle per view k ≥ 1.
+  Eigen::Vector3d e1 = axis.unitOrthogonal(), e2 = axis.cross(e1);
+  const int n = 4 + (num_views - 1);
+  auto state_of = [&](const Vec& x, Eigen::Vector3d* a, Eigen::Vector3d* c,
+                      std::vector<double>* th) {
+    *a = (axis + x[0] * e1 + x[1] * e2).normalized();
+    *c = center + x[2] * e1 + x[3] * e2;
+    *th = angles;
+    for (int k = 1; k < num_views; ++k) (*th)[k] += x[3 + k];
+  };
+  auto poses_of = [&](const Vec& x) {
+    Eigen::Vector3d a, c;
+    std::vector<double> th;
+    state_of(x, &a, &c, &th);
+    std::vector<Mat4> poses(num_views);
+    for (int k = 0; k < num_views; ++k) poses[k] = AxisRotation(a, c, th[k]);
+    return poses;
+  };
+  auto rebase = [&](const Vec& x) {
+    Eigen::Vector3d a, c;
+    std::vector<double> th;
+    state_of(x, &a, &c, &th);
+    axis = a;
+    center = c - a * a.dot(c);  // the point nearest the origin of view 0
+    angles = th;
+    e1 = axis.unitOrthogonal();
+    e2 = axis.cross(e1);
+  };
+  if (!Solve(p, n, options.max_iterations, poses_of, rebase)) return {};
+  std::vector<Mat4> poses = poses_of(Vec::Zero(n));
+  double mx;
+  Figures(p, poses, &result->axis_rms_mm, &mx);
+  result->axis_direction = cv::Vec3d(axis[0], axis[1], axis[2]);
+  result->axis_point_mm = cv::Vec3d(center[0], center[1], center[2]);
+  result->angles_rad = angles;
+  return poses;
+}
+
+// The pose graph: a free rigid update per view k ≥ 1. Returns false when it
+// does not converge.
+bool FitPoseGraph(const Problem& p, const LoopClosureOptions& options, std::vector<Mat4>* poses) {
+  const int n = 6 * (p.num_views - 1);
+  auto poses_of = [&](const Vec& x) {
+    std::vector<Mat4> out = *poses;
+    for (int k = 1; k < p.num_views; ++k) out[k] = Exp(x.segment<6>(6 * (k - 1))) * (*poses)[k];
+    return out;
+  };
+  auto rebase = [&](const Vec& x) { *poses = poses_of(x); };
+  return Solve(p, n, options.max_iterations, poses_of, rebase);
+}
+
+}  // namespace
+
 LoopClosureResult CloseLoop(int num_views, const std::vector<PoseEdge>& edges,
                             const std::vector<cv::Matx44d>& initial_view0_from_view,
                             const std::vector<cv::Vec3d>& sample_points_mm,
@@ -187,62 +311,9 @@ LoopClosureResult CloseLoop(int num_views, const std::vector<PoseEdge>& edges,
                            " given for " + std::to_string(num_views) + " views";
           return result;
         }
-        if (edges.empty()) {
-          result.message = "no edges";
-          return result;
-        }
         Problem p;
-        p.num_views = num_views;
-        // Connectivity: every view reached from view 0.
-        std::vector<int> parent(num_views);
-        for (int i = 0; i < num_views; ++i) parent[i] = i;
-        std::function<int(int)> find = [&](int i) {
-          return parent[i] == i ? i : parent[i] = find(parent[i]);
-        };
-        for (const PoseEdge& e : edges) {
-          if (e.source < 0 || e.source >= num_views || e.target < 0 || e.target >= num_views ||
-              e.source == e.target) {
-            result.message = "edge " + std::to_string(e.source) + " → " + std::to_string(e.target) +
-                             " does not join two of the " + std::to_string(num_views) + " views";
-            return result;
-          }
-          if (!(e.weight > 0) || !std::isfinite(e.weight)) {
-            result.message = "edge weights must be finite and > 0";
-            return result;
-          }
-          parent[find(e.source)] = find(e.target);
-          p.edges.push_back(e);
-          p.measured.push_back(ToEigen(e.target_from_source));
-        }
-        for (int i = 1; i < num_views; ++i) {
-          if (find(i) != find(0)) {
-            result.message =
-                "view " + std::to_string(i) + " is not connected to view 0 by any edge";
-            return result;
-          }
-        }
-        for (const auto& s : sample_points_mm) {
-          if (!std::isfinite(s[0]) || !std::isfinite(s[1]) || !std::isfinite(s[2])) {
-            result.message = "sample points must be finite";
-            return result;
-          }
-          p.samples.emplace_back(s[0], s[1], s[2]);
-        }
-        if (p.samples.size() < 3) {
-          result.message = "need at least 3 sample points";
-          return result;
-        }
-        {
-          const Eigen::Vector3d a = p.samples[1] - p.samples[0];
-          bool spread = false;
-          for (std::size_t i = 2; i < p.samples.size() && !spread; ++i)
-            spread =
-                a.cross(p.samples[i] - p.samples[0]).norm() > 1e-6 * std::max(1.0, a.squaredNorm());
-          if (!spread) {
-            result.message = "sample points lie on one line";
-            return result;
-          }
-        }
+        result.message = BuildProblem(num_views, edges, sample_points_mm, &p);
+        if (!result.message.empty()) return result;
         std::vector<Mat4> initial(num_views);
         for (int k = 0; k < num_views; ++k) initial[k] = ToEigen(initial_view0_from_view[k]);
         // Everything relative to view 0.
@@ -250,91 +321,23 @@ LoopClosureResult CloseLoop(int num_views, const std::vector<PoseEdge>& edges,
         for (auto& T : initial) T = inv0 * T;
 
         // Open loop: how far the starting poses are from the edges.
-        {
-          double worst = 0;
-          for (std::size_t e = 0; e < p.edges.size(); ++e) {
-            const Mat4 model =
-                InverseRigid(initial[p.edges[e].target]) * initial[p.edges[e].source];
-            worst = std::max(worst, RotationDeg(InverseRigid(p.measured[e]) * model));
-          }
-          result.open_loop_rot_deg = worst;
-          double mx;
-          Figures(p, initial, &result.open_loop_rms_mm, &mx);
+        double worst = 0;
+        for (std::size_t e = 0; e < p.edges.size(); ++e) {
+          const Mat4 model = InverseRigid(initial[p.edges[e].target]) * initial[p.edges[e].source];
+          worst = std::max(worst, RotationDeg(InverseRigid(p.measured[e]) * model));
         }
+        result.open_loop_rot_deg = worst;
+        double mx;
+        Figures(p, initial, &result.open_loop_rms_mm, &mx);
 
-        // --- Turntable-axis model --------------------------------------------------
-        // Initial axis: mean of the views' rotation axes (sign-aligned, weighted by
-        // their angle up to 90°); point: least squares of t_k = (I − R_k)·c.
-        Eigen::Vector3d axis = Eigen::Vector3d::Zero();
-        for (int k = 1; k < num_views; ++k) {
-          const Eigen::AngleAxisd aa(Eigen::Matrix3d(initial[k].topLeftCorner<3, 3>()));
-          Eigen::Vector3d a =
-              aa.axis() * std::min(aa.angle(), M_PI / 2);  // small angles: ill-defined axes
-          if (axis.norm() > 0 && a.dot(axis) < 0) a = -a;
-          axis += a;
-        }
-        bool axis_ok = axis.norm() > 1e-9;
-        std::vector<Mat4> axis_poses;
-        if (axis_ok) {
-          axis.normalize();
-          Eigen::MatrixXd A(3 * (num_views - 1) + 1, 3);
-          Eigen::VectorXd b(3 * (num_views - 1) + 1);
-          std::vector<double> angles(num_views, 0.0);
-          for (int k = 1; k < num_views; ++k) {
-            const Eigen::Matrix3d R = initial[k].topLeftCorner<3, 3>();
-            A.block<3, 3>(3 * (k - 1), 0) = Eigen::Matrix3d::Identity() - R;
-            b.segment<3>(3 * (k - 1)) = initial[k].topRightCorner<3, 1>();
-            const Eigen::AngleAxisd aa(R);
-            angles[k] = aa.axis().dot(axis) >= 0 ? aa.angle() : -aa.angle();
-          }
-          A.row(A.rows() - 1) = axis.transpose();
-          b[b.size() - 1] = 0;
-          Eigen::Vector3d center = A.colPivHouseholderQr().solve(b);
-          // Local parametrisation: [u v] tilt the axis in its normal plane, [cu cv]
-          // move the point in that plane, then one angle per view k ≥ 1.
-          Eigen::Vector3d e1 = axis.unitOrthogonal(), e2 = axis.cross(e1);
-          const int n = 4 + (num_views - 1);
-          auto state_of = [&](const Vec& x, Eigen::Vector3d* a, Eigen::Vector3d* c,
-                              std::vector<double>* th) {
-            *a = (axis + x[0] * e1 + x[1] * e2).normalized();
-            *c = center + x[2] * e1 + x[3] * e2;
-            *th = angles;
-            for (int k = 1; k < num_views; ++k) (*th)[k] += x[3 + k];
-          };
-          auto poses_of = [&](const Vec& x) {
-            Eigen::Vector3d a, c;
-            std::vector<double> th;
-            state_of(x, &a, &c, &th);
-            std::vector<Mat4> poses(num_views);
-            for (int k = 0; k < num_views; ++k) poses[k] = AxisRotation(a, c, th[k]);
-            return poses;
-          };
-          auto rebase = [&](const Vec& x) {
-            Eigen::Vector3d a, c;
-            std::vector<double> th;
-            state_of(x, &a, &c, &th);
-            axis = a;
-            center = c - a * a.dot(c);  // the point nearest the origin of view 0
-            angles = th;
-            e1 = axis.unitOrthogonal();
-            e2 = axis.cross(e1);
-          };
-          axis_ok = Solve(p, n, options.max_iterations, poses_of, rebase);
-          if (axis_ok) {
-            axis_poses = poses_of(Vec::Zero(n));
-            double mx;
-            Figures(p, axis_poses, &result.axis_rms_mm, &mx);
-            result.axis_direction = cv::Vec3d(axis[0], axis[1], axis[2]);
-            result.axis_point_mm = cv::Vec3d(center[0], center[1], center[2]);
-            result.angles_rad = angles;
-            if (result.axis_rms_mm <= options.max_axis_rms_mm) {
-              result.status = LoopClosureResult::Status::kOk;
-              result.model = LoopClosureResult::Model::kTurntableAxis;
-              for (const auto& T : axis_poses) result.view0_from_view.push_back(ToCv(T));
-              Figures(p, axis_poses, &result.rms_mm, &result.max_mm);
-              return result;
-            }
-          }
+        const std::vector<Mat4> axis_poses = FitTurntableAxis(p, initial, options, &result);
+        const bool axis_ok = !axis_poses.empty();
+        if (axis_ok && result.axis_rms_mm <= options.max_axis_rms_mm) {
+          result.status = LoopClosureResult::Status::kOk;
+          result.model = LoopClosureResult::Model::kTurntableAxis;
+          for (const auto& T : axis_poses) result.view0_from_view.push_back(ToCv(T));
+          Figures(p, axis_poses, &result.rms_mm, &result.max_mm);
+          return result;
         }
         if (!options.allow_pose_graph) {
           result.message = axis_ok ? "the turntable-axis model fits poorly (RMS " +
@@ -344,16 +347,8 @@ LoopClosureResult CloseLoop(int num_views, const std::vector<PoseEdge>& edges,
           return result;
         }
 
-        // --- Pose graph -------------------------------------------------------------
         std::vector<Mat4> poses = initial;
-        const int n = 6 * (num_views - 1);
-        auto poses_of = [&](const Vec& x) {
-          std::vector<Mat4> out = poses;
-          for (int k = 1; k < num_views; ++k) out[k] = Exp(x.segment<6>(6 * (k - 1))) * poses[k];
-          return out;
-        };
-        auto rebase = [&](const Vec& x) { poses = poses_of(x); };
-        if (!Solve(p, n, options.max_iterations, poses_of, rebase)) {
+        if (!FitPoseGraph(p, options, &poses)) {
           result.message = "the pose graph did not converge";
           return result;
         }

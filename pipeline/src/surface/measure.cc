@@ -823,6 +823,108 @@ bool ComputeOrientedBox(const PointCloud& cloud, const OrientedBoxOptions& optio
 
 // ------------------------------------------------------------ box measure ----
 
+namespace {
+
+// Groups the detected planes (and the given base) by direction into up to
+// three mutually orthogonal axes, two face slots each; planes that fit no
+// group (oblique relief facets) are dropped. Makes the frame right-handed,
+// so that one rotation can map the model axes onto it. Returns what is
+// missing, empty when all six faces are there.
+std::string GroupFaces(const std::vector<Detected>& detected, const std::optional<FitPlane>& base,
+                       const BoxMeasureOptions& o, FaceGroups* groups) {
+  const double sin_tol = std::sin(o.orthogonality_tolerance_deg * kDeg);
+  const double cos_tol = std::cos(o.orthogonality_tolerance_deg * kDeg);
+  std::vector<Vector3d>& axes = groups->axes;
+  std::array<Face, 6>& faces = groups->faces;
+  for (const Detected& d : detected) groups->Place(d.plane, &d.inliers, false, cos_tol, sin_tol);
+  if (base && groups->Place(*base, nullptr, true, cos_tol, sin_tol) < 0)
+    return "the base plane is neither parallel nor orthogonal (within " +
+           std::to_string(o.orthogonality_tolerance_deg) + " deg) to the box faces found";
+  if (axes.size() < 3)
+    return "found faces along only " + std::to_string(axes.size()) +
+           " of 3 orthogonal directions (" + std::to_string(detected.size()) +
+           " planes detected); is the object a box?";
+  std::string missing;
+  for (int s = 0; s < 6; ++s)
+    if (!faces[static_cast<std::size_t>(s)].present)
+      missing += std::string(missing.empty() ? "" : ", ") + kSlotNames[s];
+  if (!missing.empty())
+    return "box face(s) not found: " + missing +
+           (base ? "" : "; give BoxMeasureOptions::base_plane when the base is unseen");
+  Matrix3d found;
+  for (int g = 0; g < 3; ++g) found.col(g) = axes[static_cast<std::size_t>(g)];
+  if (found.determinant() < 0) {
+    axes[2] = -axes[2];
+    std::swap(faces[4], faces[5]);
+  }
+  return {};
+}
+
+// The final face fits: inliers re-gathered from all active points, leaving
+// out the edge zones, and the box frame as the rotation closest to the face
+// normals (Procrustes, axis g along +face 2g+1); with enforce_orthogonality
+// the faces take the frame's normals and the fit repeats (three rounds).
+// Returns the error, empty on success.
+std::string FitBoxFrame(const Points& points, const std::vector<int>& active,
+                        const BoxMeasureOptions& o, const Vector3d& centre,
+                        std::array<Face, 6>* faces_io, Matrix3d* frame) {
+  std::array<Face, 6>& faces = *faces_io;
+  const double cos_normal = std::cos(o.normal_angle_deg * kDeg);
+  for (int round = 0; round < 3; ++round) {
+    for (std::size_t s = 0; s < 6; ++s) {
+      if (faces[s].given) continue;
+      if (!RefitFace(points, active, o, cos_normal, s, &faces))
+        return std::string("face ") + kSlotNames[s] + " lost its points";
+    }
+    Matrix3d cross = Matrix3d::Zero();
+    double max_weight = 0;
+    for (const Face& f : faces)
+      max_weight = std::max(max_weight, static_cast<double>(f.inliers.size()));
+    for (std::size_t s = 0; s < 6; ++s) {
+      const double w = faces[s].given ? max_weight : static_cast<double>(faces[s].inliers.size());
+      const Vector3d model = Vector3d::Unit(static_cast<int>(s / 2)) * (s % 2 ? 1.0 : -1.0);
+      cross += w * faces[s].plane.n * model.transpose();
+    }
+    Eigen::JacobiSVD<Matrix3d> svd(cross, Eigen::ComputeFullU | Eigen::ComputeFullV);
+    Matrix3d fix = Matrix3d::Identity();
+    fix(2, 2) = (svd.matrixU() * svd.matrixV().transpose()).determinant() < 0 ? -1 : 1;
+    *frame = svd.matrixU() * fix * svd.matrixV().transpose();
+    if (!o.enforce_orthogonality) break;
+    for (std::size_t s = 0; s < 6; ++s) {
+      Face& f = faces[s];
+      const Vector3d n = frame->col(static_cast<int>(s / 2)) * (s % 2 ? 1.0 : -1.0);
+      if (f.given) {
+        // Keep the given plane's point nearest the centre.
+        const Vector3d foot = centre - f.plane.Distance(centre) * f.plane.n;
+        f.plane.n = n;
+        f.plane.d = -n.dot(foot);
+      } else {
+        f.plane.n = n;
+        f.plane.d = FitOffset(points.p, f.inliers, n);
+      }
+    }
+  }
+  return {};
+}
+
+// The eight vertices as intersections of three faces each (vertex bit g
+// picks face 2g or 2g+1). Returns the first degenerate vertex, or -1.
+int IntersectFaces(const std::array<Face, 6>& faces, std::vector<cv::Vec3d>* vertices) {
+  auto face_of = [&](int vertex, int axis) -> const Face& {
+    return faces[static_cast<std::size_t>(2 * axis + ((vertex >> axis) & 1))];
+  };
+  for (int v = 0; v < 8; ++v) {
+    double det = 0;
+    const Vector3d p =
+        SolveVertex(face_of(v, 0).plane, face_of(v, 1).plane, face_of(v, 2).plane, &det);
+    if (!(std::abs(det) > 0.5) || !p.allFinite()) return v;
+    vertices->push_back(ToCv(p));
+  }
+  return -1;
+}
+
+}  // namespace
+
 BoxMeasurement MeasureBox(const PointCloud& cloud, const BoxMeasureOptions& o) {
   return NoThrow<BoxMeasurement>(
       "MeasureBox", BoxMeasurement::Status::kFailed, [&]() -> BoxMeasurement {
@@ -879,118 +981,28 @@ BoxMeasurement MeasureBox(const PointCloud& cloud, const BoxMeasureOptions& o) {
                         std::string(kWhere) + "no plane with at least " +
                             std::to_string(min_points) + " points found");
 
-        // Group the planes by direction: up to three mutually orthogonal axes;
-        // planes that fit no group (oblique relief facets) are dropped.
-        const double sin_tol = std::sin(o.orthogonality_tolerance_deg * kDeg);
-        const double cos_tol = std::cos(o.orthogonality_tolerance_deg * kDeg);
         FaceGroups groups;
-        std::vector<Vector3d>& axes = groups.axes;
+        if (std::string e = GroupFaces(detected, base, o, &groups); !e.empty())
+          return Failed(m, kFailed, std::string(kWhere) + e);
         std::array<Face, 6>& faces = groups.faces;
-        auto place = [&](const FitPlane& plane, const std::vector<int>* inliers, bool given) {
-          return groups.Place(plane, inliers, given, cos_tol, sin_tol);
-        };
-
-        for (const Detected& d : detected) place(d.plane, &d.inliers, false);
-        if (base && place(*base, nullptr, true) < 0)
-          return Failed(
-              m, kFailed,
-              std::string(kWhere) + "the base plane is neither parallel nor orthogonal (within " +
-                  std::to_string(o.orthogonality_tolerance_deg) + " deg) to the box faces found");
-        if (axes.size() < 3) {
-          return Failed(m, kFailed,
-                        std::string(kWhere) + "found faces along only " +
-                            std::to_string(axes.size()) + " of 3 orthogonal directions (" +
-                            std::to_string(detected.size()) +
-                            " planes detected); is the object a box?");
-        }
-        std::string missing;
-        for (int s = 0; s < 6; ++s)
-          if (!faces[static_cast<std::size_t>(s)].present)
-            missing += std::string(missing.empty() ? "" : ", ") + kSlotNames[s];
-        if (!missing.empty()) {
-          return Failed(
-              m, kFailed,
-              std::string(kWhere) + "box face(s) not found: " + missing +
-                  (base ? "" : "; give BoxMeasureOptions::base_plane when the base is unseen"));
-        }
-        // A right-handed frame, so that one rotation can map the model axes onto it.
-        {
-          Matrix3d found;
-          for (int g = 0; g < 3; ++g) found.col(g) = axes[static_cast<std::size_t>(g)];
-          if (found.determinant() < 0) {
-            axes[2] = -axes[2];
-            std::swap(faces[4], faces[5]);
-          }
-        }
         for (std::size_t a = 0; a < 6; ++a)
           for (std::size_t b = a + 1; b < 6; ++b)
             m.max_orthogonality_error_deg =
                 std::max(m.max_orthogonality_error_deg,
                          OrthogonalityErrorDeg(faces[a].plane.n, faces[b].plane.n));
 
-        // Final face fits: inliers re-gathered from all active points, leaving out
-        // the edge zones; with enforce_orthogonality one rotation fits every normal.
-        const double cos_normal = std::cos(o.normal_angle_deg * kDeg);
         Matrix3d frame;
-        for (int round = 0; round < 3; ++round) {
-          for (std::size_t s = 0; s < 6; ++s) {
-            if (faces[s].given) continue;
-            if (!RefitFace(points, active, o, cos_normal, s, &faces)) {
-              return Failed(
-                  m, kFailed,
-                  std::string(kWhere) + std::string("face ") + kSlotNames[s] + " lost its points");
-            }
-          }
-          // The box frame: the rotation closest to the face normals (Procrustes),
-          // axis g along +face 2g+1.
-          Matrix3d cross = Matrix3d::Zero();
-          double max_weight = 0;
-          for (const Face& f : faces)
-            max_weight = std::max(max_weight, static_cast<double>(f.inliers.size()));
-          for (std::size_t s = 0; s < 6; ++s) {
-            const double w =
-                faces[s].given ? max_weight : static_cast<double>(faces[s].inliers.size());
-            const Vector3d model = Vector3d::Unit(static_cast<int>(s / 2)) * (s % 2 ? 1.0 : -1.0);
-            cross += w * faces[s].plane.n * model.transpose();
-          }
-          Eigen::JacobiSVD<Matrix3d> svd(cross, Eigen::ComputeFullU | Eigen::ComputeFullV);
-          Matrix3d fix = Matrix3d::Identity();
-          fix(2, 2) = (svd.matrixU() * svd.matrixV().transpose()).determinant() < 0 ? -1 : 1;
-          frame = svd.matrixU() * fix * svd.matrixV().transpose();
-          if (!o.enforce_orthogonality) break;
-          for (std::size_t s = 0; s < 6; ++s) {
-            Face& f = faces[s];
-            const Vector3d n = frame.col(static_cast<int>(s / 2)) * (s % 2 ? 1.0 : -1.0);
-            if (f.given) {
-              // Keep the given plane's point nearest the centre.
-              const Vector3d foot = centre - f.plane.Distance(centre) * f.plane.n;
-              f.plane.n = n;
-              f.plane.d = -n.dot(foot);
-            } else {
-              f.plane.n = n;
-              f.plane.d = FitOffset(points.p, f.inliers, n);
-            }
-          }
-        }
-
+        if (std::string e = FitBoxFrame(points, active, o, centre, &faces, &frame); !e.empty())
+          return Failed(m, kFailed, std::string(kWhere) + e);
         m.axes = ToCv(SortAxesByExtent(frame, centre, &faces));
         RecordFacePlanes(points, faces, &m);
 
-        // Vertices by plane intersection.
-        auto face_of = [&](int vertex, int axis) -> const Face& {
-          return faces[static_cast<std::size_t>(2 * axis + ((vertex >> axis) & 1))];
-        };
-        for (int v = 0; v < 8; ++v) {
-          double det = 0;
-          const Vector3d p =
-              SolveVertex(face_of(v, 0).plane, face_of(v, 1).plane, face_of(v, 2).plane, &det);
-          if (!(std::abs(det) > 0.5) || !p.allFinite())
-            return Failed(m, kFailed,
-                          std::string(kWhere) + "degenerate plane intersection at vertex " +
-                              std::to_string(v));
-          m.vertices_mm.push_back(ToCv(p));
-        }
+        if (const int v = IntersectFaces(faces, &m.vertices_mm); v >= 0)
+          return Failed(
+              m, kFailed,
+              std::string(kWhere) + "degenerate plane intersection at vertex " + std::to_string(v));
 
+        const double cos_normal = std::cos(o.normal_angle_deg * kDeg);
         if (const int v = PointCircleVertices(points, active, o, cos_normal, faces, &m); v >= 0) {
           return Failed(
               m, kFailed,

@@ -56,6 +56,191 @@ bool PoissonOptions::IsValid(std::string* why) const {
   return true;
 }
 
+namespace {
+
+// The cloud's points with finite, non-zero normals, as PCL wants them, with
+// their positions alone (for the support tree) and their index in the cloud.
+struct PoissonInput {
+  pcl::PointCloud<pcl::PointNormal>::Ptr oriented =
+      pcl::make_shared<pcl::PointCloud<pcl::PointNormal>>();
+  pcl::PointCloud<pcl::PointXYZ>::Ptr positions =
+      pcl::make_shared<pcl::PointCloud<pcl::PointXYZ>>();
+  std::vector<std::size_t> source_index;
+};
+
+PoissonInput OrientedPoints(const PointCloud& cloud) {
+  PoissonInput in;
+  for (std::size_t i = 0; i < cloud.size(); ++i) {
+    const cv::Vec3f& p = cloud.points_mm[i];
+    const cv::Vec3f& n = cloud.normals[i];
+    const double length = cv::norm(n);
+    if (!Finite3(p) || !Finite3(n) || !(length > 1e-9)) continue;
+    pcl::PointNormal q;
+    q.x = p[0];
+    q.y = p[1];
+    q.z = p[2];
+    q.normal_x = static_cast<float>(n[0] / length);
+    q.normal_y = static_cast<float>(n[1] / length);
+    q.normal_z = static_cast<float>(n[2] / length);
+    in.oriented->push_back(q);
+    in.positions->push_back(pcl::PointXYZ(p[0], p[1], p[2]));
+    in.source_index.push_back(i);
+  }
+  return in;
+}
+
+// PCL's Poisson surface (triangles, manifold). Throws what PCL throws.
+void ReconstructPoisson(const PoissonInput& in, const PoissonOptions& options,
+                        pcl::PointCloud<pcl::PointNormal>* vertices,
+                        std::vector<pcl::Vertices>* polygons) {
+  pcl::Poisson<pcl::PointNormal> poisson;
+  poisson.setDepth(options.depth);
+  poisson.setSamplesPerNode(static_cast<float>(options.samples_per_node));
+  poisson.setPointWeight(static_cast<float>(options.point_weight));
+  poisson.setScale(static_cast<float>(options.scale));
+  poisson.setOutputPolygons(false);  // triangles
+  poisson.setManifold(true);
+  poisson.setThreads(options.num_threads);
+  poisson.setInputCloud(in.oriented);
+  poisson.reconstruct(*vertices, *polygons);
+}
+
+// The support radius: 2.5 × the median nearest-neighbour spacing of a
+// sample of the input; 0 when it cannot be estimated.
+double EstimateSupportRadius(const pcl::KdTreeFLANN<pcl::PointXYZ>& tree,
+                             const pcl::PointCloud<pcl::PointXYZ>& positions) {
+  std::vector<float> spacing;
+  std::vector<int> index(2);
+  std::vector<float> d2(2);
+  const std::size_t step = std::max<std::size_t>(1, positions.size() / 2000);
+  for (std::size_t i = 0; i < positions.size(); i += step)
+    if (tree.nearestKSearch(positions[i], 2, index, d2) == 2) spacing.push_back(std::sqrt(d2[1]));
+  if (spacing.empty()) return 0;
+  std::nth_element(spacing.begin(),
+                   spacing.begin() + static_cast<std::ptrdiff_t>(spacing.size() / 2),
+                   spacing.end());
+  return 2.5 * std::max(1e-6f, spacing[spacing.size() / 2]);
+}
+
+// Density trimming: keeps the vertices with at least the quantile's number
+// of input points within the radius (and at least one), the faces whose
+// three vertices are kept, and then only the vertices a face uses. Fills
+// r->mesh, trimmed_vertices and support_threshold.
+void TrimBySupport(const pcl::PointCloud<pcl::PointNormal>& vertices,
+                   const std::vector<pcl::Vertices>& polygons,
+                   const pcl::KdTreeFLANN<pcl::PointXYZ>& tree, double radius,
+                   double trim_density_quantile, MeshResult* r) {
+  std::vector<int> support(vertices.size(), 0);
+  std::vector<int> index;
+  std::vector<float> d2;
+  for (std::size_t v = 0; v < vertices.size(); ++v) {
+    const pcl::PointNormal& q = vertices[v];
+    if (!std::isfinite(q.x) || !std::isfinite(q.y) || !std::isfinite(q.z)) continue;
+    support[v] = tree.radiusSearch(pcl::PointXYZ(q.x, q.y, q.z), radius, index, d2);
+  }
+  double threshold = 1;
+  if (trim_density_quantile > 0) {
+    std::vector<int> sorted = support;
+    const auto k =
+        static_cast<std::size_t>(trim_density_quantile * static_cast<double>(sorted.size() - 1));
+    std::nth_element(sorted.begin(), sorted.begin() + static_cast<std::ptrdiff_t>(k), sorted.end());
+    threshold = std::max<double>(threshold, sorted[k]);
+  }
+  r->support_threshold = threshold;
+  std::vector<int> remap(vertices.size(), -1);
+  TriangleMesh& mesh = r->mesh;
+  for (std::size_t v = 0; v < vertices.size(); ++v) {
+    if (support[v] < threshold) {
+      ++r->trimmed_vertices;
+      continue;
+    }
+    remap[v] = static_cast<int>(mesh.vertices_mm.size());
+    mesh.vertices_mm.emplace_back(vertices[v].x, vertices[v].y, vertices[v].z);
+  }
+  for (const pcl::Vertices& poly : polygons) {
+    if (poly.vertices.size() != 3) continue;
+    cv::Vec3i face;
+    bool keep = true;
+    for (int k = 0; k < 3 && keep; ++k) {
+      const std::uint32_t v = poly.vertices[static_cast<std::size_t>(k)];
+      keep = v < remap.size() && remap[v] >= 0;
+      if (keep) face[k] = remap[v];
+    }
+    if (keep && face[0] != face[1] && face[1] != face[2] && face[0] != face[2])
+      mesh.faces.push_back(face);
+  }
+  // Drop vertices no face uses any more.
+  std::vector<int> used(mesh.vertices_mm.size(), -1);
+  std::vector<cv::Vec3f> kept;
+  for (cv::Vec3i& f : mesh.faces)
+    for (int k = 0; k < 3; ++k) {
+      int& u = used[static_cast<std::size_t>(f[k])];
+      if (u < 0) {
+        u = static_cast<int>(kept.size());
+        kept.push_back(mesh.vertices_mm[static_cast<std::size_t>(f[k])]);
+      }
+      f[k] = u;
+    }
+  r->trimmed_vertices += mesh.vertices_mm.size() - kept.size();
+  mesh.vertices_mm.swap(kept);
+}
+
+// Turns the faces to agree with the input normals (outwards, by a vote over
+// a sample of faces) and gives each vertex the area-weighted normal of its
+// faces.
+void OrientAndShade(const pcl::KdTreeFLANN<pcl::PointXYZ>& tree,
+                    const pcl::PointCloud<pcl::PointNormal>& oriented, TriangleMesh* mesh) {
+  const auto vertex = [&](std::size_t f, int k) -> const cv::Vec3f& {
+    return mesh->vertices_mm[static_cast<std::size_t>(mesh->faces[f][k])];
+  };
+  std::vector<cv::Vec3d> face_normals(mesh->faces.size());
+  for (std::size_t f = 0; f < mesh->faces.size(); ++f) {
+    const cv::Vec3d a(vertex(f, 0)), b(vertex(f, 1)), c(vertex(f, 2));
+    face_normals[f] = (b - a).cross(c - a);
+  }
+  double agreement = 0;
+  std::vector<int> index(1);
+  std::vector<float> d2(1);
+  const std::size_t step = std::max<std::size_t>(1, mesh->faces.size() / 2000);
+  for (std::size_t f = 0; f < mesh->faces.size(); f += step) {
+    const cv::Vec3f& a = vertex(f, 0);
+    if (tree.nearestKSearch(pcl::PointXYZ(a[0], a[1], a[2]), 1, index, d2) != 1) continue;
+    const pcl::PointNormal& q = oriented[static_cast<std::size_t>(index[0])];
+    const double dot = face_normals[f].dot(cv::Vec3d(q.normal_x, q.normal_y, q.normal_z));
+    agreement += dot > 0 ? 1 : (dot < 0 ? -1 : 0);
+  }
+  if (agreement < 0) {
+    for (cv::Vec3i& face : mesh->faces) std::swap(face[1], face[2]);
+    for (cv::Vec3d& n : face_normals) n = -n;
+  }
+  std::vector<cv::Vec3d> sums(mesh->vertices_mm.size(), cv::Vec3d(0, 0, 0));
+  for (std::size_t f = 0; f < mesh->faces.size(); ++f)
+    for (int k = 0; k < 3; ++k)
+      sums[static_cast<std::size_t>(mesh->faces[f][k])] += face_normals[f];
+  mesh->normals.resize(mesh->vertices_mm.size());
+  for (std::size_t v = 0; v < sums.size(); ++v) {
+    const double length = cv::norm(sums[v]);
+    const cv::Vec3d n = length > 0 ? sums[v] / length : cv::Vec3d(0, 0, 1);
+    mesh->normals[v] =
+        cv::Vec3f(static_cast<float>(n[0]), static_cast<float>(n[1]), static_cast<float>(n[2]));
+  }
+}
+
+// Each vertex takes the colour of its nearest input point.
+void ColorFromCloud(const pcl::KdTreeFLANN<pcl::PointXYZ>& tree, const PointCloud& cloud,
+                    const std::vector<std::size_t>& source_index, TriangleMesh* mesh) {
+  mesh->colors_rgb.resize(mesh->vertices_mm.size());
+  std::vector<int> index(1);
+  std::vector<float> d2(1);
+  for (std::size_t v = 0; v < mesh->vertices_mm.size(); ++v) {
+    const cv::Vec3f& p = mesh->vertices_mm[v];
+    if (tree.nearestKSearch(pcl::PointXYZ(p[0], p[1], p[2]), 1, index, d2) == 1)
+      mesh->colors_rgb[v] = cloud.colors_rgb[source_index[static_cast<std::size_t>(index[0])]];
+  }
+}
+
+}  // namespace
+
 MeshResult PoissonMesh(const PointCloud& cloud, const PoissonOptions& options) {
   return NoThrow<MeshResult>("PoissonMesh", MeshResult::Status::kFailed, [&]() -> MeshResult {
     const auto start = std::chrono::steady_clock::now();
@@ -68,47 +253,20 @@ MeshResult PoissonMesh(const PointCloud& cloud, const PoissonOptions& options) {
       return Failed(r, kFailed,
                     std::string(kWhere) + "the cloud has no normals (Poisson needs them)");
 
-    auto input = pcl::make_shared<pcl::PointCloud<pcl::PointNormal>>();
-    auto positions = pcl::make_shared<pcl::PointCloud<pcl::PointXYZ>>();
-    std::vector<std::size_t> source_index;
-    for (std::size_t i = 0; i < cloud.size(); ++i) {
-      const cv::Vec3f& p = cloud.points_mm[i];
-      const cv::Vec3f& n = cloud.normals[i];
-      const double length = cv::norm(n);
-      if (!Finite3(p) || !Finite3(n) || !(length > 1e-9)) continue;
-      pcl::PointNormal q;
-      q.x = p[0];
-      q.y = p[1];
-      q.z = p[2];
-      q.normal_x = static_cast<float>(n[0] / length);
-      q.normal_y = static_cast<float>(n[1] / length);
-      q.normal_z = static_cast<float>(n[2] / length);
-      input->push_back(q);
-      positions->push_back(pcl::PointXYZ(p[0], p[1], p[2]));
-      source_index.push_back(i);
-    }
-    r.input_points = input->size();
-    if (input->size() < kMinMeshPoints)
+    const PoissonInput input = OrientedPoints(cloud);
+    r.input_points = input.oriented->size();
+    if (input.oriented->size() < kMinMeshPoints)
       return Failed(r, kFailed,
                     std::string(kWhere) + "need at least " + std::to_string(kMinMeshPoints) +
-                        " points with finite normals, got " + std::to_string(input->size()) +
+                        " points with finite normals, got " + std::to_string(r.input_points) +
                         " (of " + std::to_string(cloud.size()) + ")");
 
     pcl::PointCloud<pcl::PointNormal> vertices;
     std::vector<pcl::Vertices> polygons;
     pcl::KdTreeFLANN<pcl::PointXYZ> tree;
     try {
-      pcl::Poisson<pcl::PointNormal> poisson;
-      poisson.setDepth(options.depth);
-      poisson.setSamplesPerNode(static_cast<float>(options.samples_per_node));
-      poisson.setPointWeight(static_cast<float>(options.point_weight));
-      poisson.setScale(static_cast<float>(options.scale));
-      poisson.setOutputPolygons(false);  // triangles
-      poisson.setManifold(true);
-      poisson.setThreads(options.num_threads);
-      poisson.setInputCloud(input);
-      poisson.reconstruct(vertices, polygons);
-      tree.setInputCloud(positions);
+      ReconstructPoisson(input, options, &vertices, &polygons);
+      tree.setInputCloud(input.positions);
     } catch (const std::exception& e) {
       return Failed(r, kFailed,
                     std::string(kWhere) + std::string("reconstruction failed: ") + e.what());
@@ -118,134 +276,20 @@ MeshResult PoissonMesh(const PointCloud& cloud, const PoissonOptions& options) {
     if (vertices.empty() || polygons.empty())
       return Failed(r, kFailed, std::string(kWhere) + "reconstruction produced no triangle");
 
-    // Support radius: from the median nearest-neighbour spacing of a sample.
     double radius = options.support_radius_mm;
-    if (radius == 0) {
-      std::vector<float> spacing;
-      std::vector<int> index(2);
-      std::vector<float> d2(2);
-      const std::size_t step = std::max<std::size_t>(1, positions->size() / 2000);
-      for (std::size_t i = 0; i < positions->size(); i += step)
-        if (tree.nearestKSearch((*positions)[i], 2, index, d2) == 2)
-          spacing.push_back(std::sqrt(d2[1]));
-      if (spacing.empty())
-        return Failed(r, kFailed, std::string(kWhere) + "could not estimate the point spacing");
-      std::nth_element(spacing.begin(),
-                       spacing.begin() + static_cast<std::ptrdiff_t>(spacing.size() / 2),
-                       spacing.end());
-      radius = 2.5 * std::max(1e-6f, spacing[spacing.size() / 2]);
-    }
+    if (radius == 0) radius = EstimateSupportRadius(tree, *input.positions);
+    if (!(radius > 0))
+      return Failed(r, kFailed, std::string(kWhere) + "could not estimate the point spacing");
     r.support_radius_mm = radius;
 
-    // Support of each vertex; trim.
-    std::vector<int> support(vertices.size(), 0);
-    std::vector<int> index;
-    std::vector<float> d2;
-    for (std::size_t v = 0; v < vertices.size(); ++v) {
-      const pcl::PointNormal& q = vertices[v];
-      if (!std::isfinite(q.x) || !std::isfinite(q.y) || !std::isfinite(q.z)) continue;
-      support[v] = tree.radiusSearch(pcl::PointXYZ(q.x, q.y, q.z), radius, index, d2);
-    }
-    double threshold = 1;
-    if (options.trim_density_quantile > 0) {
-      std::vector<int> sorted = support;
-      const auto k = static_cast<std::size_t>(options.trim_density_quantile *
-                                              static_cast<double>(sorted.size() - 1));
-      std::nth_element(sorted.begin(), sorted.begin() + static_cast<std::ptrdiff_t>(k),
-                       sorted.end());
-      threshold = std::max<double>(threshold, sorted[k]);
-    }
-    r.support_threshold = threshold;
-    std::vector<int> remap(vertices.size(), -1);
-    TriangleMesh& mesh = r.mesh;
-    for (std::size_t v = 0; v < vertices.size(); ++v) {
-      if (support[v] < threshold) {
-        ++r.trimmed_vertices;
-        continue;
-      }
-      remap[v] = static_cast<int>(mesh.vertices_mm.size());
-      mesh.vertices_mm.emplace_back(vertices[v].x, vertices[v].y, vertices[v].z);
-    }
-    for (const pcl::Vertices& poly : polygons) {
-      if (poly.vertices.size() != 3) continue;
-      cv::Vec3i face;
-      bool keep = true;
-      for (int k = 0; k < 3 && keep; ++k) {
-        const std::uint32_t v = poly.vertices[static_cast<std::size_t>(k)];
-        keep = v < remap.size() && remap[v] >= 0;
-        if (keep) face[k] = remap[v];
-      }
-      if (keep && face[0] != face[1] && face[1] != face[2] && face[0] != face[2])
-        mesh.faces.push_back(face);
-    }
-    // Drop vertices no face uses any more.
-    {
-      std::vector<int> used(mesh.vertices_mm.size(), -1);
-      std::vector<cv::Vec3f> kept;
-      for (cv::Vec3i& f : mesh.faces)
-        for (int k = 0; k < 3; ++k) {
-          int& u = used[static_cast<std::size_t>(f[k])];
-          if (u < 0) {
-            u = static_cast<int>(kept.size());
-            kept.push_back(mesh.vertices_mm[static_cast<std::size_t>(f[k])]);
-          }
-          f[k] = u;
-        }
-      r.trimmed_vertices += mesh.vertices_mm.size() - kept.size();
-      mesh.vertices_mm.swap(kept);
-    }
-    if (mesh.faces.empty()) {
-      mesh = TriangleMesh{};  // a failed result holds no mesh
+    TrimBySupport(vertices, polygons, tree, radius, options.trim_density_quantile, &r);
+    if (r.mesh.faces.empty()) {
+      r.mesh = TriangleMesh{};  // a failed result holds no mesh
       return Failed(r, kFailed, std::string(kWhere) + "density trimming removed every triangle");
     }
-
-    // Orientation: faces should agree with the input normals (outwards).
-    std::vector<cv::Vec3d> face_normals(mesh.faces.size());
-    for (std::size_t f = 0; f < mesh.faces.size(); ++f) {
-      const cv::Vec3d a(mesh.vertices_mm[static_cast<std::size_t>(mesh.faces[f][0])]);
-      const cv::Vec3d b(mesh.vertices_mm[static_cast<std::size_t>(mesh.faces[f][1])]);
-      const cv::Vec3d c(mesh.vertices_mm[static_cast<std::size_t>(mesh.faces[f][2])]);
-      face_normals[f] = (b - a).cross(c - a);
-    }
-    {
-      double agreement = 0;
-      index.resize(1);
-      d2.resize(1);
-      const std::size_t step = std::max<std::size_t>(1, mesh.faces.size() / 2000);
-      for (std::size_t f = 0; f < mesh.faces.size(); f += step) {
-        const cv::Vec3f& a = mesh.vertices_mm[static_cast<std::size_t>(mesh.faces[f][0])];
-        if (tree.nearestKSearch(pcl::PointXYZ(a[0], a[1], a[2]), 1, index, d2) != 1) continue;
-        const pcl::PointNormal& q = (*input)[static_cast<std::size_t>(index[0])];
-        const double dot = face_normals[f].dot(cv::Vec3d(q.normal_x, q.normal_y, q.normal_z));
-        agreement += dot > 0 ? 1 : (dot < 0 ? -1 : 0);
-      }
-      if (agreement < 0) {
-        for (cv::Vec3i& face : mesh.faces) std::swap(face[1], face[2]);
-        for (cv::Vec3d& n : face_normals) n = -n;
-      }
-    }
-    // Vertex normals: area-weighted face normals.
-    std::vector<cv::Vec3d> sums(mesh.vertices_mm.size(), cv::Vec3d(0, 0, 0));
-    for (std::size_t f = 0; f < mesh.faces.size(); ++f)
-      for (int k = 0; k < 3; ++k)
-        sums[static_cast<std::size_t>(mesh.faces[f][k])] += face_normals[f];
-    mesh.normals.resize(mesh.vertices_mm.size());
-    for (std::size_t v = 0; v < sums.size(); ++v) {
-      const double length = cv::norm(sums[v]);
-      const cv::Vec3d n = length > 0 ? sums[v] / length : cv::Vec3d(0, 0, 1);
-      mesh.normals[v] =
-          cv::Vec3f(static_cast<float>(n[0]), static_cast<float>(n[1]), static_cast<float>(n[2]));
-    }
-    if (options.colors && cloud.HasColors()) {
-      mesh.colors_rgb.resize(mesh.vertices_mm.size());
-      index.resize(1);
-      d2.resize(1);
-      for (std::size_t v = 0; v < mesh.vertices_mm.size(); ++v) {
-        const cv::Vec3f& p = mesh.vertices_mm[v];
-        if (tree.nearestKSearch(pcl::PointXYZ(p[0], p[1], p[2]), 1, index, d2) == 1)
-          mesh.colors_rgb[v] = cloud.colors_rgb[source_index[static_cast<std::size_t>(index[0])]];
-      }
-    }
+    OrientAndShade(tree, *input.oriented, &r.mesh);
+    if (options.colors && cloud.HasColors())
+      ColorFromCloud(tree, cloud, input.source_index, &r.mesh);
     r.status = MeshResult::Status::kOk;
     r.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
     return r;

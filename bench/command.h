@@ -36,5 +36,6 @@ std::unique_ptr<BenchCommand> MakeCalibCommand();
 std::unique_ptr<BenchCommand> MakeSimDepthCommand();
 std::unique_ptr<BenchCommand> MakeRegistrationCommand();
 std::unique_ptr<BenchCommand> MakeDdsCommand();
+std::unique_ptr<BenchCommand> MakeScanCommand();
 
 }  // namespace craftscan::bench

@@ -33,7 +33,6 @@
 #include <cstdint>
 #include <cstdio>
 #include <memory>
-#include <nanoflann.hpp>
 #include <numeric>
 #include <opencv2/calib3d.hpp>
 #include <opencv2/core.hpp>
@@ -51,6 +50,7 @@
 #include "craftscan/pipeline/surface/measure.h"
 #include "craftscan/pipeline/surface/scan_reconstruction.h"
 #include "craftscan/sim/station.h"
+#include "scan_eval.h"
 
 namespace craftscan {
 namespace {
@@ -77,15 +77,6 @@ cv::Vec3d Apply(const cv::Matx44d& T, const cv::Vec3d& p) {
   return {q[0], q[1], q[2]};
 }
 
-// q-quantile (0…1) by nearest rank; NaN for no values.
-double Quantile(std::vector<double> values, double q) {
-  if (values.empty()) return NAN;
-  const std::size_t k = std::min(
-      values.size() - 1, static_cast<std::size_t>(std::floor(q * (values.size() - 1) + 0.5)));
-  std::nth_element(values.begin(), values.begin() + static_cast<std::ptrdiff_t>(k), values.end());
-  return values[k];
-}
-
 double Mean(const std::vector<double>& values) {
   if (values.empty()) return NAN;
   return std::accumulate(values.begin(), values.end(), 0.0) / static_cast<double>(values.size());
@@ -100,46 +91,9 @@ double StdDev(const std::vector<double>& values) {
   return std::sqrt(s / static_cast<double>(values.size()));
 }
 
-// Nearest-neighbour distances to a point set (nanoflann k-d tree).
-class NearestIndex {
- public:
-  explicit NearestIndex(const std::vector<cv::Vec3f>& points)
-      : points_(&points), tree_(3, *this, nanoflann::KDTreeSingleIndexAdaptorParams(10)) {
-    tree_.buildIndex();
-  }
-  // Distance (mm) from q to the nearest point; +inf for an empty set.
-  double Distance(const cv::Vec3f& q) const {
-    if (points_->empty()) return INFINITY;
-    std::uint32_t index = 0;
-    float d2 = 0;
-    if (tree_.knnSearch(q.val, 1, &index, &d2) != 1) return INFINITY;
-    return std::sqrt(static_cast<double>(d2));
-  }
-  // nanoflann's dataset adaptor interface.
-  std::size_t kdtree_get_point_count() const { return points_->size(); }
-  float kdtree_get_pt(std::size_t i, std::size_t dim) const { return (*points_)[i][dim]; }
-  template <class Box>
-  bool kdtree_get_bbox(Box&) const {
-    return false;
-  }
-
- private:
-  const std::vector<cv::Vec3f>* points_;
-  nanoflann::KDTreeSingleIndexAdaptor<nanoflann::L2_Simple_Adaptor<float, NearestIndex>,
-                                      NearestIndex, 3, std::uint32_t>
-      tree_;
-};
-
-// Distances from every point of `queries` to the nearest point of `index`,
-// on kNumThreads threads.
-std::vector<double> NearestDistances(const NearestIndex& index,
-                                     const std::vector<cv::Vec3f>& queries) {
-  std::vector<double> d(queries.size());
-  cv::parallel_for_(cv::Range(0, static_cast<int>(queries.size())), [&](const cv::Range& r) {
-    for (int i = r.start; i < r.end; ++i) d[i] = index.Distance(queries[i]);
-  });
-  return d;
-}
+using bench::NearestDistances;  // nearest-neighbour distances (nanoflann), scan_eval.h
+using bench::NearestIndex;
+using bench::Quantile;
 
 // ------------------------------------------------------------- the scan -----
 

@@ -512,6 +512,16 @@ ReprojectOptions ReprojectionOptions(const PipelineSettings& settings) {
   return options;
 }
 
+ViewProcessorOptions ViewOptions(const PipelineSettings& settings) {
+  ViewProcessorOptions options;
+  options.num_threads = settings.threads;
+  options.volume = settings.volume;
+  options.min_texture_std = settings.min_texture_std;
+  options.min_disparity = settings.min_disparity;
+  options.num_disparities = settings.num_disparities;
+  return options;
+}
+
 ScanOptions ReconstructionOptions(const PipelineSettings& settings) {
   ScanOptions options;
   options.num_threads = settings.threads;

@@ -304,10 +304,7 @@ std::unique_ptr<Daemon> Daemon::Create(const DaemonConfig& config, std::string* 
   jobs.settle = std::chrono::milliseconds(config.scan.settle_ms);
   jobs.queue_capacity = config.limits.queue_capacity;
   jobs.threads = config.pipeline.threads;
-  jobs.view.volume = config.pipeline.volume;
-  jobs.view.min_texture_std = config.pipeline.min_texture_std;
-  jobs.view.min_disparity = config.pipeline.min_disparity;
-  jobs.view.num_disparities = config.pipeline.num_disparities;
+  jobs.view = ViewOptions(config.pipeline);
   jobs.scan = ReconstructionOptions(config.pipeline);
   jobs.board = config.calibration.board;
   jobs.turntable_board = config.calibration.turntable_board;

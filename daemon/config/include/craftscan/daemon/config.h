@@ -93,6 +93,7 @@
 #include "craftscan/pipeline/common/working_volume.h"
 #include "craftscan/pipeline/stereo/adcensus.h"
 #include "craftscan/pipeline/stereo/reproject.h"
+#include "craftscan/pipeline/stereo/view_processing.h"
 #include "craftscan/pipeline/surface/scan_reconstruction.h"
 
 namespace craftscan::daemon {
@@ -245,5 +246,9 @@ std::map<std::string, std::string> CraftscanEnvironment();
 ADCensusOptions MatcherOptions(const PipelineSettings& settings);
 ReprojectOptions ReprojectionOptions(const PipelineSettings& settings);
 ScanOptions ReconstructionOptions(const PipelineSettings& settings);
+// The per-view processing of a scan (ViewProcessor): working volume, texture
+// threshold, a fixed band when num_disparities > 0, threads. The daemon and
+// `craftscan-bench scan` both take it from here.
+ViewProcessorOptions ViewOptions(const PipelineSettings& settings);
 
 }  // namespace craftscan::daemon

@@ -1,0 +1,529 @@
+// `craftscan-bench scan`: a whole turntable scan of a simulated object
+// through the code the daemon runs, scored against the renderer's exact
+// surface.
+//
+//   craftscan-bench scan [--object carved_box|egg|embroidery|mesh:FILE]
+//                        [--views N] [--seed S] [--threads N] [--image-size WxH]
+//                        [--config craftscand.yaml] [--json FILE] [--out DIR]
+//
+// The run: the sim driver's rig and scene (sim::SimRigOptions /
+// SimSceneOptions, as craftscand's sim plugin renders them) with the exact
+// calibration, turntable axis included; N views at 360°/N steps; each pair
+// through ViewProcessor (rectify, AD-Census over the working volume's band,
+// reproject, crop) with the options daemon::ViewOptions makes of the config's
+// `pipeline` section; then ReconstructScan with daemon::ReconstructionOptions,
+// and the outputs encoded (and with --out written, report.html included) as a
+// session stores them. Without --config the daemon's defaults apply: the
+// working volume a new station starts with.
+//
+// The truth, in the object's frame (its base on the platter at z = 0):
+//   seen      the surface point on the ray of every rectified left pixel that
+//             shows the object, in every view (the renderer's exact depth);
+//   visible   those also seen by the right camera (not occluded, inside its
+//             image): what stereo can reconstruct at all.
+// Figures:
+//   fused_to_truth_mm  distance from each fused point to the true surface:
+//                      the smaller of the distance to the nearest `seen` point
+//                      and, for every view, the distance to where that view's
+//                      left-camera ray through the point meets the object
+//                      (both bound the true distance from above; together
+//                      they are within ~0.05 mm of it); median, p95, max
+//   outlier_pct        fused points farther than 1 mm from the surface
+//   completeness_pct   `visible` sampled on a 0.5 mm grid: the share with a
+//                      fused point within 1 mm
+//   mesh_to_truth_mm   the same distance for the mesh vertices more than 1 mm
+//                      above the platter (a turn never sees the base, which
+//                      Poisson closes by guess); median, p95
+//   mesh_largest_component_pct  faces in the largest connected component
+//   fused_obb_mm, truth_obb_mm  oriented boxes (ComputeOrientedBox) of the
+//                      fused cloud and of `seen`, extents descending;
+//                      obb_error_mm their absolute differences
+//   box_edges_mm       carved_box: the 12 measured edges against the true
+//                      width × depth × height: mean, std, max |error|
+//   times_ms           render (all views), match_per_view_median (one view's
+//                      ViewProcessor::Process), register (incl. loop
+//                      closure), fuse, mesh, after_last_capture (from the last
+//                      pair in hand to the model encoded or written)
+// A scan that fails (e.g. a registration refused) is reported with its
+// message and exits 1; the JSON then has "status": "failed".
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <cstdint>
+#include <cstdio>
+#include <filesystem>
+#include <fstream>
+#include <iostream>
+#include <memory>
+#include <numbers>
+#include <numeric>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include <CLI/CLI.hpp>
+#include <nlohmann/json.hpp>
+#include <opencv2/core.hpp>
+#include <opencv2/core/utility.hpp>
+
+#include "command.h"
+#include "craftscan/daemon/config.h"
+#include "craftscan/daemon/report.h"
+#include "craftscan/pipeline/common/atomic_file.h"
+#include "craftscan/pipeline/common/ply.h"
+#include "craftscan/pipeline/stereo/view_processing.h"
+#include "craftscan/pipeline/surface/scan_reconstruction.h"
+#include "craftscan/sim/driver_options.h"
+#include "craftscan/sim/station.h"
+#include "scan_eval.h"
+
+namespace craftscan::bench {
+namespace {
+
+namespace fs = std::filesystem;
+using Clock = std::chrono::steady_clock;
+
+constexpr double kGridMm = 0.5;      // completeness sampling
+constexpr double kGateMm = 1.0;      // completeness and outlier distance
+constexpr double kBaseBandMm = 1.0;  // mesh vertices lower than this are not scored
+
+double MsSince(Clock::time_point start) {
+  return std::chrono::duration<double, std::milli>(Clock::now() - start).count();
+}
+
+cv::Vec3f Apply(const cv::Matx44d& T, const cv::Vec3f& p) {
+  const cv::Vec4d q = T * cv::Vec4d(p[0], p[1], p[2], 1);
+  return {static_cast<float>(q[0]), static_cast<float>(q[1]), static_cast<float>(q[2])};
+}
+
+nlohmann::ordered_json Number(double value) {
+  return std::isfinite(value) ? nlohmann::ordered_json(value) : nlohmann::ordered_json(nullptr);
+}
+
+nlohmann::ordered_json Extents(const cv::Vec3d& e) { return {e[0], e[1], e[2]}; }
+
+// One view's pose and where its left camera is, for the ray distances.
+struct ViewGeometry {
+  double angle_rad = 0;
+  cv::Matx44d world_from_object = cv::Matx44d::eye();
+};
+
+struct Figures {
+  std::size_t fused_points = 0, truth_seen = 0, truth_visible_grid = 0, mesh_vertices = 0;
+  double fused_median = NAN, fused_p95 = NAN, fused_max = NAN, outlier_pct = NAN;
+  double completeness_pct = NAN;
+  double mesh_median = NAN, mesh_p95 = NAN;
+  MeshComponents components;
+  cv::Vec3d fused_obb{0, 0, 0}, truth_obb{0, 0, 0};
+  std::optional<cv::Vec3d> box_edges;  // mean, std, max |error|
+};
+
+struct Times {
+  double render = 0, match_median = NAN, reg = 0, fuse = 0, mesh = 0, after_last = 0;
+};
+
+class ScanCommand : public BenchCommand {
+ public:
+  CLI::App* Register(CLI::App* app) override {
+    CLI::App* sub = app->add_subcommand(
+        "scan",
+        "A whole simulated turntable scan through the daemon's per-view and reconstruction "
+        "code, scored against the exact surface");
+    sub->footer(
+        "The truth: the renderer's exact surface point on the ray of every rectified left\n"
+        "pixel that shows the object, in every view ('seen'); 'visible' keeps those the right\n"
+        "camera sees too. fused_to_truth: per fused point the smaller of the distance to the\n"
+        "nearest seen point and, per view, to where that view's left-camera ray through it\n"
+        "meets the object. completeness: visible on a 0.5 mm grid with a fused point within\n"
+        "1 mm. outlier_pct: fused points > 1 mm from the surface. mesh_to_truth: mesh vertices\n"
+        "more than 1 mm above the platter (the base is never seen). Without --config the\n"
+        "daemon's default pipeline settings apply (the working volume a new station has).");
+    sub->add_option("--object", object_,
+                    "carved_box, egg, embroidery or mesh:FILE (PLY, mm, +Z up)")
+        ->capture_default_str();
+    sub->add_option("--mesh-size", mesh_size_mm_,
+                    "mesh:FILE only: scale so the largest extent is this (mm); 0 keeps the file's "
+                    "millimetres")
+        ->check(CLI::Range(0.0, 2000.0))
+        ->capture_default_str();
+    sub->add_option("--views", views_, "Views over one turn (360°/N apart)")
+        ->check(CLI::Range(2, 72))
+        ->capture_default_str();
+    sub->add_option("--seed", seed_, "Texture, carving and noise seed")->capture_default_str();
+    sub->add_option("--threads", threads_, "Threads for rendering, matching and reconstruction")
+        ->check(CLI::Range(1, 256))
+        ->capture_default_str();
+    sub->add_option("--image-size", image_size_, "WxH: the default rig scaled to it")
+        ->capture_default_str();
+    sub->add_option("--config", config_path_,
+                    "A craftscand config: its pipeline section (volume, texture threshold, band, "
+                    "mesh, measure_box) is used");
+    sub->add_option("--json", json_path_, "Write the figures as JSON to this file");
+    sub->add_option("--out", out_dir_,
+                    "Write fused.ply, mesh.ply, mesh.obj, report.json and report.html (with "
+                    "previews/) into this folder (created)");
+    return sub;
+  }
+
+  int Run() override {
+    sim::SimDriverOptions driver;
+    if (int code = ParseArguments(&driver); code != kExitOk) return code;
+    daemon::DaemonConfig config;
+    std::string error;
+    if (!config_path_.empty() && !daemon::LoadDaemonConfig(config_path_, &config, &error))
+      return DataError("--config: " + error);
+    daemon::PipelineSettings settings = config.pipeline;
+    settings.threads = threads_;
+
+    sim::RigOptions rig = sim::SimRigOptions(driver);
+    rig.num_threads = threads_;
+    sim::SceneOptions scene_options = sim::SimSceneOptions(driver);
+    if (!mesh_path_.empty()) {
+      scene_options.object.type = sim::ObjectType::kMesh;
+      scene_options.object.mesh.path = mesh_path_;
+      scene_options.object.mesh.size_mm = mesh_size_mm_;
+    }
+    std::unique_ptr<sim::SimStation> station = sim::SimStation::Create(rig, &error);
+    if (!station) return DataError(error);
+    std::unique_ptr<sim::Scene> scene = sim::Scene::Create(scene_options, &error);
+    if (!scene) return DataError(error);
+
+    const int previous_threads = cv::getNumThreads();
+    cv::setNumThreads(threads_);
+    const int code = Scan(*station, *scene, settings);
+    cv::setNumThreads(previous_threads);
+    return code;
+  }
+
+ private:
+  static int DataError(const std::string& message) {
+    std::cerr << "craftscan-bench scan: " << message << "\n";
+    return kExitDataError;
+  }
+  static int UsageError(const std::string& message) {
+    std::cerr << "craftscan-bench scan: " << message << "\nRun with --help for usage.\n";
+    return kExitUsage;
+  }
+
+  int ParseArguments(sim::SimDriverOptions* driver) {
+    const std::string mesh_prefix = "mesh:";
+    if (object_.rfind(mesh_prefix, 0) == 0) {
+      mesh_path_ = object_.substr(mesh_prefix.size());
+      if (mesh_path_.empty()) return UsageError("--object mesh:FILE needs a file");
+      std::error_code ec;
+      if (!fs::is_regular_file(mesh_path_, ec))
+        return DataError("--object: mesh file '" + mesh_path_ + "' does not exist");
+      driver->object = sim::ObjectType::kCarvedBox;  // replaced by the mesh below
+    } else if (!sim::ObjectTypeFromString(object_, &driver->object) ||
+               driver->object == sim::ObjectType::kNone ||
+               driver->object == sim::ObjectType::kMesh) {
+      return UsageError("unknown object '" + object_ +
+                        "' (known: carved_box, egg, embroidery, mesh:FILE)");
+    }
+    int w = 0, h = 0;
+    char x = 0, rest = 0;
+    if (std::sscanf(image_size_.c_str(), "%d%c%d%c", &w, &x, &h, &rest) != 3 || x != 'x' ||
+        w < 64 || h < 64 || w > 8192 || h > 8192)
+      return UsageError("--image-size must be WxH within 64x64..8192x8192, got '" + image_size_ +
+                        "'");
+    driver->image_size = cv::Size(w, h);
+    driver->seed = seed_;
+    driver->threads = threads_;
+    for (const std::string* path : {&json_path_, &out_dir_}) {  // fail before the run
+      if (path->empty()) continue;
+      const fs::path parent = fs::absolute(*path).parent_path();
+      std::error_code ec;
+      if (!fs::is_directory(parent, ec))
+        return DataError("folder '" + parent.string() + "' (of '" + *path + "') does not exist");
+    }
+    return kExitOk;
+  }
+
+  int Scan(const sim::SimStation& station, sim::Scene& scene,
+           const daemon::PipelineSettings& settings) {
+    const StereoCalibration& calibration = station.calibration();
+    ViewProcessor processor;
+    std::string error;
+    if (!processor.Init(calibration, daemon::ViewOptions(settings), &error))
+      return DataError("view processing: " + error);
+
+    std::vector<ScanView> views;
+    std::vector<ViewGeometry> geometry;
+    std::vector<cv::Vec3f> seen, visible;
+    std::vector<double> process_ms;
+    Times times;
+    Clock::time_point last_pair;
+    const double f = calibration.P1(0, 0), cx = calibration.P1(0, 2), cy = calibration.P1(1, 2);
+    const cv::Matx44d world_from_rig = station.world_from_rig();
+    for (int k = 0; k < views_; ++k) {
+      ViewGeometry g;
+      g.angle_rad = 2 * std::numbers::pi * k / views_;
+      scene.SetTurntableAngle(g.angle_rad);
+      const sim::StereoRender render = station.Render(scene, static_cast<std::uint64_t>(k));
+      if (!render.IsUsable())
+        return DataError("view " + std::to_string(k) + ": render failed: " + render.message);
+      times.render += render.render_ms;
+      g.world_from_object = render.world_from_object;
+      const cv::Matx44d object_from_rig = render.world_from_object.inv() * world_from_rig;
+      for (int y = 0; y < render.rectified_object_mask.rows; ++y) {
+        const std::uint8_t* mask = render.rectified_object_mask.ptr<std::uint8_t>(y);
+        const std::uint8_t* right = render.rectified_visible_right.ptr<std::uint8_t>(y);
+        const float* z = render.rectified_depth_mm.ptr<float>(y);
+        for (int x = 0; x < render.rectified_object_mask.cols; ++x) {
+          if (!mask[x] || !std::isfinite(z[x])) continue;
+          const cv::Vec3f p =
+              Apply(object_from_rig, cv::Vec3f(static_cast<float>((x - cx) * z[x] / f),
+                                               static_cast<float>((y - cy) * z[x] / f), z[x]));
+          seen.push_back(p);
+          if (right[x]) visible.push_back(p);
+        }
+      }
+      if (k == views_ - 1) last_pair = Clock::now();
+      const auto start = Clock::now();
+      ProcessedView v = processor.Process(render.left, render.right);
+      process_ms.push_back(MsSince(start));
+      if (!v.ok) return DataError("view " + std::to_string(k) + ": " + v.message);
+      ScanView view;
+      view.cloud_in_rig = std::move(v.cloud_in_rig);
+      view.commanded_angle_rad = g.angle_rad;
+      views.push_back(std::move(view));
+      geometry.push_back(g);
+      std::printf("  view %d/%d at %.0f°: %zu points (render %.0f ms, process %.0f ms)\n", k + 1,
+                  views_, g.angle_rad * 180 / std::numbers::pi, views.back().cloud_in_rig.size(),
+                  render.render_ms, process_ms.back());
+      std::fflush(stdout);
+    }
+    times.match_median = Quantile(process_ms, 0.5);
+
+    ScanOptions options = daemon::ReconstructionOptions(settings);
+    const ScanResult r = ReconstructScan(views, calibration.turntable, options);
+    if (r.IsUsable()) {
+      if (std::string why; !StoreOutputs(r, calibration, &why)) return DataError(why);
+    }
+    times.after_last = MsSince(last_pair);
+    times.reg = r.register_ms + r.loop_ms;
+    times.fuse = r.fuse_ms;
+    times.mesh = r.mesh_ms;
+    if (!r.IsUsable()) {
+      Print(nullptr, times, r.message);
+      if (!json_path_.empty()) WriteJson(nullptr, times, r);
+      return DataError("the scan failed: " + r.message);
+    }
+
+    // Fused cloud and mesh into the object frame (view 0 is the rig at angle 0).
+    const cv::Matx44d view0_from_result =
+        r.turntable_from_view0 ? r.turntable_from_view0->inv() : cv::Matx44d::eye();
+    const cv::Matx44d object_from_result =
+        geometry[0].world_from_object.inv() * world_from_rig * view0_from_result;
+    std::vector<cv::Vec3f> fused, vertices;
+    for (const cv::Vec3f& p : r.fused.points_mm) fused.push_back(Apply(object_from_result, p));
+    if (r.mesh.status == MeshResult::Status::kOk)
+      for (const cv::Vec3f& p : r.mesh.mesh.vertices_mm) {
+        const cv::Vec3f q = Apply(object_from_result, p);
+        if (q[2] > kBaseBandMm) vertices.push_back(q);
+      }
+
+    Figures fig;
+    const NearestIndex truth(seen);
+    const std::vector<double> fused_d = SurfaceDistances(truth, scene, station, geometry, fused);
+    fig.fused_points = fused.size();
+    fig.truth_seen = seen.size();
+    fig.fused_median = Quantile(fused_d, 0.5);
+    fig.fused_p95 = Quantile(fused_d, 0.95);
+    fig.fused_max = fused_d.empty() ? NAN : *std::max_element(fused_d.begin(), fused_d.end());
+    fig.outlier_pct =
+        fused_d.empty() ? NAN : 100.0 * std::count_if(fused_d.begin(), fused_d.end(), [](double d) {
+                                  return d > kGateMm;
+                                }) / static_cast<double>(fused_d.size());
+    const std::vector<cv::Vec3f> grid = GridSample(visible, kGridMm);
+    fig.truth_visible_grid = grid.size();
+    const NearestIndex fused_index(fused);
+    const std::vector<double> covered = NearestDistances(fused_index, grid);
+    fig.completeness_pct =
+        grid.empty() ? NAN : 100.0 * std::count_if(covered.begin(), covered.end(), [](double d) {
+                               return d <= kGateMm;
+                             }) / static_cast<double>(grid.size());
+    const std::vector<double> mesh_d = SurfaceDistances(truth, scene, station, geometry, vertices);
+    fig.mesh_vertices = vertices.size();
+    fig.mesh_median = Quantile(mesh_d, 0.5);
+    fig.mesh_p95 = Quantile(mesh_d, 0.95);
+    fig.components = CountComponents(r.mesh.mesh);
+    fig.fused_obb = r.box.extents_mm;
+    PointCloud truth_cloud;
+    truth_cloud.points_mm = seen;
+    OrientedBox truth_box;
+    if (ComputeOrientedBox(truth_cloud, &truth_box, &error)) fig.truth_obb = truth_box.extents_mm;
+    if (scene.options().object.type == sim::ObjectType::kCarvedBox && r.box_measurement &&
+        r.box_measurement->IsUsable())
+      fig.box_edges = EdgeErrors(*r.box_measurement, scene.options().object.carved_box);
+
+    Print(&fig, times, {});
+    if (!json_path_.empty()) return WriteJson(&fig, times, r);
+    return kExitOk;
+  }
+
+  // Per point (object frame), the smaller of the distance to the nearest
+  // seen truth point and, per view, the distance to where the left camera's
+  // ray through the point first meets the object.
+  std::vector<double> SurfaceDistances(const NearestIndex& truth, sim::Scene& scene,
+                                       const sim::SimStation& station,
+                                       const std::vector<ViewGeometry>& geometry,
+                                       const std::vector<cv::Vec3f>& points) const {
+    std::vector<double> d = NearestDistances(truth, points);
+    const cv::Matx44d world_from_left = station.left_from_world().inv();
+    const cv::Vec3d camera(world_from_left(0, 3), world_from_left(1, 3), world_from_left(2, 3));
+    for (const ViewGeometry& g : geometry) {
+      scene.SetTurntableAngle(g.angle_rad);
+      cv::parallel_for_(cv::Range(0, static_cast<int>(points.size())), [&](const cv::Range& range) {
+        for (int i = range.start; i < range.end; ++i) {
+          const cv::Vec3f pw = Apply(g.world_from_object, points[static_cast<std::size_t>(i)]);
+          const cv::Vec3d p(pw[0], pw[1], pw[2]);
+          const cv::Vec3d direction = p - camera;
+          double t = 0;
+          sim::SurfaceLabel label = sim::SurfaceLabel::kNothing;
+          if (!scene.Intersect(camera, direction, &t, &label) ||
+              label != sim::SurfaceLabel::kObject)
+            continue;
+          const double along = cv::norm(camera + t * direction - p);
+          double& best = d[static_cast<std::size_t>(i)];
+          best = std::min(best, along);
+        }
+      });
+    }
+    return d;
+  }
+
+  static cv::Vec3d EdgeErrors(const BoxMeasurement& m, const sim::CarvedBoxOptions& box) {
+    std::array<double, 3> truth{box.width_mm, box.depth_mm, box.height_mm};
+    std::sort(truth.begin(), truth.end(), std::greater<>());  // box axes: extent descending
+    std::vector<double> errors;
+    for (const BoxEdge& e : m.edges)
+      errors.push_back(e.length_mm - truth[static_cast<std::size_t>(e.axis)]);
+    if (errors.empty()) return {NAN, NAN, NAN};
+    const double mean =
+        std::accumulate(errors.begin(), errors.end(), 0.0) / static_cast<double>(errors.size());
+    double var = 0, max_abs = 0;
+    for (double e : errors) {
+      var += (e - mean) * (e - mean);
+      max_abs = std::max(max_abs, std::abs(e));
+    }
+    return {mean, std::sqrt(var / static_cast<double>(errors.size())), max_abs};
+  }
+
+  // The session's outputs: encoded always (the time until the model exists
+  // includes it), written with --out.
+  bool StoreOutputs(const ScanResult& r, const StereoCalibration& calibration,
+                    std::string* why) const {
+    const bool mesh = r.mesh.status == MeshResult::Status::kOk;
+    std::vector<std::pair<std::string, std::string>> files;
+    files.emplace_back("fused.ply", EncodePly(r.fused, true));
+    if (mesh) files.emplace_back("mesh.ply", EncodeMeshPly(r.mesh.mesh, true));
+    if (mesh) files.emplace_back("mesh.obj", EncodeMeshObj(r.mesh.mesh));
+    const std::string report = ScanReportJson(r);
+    files.emplace_back("report.json", report);
+    if (out_dir_.empty()) return true;
+    daemon::ReportInputs inputs;
+    inputs.session_id = "bench";
+    inputs.object_name = object_;
+    inputs.scan_report_json = report;
+    inputs.calibration = &calibration;
+    inputs.fused = &r.fused;
+    if (mesh) inputs.mesh = &r.mesh.mesh;
+    daemon::ReportFiles report_files;
+    std::string error;
+    if (daemon::MakeReportFiles(inputs, &report_files, &error)) {
+      for (daemon::ReportFile& f : report_files.files)
+        files.emplace_back(std::move(f.name), std::move(f.bytes));
+    } else {
+      std::cerr << "craftscan-bench scan: report.html not made: " << error << "\n";
+    }
+    std::error_code ec;
+    fs::create_directories(fs::path(out_dir_) / "previews", ec);
+    if (ec) return (*why = "--out: cannot create '" + out_dir_ + "': " + ec.message(), false);
+    for (const auto& [name, bytes] : files) {
+      const std::string path = (fs::path(out_dir_) / name).string();
+      if (Status s = WriteFileAtomically(path, bytes); !s.ok())
+        return (*why = "--out: " + s.message(), false);
+    }
+    return true;
+  }
+
+  void Print(const Figures* f, const Times& t, const std::string& failure) const {
+    std::printf("scan: %s, %d views, seed %llu, %d thread(s), %s\n", object_.c_str(), views_,
+                static_cast<unsigned long long>(seed_), threads_, image_size_.c_str());
+    if (!f) {
+      std::printf("  FAILED: %s\n", failure.c_str());
+    } else {
+      std::printf(
+          "  fused_to_truth_mm median %.3f p95 %.3f max %.2f  outlier_pct %.2f  (%zu points)\n",
+          f->fused_median, f->fused_p95, f->fused_max, f->outlier_pct, f->fused_points);
+      std::printf("  completeness_pct %.1f  (%zu grid samples of the visible surface)\n",
+                  f->completeness_pct, f->truth_visible_grid);
+      std::printf("  mesh_to_truth_mm median %.3f p95 %.3f  largest component %.2f %% of %zu\n",
+                  f->mesh_median, f->mesh_p95, f->components.largest_pct, f->components.count);
+      std::printf("  fused_obb_mm %.1f × %.1f × %.1f  truth_obb_mm %.1f × %.1f × %.1f\n",
+                  f->fused_obb[0], f->fused_obb[1], f->fused_obb[2], f->truth_obb[0],
+                  f->truth_obb[1], f->truth_obb[2]);
+      if (f->box_edges)
+        std::printf("  box_edges_mm mean %+.3f std %.3f max %.3f\n", (*f->box_edges)[0],
+                    (*f->box_edges)[1], (*f->box_edges)[2]);
+    }
+    std::printf(
+        "  times_ms render %.0f match_per_view_median %.0f register %.0f fuse %.0f mesh %.0f "
+        "after_last_capture %.0f\n",
+        t.render, t.match_median, t.reg, t.fuse, t.mesh, t.after_last);
+    std::fflush(stdout);
+  }
+
+  int WriteJson(const Figures* f, const Times& t, const ScanResult& r) const {
+    nlohmann::ordered_json root;
+    root["object"] = object_;
+    root["status"] = f ? "ok" : "failed";
+    if (!f) root["message"] = r.message;
+    root["views"] = views_;
+    root["seed"] = seed_;
+    root["threads"] = threads_;
+    root["image_size"] = image_size_;
+    if (f) {
+      root["fused_points"] = f->fused_points;
+      root["fused_to_truth_mm"] = {{"median", Number(f->fused_median)},
+                                   {"p95", Number(f->fused_p95)},
+                                   {"max", Number(f->fused_max)}};
+      root["outlier_pct"] = Number(f->outlier_pct);
+      root["completeness_pct"] = Number(f->completeness_pct);
+      root["mesh_to_truth_mm"] = {{"median", Number(f->mesh_median)}, {"p95", Number(f->mesh_p95)}};
+      root["mesh_components"] = f->components.count;
+      root["mesh_largest_component_pct"] = Number(f->components.largest_pct);
+      root["fused_obb_mm"] = Extents(f->fused_obb);
+      root["truth_obb_mm"] = Extents(f->truth_obb);
+      const cv::Vec3d error = f->fused_obb - f->truth_obb;
+      root["obb_error_mm"] = {std::abs(error[0]), std::abs(error[1]), std::abs(error[2])};
+      if (f->box_edges)
+        root["box_edges_mm"] = {{"mean", Number((*f->box_edges)[0])},
+                                {"std", Number((*f->box_edges)[1])},
+                                {"max_abs", Number((*f->box_edges)[2])}};
+    }
+    root["times_ms"] = {
+        {"render", Number(t.render)}, {"match_per_view_median", Number(t.match_median)},
+        {"register", Number(t.reg)},  {"fuse", Number(t.fuse)},
+        {"mesh", Number(t.mesh)},     {"after_last_capture", Number(t.after_last)}};
+    if (Status s = WriteFileAtomically(json_path_, root.dump(2) + "\n"); !s.ok())
+      return DataError("--json: " + s.message());
+    return f ? kExitOk : kExitDataError;
+  }
+
+  std::string object_ = "carved_box";
+  std::string mesh_path_;
+  double mesh_size_mm_ = 0;
+  int views_ = 6;
+  std::uint64_t seed_ = 1;
+  int threads_ = 2;
+  std::string image_size_ = "1280x1024";
+  std::string config_path_, json_path_, out_dir_;
+};
+
+}  // namespace
+
+std::unique_ptr<BenchCommand> MakeScanCommand() { return std::make_unique<ScanCommand>(); }
+
+}  // namespace craftscan::bench

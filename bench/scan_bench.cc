@@ -44,6 +44,8 @@
 //                      ViewProcessor::Process), register (incl. loop
 //                      closure), fuse, mesh, after_last_capture (from the last
 //                      pair in hand to the model encoded or written)
+// --out also writes fused_error.ply: the fused cloud in the object frame
+// coloured by that distance (green ≤ 0.5 mm, yellow ≤ 1 mm, red beyond).
 // A scan that fails (e.g. a registration refused) is reported with its
 // message and exits 1; the JSON then has "status": "failed".
 #include <algorithm>
@@ -357,6 +359,9 @@ class ScanCommand : public BenchCommand {
         r.box_measurement->IsUsable())
       fig.box_edges = EdgeErrors(*r.box_measurement, scene.options().object.carved_box);
 
+    if (!out_dir_.empty()) {
+      if (std::string why; !WriteErrorCloud(fused, fused_d, &why)) return DataError(why);
+    }
     Print(&fig, times, {});
     if (!json_path_.empty()) return WriteJson(&fig, times, r);
     return kExitOk;
@@ -391,6 +396,24 @@ class ScanCommand : public BenchCommand {
       });
     }
     return d;
+  }
+
+  // fused_error.ply: the fused cloud in the object frame, coloured by its
+  // distance to the surface (green ≤ 0.5 mm, yellow ≤ 1 mm, red beyond):
+  // where the outliers are.
+  bool WriteErrorCloud(const std::vector<cv::Vec3f>& points, const std::vector<double>& d,
+                       std::string* why) const {
+    PointCloud cloud;
+    cloud.points_mm = points;
+    cloud.colors_rgb.reserve(points.size());
+    for (double e : d)
+      cloud.colors_rgb.push_back(e <= 0.5       ? cv::Vec3b(40, 200, 40)
+                                 : e <= kGateMm ? cv::Vec3b(230, 200, 0)
+                                                : cv::Vec3b(230, 30, 30));
+    const std::string path = (fs::path(out_dir_) / "fused_error.ply").string();
+    if (Status s = WriteFileAtomically(path, EncodePly(cloud, true)); !s.ok())
+      return (*why = "--out: " + s.message(), false);
+    return true;
   }
 
   static cv::Vec3d EdgeErrors(const BoxMeasurement& m, const sim::CarvedBoxOptions& box) {

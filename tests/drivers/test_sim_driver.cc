@@ -2,7 +2,8 @@
 // turntable share one scene (a capture after a move equals a direct render at
 // that angle), move timing on the injected clock, the fault knobs, and the
 // calibration scenes (held_board, platter_board) calibrating the rig and the
-// turntable axis through the driver API as the daemon's jobs do. The
+// turntable axis through the driver API as the daemon's jobs do; PLY mesh
+// objects (the shared owl scan) and the refusal of bad meshes. The
 // devices are loaded through the PluginLoader; the direct renders use
 // craftscan_sim with the driver's own option mapping (driver_options.h).
 #include <gtest/gtest.h>
@@ -11,20 +12,26 @@
 #include <chrono>
 #include <cmath>
 #include <cstdio>
+#include <filesystem>
+#include <fstream>
 #include <numbers>
 #include <string>
 #include <thread>
 #include <utility>
 #include <vector>
 
+#include <opencv2/calib3d.hpp>
 #include <opencv2/core.hpp>
 
 #include "craftscan/drivers/plugin_loader.h"
 #include "craftscan/pipeline/calib/calibration.h"
+#include "craftscan/pipeline/common/ply.h"
+#include "craftscan/pipeline/common/triangle_mesh.h"
 #include "craftscan/sim/calibration_scenes.h"
 #include "craftscan/sim/driver_options.h"
 #include "craftscan/sim/station.h"
 #include "fake_host.h"
+#include "file_util.h"
 #include "mat_util.h"
 #include "test_paths.h"
 
@@ -32,6 +39,8 @@ namespace craftscan::sim {
 namespace {
 
 using ::craftscan::testing::BitExact;
+using ::craftscan::testing::ReadFile;
+using ::craftscan::testing::TempDir;
 using drivers::CameraSettings;
 using drivers::CameraState;
 using drivers::DeviceEvent;
@@ -50,6 +59,23 @@ const DriverConfig kSmall = {{"image_size", "320x256"}, {"threads", "2"}, {"seed
 DriverConfig With(DriverConfig config, const DriverConfig& extra) {
   for (const auto& [key, value] : extra) config.insert_or_assign(key, value);
   return config;
+}
+
+// The driver's station and scene made directly with the sim library and the
+// driver's own option mapping (SimRigOptions, SimSceneOptions).
+struct DirectSim {
+  SimDriverOptions options;
+  std::unique_ptr<SimStation> station;
+  std::unique_ptr<Scene> scene;
+};
+
+void MakeDirectSim(const DriverConfig& config, const CameraSettings& settings, DirectSim* out) {
+  std::string why;
+  ASSERT_TRUE(SimDriverOptionsFromConfig(config, &out->options, &why)) << why;
+  out->station = SimStation::Create(SimRigOptions(out->options, settings), &why);
+  ASSERT_TRUE(out->station) << why;
+  out->scene = Scene::Create(SimSceneOptions(out->options), &why);
+  ASSERT_TRUE(out->scene) << why;
 }
 
 class SimDriver : public ::testing::Test {
@@ -102,16 +128,11 @@ TEST_F(SimDriver, CaptureAfterAMoveShowsTheObjectTurned) {
   EXPECT_GT(cv::countNonZero(changed), 2000);
 
   // Exactly what the simulated station renders for that scene at 60°.
-  SimDriverOptions options;
-  std::string why;
-  ASSERT_TRUE(SimDriverOptionsFromConfig(config, &options, &why)) << why;
-  auto station = SimStation::Create(SimRigOptions(options, at60.settings), &why);
-  ASSERT_TRUE(station) << why;
-  auto scene = Scene::Create(SimSceneOptions(options), &why);
-  ASSERT_TRUE(scene) << why;
-  const StereoRender direct0 = station->Render(*scene, at0.left.frame_id);
-  scene->SetTurntableAngle(60 * std::numbers::pi / 180);
-  const StereoRender direct60 = station->Render(*scene, at60.left.frame_id);
+  DirectSim sim;
+  ASSERT_NO_FATAL_FAILURE(MakeDirectSim(config, at60.settings, &sim));
+  const StereoRender direct0 = sim.station->Render(*sim.scene, at0.left.frame_id);
+  sim.scene->SetTurntableAngle(60 * std::numbers::pi / 180);
+  const StereoRender direct60 = sim.station->Render(*sim.scene, at60.left.frame_id);
   ASSERT_TRUE(direct0.IsUsable() && direct60.IsUsable());
   EXPECT_TRUE(BitExact(at0.left.image, direct0.left));
   EXPECT_TRUE(BitExact(at0.right.image, direct0.right));
@@ -449,6 +470,262 @@ TEST_F(SimDriver, PlatterBoardCapturesGiveTheTurntableAxis) {
   EXPECT_LT(direction_deg, 0.1);
   EXPECT_LT(point_mm, 0.2);
   EXPECT_LT(r.max_abs_angle_error_deg, 0.05);
+}
+
+// --- mesh objects ------------------------------------------------------------
+
+std::string OwlPly() {
+  return std::string(::craftscan::testing::SharedDataDir()) + "/meshes/owl.ply";
+}
+
+// What vertical rays from above on a 0.25 mm grid over the platter's middle
+// find of the object (world frame, mm).
+struct TopView {
+  double top_mm = -1;  // highest surface point
+  double min_x = 1e9, max_x = -1e9, min_y = 1e9, max_y = -1e9;
+};
+
+TopView LookDown(const Scene& scene) {
+  TopView v;
+  for (double x = -60; x <= 60; x += 0.25) {
+    for (double y = -60; y <= 60; y += 0.25) {
+      double t = 0;
+      SurfaceLabel label;
+      if (!scene.Intersect({x, y, 200}, {0, 0, -1}, &t, &label) || label != SurfaceLabel::kObject) {
+        continue;
+      }
+      v.top_mm = std::max(v.top_mm, 200 - t);
+      v.min_x = std::min(v.min_x, x);
+      v.max_x = std::max(v.max_x, x);
+      v.min_y = std::min(v.min_y, y);
+      v.max_y = std::max(v.max_y, y);
+    }
+  }
+  return v;
+}
+
+// The shared owl scan (38.8 × 41.1 × 60 mm in the file, +z up) through the
+// driver: scaled to 45 mm (its height is its largest extent: × 0.75),
+// turned 90° and placed 20 mm off the axis, painted. The frame is the sim
+// library's render of the driver's scene; the ground truth puts the owl's
+// top at 45 mm and its footprint (turned: 41.1 · 0.75 = 30.8 mm along x,
+// 38.8 · 0.75 = 29.1 mm along y) around (20, −10).
+TEST_F(SimDriver, MeshObjectStandsOnThePlatterAtItsSizeAndPlace) {
+  if (!std::filesystem::exists(OwlPly())) GTEST_SKIP() << "shared mesh absent: " << OwlPly();
+  const DriverConfig config = With(kSmall, {{"object", "mesh"},
+                                            {"mesh", OwlPly()},
+                                            {"mesh_size_mm", "45"},
+                                            {"mesh_surface", "painted"},
+                                            {"object_position_mm", "20, -10"},
+                                            {"object_yaw_deg", "90"}});
+  ASSERT_NO_FATAL_FAILURE(Create(config));
+  const StereoFrame frame = Capture();
+
+  DirectSim sim;
+  ASSERT_NO_FATAL_FAILURE(MakeDirectSim(config, frame.settings, &sim));
+  EXPECT_EQ(sim.scene->mesh_triangle_count(), 24407u);
+  const StereoRender direct = sim.station->Render(*sim.scene, frame.left.frame_id);
+  ASSERT_TRUE(direct.IsUsable()) << direct.message;
+  EXPECT_TRUE(BitExact(frame.left.image, direct.left));
+  EXPECT_TRUE(BitExact(frame.right.image, direct.right));
+
+  const double share = static_cast<double>(cv::countNonZero(direct.left_object_mask)) /
+                       static_cast<double>(direct.left_object_mask.total());
+  const TopView v = LookDown(*sim.scene);
+  std::printf(
+      "owl through the driver (320x256): %.2f %% of the left image; top %.3f mm, "
+      "footprint x %.2f … %.2f, y %.2f … %.2f mm\n",
+      100 * share, v.top_mm, v.min_x, v.max_x, v.min_y, v.max_y);
+  EXPECT_NEAR(share, 0.028, 0.003);  // 60 mm (mesh_size_mm ignored) would be ~0.05
+  EXPECT_NEAR(v.top_mm, 45, 0.15) << "mm";
+  EXPECT_NEAR(v.max_x - v.min_x, 30.8, 0.6) << "mm";
+  EXPECT_NEAR(v.max_y - v.min_y, 29.1, 0.6) << "mm";
+  EXPECT_NEAR(0.5 * (v.min_x + v.max_x), 20, 0.4) << "mm";
+  EXPECT_NEAR(0.5 * (v.min_y + v.max_y), -10, 0.4) << "mm";
+
+  // mesh_rotation_deg 90,0,0 turns file +y up: the owl lies on its back,
+  // its file depth (41.1 mm · 0.75) now its height.
+  DirectSim lying;
+  ASSERT_NO_FATAL_FAILURE(
+      MakeDirectSim(With(config, {{"mesh_rotation_deg", "90,0,0"}}), frame.settings, &lying));
+  const TopView on_back = LookDown(*lying.scene);
+  std::printf("owl on its back: top %.3f mm\n", on_back.top_mm);
+  EXPECT_NEAR(on_back.top_mm, 30.8, 0.15) << "mm";
+}
+
+// The surface keys change the object's colours in the driver's frames (the
+// same owl, the same seed).
+TEST_F(SimDriver, MeshSurfacesLookDifferent) {
+  if (!std::filesystem::exists(OwlPly())) GTEST_SKIP() << "shared mesh absent: " << OwlPly();
+  std::vector<cv::Scalar> means;
+  cv::Mat mask;
+  for (const char* surface : {"stone", "wood", "painted", "fabric"}) {
+    SCOPED_TRACE(surface);
+    const DriverConfig config =
+        With(kSmall, {{"object", "mesh"}, {"mesh", OwlPly()}, {"mesh_surface", surface}});
+    ASSERT_NO_FATAL_FAILURE(Create(config));
+    const StereoFrame frame = Capture();
+    if (mask.empty()) {
+      DirectSim sim;
+      ASSERT_NO_FATAL_FAILURE(MakeDirectSim(config, frame.settings, &sim));
+      mask = sim.station->Render(*sim.scene, 0).left_object_mask;  // the same for every surface
+      ASSERT_GT(cv::countNonZero(mask), 1000);
+    }
+    means.push_back(cv::mean(frame.left.image, mask));
+    std::printf("owl %-7s: mean BGR (%.1f, %.1f, %.1f)\n", surface, means.back()[0],
+                means.back()[1], means.back()[2]);
+  }
+  for (std::size_t i = 0; i < means.size(); ++i)
+    for (std::size_t j = 0; j < i; ++j) EXPECT_GT(cv::norm(means[i] - means[j]), 10) << i << j;
+}
+
+DriverStatus CreateInstanceStatus(const DriverConfig& config) {
+  drivers::PluginLoader loader(::craftscan::testing::PluginDir());
+  std::shared_ptr<const drivers::Plugin> plugin;
+  DriverStatus status = loader.Load("sim", &plugin);
+  if (!status.ok()) return status;
+  std::unique_ptr<drivers::DriverInstance> instance;
+  return plugin->CreateInstance(config, {}, &instance);
+}
+
+void WriteBytes(const std::string& path, const std::string& bytes) {
+  std::ofstream(path, std::ios::binary) << bytes;
+}
+
+// A mesh that cannot be used fails the instance's creation, and every mesh
+// refusal names the key and the file.
+TEST(SimDriverMesh, BadMeshesAreRefusedNamingTheKeyAndTheFile) {
+  TempDir dir;
+  TriangleMesh tetrahedron;
+  tetrahedron.vertices_mm = {{0, 0, 0}, {10, 0, 0}, {0, 10, 0}, {0, 0, 10}};
+  tetrahedron.faces = {{0, 2, 1}, {0, 1, 3}, {0, 3, 2}, {1, 2, 3}};
+  std::string error;
+  const std::string good = dir.File("tetrahedron.ply");
+  ASSERT_TRUE(WriteMeshPly(good, tetrahedron, /*binary=*/true, &error)) << error;
+  const std::string bytes = ReadFile(good);
+  ASSERT_GT(bytes.size(), 40u);
+  WriteBytes(dir.File("cut.ply"), bytes.substr(0, bytes.size() - 10));
+  WriteBytes(dir.File("owl.ply"), "solid owl\n  facet normal 0 0 1\nendsolid owl\n");
+  WriteBytes(dir.File("cloud.ply"),
+             "ply\nformat ascii 1.0\nelement vertex 1\nproperty float x\nproperty float y\n"
+             "property float z\nend_header\n0 0 0\n");
+  ASSERT_TRUE(CreateInstanceStatus(With(kSmall, {{"object", "mesh"}, {"mesh", good}})).ok());
+
+  struct Case {
+    DriverConfig config;
+    std::string key, file, problem;
+  };
+  const std::string missing = dir.File("missing.ply");
+  const std::vector<Case> cases = {
+      {{{"object", "mesh"}, {"mesh", missing}}, "'mesh'", missing, "no such file"},
+      {{{"object", "mesh"}, {"mesh", dir.File("owl.ply")}},
+       "'mesh'",
+       dir.File("owl.ply"),
+       "not a PLY file"},
+      {{{"object", "mesh"}, {"mesh", dir.File("cut.ply")}},
+       "'mesh'",
+       dir.File("cut.ply"),
+       "truncated file"},
+      {{{"object", "mesh"}, {"mesh", dir.File("cloud.ply")}},
+       "'mesh'",
+       dir.File("cloud.ply"),
+       "no faces"},
+      {{{"object", "mesh"}, {"mesh", good}, {"mesh_surface", "glass"}},
+       "'mesh_surface'",
+       good,
+       "unknown surface 'glass'"},
+      {{{"object", "carved_box"}, {"mesh", good}}, "'mesh'", good, "only for object mesh"},
+      {{{"object", "egg"}, {"mesh", good}, {"mesh_size_mm", "40"}},
+       "'mesh'",
+       good,
+       "only for object mesh (object is egg; mesh '"},
+      {{{"object", "mesh"}, {"mesh", good}, {"mesh_size_mm", "forty"}},
+       "'mesh_size_mm'",
+       good,
+       "bad value 'forty'"},
+      {{{"object", "mesh"}, {"mesh", good}, {"mesh_rotation_deg", "90,0"}},
+       "'mesh_rotation_deg'",
+       good,
+       "bad value '90,0'"},
+      {{{"object", "mesh"}, {"mesh", good}, {"mesh_size_mm", "40"}, {"mesh_scale", "2"}},
+       "'mesh_size_mm' and 'mesh_scale'",
+       good,
+       "not both"},
+      {{{"object", "mesh"}, {"mesh", good}, {"mesh_scale", "-1"}}, "mesh_scale", good, "(0, 1e6]"},
+      {{{"object", "mesh"}, {"mesh", "meshes/owl.ply"}},
+       "'mesh'",
+       "meshes/owl.ply",
+       "not an absolute path"},
+  };
+  for (const Case& c : cases) {
+    const DriverStatus status = CreateInstanceStatus(With(kSmall, c.config));
+    SCOPED_TRACE(status.message);
+    EXPECT_EQ(status.code, StatusCode::kInvalidArgument);
+    EXPECT_NE(status.message.find(c.key), std::string::npos) << c.key;
+    EXPECT_NE(status.message.find("'" + c.file + "'"), std::string::npos) << c.file;
+    EXPECT_NE(status.message.find(c.problem), std::string::npos) << c.problem;
+  }
+  // Without a file there is only the key to name.
+  DriverStatus status = CreateInstanceStatus({{"object", "mesh"}});
+  EXPECT_EQ(status.code, StatusCode::kInvalidArgument);
+  EXPECT_NE(status.message.find("'mesh' is missing"), std::string::npos) << status.message;
+  status = CreateInstanceStatus({{"mesh_surface", "wood"}});
+  EXPECT_NE(status.message.find("'mesh_surface' is only for object mesh (object is carved_box)"),
+            std::string::npos)
+      << status.message;
+}
+
+// The placement keys map onto the scene (for every object) and the mesh
+// keys onto MeshOptions; the rotation is x, then y, then z.
+TEST(SimDriverOptions, ObjectPlacementAndMeshKeys) {
+  SimDriverOptions o;
+  std::string why;
+  ASSERT_TRUE(SimDriverOptionsFromConfig(
+      {{"object", "egg"}, {"object_position_mm", "12.5,-4"}, {"object_yaw_deg", "-30"}}, &o, &why))
+      << why;
+  SceneOptions scene = SimSceneOptions(o);
+  EXPECT_EQ(scene.object.type, ObjectType::kEgg);
+  EXPECT_EQ(scene.object.position_mm, cv::Point2d(12.5, -4));
+  EXPECT_NEAR(scene.object.yaw_rad, -std::numbers::pi / 6, 1e-12);
+
+  ASSERT_TRUE(SimDriverOptionsFromConfig({{"object", "mesh"},
+                                          {"mesh", "/data/owl.ply"},
+                                          {"mesh_scale", "1000"},
+                                          {"mesh_rotation_deg", " 90 , 0, 90"},
+                                          {"mesh_surface", "fabric"}},
+                                         &o, &why))
+      << why;
+  scene = SimSceneOptions(o);
+  const MeshOptions& mesh = scene.object.mesh;
+  EXPECT_EQ(scene.object.type, ObjectType::kMesh);
+  EXPECT_EQ(mesh.path, "/data/owl.ply");
+  EXPECT_EQ(mesh.scale, 1000);
+  EXPECT_EQ(mesh.size_mm, 0);
+  EXPECT_EQ(mesh.surface, MeshSurface::kFabric);
+  // 90° about x (file y → z, z → −y), then 90° about z (x → y, y → −x).
+  cv::Matx33d R;
+  cv::Rodrigues(mesh.rotation_rad, R);
+  const cv::Vec3d y_to = R * cv::Vec3d(0, 1, 0), z_to = R * cv::Vec3d(0, 0, 1);
+  EXPECT_LT(cv::norm(y_to - cv::Vec3d(0, 0, 1)), 1e-12);
+  EXPECT_LT(cv::norm(z_to - cv::Vec3d(1, 0, 0)), 1e-12);
+
+  // The board scenes ignore the object and its keys (the daemon switches
+  // scenes with the same config).
+  ASSERT_TRUE(SimDriverOptionsFromConfig(
+      {{"scene", "held_board"}, {"object", "mesh"}, {"mesh", "/data/owl.ply"}}, &o, &why))
+      << why;
+  EXPECT_EQ(SimSceneOptions(o).object.type, ObjectType::kNone);
+
+  for (const auto& [config, needle] : std::vector<std::pair<DriverConfig, std::string>>{
+           {{{"object_position_mm", "10"}}, "'object_position_mm'"},
+           {{{"object_position_mm", "200,0"}}, "object_position_mm must be finite and on the"},
+           {{{"object_yaw_deg", "1e9"}}, "object_yaw_deg"},
+           {{{"mesh_colour", "red"}, {"object", "mesh"}, {"mesh", "/a.ply"}},
+            "unknown sim driver config key 'mesh_colour' (mesh '/a.ply')"},
+       }) {
+    EXPECT_FALSE(SimDriverOptionsFromConfig(config, &o, &why)) << needle;
+    EXPECT_NE(why.find(needle), std::string::npos) << why;
+  }
 }
 
 TEST(SimDriverOptions, SceneAndBoardKeys) {

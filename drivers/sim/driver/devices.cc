@@ -10,6 +10,7 @@
 #include <mutex>
 #include <numbers>
 #include <string>
+#include <string_view>
 
 #include <opencv2/imgproc.hpp>
 
@@ -33,6 +34,14 @@ constexpr std::int64_t kMoveSliceNs = 5'000'000;
 
 DriverStatus Error(StatusCode code, std::string message) {
   return DriverStatus::Error(code, std::move(message));
+}
+
+// The options are valid (SimDriverOptionsFromConfig), so a mesh scene fails
+// only for its file: name the driver's key rather than the scene option.
+std::string MeshFileError(std::string why) {
+  constexpr std::string_view kOption = "object.mesh: ";
+  if (why.rfind(kOption, 0) == 0) why.erase(0, kOption.size());
+  return "sim driver config key 'mesh': " + why;
 }
 
 // What the camera and the turntable of one instance share. `mutex` guards
@@ -447,9 +456,12 @@ drivers::DriverInstance* CreateSimInstance(const drivers::DriverConfig& config,
       return nullptr;
     }
     shared->host = host.WithDefaults();
-    shared->scene = Scene::Create(SimSceneOptions(shared->options), &why);
+    const SceneOptions scene = SimSceneOptions(shared->options);
+    shared->scene = Scene::Create(scene, &why);
     if (!shared->scene) {
-      *status = Error(StatusCode::kInvalidArgument, "scene: " + why);
+      *status =
+          Error(StatusCode::kInvalidArgument,
+                scene.object.type == ObjectType::kMesh ? MeshFileError(why) : "scene: " + why);
       return nullptr;
     }
     *status = DriverStatus::Ok();

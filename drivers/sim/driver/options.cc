@@ -1,15 +1,21 @@
 // Config parsing for the sim driver plugin.
 #include <charconv>
 #include <cmath>
+#include <filesystem>
+#include <numbers>
 #include <string>
 #include <utility>
 #include <vector>
+
+#include <opencv2/calib3d.hpp>
 
 #include "craftscan/sim/calibration_scenes.h"
 #include "craftscan/sim/driver_options.h"
 
 namespace craftscan::sim {
 namespace {
+
+constexpr double kRadPerDeg = std::numbers::pi / 180;
 
 bool Fail(std::string* why, std::string message) {
   if (why) *why = std::move(message);
@@ -28,6 +34,122 @@ bool ParseBool(const std::string& text, bool* value) {
   const bool no = text == "0" || text == "false" || text == "no";
   if (yes || no) *value = yes;
   return yes || no;
+}
+
+// `count` comma-separated numbers, spaces around them allowed ("90, 0, 0").
+bool ParseNumbers(const std::string& text, int count, double* values) {
+  std::size_t begin = 0;
+  for (int i = 0; i < count; ++i) {
+    const std::size_t end = i + 1 < count ? text.find(',', begin) : text.size();
+    if (end == std::string::npos) return false;
+    std::string item = text.substr(begin, end - begin);
+    item.erase(0, item.find_first_not_of(' '));
+    item.erase(item.find_last_not_of(' ') + 1);
+    if (!ParseNumber(item, &values[i])) return false;  // also refuses a further comma
+    begin = end + 1;
+  }
+  return true;
+}
+
+using KeyValues = std::vector<std::pair<std::string, std::string>>;
+
+// " (mesh '<path>')" for messages about the mesh keys, once the file is known.
+std::string OfMesh(const std::string& path) {
+  return path.empty() ? std::string() : " (mesh '" + path + "')";
+}
+
+// The mesh keys, once `object` is known (they are refused with another object).
+bool ApplyMeshKeys(const KeyValues& keys, SimDriverOptions* o, std::string* why) {
+  for (const auto& [key, value] : keys) {
+    if (key == "mesh") o->mesh_path = value;
+  }
+  if (!keys.empty() && o->object != ObjectType::kMesh) {
+    return Fail(why, "sim driver config key '" + keys.front().first +
+                         "' is only for object mesh (object is " +
+                         std::string(ToString(o->object)) +
+                         (o->mesh_path.empty() ? "" : "; mesh '" + o->mesh_path + "'") + ")");
+  }
+  const std::string of_mesh = OfMesh(o->mesh_path);
+  bool size_given = false, scale_given = false;
+  for (const auto& [key, value] : keys) {
+    bool ok = true;
+    if (key == "mesh") {
+      continue;
+    } else if (key == "mesh_size_mm") {
+      ok = ParseNumber(value, &o->mesh_size_mm);
+      size_given = true;
+    } else if (key == "mesh_scale") {
+      ok = ParseNumber(value, &o->mesh_scale);
+      scale_given = true;
+    } else if (key == "mesh_rotation_deg") {
+      ok = ParseNumbers(value, 3, o->mesh_rotation_deg.val);
+    } else if (key == "mesh_surface") {
+      if (!MeshSurfaceFromString(value, &o->mesh_surface)) {
+        return Fail(why, "sim driver config key 'mesh_surface': unknown surface '" + value + "'" +
+                             of_mesh + "; expected stone, wood, painted or fabric");
+      }
+    } else {
+      return Fail(why, "unknown sim driver config key '" + key + "'" + of_mesh);
+    }
+    if (!ok) {
+      return Fail(why,
+                  "bad value '" + value + "' for sim driver config key '" + key + "'" + of_mesh);
+    }
+  }
+  if (size_given && scale_given) {
+    return Fail(why, "sim driver config keys 'mesh_size_mm' and 'mesh_scale': give one, not both" +
+                         of_mesh);
+  }
+  return true;
+}
+
+// The file's coordinates turned about x, then y, then z (fixed axes), as a
+// Rodrigues vector (MeshOptions::rotation_rad).
+cv::Vec3d RodriguesFromXyzDeg(const cv::Vec3d& deg) {
+  auto axis = [&](int a) {
+    const double c = std::cos(deg[a] * kRadPerDeg), s = std::sin(deg[a] * kRadPerDeg);
+    cv::Matx33d r = cv::Matx33d::eye();
+    const int i = (a + 1) % 3, j = (a + 2) % 3;
+    r(i, i) = c;
+    r(i, j) = -s;
+    r(j, i) = s;
+    r(j, j) = c;
+    return r;
+  };
+  const cv::Matx33d R = axis(2) * axis(1) * axis(0);
+  cv::Vec3d rotation_rad;
+  cv::Rodrigues(R, rotation_rad);
+  return rotation_rad;
+}
+
+// The mesh keys' values (object mesh); the file is read by Scene::Create.
+bool MeshIsValid(const SimDriverOptions& o, std::string* why) {
+  if (o.mesh_path.empty()) {
+    return Fail(why,
+                "sim driver config key 'mesh' is missing: object mesh needs the PLY file's "
+                "absolute path");
+  }
+  const std::string of_mesh = OfMesh(o.mesh_path);
+  if (!std::filesystem::path(o.mesh_path).is_absolute()) {
+    return Fail(why, "sim driver config key 'mesh': '" + o.mesh_path +
+                         "' is not an absolute path (the daemon's working folder is not "
+                         "defined)");
+  }
+  if (!(o.mesh_size_mm == 0 || (o.mesh_size_mm > 0 && o.mesh_size_mm <= 1e4))) {
+    return Fail(why, "mesh_size_mm must be in (0, 1e4]" + of_mesh);
+  }
+  if (o.mesh_size_mm == 0 && !(o.mesh_scale > 0 && o.mesh_scale <= 1e6)) {
+    return Fail(why, "mesh_scale must be in (0, 1e6]" + of_mesh);
+  }
+  for (int i = 0; i < 3; ++i) {
+    if (!(std::abs(o.mesh_rotation_deg[i]) <= 360)) {
+      return Fail(why, "mesh_rotation_deg: each angle must be in [-360, 360]" + of_mesh);
+    }
+  }
+  if (ToString(o.mesh_surface) == "unknown") {
+    return Fail(why, "mesh_surface is not a known surface" + of_mesh);
+  }
+  return true;
 }
 
 }  // namespace
@@ -77,6 +199,7 @@ bool SimDriverOptions::IsValid(std::string* why) const {
                       board_why);
     }
   }
+  const double platter_radius_mm = SceneOptions().platter_radius_mm;
   if (scene == SimSceneType::kPlatterBoard) {
     if (board.IsRotationallySymmetric()) {
       return Fail(why, "board_cols + board_rows must be odd for scene platter_board: a " +
@@ -84,14 +207,19 @@ bool SimDriverOptions::IsValid(std::string* why) const {
                            " looks the same turned by 180°, so it cannot calibrate the "
                            "turntable axis");
     }
-    const double radius_mm = SceneOptions().platter_radius_mm;
-    if (PlatterBoardReachMm(board) > radius_mm) {
+    if (PlatterBoardReachMm(board) > platter_radius_mm) {
       return Fail(why, "board_cols/board_rows/board_square_mm: the " + Describe(board) +
                            " does not fit on the platter (it reaches " +
                            std::to_string(PlatterBoardReachMm(board)) + " mm from the axis, " +
-                           "the platter's radius is " + std::to_string(radius_mm) + " mm)");
+                           "the platter's radius is " + std::to_string(platter_radius_mm) + " mm)");
     }
   }
+  if (!(std::hypot(object_position_mm.x, object_position_mm.y) <= platter_radius_mm)) {
+    return Fail(why, "object_position_mm must be finite and on the platter (within " +
+                         std::to_string(platter_radius_mm) + " mm of the axis)");
+  }
+  if (!(std::abs(object_yaw_deg) <= 360)) return Fail(why, "object_yaw_deg must be in [-360, 360]");
+  if (object == ObjectType::kMesh && !MeshIsValid(*this, why)) return false;
   if (!(turntable_speed_deg_s >= 0 && std::isfinite(turntable_speed_deg_s))) {
     return Fail(why, "turntable_speed_deg_s must be >= 0");
   }
@@ -112,7 +240,8 @@ bool SimDriverOptionsFromConfig(const drivers::DriverConfig& config, SimDriverOp
   // The board keys override fields of the scene's default board, known only
   // once `scene` and `board_type` are read: collect them first.
   BoardSpec::Type board_type = BoardSpec::Type::kChessboard;
-  std::vector<std::pair<std::string, std::string>> board_keys;
+  KeyValues board_keys;
+  KeyValues mesh_keys;  // once `object` is known
   for (const auto& [key, value] : config) {
     bool ok = true;
     if (key == "scene") {
@@ -125,7 +254,16 @@ bool SimDriverOptionsFromConfig(const drivers::DriverConfig& config, SimDriverOp
     } else if (key == "supersampling") {
       ok = ParseNumber(value, &o.supersampling);
     } else if (key == "object") {
-      ok = ObjectTypeFromString(value, &o.object) && o.object != ObjectType::kMesh;
+      ok = ObjectTypeFromString(value, &o.object);
+    } else if (key == "mesh" || key.rfind("mesh_", 0) == 0) {
+      mesh_keys.emplace_back(key, value);
+      continue;
+    } else if (key == "object_position_mm") {
+      double xy[2];
+      ok = ParseNumbers(value, 2, xy);
+      o.object_position_mm = {xy[0], xy[1]};
+    } else if (key == "object_yaw_deg") {
+      ok = ParseNumber(value, &o.object_yaw_deg);
     } else if (key == "image_size") {
       const auto x = value.find('x');
       ok = x != std::string::npos && ParseNumber(value.substr(0, x), &o.image_size.width) &&
@@ -160,6 +298,7 @@ bool SimDriverOptionsFromConfig(const drivers::DriverConfig& config, SimDriverOp
     }
     if (!ok) return Fail(why, "bad value '" + value + "' for sim driver config key '" + key + "'");
   }
+  if (!ApplyMeshKeys(mesh_keys, &o, why)) return false;
   o.board = DefaultSimBoard(o.scene, board_type);
   bool marker_given = false;
   for (const auto& [key, value] : board_keys) {
@@ -212,6 +351,16 @@ SceneOptions SimSceneOptions(const SimDriverOptions& options) {
   switch (options.scene) {
     case SimSceneType::kObject:
       scene.object.type = options.object;
+      scene.object.position_mm = options.object_position_mm;
+      scene.object.yaw_rad = options.object_yaw_deg * kRadPerDeg;
+      if (options.object == ObjectType::kMesh) {
+        MeshOptions& mesh = scene.object.mesh;
+        mesh.path = options.mesh_path;
+        mesh.size_mm = options.mesh_size_mm;
+        mesh.scale = options.mesh_scale;
+        mesh.rotation_rad = RodriguesFromXyzDeg(options.mesh_rotation_deg);
+        mesh.surface = options.mesh_surface;
+      }
       break;
     case SimSceneType::kHeldBoard:
       scene = BoardScene(options.board);

@@ -1,11 +1,16 @@
 // Triangle mesh object: a bounding volume hierarchy (median split, ≤ 4
 // triangles per leaf) over the triangles, Möller–Trumbore intersection in
-// double precision, smooth (area-weighted vertex) normals, and a solid
-// stone-like texture.
+// double precision, smooth (area-weighted vertex) normals, and a seeded
+// procedural surface (MeshSurface): solid textures of the point in the
+// object frame (stone, wood), the egg's painted pattern about the z axis, or
+// a woven tartan projected along the normal's main axis (fabric), so a mesh
+// needs no texture coordinates.
 #include <algorithm>
 #include <array>
 #include <cmath>
+#include <memory>
 #include <numeric>
+#include <optional>
 #include <vector>
 
 #include "shapes.h"
@@ -35,10 +40,14 @@ struct Node {
 class MeshShape : public Primitive {
  public:
   MeshShape(const std::vector<cv::Vec3d>& vertices_mm, const std::vector<cv::Vec3i>& triangles,
-            std::uint64_t seed)
-      : Primitive(SurfaceLabel::kObject), seed_(seed) {
+            MeshSurface surface, std::uint64_t seed)
+      : Primitive(SurfaceLabel::kObject), surface_(surface), seed_(seed) {
     vertices_.reserve(vertices_mm.size());
-    for (const cv::Vec3d& v : vertices_mm) vertices_.push_back(FromCv(v));
+    Box3 bounds;
+    for (const cv::Vec3d& v : vertices_mm) {
+      vertices_.push_back(FromCv(v));
+      bounds.Grow(vertices_.back());
+    }
     triangles_.reserve(triangles.size());
     for (const cv::Vec3i& t : triangles) triangles_.push_back({t[0], t[1], t[2]});
     // Area-weighted vertex normals (the cross product's length is 2·area).
@@ -58,6 +67,13 @@ class MeshShape : public Primitive {
         {0.42, 0.52, 0.40},  // celadon
     };
     base_colour_ = kStones[base];
+    // The other surfaces are laid out on the placed mesh's bounding box
+    // (centred on the z axis, bottom at z = 0).
+    const V3 extent = vertices_.empty() ? V3(1, 1, 1) : bounds.hi - bounds.lo;
+    wood_.emplace(seed, V3(0, -1.3 * extent.y, -0.6 * extent.z));
+    paint_.emplace(seed, 0.5 * std::max(extent.x, extent.y), 0.5 * extent.z);
+    half_height_ = std::max(0.5 * extent.z, 1e-3);  // a flat mesh is its equator
+    MakeSett(SubSeed(seed, 400));
     Build();
   }
 
@@ -124,6 +140,23 @@ class MeshShape : public Primitive {
           Normalized(Cross(vertices_[t[1]] - vertices_[t[0]], vertices_[t[2]] - vertices_[t[0]]));
     }
     const V3& p = hit.p;
+    switch (surface_) {
+      case MeshSurface::kStone:
+        break;
+      case MeshSurface::kWood:
+        *albedo = wood_->Albedo(p);
+        return;
+      case MeshSurface::kPainted: {
+        // Latitude from the height (as on an egg of the mesh's height),
+        // longitude about the axis.
+        const double lat = std::asin(std::clamp((p.z - half_height_) / half_height_, -1.0, 1.0));
+        *albedo = paint_->Albedo(p, lat, std::atan2(p.y, p.x), std::hypot(p.x, p.y));
+        return;
+      }
+      case MeshSurface::kFabric:
+        *albedo = Fabric(p, *normal);
+        return;
+    }
     const double cloud = Fbm3(SubSeed(seed_, 301), p.x / 9, p.y / 9, p.z / 9, 4);
     const double grain =
         ToUnit(Hash(SubSeed(seed_, 302), static_cast<std::int64_t>(std::floor(p.x / 0.4)),
@@ -223,8 +256,46 @@ class MeshShape : public Primitive {
     BuildNode(left + 1, mid, end, depth + 1);
   }
 
-  static constexpr int kLeafSize = 4;
+  // Fabric: a tartan sett (a repeating sequence of stripes, each a thread
+  // colour and a number of threads), the same across the warp and the weft.
+  void MakeSett(std::uint64_t seed) {
+    const int stripes = 3 + static_cast<int>(ToUnit(Hash(seed, 1)) * 3);  // 3…5
+    int colour = static_cast<int>(ToUnit(Hash(seed, 2)) * kNumThreadColours);
+    for (int i = 0; i < stripes; ++i) {
+      colour = (colour + 1 + static_cast<int>(ToUnit(Hash(seed, 10 + i)) * 3)) %
+               kNumThreadColours;  // never the previous stripe's colour
+      const int threads = 4 + static_cast<int>(ToUnit(Hash(seed, 20 + i)) * 21);  // 4…24
+      sett_.insert(sett_.end(), static_cast<std::size_t>(threads), colour);
+    }
+  }
 
+  V3 Thread(std::int64_t index) const {
+    const auto n = static_cast<std::int64_t>(sett_.size());
+    return kThreadColours[sett_[static_cast<std::size_t>(((index % n) + n) % n)]];
+  }
+
+  // Woven tartan in the plane across the normal's largest component
+  // (a seam where that changes, as where cloth is cut and sewn).
+  V3 Fabric(const V3& p, const V3& normal) const {
+    const double ax = std::abs(normal.x), ay = std::abs(normal.y), az = std::abs(normal.z);
+    double u = p.x, v = p.y;
+    if (ax >= ay && ax >= az) {
+      u = p.y;
+      v = p.z;
+    } else if (ay >= az) {
+      v = p.z;
+    }
+    const WeaveSample w = PlainWeave(u, v, kFabricPitchMm);
+    const V3 colour = w.warp_on_top ? Thread(w.warp) : Thread(w.weft);
+    const double fold = Fbm3(SubSeed(seed_, 401), p.x / 12, p.y / 12, p.z / 12, 3);
+    const double fibre = CellNoise2(SubSeed(seed_, 402), u / 0.15, v / 0.15);
+    return colour * ((0.55 + 0.45 * w.crown) * (0.8 + 0.4 * fold) * (0.85 + 0.3 * fibre));
+  }
+
+  static constexpr int kLeafSize = 4;
+  static constexpr double kFabricPitchMm = 0.5;
+
+  MeshSurface surface_;
   std::uint64_t seed_;
   std::vector<V3> vertices_, normals_;
   std::vector<std::array<int, 3>> triangles_;
@@ -233,13 +304,18 @@ class MeshShape : public Primitive {
   std::vector<V3> centroids_;  // build only
   std::vector<Box3> boxes_;    // build only
   V3 base_colour_;
+  std::optional<WoodTexture> wood_;
+  std::optional<PaintedPattern> paint_;
+  double half_height_ = 1;
+  std::vector<int> sett_;  // thread colour index per thread of one repeat
 };
 
 }  // namespace
 
 std::unique_ptr<Primitive> MakeMesh(std::vector<cv::Vec3d> vertices_mm,
-                                    std::vector<cv::Vec3i> triangles, std::uint64_t seed) {
-  return std::make_unique<MeshShape>(vertices_mm, triangles, seed);
+                                    std::vector<cv::Vec3i> triangles, MeshSurface surface,
+                                    std::uint64_t seed) {
+  return std::make_unique<MeshShape>(vertices_mm, triangles, surface, seed);
 }
 
 }  // namespace craftscan::sim

@@ -1,6 +1,7 @@
 // Option validation and enum names.
 #include <algorithm>
 #include <cmath>
+#include <initializer_list>
 #include <string>
 
 #include "craftscan/sim/station.h"
@@ -14,6 +15,18 @@ bool Fail(std::string* why, std::string message) {
 }
 
 bool Finite(double v) { return std::isfinite(v); }
+
+// The value among `values` whose ToString is `text`.
+template <typename Enum>
+bool FromName(std::string_view text, std::initializer_list<Enum> values, Enum* out) {
+  for (Enum value : values) {
+    if (text == ToString(value)) {
+      *out = value;
+      return true;
+    }
+  }
+  return false;
+}
 
 }  // namespace
 
@@ -180,6 +193,9 @@ bool SceneOptions::IsValid(std::string* why) const {
           return Fail(why, "object.mesh.rotation_rad must be finite");
         }
       }
+      if (ToString(o.mesh.surface) == "unknown") {
+        return Fail(why, "object.mesh.surface is not a known MeshSurface");
+      }
       break;
     default:
       return Fail(why, "object.type is not a known ObjectType");
@@ -220,14 +236,30 @@ std::string_view ToString(ObjectType type) {
 }
 
 bool ObjectTypeFromString(std::string_view text, ObjectType* type) {
-  for (ObjectType t : {ObjectType::kNone, ObjectType::kCarvedBox, ObjectType::kEgg,
-                       ObjectType::kEmbroidery, ObjectType::kMesh}) {
-    if (text == ToString(t)) {
-      *type = t;
-      return true;
-    }
+  return FromName(text,
+                  {ObjectType::kNone, ObjectType::kCarvedBox, ObjectType::kEgg,
+                   ObjectType::kEmbroidery, ObjectType::kMesh},
+                  type);
+}
+
+std::string_view ToString(MeshSurface surface) {
+  switch (surface) {
+    case MeshSurface::kStone:
+      return "stone";
+    case MeshSurface::kWood:
+      return "wood";
+    case MeshSurface::kPainted:
+      return "painted";
+    case MeshSurface::kFabric:
+      return "fabric";
   }
-  return false;
+  return "unknown";
+}
+
+bool MeshSurfaceFromString(std::string_view text, MeshSurface* surface) {
+  return FromName(
+      text, {MeshSurface::kStone, MeshSurface::kWood, MeshSurface::kPainted, MeshSurface::kFabric},
+      surface);
 }
 
 std::string_view ToString(BoardPlacement placement) {

@@ -230,11 +230,7 @@ class CarvedBox : public MarchedSolid {
                      V3(o.width_mm / 2, o.depth_mm / 2, o.height_mm), lipschitz, 0.05),
         faces_(faces),
         slope_(slope),
-        seed_(seed) {
-    const double slant = (12 + 20 * ToUnit(Hash(seed, 33))) * kPi / 180;
-    log_axis_ = V3(std::cos(slant), 0, std::sin(slant));
-    log_point_ = V3(0, -1.3 * o.depth_mm, -0.6 * o.height_mm);
-  }
+        wood_(seed, V3(0, -1.3 * o.depth_mm, -0.6 * o.height_mm)) {}
 
   void Surface(const LocalHit& hit, V3* normal, V3* albedo) const override {
     const V3& p = hit.p;
@@ -248,27 +244,9 @@ class CarvedBox : public MarchedSolid {
         cut = std::max(cut, f.Carve(Dot(rel, f.u), Dot(rel, f.v)));
       }
     }
-    // Wood: growth rings around a log axis below and behind the box, at a
-    // seeded slant to the box's x axis (boards are rarely cut exactly along
-    // the grain), wobbling with noise; fibres along the axis; open pores as
-    // dark flecks; fresh cuts are lighter.
-    const V3 rel = p - log_point_;
-    const double along = Dot(rel, log_axis_);
-    const V3 radial = rel - log_axis_ * along;
-    const double wobble = Fbm3(SubSeed(seed_, 30), p.x / 25, p.y / 25, p.z / 25, 3);
-    const double ring = Norm(radial) / 2.4 + 3.0 * wobble;
-    const double late = SmoothStep(0.55, 0.9, ring - std::floor(ring));
-    const V3 across = Cross(log_axis_, V3(0, 1, 0));
-    const double fibre =
-        ValueNoise3(SubSeed(seed_, 31), along / 4, Dot(rel, across) / 0.25, p.y / 0.25);
-    const std::uint64_t cell =
-        Hash(SubSeed(seed_, 32), static_cast<std::int64_t>(std::floor(p.x / 0.3)),
-             static_cast<std::int64_t>(std::floor(p.y / 0.3)),
-             static_cast<std::int64_t>(std::floor(p.z / 0.3)));
-    const double pore = ToUnit(cell) > 0.9 ? 0.65 : 1.0;
-    const V3 early(0.30, 0.47, 0.66), late_wood(0.13, 0.24, 0.40), fresh(0.42, 0.62, 0.80);
-    V3 colour = Lerp(early, late_wood, 0.85 * late) * ((0.85 + 0.25 * fibre) * pore);
-    colour = Lerp(colour, fresh, 0.55 * SmoothStep(0.02, 0.35, cut));
+    // Wood (the log axis below and behind the box); fresh cuts are lighter.
+    V3 colour = wood_.Albedo(p);
+    colour = Lerp(colour, WoodTexture::kFreshCut, 0.55 * SmoothStep(0.02, 0.35, cut));
     *albedo = colour;
   }
 
@@ -301,9 +279,8 @@ class CarvedBox : public MarchedSolid {
 
  private:
   std::array<CarvedFace, 6> faces_;
-  double slope_;             // the largest CarveSlope of the faces
-  V3 log_axis_, log_point_;  // the tree's axis (wood texture)
-  std::uint64_t seed_;
+  double slope_;  // the largest CarveSlope of the faces
+  WoodTexture wood_;
 };
 
 // Rosettes for a face of half extents hu × hv inside its border groove.
@@ -334,19 +311,6 @@ std::vector<Rosette> LayOutRosettes(double hu, double hv, double inset, double g
 
 // --- embroidery ---------------------------------------------------------
 
-// Thread colours (BGR).
-constexpr V3 kThreads[] = {
-    {0.10, 0.10, 0.70},  // red
-    {0.08, 0.05, 0.38},  // deep red
-    {0.15, 0.65, 0.85},  // gold
-    {0.65, 0.35, 0.12},  // blue
-    {0.20, 0.50, 0.15},  // green
-    {0.04, 0.04, 0.04},  // black
-    {0.85, 0.86, 0.86},  // white
-    {0.55, 0.25, 0.55},  // purple
-};
-constexpr int kNumThreads = 8;
-
 struct Stitch {
   double height = 0;  // H ∈ [0, 1]
   V3 colour;
@@ -364,12 +328,12 @@ class Embroidery : public MarchedSolid {
         seed_(seed) {
     petals_ = 5 + static_cast<int>(ToUnit(Hash(seed, 200)) * 4);  // 5…8
     phase_ = 2 * kPi * ToUnit(Hash(seed, 201));
-    const int base = static_cast<int>(ToUnit(Hash(seed, 202)) * kNumThreads);
-    for (int i = 0; i < 5; ++i) colours_[i] = kThreads[(base + 3 * i) % kNumThreads];
+    const int base = static_cast<int>(ToUnit(Hash(seed, 202)) * kNumThreadColours);
+    for (int i = 0; i < 5; ++i) colours_[i] = kThreadColours[(base + 3 * i) % kNumThreadColours];
     dark_fabric_ = ToUnit(Hash(seed, 203)) < 0.35;
     if (dark_fabric_) {  // light threads show on dark cloth
       for (V3& c : colours_) {
-        if (c.x + c.y + c.z < 0.3) c = kThreads[6];
+        if (c.x + c.y + c.z < 0.3) c = kThreadColours[kWhiteThread];
       }
     }
     flower_r_ = 0.52 * radius_;
@@ -444,12 +408,7 @@ class Embroidery : public MarchedSolid {
   Stitch Pattern(double x, double y, bool want_colour) const {
     Stitch out;
     // Linen weave everywhere.
-    const double pitch = 0.4;
-    const double fu = x / pitch, fv = y / pitch;
-    const double iu = std::floor(fu), iv = std::floor(fv);
-    const bool warp = (static_cast<std::int64_t>(iu + iv) & 1) == 0;
-    const double across = warp ? fu - iu : fv - iv;
-    const double weave = 4 * across * (1 - across);  // thread cross-section
+    const double weave = PlainWeave(x, y, 0.4).crown;  // thread cross-section
     out.height = kFabricH * (0.5 + 0.5 * weave);
     if (want_colour) {
       const V3 cloth = dark_fabric_ ? V3(0.05, 0.04, 0.16) : V3(0.68, 0.80, 0.85);

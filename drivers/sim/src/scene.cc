@@ -172,7 +172,7 @@ std::unique_ptr<Scene> Scene::Create(const SceneOptions& options, std::string* e
         return nullptr;
       }
       s.mesh_triangles = mesh.faces.size();
-      object = MakeMesh(std::move(vertices_mm), std::move(mesh.faces), object_seed);
+      object = MakeMesh(std::move(vertices_mm), std::move(mesh.faces), o.mesh.surface, object_seed);
       break;
     }
   }

@@ -20,12 +20,7 @@ constexpr double kPi = std::numbers::pi;
 V3 BackgroundAlbedo(Background background, std::uint64_t seed, double u, double v) {
   if (background == Background::kDarkCloth) {
     // Plain weave, 0.6 mm pitch: warp and weft alternate over/under.
-    const double pitch = 0.6;
-    const double fu = u / pitch, fv = v / pitch;
-    const double iu = std::floor(fu), iv = std::floor(fv);
-    const bool warp_on_top = (static_cast<std::int64_t>(iu + iv) & 1) == 0;
-    const double across = warp_on_top ? fu - iu : fv - iv;
-    const double thread = 4 * across * (1 - across);  // bright crown, dark gaps
+    const double thread = PlainWeave(u, v, 0.6).crown;  // bright crown, dark gaps
     const double fold = Fbm2(SubSeed(seed, 1), u / 40, v / 40, 3);
     const double fibre = CellNoise2(SubSeed(seed, 2), u / 0.2, v / 0.2);
     const double k = (0.55 + 0.45 * thread) * (0.7 + 0.6 * fold) * (0.85 + 0.3 * fibre);
@@ -167,41 +162,13 @@ class Platter : public Primitive {
 
 // --- egg ----------------------------------------------------------------
 
-struct Palette {
-  V3 background, line, accent1, accent2, dot;
-};
-
-// Traditional dye colours (BGR).
-constexpr V3 kDyes[] = {
-    {0.08, 0.09, 0.55},  // madder red
-    {0.04, 0.04, 0.05},  // black
-    {0.10, 0.62, 0.85},  // yellow
-    {0.80, 0.82, 0.82},  // white
-    {0.08, 0.35, 0.80},  // orange
-    {0.15, 0.45, 0.12},  // green
-    {0.55, 0.25, 0.08},  // blue
-};
-
 class Egg : public Primitive {
  public:
   Egg(const EggOptions& options, std::uint64_t seed)
       : Primitive(SurfaceLabel::kObject),
         a_(options.diameter_mm / 2),
         c_(options.height_mm / 2),
-        seed_(seed) {
-    auto pick = [&](int k, int avoid) {
-      int i = static_cast<int>(ToUnit(Hash(seed, 100 + k)) * 7) % 7;
-      if (i == avoid) i = (i + 1) % 7;
-      return i;
-    };
-    const int bg = pick(0, -1);
-    const int line = (bg == 1) ? 3 : 1;  // black lines, white on black
-    palette_ = {kDyes[bg], kDyes[line], kDyes[pick(1, bg)], kDyes[pick(2, bg)], kDyes[pick(3, bg)]};
-    meridians_ = 4 + 2 * static_cast<int>(ToUnit(Hash(seed, 110)) * 3);  // 4, 6, 8
-    zigzag_teeth_ = 2 * meridians_;
-    petals_ = 6 + 2 * static_cast<int>(ToUnit(Hash(seed, 111)) * 2);  // 6 or 8
-    band_lat_ = 0.38 + 0.12 * ToUnit(Hash(seed, 112));
-  }
+        paint_(seed, a_, c_) {}
 
   bool Intersect(const V3& o, const V3& d, double t_min, double t_max,
                  LocalHit* hit) const override {
@@ -229,73 +196,12 @@ class Egg : public Primitive {
     const V3 q(p.x / a_, p.y / a_, (p.z - c_) / c_);
     const double lat = std::asin(std::clamp(q.z, -1.0, 1.0));
     const double lon = std::atan2(q.y, q.x);
-    *albedo = Pattern(lat, lon) *
-              (0.9 + 0.2 * Fbm3(SubSeed(seed_, 120), p.x / 1.5, p.y / 1.5, p.z / 1.5, 2));
+    *albedo = paint_.Albedo(p, lat, lon, a_ * std::cos(lat));
   }
 
  private:
-  // Arc lengths (mm) on the egg for angle differences at latitude `lat`.
-  double LatMm(double dlat) const { return 0.5 * (a_ + c_) * dlat; }
-  double LonMm(double dlon, double lat) const { return a_ * std::cos(lat) * dlon; }
-  static double Wrap(double angle) { return angle - 2 * kPi * std::round(angle / (2 * kPi)); }
-
-  V3 Pattern(double lat, double lon) const {
-    const double w = 0.45;  // line half-width, mm
-    const double band = band_lat_;
-    // Equator band edges and the tropic lines.
-    for (double edge : {-band, band, -band - 0.12, band + 0.12}) {
-      if (std::abs(LatMm(lat - edge)) < w) return palette_.line;
-    }
-    if (std::abs(lat) < band) {
-      // Zigzag across the band, filled above in accent1.
-      const double phase = lon * zigzag_teeth_ / (2 * kPi);
-      const double tri = 2 * std::abs(phase - std::floor(phase) - 0.5);  // 0…1
-      const double zig = -band + 2 * band * tri;
-      if (std::abs(LatMm(lat - zig)) < w * 1.2) return palette_.line;
-      return lat > zig ? palette_.accent1 : palette_.background;
-    }
-    if (std::abs(lat) < band + 0.12) {
-      // Row of dots between the band and the tropic line.
-      const double mid = (lat > 0 ? 1 : -1) * (band + 0.06);
-      const double spacing = 2 * kPi / (zigzag_teeth_ * 2);
-      const double k = std::round(lon / spacing);
-      const double du = LonMm(lon - k * spacing, lat), dv = LatMm(lat - mid);
-      if (du * du + dv * dv < 1.1 * 1.1) return palette_.dot;
-      return palette_.background;
-    }
-    // Hemispheres: meridians split them into segments, each with a rosette.
-    const double seg = 2 * kPi / meridians_;
-    const double k = std::round(lon / seg);
-    if (std::abs(std::abs(lat) - kPi / 2) > 0.25 && std::abs(LonMm(lon - k * seg, lat)) < w) {
-      return palette_.line;
-    }
-    const double sign = lat > 0 ? 1 : -1;
-    if (std::abs(lat) > 1.25) {  // polar star
-      const double rays = 8;
-      const double phase = lon * rays / (2 * kPi);
-      const double tri = 2 * std::abs(phase - std::floor(phase) - 0.5);
-      const double reach = 1.25 + 0.3 * (1 - tri);
-      return std::abs(lat) > reach ? palette_.accent2 : palette_.background;
-    }
-    const double centre_lat = sign * (band + 0.12 + 1.25) / 2;
-    const double centre_lon = (k + 0.5) * seg;  // between meridians
-    const double cl = Wrap(lon - centre_lon);
-    const double du = LonMm(cl, lat), dv = LatMm(lat - centre_lat);
-    const double r = std::sqrt(du * du + dv * dv);
-    const double phi = std::atan2(dv, du);
-    const double radius = 0.42 * std::min(LonMm(seg, centre_lat), LatMm(1.25 - band - 0.12));
-    const double petal = radius * (0.45 + 0.55 * std::abs(std::cos(petals_ * phi / 2)));
-    if (r < 0.22 * radius) return palette_.dot;
-    if (std::abs(r - petal) < w) return palette_.line;
-    if (r < petal) return palette_.accent2;
-    return palette_.background;
-  }
-
   double a_, c_;
-  std::uint64_t seed_;
-  Palette palette_;
-  int meridians_, zigzag_teeth_, petals_;
-  double band_lat_;
+  PaintedPattern paint_;
 };
 
 // --- board --------------------------------------------------------------

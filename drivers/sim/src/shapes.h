@@ -57,9 +57,11 @@ std::unique_ptr<Primitive> MakeCarvedBox(const CarvedBoxOptions& options, std::u
 std::unique_ptr<Primitive> MakeEmbroidery(const EmbroideryOptions& options, std::uint64_t seed,
                                           Rigid* object_from_disc);
 // A triangle mesh (common/triangle_mesh.h faces) whose vertices were placed
-// in the object frame (millimetres, double: placement keeps full precision).
+// in the object frame (millimetres, double: placement keeps full precision),
+// textured as `surface`.
 std::unique_ptr<Primitive> MakeMesh(std::vector<cv::Vec3d> vertices_mm,
-                                    std::vector<cv::Vec3i> triangles, std::uint64_t seed);
+                                    std::vector<cv::Vec3i> triangles, MeshSurface surface,
+                                    std::uint64_t seed);
 // Local frame = board frame. Null with *error on failure (e.g. OpenCV).
 std::unique_ptr<Primitive> MakeBoard(const BoardOptions& options, std::string* error);
 

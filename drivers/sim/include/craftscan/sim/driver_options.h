@@ -14,8 +14,27 @@
 //                             platter (PlatterBoardScene: its centre 20 mm off
 //                             the axis), turning with the turntable, so captures
 //                             after MoveTo show it turned (turntable axis calibration)
-//   object                  carved_box | egg | embroidery | none   (carved_box)
-//                           (ignored by the board scenes)
+//   object                  carved_box | egg | embroidery | mesh | none  (carved_box)
+//                           (ignored by the board scenes, as are the object_* and
+//                           mesh_* keys)
+//   object_position_mm      x,y: where the object stands on the platter at turntable
+//                           angle 0, world mm; within the platter's 150 mm radius (0,0)
+//   object_yaw_deg          its turn about the axis there, degrees, |·| ≤ 360 (0)
+// object mesh: a PLY triangle mesh (ply.h; e.g. ../shared/data/meshes/owl.ply),
+// read when the driver instance is created:
+//   mesh                    the PLY file's absolute path (required for object mesh)
+//   mesh_size_mm            largest extent of the placed mesh, mm, (0, 1e4];
+//                           or
+//   mesh_scale              mm per file unit, (0, 1e6]   (1: the file is in mm)
+//                           (not both)
+//   mesh_rotation_deg       rx,ry,rz: the file's coordinates turned about x, then y,
+//                           then z (fixed axes), degrees, before placing; 90,0,0
+//                           turns a +Y-up file +Z-up                   (0,0,0)
+//   mesh_surface            stone | wood | painted | fabric (MeshSurface, station.h),
+//                           seeded by `seed`                           (stone)
+// The mesh is then seated: its bounding box centred on the object's axis, its
+// lowest point on the platter. mesh_* keys with another object are refused.
+// List values are comma-separated numbers (the daemon passes scalars only).
 //   image_size              WxH, px; the default rig scaled to it     (1280x1024)
 //   seed                    scene textures and sensor noise           (1)
 //   threads                 render threads, 1…256                     (1)
@@ -42,6 +61,10 @@
 // be 180°-symmetric (board_cols + board_rows odd): the turntable axis needs
 // its corner order. A held board too large for the view is accepted; its
 // frames then show it cut off, as a real one would be.
+// Errors name the key and, for the mesh keys, the file. A mesh that cannot be
+// used (no such file, not PLY, malformed, no triangles) fails the driver
+// instance's creation (CreateSimInstance: kInvalidArgument, "sim driver
+// config key 'mesh': PLY '<path>': …").
 // Fault knobs:
 //   drop_frame_every N      frame ids that are multiples of N (N ≥ 2) are
 //                           dropped: Capture returns the next id     (0 = off)
@@ -89,6 +112,14 @@ BoardSpec DefaultSimBoard(SimSceneType scene, BoardSpec::Type type);
 struct SimDriverOptions {
   SimSceneType scene = SimSceneType::kObject;
   ObjectType object = ObjectType::kCarvedBox;  // scene kObject only
+  cv::Point2d object_position_mm{0, 0};        // on the platter at angle 0, world mm
+  double object_yaw_deg = 0;                   // about the turntable axis
+  // object kMesh only:
+  std::string mesh_path;                 // absolute
+  double mesh_size_mm = 0;               // > 0: largest extent; 0: mesh_scale applies
+  double mesh_scale = 1;                 // mm per file unit
+  cv::Vec3d mesh_rotation_deg{0, 0, 0};  // about x, then y, then z (fixed axes)
+  MeshSurface mesh_surface = MeshSurface::kStone;
   // The board of the board scenes; SimDriverOptionsFromConfig fills in
   // DefaultSimBoard(scene, board_type) and applies the board_* keys.
   BoardSpec board = DefaultSimBoard(SimSceneType::kHeldBoard, BoardSpec::Type::kChessboard);
@@ -105,7 +136,8 @@ struct SimDriverOptions {
   bool turntable_stall = false;
   drivers::ReconnectPolicy reconnect;
 
-  // Names the offending key (board problems name the board_* keys).
+  // Names the offending key (board problems name the board_* keys, mesh
+  // problems the mesh_* key and the file). Does not open the file.
   bool IsValid(std::string* why) const;
 };
 
@@ -117,8 +149,9 @@ bool SimDriverOptionsFromConfig(const drivers::DriverConfig& config, SimDriverOp
 // exposure from the camera settings) and the scene it shares.
 RigOptions SimRigOptions(const SimDriverOptions& options,
                          const drivers::CameraSettings& settings = {});
-// The shared scene: the object; the board on the platter; for held_board
-// the board scene with the board disabled (each frame places it: below).
+// The shared scene: the object (placed; a mesh with its MeshOptions); the
+// board on the platter; for held_board the board scene with the board
+// disabled (each frame places it: below).
 SceneOptions SimSceneOptions(const SimDriverOptions& options);
 // held_board: the scene of frame `frame_id`, the board at held pose
 // frame_id mod N placed for `station`'s rig (PlaceHeldBoard; it depends only

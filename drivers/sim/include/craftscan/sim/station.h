@@ -94,7 +94,7 @@ enum class ObjectType {
   kCarvedBox,   // box with chip-carved relief on every visible face, wood texture
   kEgg,         // ellipsoid with a painted (pysanka-style) pattern
   kEmbroidery,  // thin disc with coloured satin stitching in low relief
-  kMesh,        // a PLY triangle mesh, scaled and placed, stone-like texture
+  kMesh,        // a PLY triangle mesh, scaled and placed, with a MeshSurface
 };
 std::string_view ToString(ObjectType type);  // "none", "carved_box", "egg", "embroidery", "mesh"
 bool ObjectTypeFromString(std::string_view text, ObjectType* type);
@@ -124,6 +124,19 @@ struct EmbroideryOptions {
   double tilt_rad = 0;
 };
 
+// The texture of a mesh object: seeded and procedural like the built-in
+// objects' (the file's colours, if any, are not used), with colour variation
+// down to ~0.2 mm for the stereo matcher.
+enum class MeshSurface {
+  kStone,    // terracotta, sandstone or celadon, cloudy, with a 0.4 mm grain
+  kWood,     // the carved box's wood: growth rings at a seeded slant, fibres, pores
+  kPainted,  // the egg's painted pattern in dye colours, wrapped about the z axis by height
+  kFabric,   // plain weave (0.5 mm threads) in a seeded tartan of the embroidery's thread
+             // colours, projected along the normal's main axis
+};
+std::string_view ToString(MeshSurface surface);  // "stone", "wood", "painted", "fabric"
+bool MeshSurfaceFromString(std::string_view text, MeshSurface* surface);
+
 struct MeshOptions {
   std::string path;    // PLY file (see ply.h)
   double scale = 1.0;  // mm per file unit (ignored when size_mm > 0)
@@ -132,6 +145,7 @@ struct MeshOptions {
   // e.g. {π/2, 0, 0} turns a +Y-up mesh +Z-up. Then the mesh is moved so its
   // bounding box is centred on the object z axis with its bottom at z = 0.
   cv::Vec3d rotation_rad{0, 0, 0};
+  MeshSurface surface = MeshSurface::kStone;
 };
 
 struct ObjectOptions {

@@ -29,6 +29,8 @@
 //                      (both bound the true distance from above; together
 //                      they are within ~0.05 mm of it); median, p95, max
 //   outlier_pct        fused points farther than 1 mm from the surface
+//   views_to_truth_mm  the same for every view's own cloud at its exact pose
+//                      (what stereo alone leaves): median, p95, outlier_pct
 //   completeness_pct   `visible` sampled on a 0.5 mm grid: the share with a
 //                      fused point within 1 mm
 //   mesh_to_truth_mm   the same distance for the mesh vertices more than 1 mm
@@ -88,6 +90,8 @@ using Clock = std::chrono::steady_clock;
 constexpr double kGridMm = 0.5;      // completeness sampling
 constexpr double kGateMm = 1.0;      // completeness and outlier distance
 constexpr double kBaseBandMm = 1.0;  // mesh vertices lower than this are not scored
+// Upper edges of the fused-error histogram's bins (mm); the last is open.
+constexpr double kHistogramMm[] = {0.25, 0.5, 1, 2, 5, 20};
 
 double MsSince(Clock::time_point start) {
   return std::chrono::duration<double, std::milli>(Clock::now() - start).count();
@@ -108,6 +112,7 @@ nlohmann::ordered_json Extents(const cv::Vec3d& e) { return {e[0], e[1], e[2]}; 
 struct ViewGeometry {
   double angle_rad = 0;
   cv::Matx44d world_from_object = cv::Matx44d::eye();
+  cv::Matx44d object_from_rig = cv::Matx44d::eye();
 };
 
 struct Figures {
@@ -115,6 +120,10 @@ struct Figures {
   double fused_median = NAN, fused_p95 = NAN, fused_max = NAN, outlier_pct = NAN;
   double completeness_pct = NAN;
   double mesh_median = NAN, mesh_p95 = NAN;
+  // Every view's own cloud (ViewProcessor's output) at its exact pose: what
+  // stereo alone leaves, before registration and fusion.
+  double views_median = NAN, views_p95 = NAN, views_outlier_pct = NAN;
+  std::vector<double> fused_histogram;  // % of fused points per kHistogramMm bin
   MeshComponents components;
   cv::Vec3d fused_obb{0, 0, 0}, truth_obb{0, 0, 0};
   std::optional<cv::Vec3d> box_edges;  // mean, std, max |error|
@@ -266,7 +275,8 @@ class ScanCommand : public BenchCommand {
         return DataError("view " + std::to_string(k) + ": render failed: " + render.message);
       times.render += render.render_ms;
       g.world_from_object = render.world_from_object;
-      const cv::Matx44d object_from_rig = render.world_from_object.inv() * world_from_rig;
+      g.object_from_rig = render.world_from_object.inv() * world_from_rig;
+      const cv::Matx44d& object_from_rig = g.object_from_rig;
       for (int y = 0; y < render.rectified_object_mask.rows; ++y) {
         const std::uint8_t* mask = render.rectified_object_mask.ptr<std::uint8_t>(y);
         const std::uint8_t* right = render.rectified_visible_right.ptr<std::uint8_t>(y);
@@ -333,10 +343,22 @@ class ScanCommand : public BenchCommand {
     fig.fused_median = Quantile(fused_d, 0.5);
     fig.fused_p95 = Quantile(fused_d, 0.95);
     fig.fused_max = fused_d.empty() ? NAN : *std::max_element(fused_d.begin(), fused_d.end());
-    fig.outlier_pct =
-        fused_d.empty() ? NAN : 100.0 * std::count_if(fused_d.begin(), fused_d.end(), [](double d) {
-                                  return d > kGateMm;
-                                }) / static_cast<double>(fused_d.size());
+    fig.outlier_pct = OutlierPct(fused_d);
+    fig.fused_histogram.assign(std::size(kHistogramMm) + 1, 0.0);
+    for (double d : fused_d) {
+      const auto bin = std::lower_bound(std::begin(kHistogramMm), std::end(kHistogramMm), d) -
+                       std::begin(kHistogramMm);
+      fig.fused_histogram[static_cast<std::size_t>(bin)] +=
+          100.0 / static_cast<double>(fused_d.size());
+    }
+    std::vector<cv::Vec3f> raw;
+    for (std::size_t k = 0; k < views.size(); ++k)
+      for (const cv::Vec3f& p : views[k].cloud_in_rig.points_mm)
+        raw.push_back(Apply(geometry[k].object_from_rig, p));
+    const std::vector<double> raw_d = SurfaceDistances(truth, scene, station, geometry, raw);
+    fig.views_median = Quantile(raw_d, 0.5);
+    fig.views_p95 = Quantile(raw_d, 0.95);
+    fig.views_outlier_pct = OutlierPct(raw_d);
     const std::vector<cv::Vec3f> grid = GridSample(visible, kGridMm);
     fig.truth_visible_grid = grid.size();
     const NearestIndex fused_index(fused);
@@ -416,6 +438,12 @@ class ScanCommand : public BenchCommand {
     return true;
   }
 
+  static double OutlierPct(const std::vector<double>& d) {
+    if (d.empty()) return NAN;
+    const auto n = std::count_if(d.begin(), d.end(), [](double e) { return e > kGateMm; });
+    return 100.0 * static_cast<double>(n) / static_cast<double>(d.size());
+  }
+
   static cv::Vec3d EdgeErrors(const BoxMeasurement& m, const sim::CarvedBoxOptions& box) {
     std::array<double, 3> truth{box.width_mm, box.depth_mm, box.height_mm};
     std::sort(truth.begin(), truth.end(), std::greater<>());  // box axes: extent descending
@@ -480,6 +508,14 @@ class ScanCommand : public BenchCommand {
       std::printf(
           "  fused_to_truth_mm median %.3f p95 %.3f max %.2f  outlier_pct %.2f  (%zu points)\n",
           f->fused_median, f->fused_p95, f->fused_max, f->outlier_pct, f->fused_points);
+      std::printf(
+          "  fused error %% per bin (mm) ≤0.25 %.1f ≤0.5 %.1f ≤1 %.1f ≤2 %.1f ≤5 %.1f ≤20 %.1f >20 "
+          "%.1f\n",
+          f->fused_histogram[0], f->fused_histogram[1], f->fused_histogram[2],
+          f->fused_histogram[3], f->fused_histogram[4], f->fused_histogram[5],
+          f->fused_histogram[6]);
+      std::printf("  views (stereo alone, exact poses): median %.3f p95 %.3f outlier_pct %.2f\n",
+                  f->views_median, f->views_p95, f->views_outlier_pct);
       std::printf("  completeness_pct %.1f  (%zu grid samples of the visible surface)\n",
                   f->completeness_pct, f->truth_visible_grid);
       std::printf("  mesh_to_truth_mm median %.3f p95 %.3f  largest component %.2f %% of %zu\n",
@@ -513,6 +549,15 @@ class ScanCommand : public BenchCommand {
                                    {"p95", Number(f->fused_p95)},
                                    {"max", Number(f->fused_max)}};
       root["outlier_pct"] = Number(f->outlier_pct);
+      nlohmann::ordered_json bins = nlohmann::ordered_json::array();
+      for (std::size_t b = 0; b < f->fused_histogram.size(); ++b)
+        bins.push_back(
+            {{"up_to_mm", b < std::size(kHistogramMm) ? Number(kHistogramMm[b]) : nullptr},
+             {"pct", f->fused_histogram[b]}});
+      root["fused_error_histogram"] = bins;
+      root["views_to_truth_mm"] = {{"median", Number(f->views_median)},
+                                   {"p95", Number(f->views_p95)},
+                                   {"outlier_pct", Number(f->views_outlier_pct)}};
       root["completeness_pct"] = Number(f->completeness_pct);
       root["mesh_to_truth_mm"] = {{"median", Number(f->mesh_median)}, {"p95", Number(f->mesh_p95)}};
       root["mesh_components"] = f->components.count;

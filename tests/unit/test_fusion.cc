@@ -237,6 +237,48 @@ TEST(Fusion, DegenerateInputsFail) {
   EXPECT_CONTAINS(error, "min_points_per_voxel");
 }
 
+TEST(Fusion, SmallDetachedClustersAreDroppedAndTheObjectKept) {
+  // The object: a 40 × 40 mm patch; floaters: a 3 × 3 mm speck 20 mm above
+  // it and a 1 mm sliver 10 mm beside it.
+  PointCloud cloud = NoisyPlane(0.25, 0, 0.02, 1, cv::Vec3b(200, 0, 0), 3);
+  const std::size_t object_points = cloud.size();
+  for (double x = 10; x < 13; x += 0.25)
+    for (double y = 10; y < 13; y += 0.25) {
+      cloud.points_mm.emplace_back(x, y, 0.2 * x + 0.1 * y + 25);
+      cloud.normals.emplace_back(kPlaneNormal);
+      cloud.colors_rgb.emplace_back(0, 200, 0);
+    }
+  for (double y = 0; y < 1; y += 0.25) {
+    cloud.points_mm.emplace_back(50, y, 0.2 * 50 + 0.1 * y + 5);
+    cloud.normals.emplace_back(kPlaneNormal);
+    cloud.colors_rgb.emplace_back(0, 0, 200);
+  }
+  FusionOptions options;
+  options.refine_along_normal = false;
+  FusionStats stats;
+  std::string error;
+  const PointCloud all = FuseClouds({cloud}, options, &error, &stats);
+  ASSERT_FALSE(all.empty()) << error;
+  EXPECT_EQ(stats.clusters, 0u);  // off by default
+  options.min_cluster_fraction = 0.05;
+  const PointCloud kept = FuseClouds({cloud}, options, &error, &stats);
+  ASSERT_FALSE(kept.empty()) << error;
+  EXPECT_EQ(stats.clusters, 3u);
+  EXPECT_EQ(stats.small_cluster_voxels, all.size() - kept.size());
+  EXPECT_GT(stats.small_cluster_voxels, 20u);
+  for (const cv::Vec3f& p : kept.points_mm)
+    ASSERT_LT(std::abs(PlaneDistance(p)), 0.5) << p;  // only the patch is left
+  EXPECT_GT(kept.size(), object_points / 4);          // 4 points per 0.5 mm voxel
+  // Bad values are refused, naming the field.
+  options.min_cluster_fraction = 1.5;
+  EXPECT_TRUE(FuseClouds({cloud}, options, &error).empty());
+  EXPECT_CONTAINS(error, "min_cluster_fraction");
+  options.min_cluster_fraction = 0.05;
+  options.cluster_gap_mm = 0.1;  // below the voxel
+  EXPECT_TRUE(FuseClouds({cloud}, options, &error).empty());
+  EXPECT_CONTAINS(error, "cluster_gap_mm");
+}
+
 // ------------------------------------------------------------------ meshing ----
 
 constexpr double kRadius = 30;
@@ -300,6 +342,37 @@ TEST_F(Mesh, PoissonSphere) {
     const cv::Vec3d radial = cv::normalize(cv::Vec3d(mesh.vertices_mm[v]) - centre);
     ASSERT_GT(radial.dot(cv::Vec3d(mesh.normals[v])), 0.95) << v;
   }
+}
+
+TEST_F(Mesh, SmallComponentsAreRemoved) {
+  // A 30 mm sphere and a 3 mm one beside it: Poisson closes both.
+  const cv::Vec3d centre(0, 0, 100), small_centre(60, 0, 100);
+  PointCloud cloud = Sphere(12000, centre);
+  const PointCloud speck = Sphere(400, cv::Vec3d(0, 0, 0));
+  for (std::size_t i = 0; i < speck.size(); ++i) {
+    cloud.points_mm.emplace_back(cv::Vec3d(small_centre) + cv::Vec3d(speck.points_mm[i]) * 0.1);
+    cloud.normals.push_back(speck.normals[i]);
+    cloud.colors_rgb.push_back(speck.colors_rgb[i]);
+  }
+  const MeshResult both = PoissonMesh(cloud, PoissonOptions{});
+  ASSERT_TRUE(both.IsUsable()) << both.message;
+  EXPECT_EQ(both.components, 2u);
+  EXPECT_EQ(both.removed_components, 0u);
+  PoissonOptions options;
+  options.min_component_fraction = 0.1;
+  const MeshResult one = PoissonMesh(cloud, options);
+  ASSERT_TRUE(one.IsUsable()) << one.message;
+  EXPECT_EQ(one.components, 1u);
+  EXPECT_EQ(one.removed_components, 1u);
+  EXPECT_LT(one.mesh.faces.size(), both.mesh.faces.size());
+  std::string why;
+  ASSERT_TRUE(one.mesh.IsValid(&why)) << why;
+  for (const cv::Vec3f& v : one.mesh.vertices_mm)
+    ASSERT_LT(std::abs(cv::norm(cv::Vec3d(v) - centre) - kRadius), 0.5) << v;
+  options.min_component_fraction = -0.1;
+  const MeshResult bad = PoissonMesh(cloud, options);
+  EXPECT_FALSE(bad.IsUsable());
+  EXPECT_CONTAINS(bad.message, "min_component_fraction");
 }
 
 TEST_F(Mesh, OpenSurfaceIsTrimmed) {

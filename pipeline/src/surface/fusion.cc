@@ -204,6 +204,27 @@ Voxels AverageVoxels(const std::vector<PointCloud>& clouds, const KeyedPoints& p
   return out;
 }
 
+// Keeps the voxels v with keep[v]; returns how many were dropped.
+std::size_t FilterVoxels(const std::vector<char>& keep, Voxels* voxels) {
+  const PointCloud& out = voxels->cloud;
+  Voxels kept;
+  std::size_t dropped = 0;
+  for (std::size_t v = 0; v < voxels->keys.size(); ++v) {
+    if (!keep[v]) {
+      ++dropped;
+      continue;
+    }
+    kept.cloud.points_mm.push_back(out.points_mm[v]);
+    if (out.HasNormals()) kept.cloud.normals.push_back(out.normals[v]);
+    if (out.HasColors()) kept.cloud.colors_rgb.push_back(out.colors_rgb[v]);
+    kept.keys.push_back(voxels->keys[v]);
+    kept.sums.push_back(voxels->sums[v]);
+    kept.views.push_back(voxels->views[v]);
+  }
+  *voxels = std::move(kept);
+  return dropped;
+}
+
 // Drops voxels seen by fewer than min_views clouds within view_support_mm.
 void KeepMultiViewVoxels(const FusionOptions& options, Voxels* voxels, FusionStats* s) {
   const std::vector<std::uint64_t>& keys = voxels->keys;
@@ -225,21 +246,61 @@ void KeepMultiViewVoxels(const FusionOptions& options, Voxels* voxels, FusionSta
         }
     keep[v] = std::popcount(views) >= options.min_views;
   }
-  const PointCloud& out = voxels->cloud;
-  Voxels kept;
-  for (std::size_t v = 0; v < keys.size(); ++v) {
-    if (!keep[v]) {
-      ++s->single_view_voxels;
-      continue;
+  s->single_view_voxels += FilterVoxels(keep, voxels);
+  s->output_points = voxels->cloud.size();
+}
+
+// Keeps the voxels whose cluster (cells of cluster_gap_mm joined by the
+// 26-neighbourhood, union-find) holds at least min_cluster_fraction × the
+// largest cluster's voxels.
+void KeepLargeClusters(const FusionOptions& options, Voxels* voxels, FusionStats* s) {
+  const std::vector<std::uint64_t>& keys = voxels->keys;
+  const double ratio = options.voxel_mm / options.cluster_gap_mm;
+  const auto cell_of = [ratio](std::uint64_t key) {
+    std::uint64_t cell = 0;
+    for (int shift : {42, 21, 0}) {
+      const auto i = static_cast<std::int64_t>((key >> shift) & kMask) - kHalfRange;
+      const auto c = static_cast<std::int64_t>(std::floor(static_cast<double>(i) * ratio));
+      cell = (cell << 21) | static_cast<std::uint64_t>(c + kHalfRange);
     }
-    kept.cloud.points_mm.push_back(out.points_mm[v]);
-    if (out.HasNormals()) kept.cloud.normals.push_back(out.normals[v]);
-    if (out.HasColors()) kept.cloud.colors_rgb.push_back(out.colors_rgb[v]);
-    kept.keys.push_back(keys[v]);
-    kept.sums.push_back(voxels->sums[v]);
-    kept.views.push_back(voxels->views[v]);
+    return cell;
+  };
+  std::unordered_map<std::uint64_t, std::size_t> cells;  // cell key → cell index
+  std::vector<std::size_t> cell_of_voxel(keys.size());
+  std::vector<std::uint64_t> cell_keys;
+  for (std::size_t v = 0; v < keys.size(); ++v) {
+    const std::uint64_t c = cell_of(keys[v]);
+    const auto [it, added] = cells.emplace(c, cell_keys.size());
+    if (added) cell_keys.push_back(c);
+    cell_of_voxel[v] = it->second;
   }
-  *voxels = std::move(kept);
+  std::vector<std::size_t> parent(cell_keys.size());
+  for (std::size_t c = 0; c < parent.size(); ++c) parent[c] = c;
+  const auto find = [&](std::size_t c) {
+    while (parent[c] != c) c = parent[c] = parent[parent[c]];
+    return c;
+  };
+  for (std::size_t c = 0; c < cell_keys.size(); ++c)
+    for (std::int64_t dx = -1; dx <= 1; ++dx)
+      for (std::int64_t dy = -1; dy <= 1; ++dy)
+        for (std::int64_t dz = -1; dz <= 1; ++dz) {
+          std::uint64_t neighbour = 0;
+          if (!NeighbourKey(cell_keys[c], dx, dy, dz, &neighbour)) continue;
+          const auto it = cells.find(neighbour);
+          if (it != cells.end()) parent[find(it->second)] = find(c);
+        }
+  std::vector<std::size_t> size(cell_keys.size(), 0);
+  for (std::size_t v = 0; v < keys.size(); ++v) ++size[find(cell_of_voxel[v])];
+  std::size_t largest = 0;
+  for (std::size_t c = 0; c < size.size(); ++c) {
+    if (size[c] > 0) ++s->clusters;
+    largest = std::max(largest, size[c]);
+  }
+  const double min_size = options.min_cluster_fraction * static_cast<double>(largest);
+  std::vector<char> keep(keys.size());
+  for (std::size_t v = 0; v < keys.size(); ++v)
+    keep[v] = static_cast<double>(size[find(cell_of_voxel[v])]) >= min_size;
+  s->small_cluster_voxels += FilterVoxels(keep, voxels);
   s->output_points = voxels->cloud.size();
 }
 
@@ -284,6 +345,10 @@ bool FusionOptions::IsValid(std::string* why) const {
     return Fail(why, "FusionOptions.view_support_mm must be > 0");
   if (!(min_normal_agreement >= 0 && min_normal_agreement <= 1))
     return Fail(why, "FusionOptions.min_normal_agreement must be within 0..1");
+  if (!(min_cluster_fraction >= 0 && min_cluster_fraction <= 1))
+    return Fail(why, "FusionOptions.min_cluster_fraction must be within 0..1");
+  if (!(cluster_gap_mm >= voxel_mm) || !std::isfinite(cluster_gap_mm))
+    return Fail(why, "FusionOptions.cluster_gap_mm must be finite and >= voxel_mm");
   return true;
 }
 
@@ -318,6 +383,7 @@ PointCloud FuseClouds(const std::vector<PointCloud>& clouds, const FusionOptions
         return {};
       }
     }
+    if (options.min_cluster_fraction > 0) KeepLargeClusters(options, &voxels, &s);
     if (options.refine_along_normal && voxels.cloud.HasNormals()) RefineAlongNormals(&voxels);
     return std::move(voxels.cloud);
   } catch (const std::exception& e) {  // std::bad_alloc: never throws, as documented

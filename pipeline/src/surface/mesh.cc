@@ -52,6 +52,8 @@ bool PoissonOptions::IsValid(std::string* why) const {
     return Fail(why, "PoissonOptions.trim_density_quantile must be within [0, 1)");
   if (!(support_radius_mm >= 0 && std::isfinite(support_radius_mm)))
     return Fail(why, "PoissonOptions.support_radius_mm must be finite and >= 0");
+  if (!(min_component_fraction >= 0 && min_component_fraction <= 1))
+    return Fail(why, "PoissonOptions.min_component_fraction must be within [0, 1]");
   if (num_threads < 1) return Fail(why, "PoissonOptions.num_threads must be >= 1");
   return true;
 }
@@ -122,6 +124,69 @@ double EstimateSupportRadius(const pcl::KdTreeFLANN<pcl::PointXYZ>& tree,
   return 2.5 * std::max(1e-6f, spacing[spacing.size() / 2]);
 }
 
+// Drops the vertices no face uses (before normals and colours exist);
+// returns how many.
+std::size_t DropUnusedVertices(TriangleMesh* mesh) {
+  std::vector<int> used(mesh->vertices_mm.size(), -1);
+  std::vector<cv::Vec3f> kept;
+  for (cv::Vec3i& f : mesh->faces)
+    for (int k = 0; k < 3; ++k) {
+      int& u = used[static_cast<std::size_t>(f[k])];
+      if (u < 0) {
+        u = static_cast<int>(kept.size());
+        kept.push_back(mesh->vertices_mm[static_cast<std::size_t>(f[k])]);
+      }
+      f[k] = u;
+    }
+  const std::size_t dropped = mesh->vertices_mm.size() - kept.size();
+  mesh->vertices_mm.swap(kept);
+  return dropped;
+}
+
+// The component (union-find root) of each face; faces sharing a vertex are
+// connected.
+std::vector<int> FaceComponents(const TriangleMesh& mesh) {
+  std::vector<int> parent(mesh.vertices_mm.size());
+  for (std::size_t v = 0; v < parent.size(); ++v) parent[v] = static_cast<int>(v);
+  const auto find = [&](int v) {
+    while (parent[static_cast<std::size_t>(v)] != v)
+      v = parent[static_cast<std::size_t>(v)] =
+          parent[static_cast<std::size_t>(parent[static_cast<std::size_t>(v)])];
+    return v;
+  };
+  for (const cv::Vec3i& f : mesh.faces) {
+    parent[static_cast<std::size_t>(find(f[1]))] = find(f[0]);
+    parent[static_cast<std::size_t>(find(f[2]))] = find(f[0]);
+  }
+  std::vector<int> component(mesh.faces.size());
+  for (std::size_t f = 0; f < mesh.faces.size(); ++f) component[f] = find(mesh.faces[f][0]);
+  return component;
+}
+
+// Removes the components with fewer faces than `fraction` × the largest
+// one's (then the unused vertices); counts what is left and what went.
+void DropSmallComponents(double fraction, MeshResult* r) {
+  TriangleMesh& mesh = r->mesh;
+  const std::vector<int> component = FaceComponents(mesh);
+  std::vector<std::size_t> faces_in(mesh.vertices_mm.size(), 0);
+  for (int c : component) ++faces_in[static_cast<std::size_t>(c)];
+  const std::size_t largest = *std::max_element(faces_in.begin(), faces_in.end());
+  const double min_faces = fraction * static_cast<double>(largest);
+  std::vector<cv::Vec3i> kept;
+  for (std::size_t f = 0; f < mesh.faces.size(); ++f)
+    if (static_cast<double>(faces_in[static_cast<std::size_t>(component[f])]) >= min_faces)
+      kept.push_back(mesh.faces[f]);
+  for (std::size_t n : faces_in) {
+    if (n == 0) continue;
+    if (static_cast<double>(n) >= min_faces)
+      ++r->components;
+    else
+      ++r->removed_components;
+  }
+  mesh.faces.swap(kept);
+  r->trimmed_vertices += DropUnusedVertices(&mesh);
+}
+
 // Density trimming: keeps the vertices with at least the quantile's number
 // of input points within the radius (and at least one), the faces whose
 // three vertices are kept, and then only the vertices a face uses. Fills
@@ -169,20 +234,7 @@ void TrimBySupport(const pcl::PointCloud<pcl::PointNormal>& vertices,
     if (keep && face[0] != face[1] && face[1] != face[2] && face[0] != face[2])
       mesh.faces.push_back(face);
   }
-  // Drop vertices no face uses any more.
-  std::vector<int> used(mesh.vertices_mm.size(), -1);
-  std::vector<cv::Vec3f> kept;
-  for (cv::Vec3i& f : mesh.faces)
-    for (int k = 0; k < 3; ++k) {
-      int& u = used[static_cast<std::size_t>(f[k])];
-      if (u < 0) {
-        u = static_cast<int>(kept.size());
-        kept.push_back(mesh.vertices_mm[static_cast<std::size_t>(f[k])]);
-      }
-      f[k] = u;
-    }
-  r->trimmed_vertices += mesh.vertices_mm.size() - kept.size();
-  mesh.vertices_mm.swap(kept);
+  r->trimmed_vertices += DropUnusedVertices(&mesh);
 }
 
 // Turns the faces to agree with the input normals (outwards, by a vote over
@@ -287,6 +339,7 @@ MeshResult PoissonMesh(const PointCloud& cloud, const PoissonOptions& options) {
       r.mesh = TriangleMesh{};  // a failed result holds no mesh
       return Failed(r, kFailed, std::string(kWhere) + "density trimming removed every triangle");
     }
+    DropSmallComponents(options.min_component_fraction, &r);
     OrientAndShade(tree, *input.oriented, &r.mesh);
     if (options.colors && cloud.HasColors())
       ColorFromCloud(tree, cloud, input.source_index, &r.mesh);

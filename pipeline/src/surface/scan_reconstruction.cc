@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <cstdio>
 #include <exception>
 
 #include <nlohmann/json.hpp>
@@ -42,6 +43,48 @@ std::vector<cv::Vec3d> BoxCorners(const PointCloud& cloud) {
   for (int m = 0; m < 8; ++m)
     corners.emplace_back(m & 1 ? hi[0] : lo[0], m & 2 ? hi[1] : lo[1], m & 4 ? hi[2] : lo[2]);
   return corners;
+}
+
+// A usable registration made from a turntable prior that strays from it
+// beyond the options' limits becomes a refused one, saying why.
+void RefuseStraying(const RegistrationOptions& pair, const PointCloud& source,
+                    const ScanOptions& options, RegistrationResult* r);
+
+// How far `registered` moves the points of `cloud` from where `prior` puts
+// them: the rotation between the two (degrees) and the largest displacement
+// of the cloud's bounding-box corners (mm). Refuses a registration that
+// strays beyond the limits ("" when within them).
+std::string PriorDeviation(const cv::Matx44d& registered, const cv::Matx44d& prior,
+                           const PointCloud& cloud, const ScanOptions& options) {
+  const cv::Matx44d delta = InvertRigid(prior) * registered;
+  const cv::Matx33d R = delta.get_minor<3, 3>(0, 0);
+  const double cos_angle = std::clamp((cv::trace(R) - 1) / 2, -1.0, 1.0);
+  const double angle_deg = std::acos(cos_angle) * 180 / M_PI;
+  double shift_mm = 0;
+  for (const cv::Vec3d& c : BoxCorners(cloud)) {
+    const cv::Vec4d a = registered * cv::Vec4d(c[0], c[1], c[2], 1);
+    const cv::Vec4d b = prior * cv::Vec4d(c[0], c[1], c[2], 1);
+    shift_mm = std::max(shift_mm, cv::norm(cv::Vec3d(a[0] - b[0], a[1] - b[1], a[2] - b[2])));
+  }
+  if (angle_deg <= options.max_prior_deviation_deg && shift_mm <= options.max_prior_deviation_mm)
+    return {};
+  char text[200];
+  std::snprintf(text, sizeof(text),
+                "it strays %.2f° and up to %.2f mm from the calibrated turntable motion (limits "
+                "%.2f°, %.2f mm: a symmetric or featureless surface let it slide)",
+                angle_deg, shift_mm, options.max_prior_deviation_deg,
+                options.max_prior_deviation_mm);
+  return text;
+}
+
+void RefuseStraying(const RegistrationOptions& pair, const PointCloud& source,
+                    const ScanOptions& options, RegistrationResult* r) {
+  if (!r->IsUsable() || !pair.coarse.prior_target_from_source) return;
+  const std::string why =
+      PriorDeviation(r->target_from_source, *pair.coarse.prior_target_from_source, source, options);
+  if (why.empty()) return;
+  r->status = RegistrationResult::Status::kFailed;
+  r->message = why;
 }
 
 ScanResult ReconstructImpl(const std::vector<ScanView>& views, const TurntableAxis& axis,
@@ -99,6 +142,7 @@ ScanResult ReconstructImpl(const std::vector<ScanView>& views, const TurntableAx
                              -Wrap(from_angle - to_angle));
   };
   result.pairwise.resize(n);
+  result.turntable_pose.assign(n, false);
   result.view0_from_view.assign(n, cv::Matx44d::eye());
   for (int k = 1; k < n; ++k) {
     RegistrationOptions pair = reg;
@@ -106,14 +150,20 @@ ScanResult ReconstructImpl(const std::vector<ScanView>& views, const TurntableAx
       pair.coarse.prior_target_from_source =
           prior(views[k].commanded_angle_rad, views[k - 1].commanded_angle_rad);
     result.pairwise[k] = RegisterPair(result.views[k], result.views[k - 1], pair);
+    RefuseStraying(pair, result.views[k].fine, options, &result.pairwise[k]);
+    cv::Matx44d previous_from_view = result.pairwise[k].target_from_source;
     if (!result.pairwise[k].IsUsable()) {
-      result.message = "registration of view " + std::to_string(k) + " onto view " +
-                       std::to_string(k - 1) + " failed: " + result.pairwise[k].message;
-      result.register_ms = MsSince(start);
-      return result;
+      if (!have_axis) {
+        result.message = "registration of view " + std::to_string(k) + " onto view " +
+                         std::to_string(k - 1) + " failed: " + result.pairwise[k].message;
+        result.register_ms = MsSince(start);
+        return result;
+      }
+      // The turntable is calibrated: the view keeps the motion it commanded.
+      result.turntable_pose[k] = true;
+      previous_from_view = *pair.coarse.prior_target_from_source;
     }
-    result.view0_from_view[k] =
-        result.view0_from_view[k - 1] * result.pairwise[k].target_from_source;
+    result.view0_from_view[k] = result.view0_from_view[k - 1] * previous_from_view;
   }
   // A full turn: the first view overlaps the last.
   double span = 0;
@@ -127,6 +177,7 @@ ScanResult ReconstructImpl(const std::vector<ScanView>& views, const TurntableAx
       pair.coarse.prior_target_from_source =
           prior(views[0].commanded_angle_rad, views[n - 1].commanded_angle_rad);
     result.closing = RegisterPair(result.views[0], result.views[n - 1], pair);
+    RefuseStraying(pair, result.views[0].fine, options, &*result.closing);
   }
   result.register_ms = MsSince(start);
 
@@ -134,8 +185,13 @@ ScanResult ReconstructImpl(const std::vector<ScanView>& views, const TurntableAx
   start = Clock::now();
   if (result.closing && result.closing->IsUsable()) {
     std::vector<PoseEdge> edges;
-    for (int k = 1; k < n; ++k)
-      edges.push_back({k, k - 1, result.pairwise[k].target_from_source, 1.0});
+    for (int k = 1; k < n; ++k) {
+      edges.push_back({k, k - 1,
+                       result.turntable_pose[k]
+                           ? prior(views[k].commanded_angle_rad, views[k - 1].commanded_angle_rad)
+                           : result.pairwise[k].target_from_source,
+                       1.0});
+    }
     edges.push_back({0, n - 1, result.closing->target_from_source, 1.0});
     result.loop =
         CloseLoop(n, edges, result.view0_from_view, BoxCorners(result.views[0].fine), options.loop);
@@ -202,6 +258,12 @@ ScanResult ReconstructImpl(const std::vector<ScanView>& views, const TurntableAx
     else
       notes = std::string("loop closed (") + ToString(result.loop->model) + ")";
   }
+  for (int k = 1; k < n; ++k) {
+    if (!result.turntable_pose[k]) continue;
+    notes += (notes.empty() ? "" : "; ") + std::string("view ") + std::to_string(k) +
+             " kept its calibrated turntable pose (registration onto view " +
+             std::to_string(k - 1) + " refused: " + result.pairwise[k].message + ")";
+  }
   if (options.mesh && !result.mesh.IsUsable())
     notes += (notes.empty() ? "" : "; ") + std::string("mesh failed: ") + result.mesh.message;
   if (result.box_measurement && !result.box_measurement->IsUsable())
@@ -258,6 +320,9 @@ std::string ScanReportJson(const ScanResult& result) {
       if (!v.ok()) view["error"] = v.error;
       if (k >= 1 && k < result.pairwise.size())
         view["registration_to_previous"] = RegistrationJson(result.pairwise[k]);
+      if (k < result.turntable_pose.size())
+        view["pose"] =
+            result.turntable_pose[k] ? "turntable" : (k == 0 ? "reference" : "registered");
       if (k < result.view0_from_view.size())
         view["view0_from_view"] = PoseJson(result.view0_from_view[k]);
       j["views"].push_back(view);
@@ -332,6 +397,8 @@ bool ScanOptions::IsValid(std::string* why) const {
   std::string sub;
   if (!volume.IsValid(&sub)) return Fail(why, "volume." + sub);
   if (num_threads < 1) return Fail(why, "num_threads must be ≥ 1");
+  if (!(max_prior_deviation_deg > 0) || !(max_prior_deviation_mm > 0))
+    return Fail(why, "max_prior_deviation_deg and max_prior_deviation_mm must be > 0");
   if (!conditioning.IsValid(&sub)) return Fail(why, "conditioning: " + sub);
   if (!registration.IsValid(&sub)) return Fail(why, "registration: " + sub);
   if (!loop.IsValid(&sub)) return Fail(why, "loop: " + sub);

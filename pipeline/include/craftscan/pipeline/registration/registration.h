@@ -35,8 +35,13 @@ struct VolumeCrop {
   // Platter removal beyond the crop: points below platter_band_mm whose
   // normal is within platter_normal_deg of the axis (level surface just
   // above the platter: the platter lifted by matching errors) are dropped.
-  // A band at or below min_height_mm disables it.
-  double platter_band_mm = 6;
+  // A band at or below min_height_mm disables it, as by default: a flat
+  // object (an embroidery, a print) is exactly such a level surface, and the
+  // height cut with the fusion's multi-view and cluster filters already
+  // remove the platter (craftscan-bench scan at 640x512: with a 6 mm band
+  // the embroidery kept 38 % of its surface, without it 94 %; the box and
+  // the egg did not change).
+  double platter_band_mm = 0;
   double platter_normal_deg = 30;
 
   bool IsValid(std::string* why) const;

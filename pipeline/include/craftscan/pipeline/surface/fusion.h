@@ -44,6 +44,14 @@ struct FusionOptions {
   // the 64th. ≥ 1; view_support_mm > 0.
   int min_views = 1;
   double view_support_mm = 1.0;
+  // Floaters: the kept voxels fall into clusters (cells of cluster_gap_mm
+  // that touch, 26-neighbourhood, are one cluster: parts farther apart than
+  // about one to two cells are separate). A cluster with fewer voxels than
+  // min_cluster_fraction × the largest one's is dropped: a turntable holds
+  // one object, while stereo leaves detached specks and sheets around it.
+  // 0 = off; 0..1; cluster_gap_mm > 0.
+  double min_cluster_fraction = 0;
+  double cluster_gap_mm = 2.0;
 
   // False with a reason naming the field (why may be null).
   bool IsValid(std::string* why) const;
@@ -51,13 +59,15 @@ struct FusionOptions {
 
 // Figures of one fusion (optional output of FuseClouds).
 struct FusionStats {
-  std::size_t input_points = 0;         // over all clouds
-  std::size_t nonfinite_points = 0;     // dropped: NaN/inf coordinates
-  std::size_t out_of_range_points = 0;  // dropped: beyond ±2^20 voxels from the origin
-  std::size_t sparse_voxel_points = 0;  // dropped: in voxels below min_points_per_voxel
-  std::size_t single_view_voxels = 0;   // dropped: supported by fewer than min_views clouds
-  std::size_t output_points = 0;        // = occupied voxels kept
-  double mean_points_per_voxel = 0;     // over the kept voxels
+  std::size_t input_points = 0;          // over all clouds
+  std::size_t nonfinite_points = 0;      // dropped: NaN/inf coordinates
+  std::size_t out_of_range_points = 0;   // dropped: beyond ±2^20 voxels from the origin
+  std::size_t sparse_voxel_points = 0;   // dropped: in voxels below min_points_per_voxel
+  std::size_t single_view_voxels = 0;    // dropped: supported by fewer than min_views clouds
+  std::size_t small_cluster_voxels = 0;  // dropped: in clusters below min_cluster_fraction
+  std::size_t clusters = 0;              // clusters before that (0: not computed)
+  std::size_t output_points = 0;         // = occupied voxels kept
+  double mean_points_per_voxel = 0;      // over the kept voxels
 };
 
 // Merges clouds that are already in one common frame. Each occupied voxel

@@ -34,6 +34,11 @@ struct PoissonOptions {
   // (0 disables the quantile; e.g. 0.02 also removes thinly supported fringes).
   double trim_density_quantile = 0.0;  // 0 ≤ q < 1
   double support_radius_mm = 0;        // ≥ 0
+  // After trimming, connected components (faces sharing a vertex) with fewer
+  // faces than this fraction of the largest component's are removed: the
+  // fragments trimming leaves of invented surface and of floaters. 0 keeps
+  // every component; 0..1.
+  double min_component_fraction = 0;
   // Vertex colours from the nearest input point when the input has colours.
   bool colors = true;
   int num_threads = 1;  // ≥ 1, Poisson's solver threads
@@ -50,10 +55,12 @@ struct MeshResult {
   std::size_t input_points = 0;  // finite points with finite normals used
   std::size_t raw_vertices = 0;  // Poisson output, before trimming
   std::size_t raw_faces = 0;
-  std::size_t trimmed_vertices = 0;  // removed by density trimming
-  double support_radius_mm = 0;      // the radius used
-  double support_threshold = 0;      // vertices with support below this were removed
-  double seconds = 0;                // wall time
+  std::size_t trimmed_vertices = 0;    // removed by density trimming
+  std::size_t removed_components = 0;  // small components removed (min_component_fraction)
+  std::size_t components = 0;          // connected components of the final mesh
+  double support_radius_mm = 0;        // the radius used
+  double support_threshold = 0;        // vertices with support below this were removed
+  double seconds = 0;                  // wall time
 
   bool IsUsable() const { return status == Status::kOk; }
 };

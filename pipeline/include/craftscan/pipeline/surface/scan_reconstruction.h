@@ -42,16 +42,32 @@ struct ScanOptions {
   // Loop closure runs when the views cover a full turn (the commanded angles
   // span ≥ 360° − one step, i.e. the last view overlaps the first).
   LoopClosureOptions loop;
+  // With a calibrated turntable the motion between views is known to a
+  // fraction of a degree (calibrate-turntable's verdict: 0.2°, 0.5 mm); a
+  // registration that moves the view farther from it than this (rotation,
+  // or displacement of the view's bounding-box corners) slid along a
+  // symmetry (a vase, an egg) or a featureless surface and is refused: the
+  // view keeps the turntable motion (ScanResult::turntable_pose).
+  double max_prior_deviation_deg = 2.0;
+  double max_prior_deviation_mm = 3.0;
   bool close_loop = true;
   // Fusion; by default a voxel needs support from 2 views (floaters from
   // stereo mismatches are view-specific, see FusionOptions::min_views).
+  // Clusters under 5 % of the object's size are dropped as floaters
+  // (FusionOptions::min_cluster_fraction).
   FusionOptions fusion = [] {
     FusionOptions f;
     f.min_views = 2;
+    f.min_cluster_fraction = 0.05;
     return f;
   }();
   bool mesh = true;
-  PoissonOptions poisson;
+  // Mesh fragments under 5 % of the largest component are removed.
+  PoissonOptions poisson = [] {
+    PoissonOptions p;
+    p.min_component_fraction = 0.05;
+    return p;
+  }();
   // Measurement: the oriented box always; the box faces when `measure_box`.
   bool measure_box = false;
   BoxMeasureOptions box;
@@ -70,6 +86,10 @@ struct ScanResult {
   std::optional<RegistrationResult> closing;  // view 0 → last view, for a full turn
   std::optional<LoopClosureResult> loop;
   std::vector<cv::Matx44d> view0_from_view;  // final poses
+  // [k]: view k's registration onto view k − 1 was refused and, the
+  // turntable being calibrated, the view kept the commanded turntable motion
+  // (said in `message` and the report; the loop closure uses that motion).
+  std::vector<bool> turntable_pose;
   std::optional<cv::Matx44d> turntable_from_view0;
 
   PointCloud fused;  // in the turntable frame when known, else view 0's
@@ -87,7 +107,9 @@ struct ScanResult {
 // then there is no working-volume crop (the clouds must be cropped already),
 // no prior and no turntable frame. Fails with a reason when fewer than 2
 // views, a view conditions to nothing, or a registration fails (the result
-// keeps everything done up to there). Never throws.
+// keeps everything done up to there); with a valid axis a refused
+// registration is not a failure: the view keeps its turntable pose. Never
+// throws.
 ScanResult ReconstructScan(const std::vector<ScanView>& views, const TurntableAxis& axis,
                            const ScanOptions& options);
 

@@ -1,0 +1,170 @@
+// ReconstructScan's handling of refused registrations with a calibrated
+// turntable, on synthetic views: the open surface of a 40 × 30 × 20 mm box
+// (its five visible faces, a 0.5 mm grid) turned about a known axis 400 mm in
+// front of the rig, one cloud per commanded angle.
+//   - a view replaced by an unrelated surface: its registrations are refused
+//     and it keeps the turntable motion, said in the message and the report;
+//   - registrations that stray from the commanded motion beyond
+//     max_prior_deviation_deg/_mm are refused and the views keep it.
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <numbers>
+#include <random>
+#include <string>
+#include <vector>
+
+#include <opencv2/core.hpp>
+
+#include "craftscan/pipeline/common/pose.h"
+#include "craftscan/pipeline/registration/registration.h"
+#include "craftscan/pipeline/surface/scan_reconstruction.h"
+
+namespace craftscan {
+namespace {
+
+constexpr int kViews = 6;
+constexpr double kStepRad = std::numbers::pi / 3;
+const cv::Vec3d kAxisDirection(0, -1, 0);  // up in the rig frame (y down)
+const cv::Vec3d kAxisPoint(0, 0, 400);     // on the platter, 400 mm in front of the rig
+
+TurntableAxis Axis() {
+  TurntableAxis axis;
+  axis.valid = true;
+  axis.direction_in_rig = kAxisDirection;
+  axis.point_in_rig_mm = kAxisPoint;
+  return axis;
+}
+
+cv::Vec3f Apply(const cv::Matx44d& T, const cv::Vec3d& p) {
+  const cv::Vec4d q = T * cv::Vec4d(p[0], p[1], p[2], 1);
+  return {static_cast<float>(q[0]), static_cast<float>(q[1]), static_cast<float>(q[2])};
+}
+
+// The box in the turntable frame (z up, base on the platter at z = 0) with
+// 0.05 mm noise, in the rig frame after the table turned by `angle`.
+PointCloud BoxView(double angle, unsigned seed) {
+  std::mt19937 rng(seed);
+  std::normal_distribution<double> noise(0, 0.05);
+  const cv::Matx44d rig_from_turntable = InvertRigid(TurntableFromRig(Axis()));
+  const cv::Matx44d turned = RotationAboutAxis(kAxisDirection, kAxisPoint, angle);
+  PointCloud cloud;
+  const double w = 40, d = 30, h = 20, s = 0.5;
+  auto add = [&](double x, double y, double z) {
+    cloud.points_mm.push_back(
+        Apply(turned * rig_from_turntable, {x + noise(rng), y + noise(rng), z + noise(rng)}));
+  };
+  for (double x = -w / 2; x <= w / 2; x += s)
+    for (double y = -d / 2; y <= d / 2; y += s) add(x, y, h);
+  for (double z = 0; z <= h; z += s) {
+    for (double x = -w / 2; x <= w / 2; x += s) {
+      add(x, -d / 2, z);
+      add(x, d / 2, z);
+    }
+    for (double y = -d / 2; y <= d / 2; y += s) {
+      add(-w / 2, y, z);
+      add(w / 2, y, z);
+    }
+  }
+  // A step on the top, so that no turn maps the box onto itself.
+  for (double x = 5; x <= 15; x += s)
+    for (double y = -10; y <= 0; y += s) add(x, y, h + 6);
+  return cloud;
+}
+
+// A sphere of radius 15 mm beside the axis: nothing like the box.
+PointCloud UnrelatedView() {
+  PointCloud cloud;
+  const cv::Matx44d rig_from_turntable = InvertRigid(TurntableFromRig(Axis()));
+  for (int i = 0; i < 4000; ++i) {
+    const double z = 1 - 2 * (i + 0.5) / 4000, r = std::sqrt(1 - z * z);
+    const double a = std::numbers::pi * (3 - std::sqrt(5.0)) * i;
+    cloud.points_mm.push_back(
+        Apply(rig_from_turntable, {60 + 15 * r * std::cos(a), 15 * r * std::sin(a), 20 + 15 * z}));
+  }
+  return cloud;
+}
+
+std::vector<ScanView> Views(double true_step_rad) {
+  std::vector<ScanView> views;
+  for (int k = 0; k < kViews; ++k) {
+    ScanView v;
+    v.cloud_in_rig = BoxView(k * true_step_rad, 10 + k);
+    v.commanded_angle_rad = k * kStepRad;
+    views.push_back(std::move(v));
+  }
+  return views;
+}
+
+ScanOptions Options() {
+  ScanOptions options;
+  options.mesh = false;
+  options.num_threads = 2;
+  return options;
+}
+
+// Rotation (degrees) between view0_from_view and the turntable motion back
+// by `angle`.
+double PoseErrorDeg(const cv::Matx44d& view0_from_view, double angle) {
+  const cv::Matx44d expected = RotationAboutAxis(kAxisDirection, kAxisPoint, -angle);
+  const cv::Matx44d delta = InvertRigid(expected) * view0_from_view;
+  const double c = (delta(0, 0) + delta(1, 1) + delta(2, 2) - 1) / 2;
+  return std::acos(std::clamp(c, -1.0, 1.0)) * 180 / std::numbers::pi;
+}
+
+TEST(ScanReconstruction, ARefusedRegistrationKeepsTheTurntablePose) {
+  std::vector<ScanView> views = Views(kStepRad);
+  views[3].cloud_in_rig = UnrelatedView();
+  const ScanResult r = ReconstructScan(views, Axis(), Options());
+  ASSERT_TRUE(r.IsUsable()) << r.message;
+  ASSERT_EQ(r.turntable_pose.size(), static_cast<std::size_t>(kViews));
+  // View 3 onto 2 and view 4 onto 3 involve the sphere: both refused.
+  for (int k = 1; k < kViews; ++k) {
+    const bool involves_sphere = k == 3 || k == 4;
+    EXPECT_EQ(r.turntable_pose[k], involves_sphere) << "view " << k;
+    EXPECT_EQ(r.pairwise[k].IsUsable(), !involves_sphere) << "view " << k;
+    EXPECT_LT(PoseErrorDeg(r.view0_from_view[k], k * kStepRad), 0.2) << "view " << k;
+  }
+  EXPECT_NE(r.message.find("view 3 kept its calibrated turntable pose"), std::string::npos)
+      << r.message;
+  const std::string report = ScanReportJson(r);
+  EXPECT_NE(report.find("\"pose\": \"turntable\""), std::string::npos);
+  EXPECT_NE(report.find("\"pose\": \"registered\""), std::string::npos);
+  EXPECT_FALSE(r.fused.empty());
+}
+
+TEST(ScanReconstruction, RegistrationsStrayingBeyondTheLimitAreRefused) {
+  ScanOptions options = Options();
+  options.close_loop = false;  // the pairs alone
+  // Within the default limits (2°, 3 mm) the registrations are kept.
+  const ScanResult kept = ReconstructScan(Views(kStepRad), Axis(), options);
+  ASSERT_TRUE(kept.IsUsable()) << kept.message;
+  for (int k = 1; k < kViews; ++k) {
+    EXPECT_FALSE(kept.turntable_pose[k]) << "view " << k;
+    EXPECT_LT(PoseErrorDeg(kept.view0_from_view[k], k * kStepRad), 0.1) << "view " << k;
+  }
+  // Limits tighter than what the noise makes ICP move: every registration
+  // strays, is refused, and its view keeps the commanded motion exactly.
+  options.max_prior_deviation_deg = 1e-5;
+  options.max_prior_deviation_mm = 1e-5;
+  const ScanResult refused = ReconstructScan(Views(kStepRad), Axis(), options);
+  ASSERT_TRUE(refused.IsUsable()) << refused.message;
+  for (int k = 1; k < kViews; ++k) {
+    EXPECT_TRUE(refused.turntable_pose[k]) << "view " << k;
+    EXPECT_NE(refused.pairwise[k].message.find("from the calibrated turntable motion"),
+              std::string::npos)
+        << refused.pairwise[k].message;
+    EXPECT_LT(PoseErrorDeg(refused.view0_from_view[k], k * kStepRad), 1e-6) << "view " << k;
+  }
+}
+
+TEST(ScanReconstruction, PriorDeviationLimitsAreValidated) {
+  ScanOptions options = Options();
+  options.max_prior_deviation_mm = 0;
+  const ScanResult r = ReconstructScan(Views(kStepRad), Axis(), options);
+  EXPECT_FALSE(r.IsUsable());
+  EXPECT_NE(r.message.find("max_prior_deviation"), std::string::npos) << r.message;
+}
+
+}  // namespace
+}  // namespace craftscan

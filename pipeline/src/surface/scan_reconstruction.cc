@@ -87,6 +87,74 @@ void RefuseStraying(const RegistrationOptions& pair, const PointCloud& source,
   r->message = why;
 }
 
+// The oriented box of the fused cloud and, when asked, the box faces (on
+// the platter's plane with a turntable frame). Returns the oriented box's
+// error, empty on success (a failed box measurement is a note, not an error).
+std::string Measure(const ScanOptions& options, bool have_axis, ScanResult* result) {
+  std::string box_error;
+  if (!ComputeOrientedBox(result->fused, &result->box, &box_error)) return box_error;
+  if (options.measure_box) {
+    BoxMeasureOptions box = options.box;
+    if (have_axis && !box.base_plane) {
+      Plane platter;  // z = 0 in the turntable frame
+      platter.normal = cv::Vec3d(0, 0, 1);
+      platter.offset_mm = 0;
+      platter.given = true;
+      box.base_plane = platter;
+    }
+    result->box_measurement = MeasureBox(result->fused, box);
+  }
+  return {};
+}
+
+// What a finished scan says beside its figures: the loop closure, the views
+// that kept their turntable pose, a mesh or box measurement that failed.
+std::string ScanNotes(const ScanResult& result, bool closed_loop, bool meshed) {
+  std::string notes;
+  if (closed_loop) {
+    if (!result.closing->IsUsable())
+      notes = "loop not closed: " + result.closing->message;
+    else if (!result.loop->IsUsable())
+      notes = "loop closure failed: " + result.loop->message;
+    else
+      notes = std::string("loop closed (") + ToString(result.loop->model) + ")";
+  }
+  for (std::size_t k = 1; k < result.turntable_pose.size(); ++k) {
+    if (!result.turntable_pose[k]) continue;
+    notes += (notes.empty() ? "" : "; ") + std::string("view ") + std::to_string(k) +
+             " kept its calibrated turntable pose (registration onto view " +
+             std::to_string(k - 1) + " refused: " + result.pairwise[k].message + ")";
+  }
+  if (meshed && !result.mesh.IsUsable())
+    notes += (notes.empty() ? "" : "; ") + std::string("mesh failed: ") + result.mesh.message;
+  if (result.box_measurement && !result.box_measurement->IsUsable())
+    notes += (notes.empty() ? "" : "; ") + std::string("box measurement failed: ") +
+             result.box_measurement->message;
+  return notes;
+}
+
+// Conditions every view (with a turntable frame: cropped to the working
+// volume, normals towards the rectified left camera). Returns the first
+// view's failure, empty on success.
+std::string ConditionViews(const std::vector<ScanView>& views, bool have_axis,
+                           const cv::Matx44d& turntable_from_rig, const ScanOptions& options,
+                           std::vector<ViewCloud>* out) {
+  ConditioningOptions conditioning = options.conditioning;
+  conditioning.num_threads = options.num_threads;
+  if (have_axis) {
+    conditioning.crop.enabled = true;
+    conditioning.crop.turntable_from_cloud = turntable_from_rig;
+    conditioning.crop.volume = options.volume;
+    conditioning.viewpoint_mm = cv::Vec3d(0, 0, 0);  // the rectified left camera
+  }
+  out->reserve(views.size());
+  for (std::size_t k = 0; k < views.size(); ++k) {
+    out->push_back(ConditionCloud(views[k].cloud_in_rig, conditioning));
+    if (!out->back().ok()) return "view " + std::to_string(k) + ": " + out->back().error;
+  }
+  return {};
+}
+
 ScanResult ReconstructImpl(const std::vector<ScanView>& views, const TurntableAxis& axis,
                            const ScanOptions& options) {
   ScanResult result;
@@ -112,24 +180,9 @@ ScanResult ReconstructImpl(const std::vector<ScanView>& views, const TurntableAx
 
   // --- Conditioning ----------------------------------------------------------
   auto start = Clock::now();
-  ConditioningOptions conditioning = options.conditioning;
-  conditioning.num_threads = options.num_threads;
-  if (have_axis) {
-    conditioning.crop.enabled = true;
-    conditioning.crop.turntable_from_cloud = turntable_from_rig;
-    conditioning.crop.volume = options.volume;
-    conditioning.viewpoint_mm = cv::Vec3d(0, 0, 0);  // the rectified left camera
-  }
-  result.views.reserve(n);
-  for (int k = 0; k < n; ++k) {
-    result.views.push_back(ConditionCloud(views[k].cloud_in_rig, conditioning));
-    if (!result.views.back().ok()) {
-      result.message = "view " + std::to_string(k) + ": " + result.views.back().error;
-      result.condition_ms = MsSince(start);
-      return result;
-    }
-  }
+  result.message = ConditionViews(views, have_axis, turntable_from_rig, options, &result.views);
   result.condition_ms = MsSince(start);
+  if (!result.message.empty()) return result;
 
   // --- Sequential registration (view k onto view k − 1) ----------------------
   start = Clock::now();
@@ -230,46 +283,14 @@ ScanResult ReconstructImpl(const std::vector<ScanView>& views, const TurntableAx
 
   // --- Measurement -------------------------------------------------------------
   start = Clock::now();
-  std::string box_error;
-  if (!ComputeOrientedBox(result.fused, &result.box, &box_error)) {
-    result.message = "oriented box: " + box_error;
+  if (std::string error = Measure(options, have_axis, &result); !error.empty()) {
+    result.message = "oriented box: " + error;
     result.measure_ms = MsSince(start);
     return result;
   }
-  if (options.measure_box) {
-    BoxMeasureOptions box = options.box;
-    if (have_axis && !box.base_plane) {
-      Plane platter;  // z = 0 in the turntable frame
-      platter.normal = cv::Vec3d(0, 0, 1);
-      platter.offset_mm = 0;
-      platter.given = true;
-      box.base_plane = platter;
-    }
-    result.box_measurement = MeasureBox(result.fused, box);
-  }
   result.measure_ms = MsSince(start);
   result.status = ScanResult::Status::kOk;
-  std::string notes;
-  if (full_turn && options.close_loop) {
-    if (!result.closing->IsUsable())
-      notes = "loop not closed: " + result.closing->message;
-    else if (!result.loop->IsUsable())
-      notes = "loop closure failed: " + result.loop->message;
-    else
-      notes = std::string("loop closed (") + ToString(result.loop->model) + ")";
-  }
-  for (int k = 1; k < n; ++k) {
-    if (!result.turntable_pose[k]) continue;
-    notes += (notes.empty() ? "" : "; ") + std::string("view ") + std::to_string(k) +
-             " kept its calibrated turntable pose (registration onto view " +
-             std::to_string(k - 1) + " refused: " + result.pairwise[k].message + ")";
-  }
-  if (options.mesh && !result.mesh.IsUsable())
-    notes += (notes.empty() ? "" : "; ") + std::string("mesh failed: ") + result.mesh.message;
-  if (result.box_measurement && !result.box_measurement->IsUsable())
-    notes += (notes.empty() ? "" : "; ") + std::string("box measurement failed: ") +
-             result.box_measurement->message;
-  result.message = notes;
+  result.message = ScanNotes(result, full_turn && options.close_loop, options.mesh);
   return result;
 }
 

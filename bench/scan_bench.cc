@@ -29,6 +29,8 @@
 //                      (both bound the true distance from above; together
 //                      they are within ~0.05 mm of it); median, p95, max
 //   outlier_pct        fused points farther than 1 mm from the surface
+//   estimated_outlier_pct  what the scan's report estimates without the
+//                      truth: fused points farther than 1 mm from the mesh
 //   views_to_truth_mm  the same for every view's own cloud at its exact pose
 //                      (what stereo alone leaves): median, p95, outlier_pct
 //   completeness_pct   `visible` sampled on a 0.5 mm grid: the share with a
@@ -118,6 +120,7 @@ struct ViewGeometry {
 struct Figures {
   std::size_t fused_points = 0, truth_seen = 0, truth_visible_grid = 0, mesh_vertices = 0;
   double fused_median = NAN, fused_p95 = NAN, fused_max = NAN, outlier_pct = NAN;
+  std::optional<double> estimated_outlier_pct;  // the scan report's (quality.h)
   double completeness_pct = NAN;
   double mesh_median = NAN, mesh_p95 = NAN;
   // Every view's own cloud (ViewProcessor's output) at its exact pose: what
@@ -169,6 +172,8 @@ class ScanCommand : public BenchCommand {
     sub->add_option("--config", config_path_,
                     "A craftscand config: its pipeline section (volume, texture threshold, band, "
                     "mesh, measure_box) is used");
+    sub->add_flag("--projector", projector_,
+                  "A pattern projector beside the cameras (the sim driver's `projector: 1`)");
     sub->add_option("--json", json_path_, "Write the figures as JSON to this file");
     sub->add_option("--out", out_dir_,
                     "Write fused.ply, mesh.ply, mesh.obj, report.json and report.html (with "
@@ -240,6 +245,7 @@ class ScanCommand : public BenchCommand {
     driver->image_size = cv::Size(w, h);
     driver->seed = seed_;
     driver->threads = threads_;
+    driver->projector = projector_;
     for (const std::string* path : {&json_path_, &out_dir_}) {  // fail before the run
       if (path->empty()) continue;
       const fs::path parent = fs::absolute(*path).parent_path();
@@ -308,6 +314,7 @@ class ScanCommand : public BenchCommand {
     times.match_median = Quantile(process_ms, 0.5);
 
     ScanOptions options = daemon::ReconstructionOptions(settings);
+    options.camera = RectifiedLeftCamera(calibration);
     const ScanResult r = ReconstructScan(views, calibration.turntable, options);
     if (r.IsUsable()) {
       if (std::string why; !StoreOutputs(r, calibration, &why)) return DataError(why);
@@ -344,6 +351,7 @@ class ScanCommand : public BenchCommand {
     fig.fused_p95 = Quantile(fused_d, 0.95);
     fig.fused_max = fused_d.empty() ? NAN : *std::max_element(fused_d.begin(), fused_d.end());
     fig.outlier_pct = OutlierPct(fused_d);
+    if (r.quality.ok) fig.estimated_outlier_pct = r.quality.far_pct;
     fig.fused_histogram.assign(std::size(kHistogramMm) + 1, 0.0);
     for (double d : fused_d) {
       const auto bin = std::lower_bound(std::begin(kHistogramMm), std::end(kHistogramMm), d) -
@@ -508,6 +516,11 @@ class ScanCommand : public BenchCommand {
       std::printf(
           "  fused_to_truth_mm median %.3f p95 %.3f max %.2f  outlier_pct %.2f  (%zu points)\n",
           f->fused_median, f->fused_p95, f->fused_max, f->outlier_pct, f->fused_points);
+      if (f->estimated_outlier_pct)
+        std::printf(
+            "  estimated_outlier_pct %.2f (the report's, without the truth: fused points "
+            "> 1 mm from the mesh)\n",
+            *f->estimated_outlier_pct);
       std::printf(
           "  fused error %% per bin (mm) ≤0.25 %.1f ≤0.5 %.1f ≤1 %.1f ≤2 %.1f ≤5 %.1f ≤20 %.1f >20 "
           "%.1f\n",
@@ -549,6 +562,9 @@ class ScanCommand : public BenchCommand {
                                    {"p95", Number(f->fused_p95)},
                                    {"max", Number(f->fused_max)}};
       root["outlier_pct"] = Number(f->outlier_pct);
+      // What the scan's own report estimates without the truth (quality.h).
+      root["estimated_outlier_pct"] = r.quality.ok ? Number(r.quality.far_pct) : nullptr;
+      root["free_space_removed_points"] = r.visibility.removed_points;
       nlohmann::ordered_json bins = nlohmann::ordered_json::array();
       for (std::size_t b = 0; b < f->fused_histogram.size(); ++b)
         bins.push_back(
@@ -587,6 +603,7 @@ class ScanCommand : public BenchCommand {
   std::uint64_t seed_ = 1;
   int threads_ = 2;
   std::string image_size_ = "1280x1024";
+  bool projector_ = false;
   std::string config_path_, json_path_, out_dir_;
 };
 

@@ -527,6 +527,8 @@ ScanOptions ReconstructionOptions(const PipelineSettings& settings) {
   options.num_threads = settings.threads;
   options.volume = settings.volume;
   options.mesh = settings.mesh;
+  options.free_space_check = settings.free_space_tolerance_mm > 0;
+  if (options.free_space_check) options.visibility.tolerance_mm = settings.free_space_tolerance_mm;
   options.measure_box = settings.measure_box;
   return options;
 }

@@ -336,6 +336,26 @@ void Reconstruction(Page& p, const Json& scan) {
                      ? "turntable (origin on the axis at the platter, +Z up)"
                      : "view 0 (rectified left camera of the first view)");
   p.Row("Fused points", Count(scan, "fused_points"));
+  if (const Json* fs = Find(scan, "free_space_check")) {
+    std::string per_view;
+    if (const Json* r = Find(*fs, "removed_per_view"); r && r->is_array())
+      for (const Json& n : *r)
+        per_view += (per_view.empty() ? "" : ", ") +
+                    (n.is_number() ? std::to_string(n.get<long long>()) : kDash);
+    p.Row("Free-space check",
+          Count(*fs, "removed_points") + " of " + Count(*fs, "checked_points") +
+              " view points removed (other views looked through them; per view: " + per_view + ")");
+  }
+  if (const Json* q = Find(scan, "quality")) {
+    p.Row("Estimated floaters", Number(*q, "far_from_mesh_pct", 2) +
+                                    " % of the fused points lie more than " +
+                                    Number(*q, "gate_mm", 1) + " mm from the mesh (median " +
+                                    Number(*q, "median_to_mesh_mm", 3) + " mm, p95 " +
+                                    Number(*q, "p95_to_mesh_mm", 3) + " mm)");
+    p.Row("Holes", Count(*q, "holes") + " open boundaries besides the base (largest " +
+                       Number(*q, "largest_hole_mm", 1) + " mm around; the base opening " +
+                       Number(*q, "base_opening_mm", 1) + " mm)");
+  }
   if (const Json* mesh = Find(scan, "mesh")) {
     const bool ok = Flag(*mesh, "ok") == 1;
     std::string value = Badge(ok, "ok", "not made") + " " + Count(*mesh, "vertices") +

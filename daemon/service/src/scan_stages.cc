@@ -228,7 +228,9 @@ ReconstructOutcome ReconstructStage::Run(BoundedQueue<MatchedView>& in) {
   const int n = options_.views;
   context_.Progress("register", 0, 1, "registering " + std::to_string(n) + " views");
   const auto start = std::chrono::steady_clock::now();
-  const ScanResult r = ReconstructScan(views, calibration_->turntable, options_.scan);
+  ScanOptions scan = options_.scan;
+  scan.camera = RectifiedLeftCamera(*calibration_);  // the view clouds are in its frame
+  const ScanResult r = ReconstructScan(views, calibration_->turntable, scan);
   const double reconstruct_ms = MsSince(start);
   if (!r.IsUsable()) {
     out.status =

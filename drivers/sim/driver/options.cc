@@ -282,6 +282,8 @@ bool SimDriverOptionsFromConfig(const drivers::DriverConfig& config, SimDriverOp
       ok = ParseNumber(value, &o.disconnect_after);
     } else if (key == "reconnect_failures") {
       ok = ParseNumber(value, &o.reconnect_failures);
+    } else if (key == "projector") {
+      ok = ParseBool(value, &o.projector);
     } else if (key == "turntable_alarm") {
       ok = ParseBool(value, &o.turntable_alarm);
     } else if (key == "turntable_stall") {
@@ -360,6 +362,18 @@ SceneOptions SimSceneOptions(const SimDriverOptions& options) {
         mesh.scale = options.mesh_scale;
         mesh.rotation_rad = RodriguesFromXyzDeg(options.mesh_rotation_deg);
         mesh.surface = options.mesh_surface;
+      }
+      if (options.projector) {
+        // 30 mm above the middle of the camera bar, aimed at the rig's
+        // target (the head's geometry: SimStation::Create).
+        const RigOptions rig;
+        const double elevation = rig.elevation_deg * kRadPerDeg;
+        ProjectorOptions& p = scene.lighting.projector;
+        p.enabled = true;
+        p.target_mm = cv::Vec3d(0, 0, rig.target_height_mm);
+        p.position_mm = p.target_mm +
+                        cv::Vec3d(0, -std::cos(elevation), std::sin(elevation)) * rig.distance_mm +
+                        cv::Vec3d(0, 0, 30);
       }
       break;
     case SimSceneType::kHeldBoard:

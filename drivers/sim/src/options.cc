@@ -94,12 +94,27 @@ bool RigOptions::IsValid(std::string* why) const {
   return true;
 }
 
+bool ProjectorOptions::IsValid(std::string* why) const {
+  if (!enabled) return true;
+  if (!Finite(position_mm[0]) || !Finite(position_mm[1]) || !Finite(position_mm[2]) ||
+      !Finite(target_mm[0]) || !Finite(target_mm[1]) || !Finite(target_mm[2]))
+    return Fail(why, "projector.position_mm and target_mm must be finite");
+  if (!(cv::norm(target_mm - position_mm) > 1))
+    return Fail(why, "projector.target_mm must be more than 1 mm from its position");
+  if (!(fov_deg > 0 && fov_deg < 120)) return Fail(why, "projector.fov_deg must be in (0, 120)");
+  if (pattern_px < 8 || pattern_px > 8192)
+    return Fail(why, "projector.pattern_px must be in [8, 8192]");
+  if (!(power >= 0 && power <= 10)) return Fail(why, "projector.power must be in [0, 10]");
+  if (!(fill > 0 && fill < 1)) return Fail(why, "projector.fill must be in (0, 1)");
+  return true;
+}
+
 bool LightingOptions::IsValid(std::string* why) const {
   if (!(ambient >= 0 && ambient <= 10)) return Fail(why, "ambient must be in [0, 10]");
   if (!(directional >= 0 && directional <= 10)) return Fail(why, "directional must be in [0, 10]");
   const double n = cv::norm(direction_to_light);
   if (!(n > 1e-9) || !Finite(n)) return Fail(why, "direction_to_light must be non-zero and finite");
-  return true;
+  return projector.IsValid(why);
 }
 
 bool BoardOptions::IsValid(std::string* why) const {

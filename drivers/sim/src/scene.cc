@@ -1,6 +1,7 @@
 #include <algorithm>
 #include <cmath>
 #include <limits>
+#include <numbers>
 #include <string>
 
 #include <opencv2/calib3d.hpp>
@@ -119,7 +120,40 @@ V3 Scene::Impl::Shade(const V3& d, const Hit& hit) const {
     }
     if (lit) irradiance += light.directional * cosine;
   }
+  if (light.projector.enabled && light.projector.power > 0) {
+    const V3 p = hit.primitive->world_from_local.Apply(hit.local.p);
+    const V3 to_projector = projector_centre - p;
+    const double distance = Norm(to_projector);
+    const V3 towards = to_projector / distance;
+    const double cos_p = Dot(n, towards);
+    if (cos_p > 0) {
+      const double pattern = ProjectorPattern(p);
+      if (pattern > 0 && !Occluded(p + n * 2e-3, towards, 0, distance))
+        irradiance += light.projector.power * cos_p * pattern;
+    }
+  }
   return albedo * irradiance;
+}
+
+double Scene::Impl::ProjectorPattern(const V3& p) const {
+  const ProjectorOptions& o = options.lighting.projector;
+  const V3 d = p - projector_centre;
+  const double z = Dot(d, projector_z);
+  if (!(z > 0)) return 0;
+  const double x = Dot(d, projector_x) / z / projector_tan_half;  // −1..1 across the field
+  const double y = Dot(d, projector_y) / z / projector_tan_half;
+  if (std::abs(x) >= 1 || std::abs(y) >= 1) return 0;
+  // Pattern pixel coordinates; pixel (i, j) is lit or dark, bilinear between centres.
+  const double u = (x + 1) / 2 * o.pattern_px - 0.5, v = (y + 1) / 2 * o.pattern_px - 0.5;
+  const double i0 = std::floor(u), j0 = std::floor(v);
+  const double fu = u - i0, fv = v - j0;
+  auto lit = [&](double i, double j) {
+    return ToUnit(Hash(o.seed, static_cast<std::int64_t>(i), static_cast<std::int64_t>(j))) < o.fill
+               ? 1.0
+               : 0.0;
+  };
+  return (1 - fv) * ((1 - fu) * lit(i0, j0) + fu * lit(i0 + 1, j0)) +
+         fv * ((1 - fu) * lit(i0, j0 + 1) + fu * lit(i0 + 1, j0 + 1));
 }
 
 Scene::Scene() : impl_(std::make_unique<Impl>()) {}
@@ -135,6 +169,15 @@ std::unique_ptr<Scene> Scene::Create(const SceneOptions& options, std::string* e
   Impl& s = *scene->impl_;
   s.options = options;
   s.to_light = Normalized(FromCv(options.lighting.direction_to_light));
+  if (const ProjectorOptions& p = options.lighting.projector; p.enabled) {
+    s.projector_centre = FromCv(p.position_mm);
+    s.projector_z = Normalized(FromCv(p.target_mm) - s.projector_centre);
+    V3 x = Cross(V3(0, 0, -1), s.projector_z);  // horizontal, as the rig's x
+    if (Norm(x) < 1e-6) x = V3(1, 0, 0);        // looking straight down
+    s.projector_x = Normalized(x);
+    s.projector_y = Cross(s.projector_z, s.projector_x);
+    s.projector_tan_half = std::tan(p.fov_deg * std::numbers::pi / 360);
+  }
   const std::uint64_t seed = options.seed;
 
   s.primitives.push_back(

@@ -20,6 +20,12 @@ struct Scene::Impl {
   double angle_rad = 0;
   std::size_t mesh_triangles = 0;
   V3 to_light;  // unit, world frame
+  // The projector's frame (world): centre, unit axes (x right, y down, z
+  // forward), tan of half its field.
+  V3 projector_centre, projector_x, projector_y, projector_z;
+  double projector_tan_half = 0;
+  // Its pattern's brightness at world point p (0..1), 0 outside its field.
+  double ProjectorPattern(const V3& p) const;
 
   struct Hit {
     const Primitive* primitive = nullptr;

@@ -257,13 +257,35 @@ ScanResult ReconstructImpl(const std::vector<ScanView>& views, const TurntableAx
   // Everything into the turntable frame at view 0 (or view 0's rig frame).
   const cv::Matx44d out_from_view0 = have_axis ? turntable_from_rig : cv::Matx44d::eye();
   if (have_axis) result.turntable_from_view0 = turntable_from_rig;
-  std::vector<PointCloud> clouds;
-  clouds.reserve(n);
-  for (int k = 0; k < n; ++k)
-    clouds.push_back(
-        TransformCloud(out_from_view0 * result.view0_from_view[k], result.views[k].fine));
-  FusionOptions fusion = options.fusion;
-  result.fused = FuseClouds(clouds, fusion, &why);
+  std::vector<cv::Matx44d> out_from_view(n);
+  for (int k = 0; k < n; ++k) out_from_view[k] = out_from_view0 * result.view0_from_view[k];
+  auto fuse = [&](const std::vector<PointCloud>& in_rig) {
+    std::vector<PointCloud> clouds;
+    clouds.reserve(n);
+    for (int k = 0; k < n; ++k) clouds.push_back(TransformCloud(out_from_view[k], in_rig[k]));
+    return FuseClouds(clouds, options.fusion, &why);
+  };
+  std::vector<PointCloud> fine;
+  fine.reserve(n);
+  for (int k = 0; k < n; ++k) fine.push_back(result.views[k].fine);
+  result.fused = fuse(fine);
+  if (options.camera && options.free_space_check && !result.fused.empty()) {
+    // Fused once, the surface is confirmed by several views; what each view
+    // saw on it shows where space is free. Points there go, then fuse again.
+    std::vector<PointCloud> seen;
+    seen.reserve(n);
+    for (int k = 0; k < n; ++k) seen.push_back(views[k].cloud_in_rig);
+    VisibilityOptions visibility = options.visibility;
+    visibility.num_threads = options.num_threads;
+    why.clear();
+    fine = RemoveFreeSpaceViolations(fine, seen, out_from_view, *options.camera, visibility,
+                                     &result.visibility, &why, &result.fused);
+    if (!why.empty()) {
+      result.message = "free-space check: " + why;
+      return result;
+    }
+    result.fused = fuse(fine);
+  }
   result.fuse_ms = MsSince(start);
   if (result.fused.empty()) {
     result.message = "fusion failed: " + why;
@@ -276,6 +298,11 @@ ScanResult ReconstructImpl(const std::vector<ScanView>& views, const TurntableAx
     PoissonOptions poisson = options.poisson;
     poisson.num_threads = options.num_threads;
     result.mesh = PoissonMesh(result.fused, poisson);
+    if (result.mesh.IsUsable()) {
+      QualityOptions quality;
+      quality.num_threads = options.num_threads;
+      result.quality = AssessQuality(result.fused, result.mesh.mesh, quality);
+    }
   } else {
     result.mesh.message = "meshing not requested";
   }
@@ -337,6 +364,8 @@ std::string ScanReportJson(const ScanResult& result) {
       view["cropped_points"] = v.cropped_points;
       view["outlier_points"] = v.outlier_points;
       view["fine_points"] = v.fine.size();
+      if (k < result.visibility.removed_per_view.size())
+        view["free_space_removed"] = result.visibility.removed_per_view[k];
       view["coarse_points"] = v.coarse.size();
       if (!v.ok()) view["error"] = v.error;
       if (k >= 1 && k < result.pairwise.size())
@@ -372,6 +401,27 @@ std::string ScanReportJson(const ScanResult& result) {
     j["frame"] = result.turntable_from_view0 ? "turntable" : "view0";
     if (result.turntable_from_view0)
       j["turntable_from_view0"] = PoseJson(*result.turntable_from_view0);
+    if (!result.visibility.removed_per_view.empty()) {
+      Json vis;
+      vis["checked_points"] = result.visibility.checked_points;
+      vis["removed_points"] = result.visibility.removed_points;
+      vis["removed_per_view"] = result.visibility.removed_per_view;
+      vis["unsupported_points"] = result.visibility.unsupported_points;
+      j["free_space_check"] = vis;
+    }
+    if (result.quality.ok) {
+      const CloudQuality& q = result.quality;
+      Json quality;
+      quality["far_from_mesh_pct"] = q.far_pct;
+      quality["far_from_mesh_points"] = q.far_points;
+      quality["gate_mm"] = q.gate_mm;
+      quality["median_to_mesh_mm"] = q.median_to_mesh_mm;
+      quality["p95_to_mesh_mm"] = q.p95_to_mesh_mm;
+      quality["holes"] = q.holes;
+      quality["largest_hole_mm"] = q.largest_hole_mm;
+      quality["base_opening_mm"] = q.base_opening_mm;
+      j["quality"] = quality;
+    }
     j["fused_points"] = result.fused.size();
     Json mesh;
     mesh["ok"] = result.mesh.IsUsable();
@@ -426,6 +476,8 @@ bool ScanOptions::IsValid(std::string* why) const {
   if (!fusion.IsValid(&sub)) return Fail(why, "fusion: " + sub);
   if (mesh && !poisson.IsValid(&sub)) return Fail(why, "poisson: " + sub);
   if (measure_box && !box.IsValid(&sub)) return Fail(why, "box: " + sub);
+  if (camera && !camera->IsValid(&sub)) return Fail(why, "camera: " + sub);
+  if (camera && !visibility.IsValid(&sub)) return Fail(why, "visibility: " + sub);
   return true;
 }
 

@@ -96,6 +96,9 @@ class DaemonFixture {
   // Appended inside the config's pipeline mapping by Prepare, e.g.
   // ", mesh: false" for tests that need no mesh.
   std::string pipeline_extra;
+  // False: the pipeline keeps the daemon's default working volume (what a
+  // new station starts with) instead of the one fitted to the carved box.
+  bool box_volume = true;
   // When not empty, replaces the devices Prepare writes (the sim station):
   // the YAML lines under "devices:", e.g. "  camera: {driver: aravis, ...}\n".
   std::string devices_yaml;
@@ -135,7 +138,8 @@ class DaemonFixture {
            // The carved box (80 x 60 x 50 mm) with a margin: the band the
            // matcher searches follows from this volume.
            << "pipeline: {threads: " << TestThreads()
-           << ", volume_radius_mm: 65, volume_max_height_mm: 70" << pipeline_extra << "}\n";
+           << (box_volume ? ", volume_radius_mm: 65, volume_max_height_mm: 70" : "")
+           << pipeline_extra << "}\n";
     config.close();
     if (!with_calibration) return true;
     sim::SimDriverOptions options;

@@ -178,6 +178,9 @@ struct PipelineSettings {
   // pipeline.volume_radius_mm (0, 10000], pipeline.volume_min_height_mm
   // [−1000, 10000], pipeline.volume_max_height_mm (min, 10000]; mm.
   WorkingVolume volume;
+  // Drop fused points other views look straight through (mm of depth
+  // agreement, [0, 100]; 0 = off): VisibilityOptions::tolerance_mm.
+  double free_space_tolerance_mm = 1.0;
   bool mesh = true;  // Poisson mesh after fusion
   // Measure the object as a box (faces, edges, vertices) besides its
   // oriented bounding box; objects that are not boxes report why not.

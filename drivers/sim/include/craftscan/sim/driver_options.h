@@ -35,6 +35,9 @@
 // The mesh is then seated: its bounding box centred on the object's axis, its
 // lowest point on the platter. mesh_* keys with another object are refused.
 // List values are comma-separated numbers (the daemon passes scalars only).
+//   projector               0|1: a pattern projector 30 mm above the middle of
+//                           the camera bar, aimed at the rig's target
+//                           (ProjectorOptions, station.h; scene object only) (0)
 //   image_size              WxH, px; the default rig scaled to it     (1280x1024)
 //   seed                    scene textures and sensor noise           (1)
 //   threads                 render threads, 1…256                     (1)
@@ -120,6 +123,7 @@ struct SimDriverOptions {
   double mesh_scale = 1;                 // mm per file unit
   cv::Vec3d mesh_rotation_deg{0, 0, 0};  // about x, then y, then z (fixed axes)
   MeshSurface mesh_surface = MeshSurface::kStone;
+  bool projector = false;  // scene kObject only: ProjectorOptions beside the rig
   // The board of the board scenes; SimDriverOptionsFromConfig fills in
   // DefaultSimBoard(scene, board_type) and applies the board_* keys.
   BoardSpec board = DefaultSimBoard(SimSceneType::kHeldBoard, BoardSpec::Type::kChessboard);

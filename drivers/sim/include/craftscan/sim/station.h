@@ -212,6 +212,26 @@ enum class Background {
 std::string_view ToString(Background background);  // "dark_cloth", "textured"
 bool BackgroundFromString(std::string_view text, Background* background);
 
+// A pattern projector beside the cameras (what real stations add for
+// surfaces without texture: flat paint, dark fabric): a pinhole projector at
+// `position_mm` aimed at `target_mm` (world frame) casting a fixed random
+// pattern of square pixels (each lit with probability `fill`, bilinearly
+// blurred into its neighbours as a slightly defocused projector blurs
+// them) over a square field of `fov_deg`; its light adds `power` × cos θ ×
+// pattern to a surface's irradiance, and objects cast its shadows.
+struct ProjectorOptions {
+  bool enabled = false;
+  cv::Vec3d position_mm{0, -346, 260};  // world; the sim driver sets it from the rig
+  cv::Vec3d target_mm{0, 0, 30};
+  double fov_deg = 30;      // (0, 120)
+  int pattern_px = 400;     // pattern pixels across the field, 8..8192
+  double power = 0.6;       // [0, 10]
+  double fill = 0.5;        // (0, 1)
+  std::uint64_t seed = 11;  // the pattern
+
+  bool IsValid(std::string* why) const;
+};
+
 struct LightingOptions {
   double ambient = 0.3;       // radiance factor of the ambient light (≥ 0)
   double directional = 0.75;  // radiance factor of the directional light at normal incidence
@@ -219,6 +239,7 @@ struct LightingOptions {
   // default lights from above, in front and to the left of the rig.
   cv::Vec3d direction_to_light{-0.35, -0.6, 0.72};
   bool shadows = true;  // cast shadows from the directional light
+  ProjectorOptions projector;
 
   bool IsValid(std::string* why) const;
 };

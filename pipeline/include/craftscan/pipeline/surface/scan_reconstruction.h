@@ -25,6 +25,8 @@
 #include "craftscan/pipeline/surface/fusion.h"
 #include "craftscan/pipeline/surface/measure.h"
 #include "craftscan/pipeline/surface/mesh.h"
+#include "craftscan/pipeline/surface/quality.h"
+#include "craftscan/pipeline/surface/visibility.h"
 
 namespace craftscan {
 
@@ -51,6 +53,13 @@ struct ScanOptions {
   double max_prior_deviation_deg = 2.0;
   double max_prior_deviation_mm = 3.0;
   bool close_loop = true;
+  // Free-space check before fusion (visibility.h): with the rectified left
+  // camera, a view's point that other views look straight through is
+  // dropped. Skipped without a camera (clouds of unknown origin) or when
+  // `free_space_check` is false.
+  std::optional<RectifiedCamera> camera;
+  bool free_space_check = true;
+  VisibilityOptions visibility;
   // Fusion; by default a voxel needs support from 2 views (floaters from
   // stereo mismatches are view-specific, see FusionOptions::min_views).
   // Clusters under 5 % of the object's size are dropped as floaters
@@ -91,10 +100,15 @@ struct ScanResult {
   // (said in `message` and the report; the loop closure uses that motion).
   std::vector<bool> turntable_pose;
   std::optional<cv::Matx44d> turntable_from_view0;
+  // The free-space check (zero when no camera was given).
+  VisibilityStats visibility;
 
   PointCloud fused;  // in the turntable frame when known, else view 0's
   MeshResult mesh;   // same frame; status kFailed with a message if not made
-  OrientedBox box;   // oriented bounding box of the fused cloud
+  // The cloud against its mesh, without ground truth (quality.h); not ok
+  // without a mesh.
+  CloudQuality quality;
+  OrientedBox box;  // oriented bounding box of the fused cloud
   std::optional<BoxMeasurement> box_measurement;
 
   // Stage wall-clock times (ms).

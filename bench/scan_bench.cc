@@ -296,9 +296,19 @@ class ScanCommand : public BenchCommand {
           if (right[x]) visible.push_back(p);
         }
       }
+      cv::Mat texture;  // with a projector: the left view with it off, as the sim driver does
+      if (scene.SetProjectorOn(false)) {
+        const sim::StereoRender t = station.Render(scene, static_cast<std::uint64_t>(k),
+                                                   sim::RenderOutputs::kLeftImageOnly);
+        scene.SetProjectorOn(true);
+        if (!t.IsUsable())
+          return DataError("view " + std::to_string(k) + ": texture render failed: " + t.message);
+        times.render += t.render_ms;
+        texture = t.left;
+      }
       if (k == views_ - 1) last_pair = Clock::now();
       const auto start = Clock::now();
-      ProcessedView v = processor.Process(render.left, render.right);
+      ProcessedView v = processor.Process(render.left, render.right, texture);
       process_ms.push_back(MsSince(start));
       if (!v.ok) return DataError("view " + std::to_string(k) + ": " + v.message);
       ScanView view;

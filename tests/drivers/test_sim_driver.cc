@@ -141,6 +141,44 @@ TEST_F(SimDriver, CaptureAfterAMoveShowsTheObjectTurned) {
   EXPECT_FALSE(BitExact(direct0.left, direct60.left));
 }
 
+// `projector: 1`: the pair shows the pattern on the object, and every frame
+// carries the texture frame (the left view with the projector off), exactly
+// what the station renders with it switched off. Without it there is none.
+TEST_F(SimDriver, AProjectorAddsItsPatternAndATextureFrame) {
+  const DriverConfig config = With(kSmall, {{"object", "egg"}, {"projector", "1"}});
+  ASSERT_NO_FATAL_FAILURE(Create(config));
+  const StereoFrame frame = Capture();
+  ASSERT_FALSE(frame.texture_left.empty());
+  ASSERT_EQ(frame.texture_left.size(), frame.left.image.size());
+  ASSERT_EQ(frame.texture_left.type(), frame.left.image.type());
+  DirectSim sim;
+  ASSERT_NO_FATAL_FAILURE(MakeDirectSim(config, frame.settings, &sim));
+  const StereoRender lit = sim.station->Render(*sim.scene, frame.left.frame_id);
+  ASSERT_TRUE(sim.scene->SetProjectorOn(false));
+  const StereoRender dark = sim.station->Render(*sim.scene, frame.left.frame_id);
+  ASSERT_TRUE(lit.IsUsable() && dark.IsUsable());
+  EXPECT_TRUE(BitExact(frame.left.image, lit.left));
+  EXPECT_TRUE(BitExact(frame.right.image, lit.right));
+  EXPECT_TRUE(BitExact(frame.texture_left, dark.left));
+  // The pattern lights part of the egg: thousands of pixels brighter, none darker.
+  cv::Mat brighter = frame.left.image.reshape(1) > dark.left.reshape(1) + 20;
+  cv::Mat darker = dark.left.reshape(1) > frame.left.image.reshape(1) + 20;
+  EXPECT_GT(cv::countNonZero(brighter), 500);
+  EXPECT_EQ(cv::countNonZero(darker), 0);
+
+  Create(With(kSmall, {{"object", "egg"}}));
+  EXPECT_TRUE(Capture().texture_left.empty());
+  // Bad values name the key.
+  drivers::PluginLoader loader(::craftscan::testing::PluginDir());
+  std::shared_ptr<const drivers::Plugin> plugin;
+  ASSERT_TRUE(loader.Load("sim", &plugin).ok());
+  std::unique_ptr<drivers::DriverInstance> instance;
+  const DriverStatus bad =
+      plugin->CreateInstance(With(kSmall, {{"projector", "bright"}}), fake_.services(), &instance);
+  EXPECT_FALSE(bad.ok());
+  EXPECT_NE(bad.message.find("'projector'"), std::string::npos) << bad.message;
+}
+
 TEST_F(SimDriver, MovesTakeTheirTimeOnTheInjectedClock) {
   ASSERT_NO_FATAL_FAILURE(Create(With(kSmall, {{"turntable_speed_deg_s", "30"}})));
   ASSERT_TRUE(turntable_->Home(kTimeout).ok());

@@ -21,6 +21,7 @@
 
 #include "craftscan/pipeline/common/ply.h"
 #include "craftscan/pipeline/common/triangle_mesh.h"
+#include "craftscan/pipeline/stereo/view_processing.h"
 #include "craftscan/sim/calibration_scenes.h"
 #include "craftscan/sim/station.h"
 #include "file_util.h"
@@ -247,6 +248,51 @@ TEST(SimRender, SameSeedGivesBitIdenticalImagesAndOtherSeedsDiffer) {
   cv::Mat diff;
   cv::absdiff(a.left, e.left, diff);
   EXPECT_LT(cv::mean(diff)[0], 2.0);
+}
+
+// The projector's pattern is on the object and moves with the rig, not the
+// object; switched off, the scene renders as one without a projector; the
+// texture frame gives the points their colours and changes no geometry.
+TEST(SimRender, ProjectorPatternAndTextureFrame) {
+  const RigOptions rig = SmallRig();
+  SceneOptions options;
+  options.object.type = ObjectType::kEgg;
+  auto station = MakeStation(rig);
+  auto plain = MakeScene(options);
+  EXPECT_FALSE(plain->SetProjectorOn(false));  // none to switch
+  options.lighting.projector.enabled = true;
+  auto lit = MakeScene(options);
+  const StereoRender a = station->Render(*lit);
+  ASSERT_TRUE(a.IsUsable()) << a.message;
+  const StereoRender none = station->Render(*plain);
+  EXPECT_FALSE(BitExact(a.left, none.left));
+  ASSERT_TRUE(lit->SetProjectorOn(false));
+  EXPECT_FALSE(lit->projector_on());
+  const StereoRender off = station->Render(*lit, 0, RenderOutputs::kLeftImageOnly);
+  EXPECT_TRUE(BitExact(off.left, none.left));
+  EXPECT_TRUE(off.right.empty());
+  ASSERT_TRUE(lit->SetProjectorOn(true));
+
+  ViewProcessorOptions view;
+  view.num_threads = 1;
+  ViewProcessor processor;
+  std::string error;
+  ASSERT_TRUE(processor.Init(a.calibration, view, &error)) << error;
+  const ProcessedView pattern = processor.Process(a.left, a.right);
+  ASSERT_TRUE(pattern.ok) << pattern.message;
+  ASSERT_GT(pattern.cloud_in_rig.size(), 1000u);
+  // A texture frame of one colour: every point takes it (BGR in, RGB out),
+  // except where rectification samples outside the raw image.
+  const cv::Mat flat(a.left.size(), a.left.type(), cv::Scalar(10, 20, 30));
+  const ProcessedView textured = processor.Process(a.left, a.right, flat);
+  ASSERT_TRUE(textured.ok) << textured.message;
+  EXPECT_EQ(textured.cloud_in_rig.points_mm, pattern.cloud_in_rig.points_mm);
+  const auto coloured = std::count(textured.cloud_in_rig.colors_rgb.begin(),
+                                   textured.cloud_in_rig.colors_rgb.end(), cv::Vec3b(30, 20, 10));
+  EXPECT_GT(coloured, static_cast<long>(textured.cloud_in_rig.size() * 99 / 100));
+  const ProcessedView bad = processor.Process(a.left, a.right, cv::Mat(a.left.size(), CV_8UC1));
+  EXPECT_FALSE(bad.ok);
+  EXPECT_NE(bad.message.find("texture frame"), std::string::npos) << bad.message;
 }
 
 TEST(SimRender, ThreadCountDoesNotChangeAnything) {

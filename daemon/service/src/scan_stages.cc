@@ -81,13 +81,13 @@ StageOutcome CaptureStage::Run(BoundedQueue<CapturedView>& out) {
     const Manifest manifest = session.manifest();
     const auto record = manifest.views.find(k);
     const bool has_capture = record != manifest.views.end() && record->second.HasCapture();
-    CapturedView item{k, angle, {}, {}};
+    CapturedView item{k, angle, {}, {}, {}};
     if (has_capture && record->second.HasCloud()) {
       // Durable up to its cloud: the match stage loads it.
     } else if (has_capture) {
       std::string why;
       nlohmann::json meta;
-      if (!session.LoadCapture(k, &item.left, &item.right, &meta, &why)) {
+      if (!session.LoadCapture(k, &item.left, &item.right, &meta, &why, &item.texture)) {
         return StageOutcome::Error(ErrorCode::kCorrupt,
                                    ViewPrefix(k) + "stored capture unreadable: " + why, false);
       }
@@ -128,7 +128,7 @@ StageOutcome CaptureStage::CaptureView(int k, double angle, CapturedView* item) 
   const drivers::DriverStatus captured = devices_->Capture(&frame, context_.StopFlag());
   if (!captured.ok()) return device_error(captured);
   if (Status stored = context_.session->StoreCapture(k, angle, frame.left.image, frame.right.image,
-                                                     FrameMeta(frame, angle));
+                                                     FrameMeta(frame, angle), frame.texture_left);
       !stored.ok()) {
     return StorageError(k, stored);
   }
@@ -137,6 +137,7 @@ StageOutcome CaptureStage::CaptureView(int k, double angle, CapturedView* item) 
   context_.Progress("capture", k + 1, n, "view " + std::to_string(k) + " stored");
   item->left = frame.left.image;
   item->right = frame.right.image;
+  item->texture = frame.texture_left;
   return StageOutcome::Ok();
 }
 
@@ -170,7 +171,7 @@ StageOutcome MatchStage::MatchView(CapturedView& item, MatchedView* out) {
     return StageOutcome::Ok();
   }
   const auto start = std::chrono::steady_clock::now();
-  ProcessedView v = processor_->Process(item.left, item.right);
+  ProcessedView v = processor_->Process(item.left, item.right, item.texture);
   if (!v.ok) {
     return StageOutcome::Error(ErrorCode::kInvalidArgument, ViewPrefix(item.view) + v.message,
                                false);

@@ -295,34 +295,44 @@ Status Session::CopyCalibration(const std::string& source_path, const std::strin
 }
 
 Status Session::StoreCapture(int view, double angle_deg, const cv::Mat& left, const cv::Mat& right,
-                             const nlohmann::json& meta) {
+                             const nlohmann::json& meta, const cv::Mat& texture_left) {
   StoreStep step;
   step.what = "capture of view " + std::to_string(view);
   if (Status checked = CheckView(view, step.what, false); !checked.ok()) return checked;
   std::string why;
-  if (!CheckPngImage(left, "left", &why) || !CheckPngImage(right, "right", &why)) {
+  if (!CheckPngImage(left, "left", &why) || !CheckPngImage(right, "right", &why) ||
+      (!texture_left.empty() && !CheckPngImage(texture_left, "texture", &why))) {
     return Error(ErrorCode::kInvalidArgument, Prefix() + step.what + ": " + why);
+  }
+  if (!texture_left.empty() && texture_left.size() != left.size()) {
+    return Error(ErrorCode::kInvalidArgument, Prefix() + step.what + ": the texture image is " +
+                                                  std::to_string(texture_left.cols) + "x" +
+                                                  std::to_string(texture_left.rows) +
+                                                  ", the left image " + std::to_string(left.cols) +
+                                                  "x" + std::to_string(left.rows));
   }
   if (!meta.is_object()) {
     return Error(ErrorCode::kInvalidArgument, Prefix() + step.what + ": meta is not a JSON object");
   }
   // Encode before claiming: slow, and needs no lock.
-  std::string files[3];
-  if (!EncodePng(left, &files[0], &why) || !EncodePng(right, &files[1], &why)) {
+  std::string files[4];
+  const int count = texture_left.empty() ? 3 : 4;
+  if (!EncodePng(left, &files[0], &why) || !EncodePng(right, &files[1], &why) ||
+      (count == 4 && !EncodePng(texture_left, &files[3], &why))) {
     return Error(ErrorCode::kInternal, Prefix() + step.what + ": " + why);
   }
   files[2] = meta.dump(2, ' ', false, nlohmann::json::error_handler_t::replace) + "\n";
 
-  const char* names[3] = {kLeftPng, kRightPng, kMetaJson};
+  const char* names[4] = {kLeftPng, kRightPng, kMetaJson, kTexturePng};
   step.key = ViewFolder(view);
   const std::string folder = dir_ + "/" + step.key;
-  for (const char* name : names) step.paths.push_back(folder + "/" + name);
+  for (int i = 0; i < count; ++i) step.paths.push_back(folder + "/" + names[i]);
   // A new capture makes the view's disparity and cloud stale: all of it goes.
   step.unlist = [view](Manifest* m) { return m->views.erase(view) > 0; };
   step.write = [&] {
     Status status = internal::MakeDurableDir(dir_ + "/views");
     if (status.ok()) status = internal::MakeDurableDir(folder);
-    for (int i = 0; status.ok() && i < 3; ++i) {
+    for (int i = 0; status.ok() && i < count; ++i) {
       status = WriteFileAtomically(step.paths[i], files[i]);
     }
     return status;
@@ -332,7 +342,7 @@ Status Session::StoreCapture(int view, double angle_deg, const cv::Mat& left, co
     v.index = view;
     v.angle_deg = angle_deg;
     v.captured_utc = NowUtc();
-    for (int i = 0; i < 3; ++i) v.files[names[i]] = {files[i].size(), Fnv1a64(files[i])};
+    for (int i = 0; i < count; ++i) v.files[names[i]] = {files[i].size(), Fnv1a64(files[i])};
     return Status::Ok();
   };
   return Store(step);
@@ -465,7 +475,7 @@ bool Session::LoadVerified(const std::string& relative, const FileRecord& record
 }
 
 bool Session::LoadCapture(int view, cv::Mat* left, cv::Mat* right, nlohmann::json* meta,
-                          std::string* error) const {
+                          std::string* error, cv::Mat* texture_left) const {
   const std::string folder = ViewFolder(view);
   std::string bytes;
   FileRecord record;
@@ -486,6 +496,15 @@ bool Session::LoadCapture(int view, cv::Mat* left, cv::Mat* right, nlohmann::jso
     *meta = nlohmann::json::parse(bytes, nullptr, /*allow_exceptions=*/false);
     if (meta->is_discarded()) {
       return SetError(error, Prefix() + "'" + folder + "/meta.json' is not valid JSON");
+    }
+  }
+  if (texture_left) {
+    texture_left->release();
+    std::string none;
+    if (FindViewFile(view, kTexturePng, &record, &none) &&
+        (!LoadVerified(folder + "/" + kTexturePng, record, &bytes, error) ||
+         !DecodePng(bytes, texture_left, dir_ + "/" + folder + "/" + kTexturePng, error))) {
+      return false;
     }
   }
   return true;

@@ -130,8 +130,8 @@ void ParseManifest(const Json& j, Manifest* m) {
   const Json& views = Field(j, "views", top);
   if (!views.is_array()) throw ParseError{"manifest.views is not an array"};
   m->views.clear();
-  static const std::set<std::string> kViewFiles{kLeftPng, kRightPng, kMetaJson, kDisparityPfm,
-                                                kCloudPly};
+  static const std::set<std::string> kViewFiles{kLeftPng,    kRightPng,     kMetaJson,
+                                                kTexturePng, kDisparityPfm, kCloudPly};
   for (std::size_t i = 0; i < views.size(); ++i) {
     const std::string where = "manifest.views[" + std::to_string(i) + "]";
     const Json& v = views[i];
@@ -331,7 +331,8 @@ std::string ManifestToJson(const Manifest& m) {
   for (const auto& [index, v] : m.views) {
     OrderedJson files = OrderedJson::object();
     // Fixed order: the order the files are written in.
-    for (const char* name : {kLeftPng, kRightPng, kMetaJson, kDisparityPfm, kCloudPly}) {
+    for (const char* name :
+         {kLeftPng, kRightPng, kMetaJson, kTexturePng, kDisparityPfm, kCloudPly}) {
       const auto it = v.files.find(name);
       if (it != v.files.end()) files[name] = RecordJson(it->second);
     }

@@ -121,6 +121,7 @@ class SimCamera final : public drivers::StereoCamera {
         id % static_cast<std::uint64_t>(o.drop_frame_every) == 0) {
       id = next_frame_id_++;
     }
+    frame->texture_left.release();
     try {
       StereoRender render;
       std::int64_t stamp = 0;
@@ -142,6 +143,15 @@ class SimCamera final : public drivers::StereoCamera {
         std::lock_guard scene_lock(shared_->mutex);
         stamp = shared_->host.now_ns();
         render = station_->Render(*shared_->scene, id, RenderOutputs::kImagesOnly);
+        if (render.IsUsable() && shared_->scene->SetProjectorOn(false)) {
+          // The texture frame: the projector off for one more left exposure.
+          const StereoRender texture =
+              station_->Render(*shared_->scene, id, RenderOutputs::kLeftImageOnly);
+          shared_->scene->SetProjectorOn(true);
+          if (!texture.IsUsable())
+            return Error(StatusCode::kFault, "Capture: texture render failed: " + texture.message);
+          frame->texture_left = Convert(texture.left);
+        }
       }
       if (!render.IsUsable())
         return Error(StatusCode::kFault, "Capture: render failed: " + render.message);

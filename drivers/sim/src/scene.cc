@@ -170,6 +170,7 @@ std::unique_ptr<Scene> Scene::Create(const SceneOptions& options, std::string* e
   s.options = options;
   s.to_light = Normalized(FromCv(options.lighting.direction_to_light));
   if (const ProjectorOptions& p = options.lighting.projector; p.enabled) {
+    s.has_projector = true;
     s.projector_centre = FromCv(p.position_mm);
     s.projector_z = Normalized(FromCv(p.target_mm) - s.projector_centre);
     V3 x = Cross(V3(0, 0, -1), s.projector_z);  // horizontal, as the rig's x
@@ -258,6 +259,12 @@ std::unique_ptr<Scene> Scene::Create(const SceneOptions& options, std::string* e
 
 const SceneOptions& Scene::options() const { return impl_->options; }
 void Scene::SetTurntableAngle(double angle_rad) { impl_->SetAngle(angle_rad); }
+bool Scene::SetProjectorOn(bool on) {
+  if (!impl_->has_projector) return false;
+  impl_->options.lighting.projector.enabled = on;
+  return true;
+}
+bool Scene::projector_on() const { return impl_->options.lighting.projector.enabled; }
 double Scene::turntable_angle_rad() const { return impl_->angle_rad; }
 cv::Matx44d Scene::world_from_object() const { return impl_->WorldFromObject().ToCv(); }
 cv::Matx44d Scene::world_from_board() const { return impl_->WorldFromBoard().ToCv(); }

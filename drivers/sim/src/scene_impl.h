@@ -24,6 +24,7 @@ struct Scene::Impl {
   // forward), tan of half its field.
   V3 projector_centre, projector_x, projector_y, projector_z;
   double projector_tan_half = 0;
+  bool has_projector = false;  // created with one (it may be switched off)
   // Its pattern's brightness at world point p (0..1), 0 outside its field.
   double ProjectorPattern(const V3& p) const;
 

@@ -345,14 +345,15 @@ StereoRender SimStation::Render(const Scene& scene, std::uint64_t frame_index,
     return out;
   };
 
-  if (outputs == RenderOutputs::kImagesOnly) {
+  if (outputs != RenderOutputs::kImagesAndGroundTruth) {
+    const bool right = outputs == RenderOutputs::kImagesOnly;
+    if (!right) out.right.release();
     ForRows(s.arena.get(), h, [&](int y) {
       auto* left_row = out.left.ptr<std::uint8_t>(y);
+      for (int x = 0; x < w; ++x) shade_pixel(s.left, s.left_rays, 0, x, y, left_row + 3 * x);
+      if (!right) return;
       auto* right_row = out.right.ptr<std::uint8_t>(y);
-      for (int x = 0; x < w; ++x) {
-        shade_pixel(s.left, s.left_rays, 0, x, y, left_row + 3 * x);
-        shade_pixel(s.right, s.right_rays, 1, x, y, right_row + 3 * x);
-      }
+      for (int x = 0; x < w; ++x) shade_pixel(s.right, s.right_rays, 1, x, y, right_row + 3 * x);
     });
     return finish();
   }

@@ -91,6 +91,25 @@ bool Rectifier::Rectify(const cv::Mat& left, const cv::Mat& right, cv::Mat* left
   return true;
 }
 
+bool Rectifier::RectifyLeft(const cv::Mat& left, cv::Mat* left_rectified,
+                            std::string* error) const {
+  if (!IsReady()) return Fail(error, "Rectifier: not initialised (call Init first)");
+  if (left_rectified == nullptr) return Fail(error, "Rectifier: null output");
+  const cv::Size size = calibration_.image_size;
+  if (left.size() != size) {
+    return Fail(error, "Rectifier: the image is " + std::to_string(left.cols) + "x" +
+                           std::to_string(left.rows) + ", the calibration is for " +
+                           std::to_string(size.width) + "x" + std::to_string(size.height));
+  }
+  try {
+    cv::remap(left, *left_rectified, left_map1_, left_map2_, cv::INTER_LINEAR, cv::BORDER_CONSTANT,
+              cv::Scalar::all(0));
+  } catch (const cv::Exception& e) {
+    return Fail(error, std::string("Rectifier: remap failed: ") + calib_internal::CvErrorText(e));
+  }
+  return true;
+}
+
 std::vector<cv::Point2f> Rectifier::RectifyLeftPoints(const std::vector<cv::Point2f>& raw) const {
   if (!IsReady()) return {};
   return RectifyPoints(raw, calibration_.left, calibration_.R1, calibration_.P1);

@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <cstdint>
 #include <exception>
 #include <vector>
 
@@ -99,7 +100,31 @@ double ViewProcessor::baseline_mm() const {
   return P2(0, 0) != 0 ? std::abs(P2(0, 3) / P2(0, 0)) : 0;
 }
 
-ProcessedView ViewProcessor::Process(const cv::Mat& left_raw, const cv::Mat& right_raw) {
+namespace {
+
+// Colours from the rectified texture frame: each point came from the pixel
+// P1 projects it to (reprojection with Q inverts exactly that).
+void Recolour(const cv::Mat& texture, const cv::Matx34d& P1, PointCloud* cloud) {
+  const double fx = P1(0, 0), fy = P1(1, 1), cx = P1(0, 2), cy = P1(1, 2);
+  for (std::size_t i = 0; i < cloud->size(); ++i) {
+    const cv::Vec3f& p = cloud->points_mm[i];
+    const long x = std::lround(fx * p[0] / p[2] + cx), y = std::lround(fy * p[1] / p[2] + cy);
+    if (x < 0 || y < 0 || x >= texture.cols || y >= texture.rows) continue;
+    const int r = static_cast<int>(y), c = static_cast<int>(x);
+    if (texture.type() == CV_8UC3) {
+      const cv::Vec3b bgr = texture.at<cv::Vec3b>(r, c);
+      cloud->colors_rgb[i] = cv::Vec3b(bgr[2], bgr[1], bgr[0]);
+    } else if (texture.type() == CV_8UC1) {
+      const std::uint8_t g = texture.at<std::uint8_t>(r, c);
+      cloud->colors_rgb[i] = cv::Vec3b(g, g, g);
+    }
+  }
+}
+
+}  // namespace
+
+ProcessedView ViewProcessor::Process(const cv::Mat& left_raw, const cv::Mat& right_raw,
+                                     const cv::Mat& texture_left_raw) {
   ProcessedView out;
   if (!matcher_) {
     out.message = "view processor not initialised";
@@ -112,6 +137,17 @@ ProcessedView ViewProcessor::Process(const cv::Mat& left_raw, const cv::Mat& rig
     if (!rectifier_.Rectify(left_raw, right_raw, &out.rectified_left, &right, &why)) {
       out.message = "rectify: " + why;
       return out;
+    }
+    cv::Mat texture;  // rectified, when given
+    if (!texture_left_raw.empty()) {
+      if (texture_left_raw.type() != left_raw.type()) {
+        out.message = "texture frame: its pixel type differs from the left image's";
+        return out;
+      }
+      if (!rectifier_.RectifyLeft(texture_left_raw, &texture, &why)) {
+        out.message = "texture frame: " + why;
+        return out;
+      }
     }
     out.rectify_ms = MsSince(start);
     start = std::chrono::steady_clock::now();
@@ -146,6 +182,7 @@ ProcessedView ViewProcessor::Process(const cv::Mat& left_raw, const cv::Mat& rig
       cloud.points_mm.emplace_back(p.x, p.y, p.z);
       cloud.colors_rgb.emplace_back(p.r, p.g, p.b);
     }
+    if (!texture.empty()) Recolour(texture, rectifier_.calibration().P1, &cloud);
     out.reproject_ms = MsSince(start);
     out.ok = true;
   } catch (const std::exception& e) {

@@ -216,6 +216,52 @@ TEST_F(SessionFiles, StoreAndLoadRoundTripBitExactly) {
   EXPECT_EQ(testing::CountTemporaries(dir), 0);
 }
 
+// A station with a pattern projector stores the texture frame with the
+// capture; a view without one loads an empty texture; a new capture of the
+// view without a texture takes the old one off the manifest.
+TEST_F(SessionFiles, TextureFramesTravelWithTheirCapture) {
+  auto s = NewCapturing("textured", 2);
+  ASSERT_NE(s, nullptr);
+  std::string error;
+  const cv::Mat left = NoiseImage(64, 48, CV_8UC3, 1), right = NoiseImage(64, 48, CV_8UC3, 2);
+  const cv::Mat texture = NoiseImage(64, 48, CV_8UC3, 3);
+  ASSERT_TRUE(Ok(s->StoreCapture(0, 0.0, left, right, Meta(0), texture), &error)) << error;
+  ASSERT_TRUE(Ok(s->StoreCapture(1, 60.0, left, right, Meta(1)), &error)) << error;
+  const auto check = [&](const Session& session) {
+    cv::Mat l, r, t;
+    ASSERT_TRUE(session.LoadCapture(0, &l, &r, nullptr, &error, &t)) << error;
+    EXPECT_TRUE(BitExact(t, texture));
+    EXPECT_TRUE(BitExact(l, left));
+    ASSERT_TRUE(session.LoadCapture(1, &l, &r, nullptr, &error, &t)) << error;
+    EXPECT_TRUE(t.empty());
+    EXPECT_EQ(session.manifest().views.at(0).files.count("texture.png"), 1u);
+    EXPECT_TRUE(session.Verify().IsIntact());
+  };
+  check(*s);
+  const std::string id = s->id();
+  s.reset();
+  auto reopened = store_->OpenSession(id, StatusInto(&error));
+  ASSERT_NE(reopened, nullptr) << error;
+  check(*reopened);
+  // A texture PNG cannot hold, or of another size than the pair, is refused.
+  EXPECT_FALSE(
+      Ok(reopened->StoreCapture(1, 60.0, left, right, Meta(1), cv::Mat(48, 64, CV_32FC2)), &error));
+  EXPECT_TRUE(Contains(error, "texture image has type")) << error;
+  EXPECT_FALSE(
+      Ok(reopened->StoreCapture(1, 60.0, left, right, Meta(1), NoiseImage(32, 24, CV_8UC3, 4)),
+         &error));
+  EXPECT_TRUE(Contains(error, "the texture image is 32x24, the left image 64x48")) << error;
+  cv::Mat unchanged;
+  cv::Mat l1, r1;
+  ASSERT_TRUE(reopened->LoadCapture(1, &l1, &r1, nullptr, &error, &unchanged)) << error;
+  EXPECT_TRUE(unchanged.empty());
+  ASSERT_TRUE(Ok(reopened->StoreCapture(0, 0.0, left, right, Meta(0)), &error)) << error;
+  EXPECT_EQ(reopened->manifest().views.at(0).files.count("texture.png"), 0u);
+  cv::Mat l, r, t = texture.clone();
+  ASSERT_TRUE(reopened->LoadCapture(0, &l, &r, nullptr, &error, &t)) << error;
+  EXPECT_TRUE(t.empty());
+}
+
 TEST_F(SessionFiles, ManifestJournalFollowsTheJobAndDoneIsFinal) {
   auto s = NewCapturing("journal", 1);
   ASSERT_NE(s, nullptr);

@@ -122,6 +122,7 @@ struct CapturedView {
   int view = 0;
   double angle_deg = 0;
   cv::Mat left, right;
+  cv::Mat texture;  // the texture frame, when the station has a projector
 };
 // Q2: a view's cloud in the rig frame (mm).
 struct MatchedView {

@@ -75,6 +75,9 @@ struct FileRecord {
 inline constexpr const char* kLeftPng = "left.png";
 inline constexpr const char* kRightPng = "right.png";
 inline constexpr const char* kMetaJson = "meta.json";
+// The texture frame (a station with a pattern projector: the left view with
+// the projector off, for the model's colours); optional.
+inline constexpr const char* kTexturePng = "texture.png";
 inline constexpr const char* kDisparityPfm = "disparity.pfm";
 inline constexpr const char* kCloudPly = "cloud.ply";
 // Highest view index (views/NNN has three digits).

@@ -5,7 +5,7 @@
 //   <data_dir>/sessions/<YYYYMMDD-HHMMSS>-<object>/
 //     manifest.json     state journal (session_manifest.h)
 //     calibration.yaml  the calibration used (copied in, never referenced)
-//     views/NNN/left.png right.png meta.json disparity.pfm cloud.ply
+//     views/NNN/left.png right.png meta.json [texture.png] disparity.pfm cloud.ply
 //     fused.ply mesh.ply report.json report.html previews/*.png
 //
 // Durability: every file is written to a hidden temporary beside it, fsync'ed
@@ -147,8 +147,10 @@ class Session {
   // off it (one manifest rewrite), then replaced; so a failed or interrupted
   // replacement leaves the old version unlisted, never a listed file with a
   // wrong checksum. If that first rewrite fails nothing is touched.
+  // `texture_left` (optional; StereoFrame::texture_left) is stored with them
+  // as texture.png, in the same step.
   Status StoreCapture(int view, double angle_deg, const cv::Mat& left, const cv::Mat& right,
-                      const nlohmann::json& meta);
+                      const nlohmann::json& meta, const cv::Mat& texture_left = cv::Mat());
   // Stores the view's disparity map (CV_32FC1, pixels) as disparity.pfm.
   // Requires a durable capture of the view and an active state; storing again
   // drops the view's cloud from the manifest.
@@ -167,8 +169,10 @@ class Session {
   // ("session X: view 3 has no durable disparity.pfm", "...: checksum
   // differs from the manifest (modified or corrupt)", a decoding error)
   // when the file is not listed, damaged or undecodable. *meta may be null.
+  // *texture_left (may be null) is the stored texture frame, or empty when
+  // the view has none.
   bool LoadCapture(int view, cv::Mat* left, cv::Mat* right, nlohmann::json* meta,
-                   std::string* error) const;
+                   std::string* error, cv::Mat* texture_left = nullptr) const;
   bool LoadDisparity(int view, cv::Mat* disparity_px, std::string* error) const;
   bool LoadCloud(int view, PointCloud* cloud, std::string* error) const;
   bool LoadOutput(const std::string& name, std::string* bytes, std::string* error) const;

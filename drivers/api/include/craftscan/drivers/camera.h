@@ -71,6 +71,11 @@ struct CameraImage {
 
 struct StereoFrame {
   CameraImage left, right;
+  // A station with a pattern projector: the left camera's image of the same
+  // view with the projector off (same size and format as left.image), for
+  // the model's colours; the pair shows the pattern, for matching. Empty
+  // without a projector.
+  cv::Mat texture_left;
   CameraSettings settings;  // the settings in force when the pair was exposed
 };
 

@@ -282,6 +282,11 @@ class Scene {
   Scene& operator=(const Scene&) = delete;
 
   const SceneOptions& options() const;
+  // Switches the pattern projector (LightingOptions::projector) off and on
+  // again, as a station does for a texture frame between pattern frames.
+  // False (nothing changes) when the scene was created without one.
+  bool SetProjectorOn(bool on);
+  bool projector_on() const;
   void SetTurntableAngle(double angle_rad);
   double turntable_angle_rad() const;
 
@@ -314,7 +319,8 @@ class Scene {
 // that only show images skip it. The images do not depend on it.
 enum class RenderOutputs {
   kImagesAndGroundTruth,
-  kImagesOnly,  // the depth, label, mask and rectified maps of StereoRender stay empty
+  kImagesOnly,     // the depth, label, mask and rectified maps of StereoRender stay empty
+  kLeftImageOnly,  // as kImagesOnly without the right image (a texture frame)
 };
 
 struct StereoRender {

@@ -40,6 +40,9 @@ class Rectifier {
   bool Rectify(const cv::Mat& left, const cv::Mat& right, cv::Mat* left_rectified,
                cv::Mat* right_rectified, std::string* error) const;
 
+  // The left image alone (a texture frame), as Rectify does it.
+  bool RectifyLeft(const cv::Mat& left, cv::Mat* left_rectified, std::string* error) const;
+
   // Raw left/right pixel → rectified pixel (undistorted, rotated, projected
   // with P1/P2). Empty output when not ready.
   std::vector<cv::Point2f> RectifyLeftPoints(const std::vector<cv::Point2f>& raw) const;

@@ -60,8 +60,13 @@ class ViewProcessor {
   double focal_px() const;
   double baseline_mm() const;
 
-  // Never throws; images must be the calibration's size.
-  ProcessedView Process(const cv::Mat& left_raw, const cv::Mat& right_raw);
+  // Never throws; images must be the calibration's size. `texture_left_raw`
+  // (optional: a station with a pattern projector, drivers::StereoFrame::
+  // texture_left) is the left view with the projector off, the same size
+  // and type as left_raw: the points take their colours from it (the pair,
+  // with the pattern, is matched and judged for texture).
+  ProcessedView Process(const cv::Mat& left_raw, const cv::Mat& right_raw,
+                        const cv::Mat& texture_left_raw = cv::Mat());
 
  private:
   Rectifier rectifier_;

@@ -295,6 +295,34 @@ TEST(SimRender, ProjectorPatternAndTextureFrame) {
   EXPECT_NE(bad.message.find("texture frame"), std::string::npos) << bad.message;
 }
 
+// The band reaches the far edge of the platter when told its radius: its
+// disparity there is inside the band, and the band only grows downwards.
+TEST(SimRender, TheBandReachesThePlattersFarEdge) {
+  const RigOptions rig = SmallRig();
+  auto station = MakeStation(rig);
+  const StereoCalibration& c = station->calibration();
+  ViewProcessorOptions volume_only;
+  volume_only.num_threads = 1;
+  ViewProcessorOptions with_platter = volume_only;
+  with_platter.platter_radius_mm = 150;
+  ViewProcessor a, b;
+  std::string error;
+  ASSERT_TRUE(a.Init(c, volume_only, &error)) << error;
+  ASSERT_TRUE(b.Init(c, with_platter, &error)) << error;
+  EXPECT_LT(b.min_disparity(), a.min_disparity());
+  EXPECT_EQ(b.min_disparity() + b.num_disparities(), a.min_disparity() + a.num_disparities());
+  // The platter's far edge (turntable frame: +y away from the rig) in the rig frame.
+  const cv::Matx44d rig_from_world = station->rig_from_world();
+  const cv::Vec4d far = rig_from_world * cv::Vec4d(0, 150, 0, 1);
+  const cv::Vec3d l = c.P1 * far, r = c.P2 * far;
+  const double d = l[0] / l[2] - r[0] / r[2];
+  EXPECT_GE(d, b.min_disparity());
+  ViewProcessorOptions bad = volume_only;
+  bad.platter_radius_mm = -1;
+  EXPECT_FALSE(a.Init(c, bad, &error));
+  EXPECT_NE(error.find("platter_radius_mm"), std::string::npos) << error;
+}
+
 TEST(SimRender, ThreadCountDoesNotChangeAnything) {
   SceneOptions options;
   options.object.type = ObjectType::kEmbroidery;

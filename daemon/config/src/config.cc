@@ -516,6 +516,7 @@ ViewProcessorOptions ViewOptions(const PipelineSettings& settings) {
   ViewProcessorOptions options;
   options.num_threads = settings.threads;
   options.volume = settings.volume;
+  options.platter_radius_mm = settings.platter_radius_mm;
   options.min_texture_std = settings.min_texture_std;
   options.min_disparity = settings.min_disparity;
   options.num_disparities = settings.num_disparities;

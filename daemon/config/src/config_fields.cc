@@ -385,6 +385,9 @@ std::vector<Field> MakeFields() {
   f.push_back(RealField("pipeline.volume_max_height_mm",
                         [](DaemonConfig& c) -> double& { return c.pipeline.volume.max_height_mm; },
                         {-1000, kMax}));
+  f.push_back(RealField("pipeline.platter_radius_mm",
+                        [](DaemonConfig& c) -> double& { return c.pipeline.platter_radius_mm; },
+                        {0, kMax}));
   f.push_back(RealField(
       "pipeline.free_space_tolerance_mm",
       [](DaemonConfig& c) -> double& { return c.pipeline.free_space_tolerance_mm; }, {0, 100}));

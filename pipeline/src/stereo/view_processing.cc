@@ -29,6 +29,8 @@ bool ViewProcessorOptions::IsValid(std::string* why) const {
     return Fail(why, "disparity_margin_px must be in 0..64");
   if (max_num_disparities < 16) return Fail(why, "max_num_disparities must be >= 16");
   if (!(min_texture_std >= 0)) return Fail(why, "min_texture_std must be >= 0");
+  if (!(platter_radius_mm >= 0 && platter_radius_mm <= 10000))
+    return Fail(why, "platter_radius_mm must be in [0, 10000]");
   return true;
 }
 
@@ -69,6 +71,21 @@ bool ViewProcessor::Init(const StereoCalibration& calibration, const ViewProcess
     const double d = l[0] / l[2] - r[0] / r[2];
     d_min = std::min(d_min, d);
     d_max = std::max(d_max, d);
+  }
+  // Above a low object the cameras see the far side of the platter: the
+  // band reaches down to its disparity there, else the matcher carries the
+  // object's disparity into it (consistent in both images, so the
+  // left-right check keeps it: a sheet of points above the object).
+  if (crop_ && options.platter_radius_mm > options.volume.radius_mm) {
+    const cv::Matx44d rig_from_turntable = turntable_from_rig_.inv();
+    for (int i = 0; i < 72; ++i) {
+      const double a = i * CV_PI / 36, r = options.platter_radius_mm;
+      const cv::Vec4d p = rig_from_turntable * cv::Vec4d(r * std::cos(a), r * std::sin(a), 0, 1);
+      if (!(p[2] > 1)) continue;
+      const cv::Vec3d l = c.P1 * cv::Vec4d(p[0], p[1], p[2], 1);
+      const cv::Vec3d q = c.P2 * cv::Vec4d(p[0], p[1], p[2], 1);
+      d_min = std::min(d_min, l[0] / l[2] - q[0] / q[2]);
+    }
   }
   min_disparity_ = static_cast<int>(std::floor(d_min)) - options.disparity_margin_px;
   num_disparities_ =

@@ -137,8 +137,12 @@ class DaemonFixture {
     config << "scan: {settle_ms: 0}\n"
            // The carved box (80 x 60 x 50 mm) with a margin: the band the
            // matcher searches follows from this volume.
-           << "pipeline: {threads: " << TestThreads()
-           << (box_volume ? ", volume_radius_mm: 65, volume_max_height_mm: 70" : "")
+           << "pipeline: {threads: "
+           << TestThreads()
+           // (and the band of that volume alone: the platter beyond it
+           // is not searched, as the tests were timed with).
+           << (box_volume ? ", volume_radius_mm: 65, volume_max_height_mm: 70, platter_radius_mm: 0"
+                          : "")
            << pipeline_extra << "}\n";
     config.close();
     if (!with_calibration) return true;

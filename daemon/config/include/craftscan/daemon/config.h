@@ -178,6 +178,10 @@ struct PipelineSettings {
   // pipeline.volume_radius_mm (0, 10000], pipeline.volume_min_height_mm
   // [−1000, 10000], pipeline.volume_max_height_mm (min, 10000]; mm.
   WorkingVolume volume;
+  // The turntable platter's radius (mm, [0, 10000]; 0 = not used): the
+  // matcher's band reaches the platter's far edge, seen above low objects
+  // (ViewProcessorOptions::platter_radius_mm).
+  double platter_radius_mm = 150;
   // Drop fused points other views look straight through (mm of depth
   // agreement, [0, 100]; 0 = off): VisibilityOptions::tolerance_mm.
   double free_space_tolerance_mm = 1.0;

@@ -25,6 +25,10 @@ struct ViewProcessorOptions {
   // Disparity band: the volume's disparities (with the platter) widened by this
   // margin on both sides, so calibration error cannot cut the object off.
   int disparity_margin_px = 8;
+  // The platter's radius (mm, [0, 10000]; 0 or ≤ the volume's radius: not
+  // used): the band reaches down to the disparity of its far edge, which
+  // the cameras see above a low object (see ViewProcessor::Init).
+  double platter_radius_mm = 0;
   int max_num_disparities = 1024;  // refuse absurd bands (a bad calibration)
   // A fixed band instead of the working volume's (num_disparities > 0).
   int min_disparity = 0, num_disparities = 0;

@@ -3,6 +3,7 @@
 
 #include <unistd.h>
 
+#include <algorithm>
 #include <condition_variable>
 #include <cstdlib>
 #include <filesystem>
@@ -149,14 +150,8 @@ struct StationClient::Impl {
       std::lock_guard lock(mutex);
       pending[id];
     }
-    dds::Outgoing<dds::msg::Command> out;
-    out.msg().request_id = out.Keep(id);
-    out.msg().client = out.Keep(client_name);
-    out.msg().token = out.Keep(token);
-    out.msg().verb = out.Keep(verb);
-    out.msg().arguments = out.Keep(arguments);
     std::string error;
-    if (!commands->Write(out.msg(), &error)) {
+    if (!Write(id, verb, arguments, token, &error)) {
       Forget(id);
       result.status = CallStatus::kError;
       result.message = "cannot send '" + std::string(verb) + "': " + error;
@@ -165,6 +160,19 @@ struct StationClient::Impl {
     result.request_id = id;
     result.status = CallStatus::kReplied;
     return result;
+  }
+
+  // Writes the Command under request id `id` (again, when its reply is late:
+  // the daemon answers a repeated id with the reply it gave, ReplyMemory).
+  bool Write(const std::string& id, std::string_view verb, std::string_view arguments,
+             std::string_view token, std::string* error) {
+    dds::Outgoing<dds::msg::Command> out;
+    out.msg().request_id = out.Keep(id);
+    out.msg().client = out.Keep(client_name);
+    out.msg().token = out.Keep(token);
+    out.msg().verb = out.Keep(verb);
+    out.msg().arguments = out.Keep(arguments);
+    return commands->Write(out.msg(), error);
   }
 
   // The reply to `id` if it arrived, waiting until `deadline`.
@@ -292,7 +300,20 @@ CallResult StationClient::CallRaw(std::string_view verb, std::string_view argume
   const auto deadline = Clock::now() + timeout;
   CallResult result = impl_->Send(verb, arguments, token, deadline, timeout);
   if (result.status != CallStatus::kReplied) return result;
-  std::optional<Reply> reply = impl_->WaitReply(result.request_id, deadline);
+  // DDS discovery is asymmetric: the daemon may not have matched this
+  // client's writer or reader yet when the first Command goes, and a
+  // volatile topic then loses the Command or its Reply. So the Command is
+  // sent again under the same id after 1, 2, 4, ... s without a reply (the
+  // daemon runs it once and repeats its reply: ReplyMemory).
+  std::optional<Reply> reply;
+  auto resend_after = std::chrono::milliseconds(1000);
+  for (auto next = Clock::now() + resend_after;; next = Clock::now() + resend_after) {
+    reply = impl_->WaitReply(result.request_id, std::min(next, deadline));
+    if (reply || Clock::now() >= deadline) break;
+    std::string ignored;  // a failed repeat is like a lost one
+    impl_->Write(result.request_id, verb, arguments, token, &ignored);
+    resend_after *= 2;
+  }
   impl_->Forget(result.request_id);
   if (!reply) {
     result.status = CallStatus::kUnreachable;

@@ -303,3 +303,40 @@ std::string CommandRateLimiter::RefusalMessage(std::string_view client) {
 }
 
 }  // namespace craftscan::daemon
+
+namespace craftscan::daemon {
+
+std::string ReplyMemory::Key(const CommandRequest& request) {
+  // The token is part of the key (hashed: only its equality matters), so a
+  // request id replayed with another token is handled as a new command.
+  return request.client + '\n' + request.request_id + '\n' +
+         std::to_string(std::hash<std::string>{}(request.token));
+}
+
+const CommandReply* ReplyMemory::Find(const CommandRequest& request, bool* known) {
+  if (known) *known = false;
+  if (request.request_id.empty()) return nullptr;
+  const auto it = replies_.find(Key(request));
+  if (it == replies_.end()) return nullptr;
+  if (known) *known = true;
+  if (it->second.repeats >= kMaxReplyRepeats) return nullptr;
+  ++it->second.repeats;
+  return &it->second.reply;
+}
+
+void ReplyMemory::Remember(const CommandRequest& request, const CommandReply& reply) {
+  if (request.request_id.empty()) return;
+  std::string key = Key(request);
+  Entry entry{reply, 0};
+  entry.reply.transfer.reset();  // the chunks went once, after the first reply
+  const auto [it, inserted] = replies_.insert_or_assign(key, std::move(entry));
+  (void)it;
+  if (!inserted) return;
+  order_.push_back(std::move(key));
+  while (order_.size() > kRememberedReplies) {
+    replies_.erase(order_.front());
+    order_.pop_front();
+  }
+}
+
+}  // namespace craftscan::daemon

@@ -149,6 +149,7 @@ struct Daemon::Impl {
     std::string last_job_state, last_summary;
   } loop;
   CommandRateLimiter rate_limiter;
+  ReplyMemory replies;                // the last replies, for commands sent again
   RefusalLog refusals{Clock::now()};  // restarted by StartServing
 
   // What StationStatus and the status verb show.
@@ -385,6 +386,16 @@ void Daemon::Impl::ServeCommand() {
 }
 
 void Daemon::Impl::Answer(const CommandRequest& request, Clock::time_point received) {
+  // A command sent again (its first reply did not reach the client) gets
+  // the reply it had; it is not run twice (ReplyMemory).
+  bool known = false;
+  if (const CommandReply* again = replies.Find(request, &known)) {
+    spdlog::debug("command {} from '{}' sent again: its reply repeated", again->request_id,
+                  again->client);
+    commands.Reply(*again);
+    return;
+  }
+  if (known) return;  // repeated more than kMaxReplyRepeats times: dropped
   CommandReply reply = rate_limiter.Admit(request.client, received)
                            ? handler->Handle(request)
                            : handler->Refuse(request, ReplyCode::kBusy,
@@ -399,6 +410,7 @@ void Daemon::Impl::Answer(const CommandRequest& request, Clock::time_point recei
   spdlog::debug("command {} '{}' from '{}': {}", reply.request_id, request.verb.substr(0, 64),
                 reply.client, ToString(reply.code));
   refusals.Note(reply, request.verb, received);
+  replies.Remember(request, reply);
   commands.Reply(reply);
   // The chunks follow the Reply that lists them.
   if (reply.transfer) files.Enqueue(reply.request_id, reply.client, std::move(*reply.transfer));

@@ -405,6 +405,60 @@ TEST(CommandFloodLimits, RateLimiterKeepsClientsApartAndItsTableBounded) {
   EXPECT_NE(message.find(std::string(128, 'c') + "'"), std::string::npos) << message;
 }
 
+// A command sent again under its request id gets the reply it had
+// (ReplyMemory): by client, id and token, bounded, repeated a bounded number
+// of times, and without the file transfer of the first reply.
+TEST(ReplyMemory, ARepeatedRequestGetsItsReplyAndTheMemoryIsBounded) {
+  daemon::ReplyMemory memory;
+  const daemon::CommandRequest scan{"id-1", "client", kOperatorToken, "scan", "{}"};
+  bool known = true;
+  EXPECT_EQ(memory.Find(scan, &known), nullptr);
+  EXPECT_FALSE(known);
+  daemon::CommandReply reply;
+  reply.request_id = "id-1";
+  reply.client = "client";
+  reply.code = ReplyCode::kOk;
+  reply.message = "scan started as job-7";
+  reply.transfer.emplace();
+  memory.Remember(scan, reply);
+  const daemon::CommandReply* again = memory.Find(scan, &known);
+  ASSERT_NE(again, nullptr);
+  EXPECT_TRUE(known);
+  EXPECT_EQ(again->message, "scan started as job-7");
+  EXPECT_EQ(again->code, ReplyCode::kOk);
+  EXPECT_FALSE(again->transfer.has_value());
+  // Another token, client or id is another command.
+  daemon::CommandRequest other = scan;
+  other.token = "someone-else";
+  EXPECT_EQ(memory.Find(other), nullptr);
+  other = scan;
+  other.client = "client2";
+  EXPECT_EQ(memory.Find(other), nullptr);
+  other = scan;
+  other.request_id = "id-2";
+  EXPECT_EQ(memory.Find(other), nullptr);
+  // No id, nothing remembered.
+  other.request_id = "";
+  memory.Remember(other, reply);
+  EXPECT_EQ(memory.Find(other), nullptr);
+  // Repeated at most kMaxReplyRepeats times (one repeat above), then dropped.
+  for (int i = 1; i < daemon::kMaxReplyRepeats; ++i) ASSERT_NE(memory.Find(scan), nullptr) << i;
+  EXPECT_EQ(memory.Find(scan, &known), nullptr);
+  EXPECT_TRUE(known);
+  // Bounded: the oldest are forgotten first.
+  for (std::size_t i = 0; i < daemon::kRememberedReplies + 10; ++i) {
+    daemon::CommandRequest r = scan;
+    r.request_id = "bulk-" + std::to_string(i);
+    memory.Remember(r, reply);
+  }
+  EXPECT_EQ(memory.size(), daemon::kRememberedReplies);
+  daemon::CommandRequest oldest = scan, newest = scan;
+  oldest.request_id = "bulk-0";
+  newest.request_id = "bulk-" + std::to_string(daemon::kRememberedReplies + 9);
+  EXPECT_EQ(memory.Find(oldest), nullptr);
+  EXPECT_NE(memory.Find(newest), nullptr);
+}
+
 TEST(CommandFloodLimits, OversizedFieldsAreMeasuredNotCopied) {
   const daemon::CommandLimits limits;
   const std::string huge(16 << 20, 'x');
@@ -450,6 +504,49 @@ TEST(DaemonAbuse, AChattyClientIsToldToSlowDownAndOthersAreServed) {
                                  daemon::kClientCommandsPerSecond * elapsed_s) +
                     1);
   ExpectServing(*s, "another client");
+}
+
+// A job command sent twice under one request id (a client whose first
+// reply was lost sends it again) starts one job, and both copies are
+// answered with the same reply; the job is not refused as busy by itself.
+TEST(DaemonAbuse, ACommandSentAgainIsAnsweredAgainAndRunOnce) {
+  auto s = StartStation();
+  ASSERT_TRUE(s);
+  const RawCommand capture{"again-1", "repeater", kOperatorToken, "capture",
+                           "{\"object\": \"twice\"}"};
+  const auto first = Call(*s, capture);
+  ASSERT_TRUE(first) << LogTail(s->fixture);
+  ASSERT_EQ(first->code_name, "ok") << first->message;
+  std::string error;
+  ASSERT_TRUE(s->peer->Write(capture, &error)) << error;
+  // The replies to "again-1" from "repeater", once `count` have come.
+  auto copies = [&](std::size_t count) {
+    std::vector<RawReply> found;
+    const auto deadline = Clock::now() + 20s;
+    while (Clock::now() < deadline && found.size() < count) {
+      found.clear();
+      for (const RawReply& r : s->replies->All()) {
+        if (r.request_id == "again-1" && r.client == "repeater") found.push_back(r);
+      }
+      std::this_thread::sleep_for(50ms);
+    }
+    return found;
+  };
+  // Both replies carry the one job's id.
+  std::vector<RawReply> replies = copies(2);
+  ASSERT_EQ(replies.size(), 2u) << LogTail(s->fixture);
+  EXPECT_EQ(replies[1].code_name, "ok") << replies[1].message;
+  EXPECT_EQ(replies[1].message, replies[0].message);
+  EXPECT_EQ(replies[1].result, replies[0].result);
+  EXPECT_NE(replies[0].result.find("\"id\""), std::string::npos) << replies[0].result;
+  // The same id with another token is a new command, checked as such.
+  ASSERT_TRUE(
+      s->peer->Write({"again-1", "repeater", "not-a-token-000000", "capture", "{}"}, &error))
+      << error;
+  replies = copies(3);
+  ASSERT_EQ(replies.size(), 3u) << LogTail(s->fixture);
+  EXPECT_EQ(replies[2].code_name, "unauthenticated") << replies[2].message;
+  ExpectServing(*s, "after-repeats");
 }
 
 // The kinds of command in the flood, with the code each must get.

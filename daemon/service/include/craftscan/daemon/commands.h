@@ -69,6 +69,7 @@
 
 #include <chrono>
 #include <cstdint>
+#include <deque>
 #include <functional>
 #include <memory>
 #include <optional>
@@ -207,6 +208,37 @@ class CommandRateLimiter {
  private:
   std::unordered_map<std::string, TokenBucket> buckets_;
   std::optional<TokenBucket> shared_;  // for names beyond kMaxRateLimitedClients
+};
+
+// The replies to the last kRememberedReplies commands, by client, request
+// id and token, so that a command sent again under the same request id is
+// answered with the reply it had and never run twice. Clients send a
+// command again when its reply does not come: DDS discovery is asymmetric,
+// so a new client may see the daemon's endpoints before the daemon sees
+// its own, and the first Command or its Reply can then be lost. A reply is
+// sent again at most kMaxReplyRepeats times. Not thread-safe (the command
+// loop's).
+inline constexpr std::size_t kRememberedReplies = 256;
+inline constexpr int kMaxReplyRepeats = 16;
+class ReplyMemory {
+ public:
+  // The reply given to this request before, or null; counts the repeat.
+  // Null too once it was repeated kMaxReplyRepeats times: the caller then
+  // drops the request (a client replaying one id in a loop gets nothing).
+  // `*known` (if not null) says whether the request was seen at all.
+  const CommandReply* Find(const CommandRequest& request, bool* known = nullptr);
+  // Remembers `reply` (without its file transfer) for `request`.
+  void Remember(const CommandRequest& request, const CommandReply& reply);
+  std::size_t size() const { return replies_.size(); }
+
+ private:
+  struct Entry {
+    CommandReply reply;
+    int repeats = 0;
+  };
+  static std::string Key(const CommandRequest& request);
+  std::unordered_map<std::string, Entry> replies_;
+  std::deque<std::string> order_;  // oldest first
 };
 
 // The result of CheckCommand: kOk with the parsed arguments and the caller's

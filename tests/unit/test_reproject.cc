@@ -1,6 +1,7 @@
 // Reprojection of disparity to points with Q (stereo/reproject.h): planes
 // through hand-built and stereoRectify Q matrices, invalid disparities, the
-// depth and texture filters, colour, and mismatched inputs.
+// depth and texture filters, colour, and mismatched inputs; the erosion at
+// depth discontinuities that runs before it (view_processing.h).
 #include "craftscan/pipeline/stereo/reproject.h"
 
 #include <cmath>
@@ -13,6 +14,7 @@
 #include <opencv2/core.hpp>
 
 #include "craftscan/pipeline/stereo/adcensus.h"
+#include "craftscan/pipeline/stereo/view_processing.h"
 
 namespace craftscan {
 namespace {
@@ -228,6 +230,43 @@ TEST(Reproject, TextureFilterDropsFlatRegions) {
   ExpectInvalidInput(ReprojectToPoints(disparity, q, cv::Mat(), options));
   options.texture_window = 4;
   ExpectInvalidInput(ReprojectToPoints(disparity, q, color, options));
+}
+
+// A silhouette: an object at disparity 60 in front of a background at 40,
+// its right half a ramp of 0.5 px per pixel (a slanted surface, no edge),
+// and a hole. Only the pixels within the radius of the 20 px jump go; the
+// ramp, the hole's rim and everything farther stay.
+TEST(DepthEdgeErosion, ErasesThePixelsBesideAJumpOnlyAndCountsThem) {
+  cv::Mat d(40, 60, CV_32FC1, cv::Scalar(40));
+  for (int y = 0; y < d.rows; ++y)
+    for (int x = 20; x < 60; ++x) d.at<float>(y, x) = x < 40 ? 60.f : 60.f + 0.5f * (x - 40);
+  for (int y = 28; y < 32; ++y)
+    for (int x = 44; x < 48; ++x) d.at<float>(y, x) = kNan;  // a hole in the ramp
+  cv::Mat eroded = d.clone();
+  EXPECT_EQ(EraseNearDepthEdges(1, 3, &eroded), std::size_t{2 * 40});  // columns 19 and 20
+  int invalid = 0;
+  for (int y = 0; y < eroded.rows; ++y)
+    for (int x = 0; x < eroded.cols; ++x) invalid += std::isnan(eroded.at<float>(y, x)) ? 1 : 0;
+  EXPECT_EQ(invalid, 2 * 40 + 16);  // + the hole
+  for (int y = 0; y < d.rows; ++y) {
+    for (int x = 0; x < d.cols; ++x) {
+      const bool beside = x == 19 || x == 20;
+      const bool hole = y >= 28 && y < 32 && x >= 44 && x < 48;
+      if (beside || hole)
+        EXPECT_TRUE(std::isnan(eroded.at<float>(y, x))) << x << "," << y;
+      else
+        EXPECT_EQ(eroded.at<float>(y, x), d.at<float>(y, x)) << x << "," << y;
+    }
+  }
+  // Radius 2 takes two columns on each side; a jump under the threshold or
+  // radius 0 takes nothing.
+  eroded = d.clone();
+  EXPECT_EQ(EraseNearDepthEdges(2, 3, &eroded), std::size_t{4 * 40});
+  eroded = d.clone();
+  EXPECT_EQ(EraseNearDepthEdges(1, 25, &eroded), std::size_t{0});
+  EXPECT_EQ(EraseNearDepthEdges(0, 3, &eroded), std::size_t{0});
+  cv::Mat empty;
+  EXPECT_EQ(EraseNearDepthEdges(1, 3, &empty), std::size_t{0});
 }
 
 }  // namespace

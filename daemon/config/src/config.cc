@@ -520,6 +520,8 @@ ViewProcessorOptions ViewOptions(const PipelineSettings& settings) {
   options.min_texture_std = settings.min_texture_std;
   options.min_disparity = settings.min_disparity;
   options.num_disparities = settings.num_disparities;
+  options.depth_edge_radius_px = settings.depth_edge_radius_px;
+  options.depth_edge_jump_px = settings.depth_edge_jump_px;
   return options;
 }
 
@@ -527,6 +529,7 @@ ScanOptions ReconstructionOptions(const PipelineSettings& settings) {
   ScanOptions options;
   options.num_threads = settings.threads;
   options.volume = settings.volume;
+  options.conditioning.crop.platter_band_mm = settings.platter_band_mm;
   options.mesh = settings.mesh;
   options.free_space_check = settings.free_space_tolerance_mm > 0;
   if (options.free_space_check) options.visibility.tolerance_mm = settings.free_space_tolerance_mm;

@@ -388,6 +388,15 @@ std::vector<Field> MakeFields() {
   f.push_back(RealField("pipeline.platter_radius_mm",
                         [](DaemonConfig& c) -> double& { return c.pipeline.platter_radius_mm; },
                         {0, kMax}));
+  f.push_back(RealField("pipeline.platter_band_mm",
+                        [](DaemonConfig& c) -> double& { return c.pipeline.platter_band_mm; },
+                        {0, 1000}));
+  f.push_back(IntField(
+      "pipeline.depth_edge_radius_px",
+      [](DaemonConfig& c) -> int& { return c.pipeline.depth_edge_radius_px; }, 0, 5));
+  f.push_back(RealField("pipeline.depth_edge_jump_px",
+                        [](DaemonConfig& c) -> double& { return c.pipeline.depth_edge_jump_px; },
+                        {0, 1000, true}));
   f.push_back(RealField(
       "pipeline.free_space_tolerance_mm",
       [](DaemonConfig& c) -> double& { return c.pipeline.free_space_tolerance_mm; }, {0, 100}));

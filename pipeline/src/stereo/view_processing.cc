@@ -5,7 +5,10 @@
 #include <cmath>
 #include <cstdint>
 #include <exception>
+#include <limits>
 #include <vector>
+
+#include <opencv2/imgproc.hpp>
 
 #include "craftscan/pipeline/common/status.h"
 #include "craftscan/pipeline/stereo/reproject.h"
@@ -31,7 +34,39 @@ bool ViewProcessorOptions::IsValid(std::string* why) const {
   if (!(min_texture_std >= 0)) return Fail(why, "min_texture_std must be >= 0");
   if (!(platter_radius_mm >= 0 && platter_radius_mm <= 10000))
     return Fail(why, "platter_radius_mm must be in [0, 10000]");
+  if (depth_edge_radius_px < 0 || depth_edge_radius_px > 5)
+    return Fail(why, "depth_edge_radius_px must be in 0..5");
+  if (!(depth_edge_jump_px > 0 && depth_edge_jump_px <= 1000))
+    return Fail(why, "depth_edge_jump_px must be in (0, 1000]");
   return true;
+}
+
+std::size_t EraseNearDepthEdges(int radius_px, double jump_px, cv::Mat* disparity) {
+  if (radius_px <= 0 || disparity == nullptr || disparity->empty()) return 0;
+  CV_Assert(disparity->type() == CV_32FC1);
+  // The largest and smallest valid disparity around every pixel: invalid
+  // pixels count as neither (a hole is not a depth edge).
+  cv::Mat highest = disparity->clone(), lowest = disparity->clone();
+  cv::patchNaNs(highest, -std::numeric_limits<float>::max());
+  cv::patchNaNs(lowest, std::numeric_limits<float>::max());
+  const cv::Mat window =
+      cv::getStructuringElement(cv::MORPH_RECT, cv::Size(2 * radius_px + 1, 2 * radius_px + 1));
+  cv::dilate(highest, highest, window);
+  cv::erode(lowest, lowest, window);
+  std::size_t erased = 0;
+  const auto jump = static_cast<float>(jump_px);
+  for (int y = 0; y < disparity->rows; ++y) {
+    float* d = disparity->ptr<float>(y);
+    const float* hi = highest.ptr<float>(y);
+    const float* lo = lowest.ptr<float>(y);
+    for (int x = 0; x < disparity->cols; ++x) {
+      if (std::isfinite(d[x]) && (hi[x] - d[x] > jump || d[x] - lo[x] > jump)) {
+        d[x] = std::numeric_limits<float>::quiet_NaN();
+        ++erased;
+      }
+    }
+  }
+  return erased;
 }
 
 bool ViewProcessor::Init(const StereoCalibration& calibration, const ViewProcessorOptions& options,
@@ -175,6 +210,8 @@ ProcessedView ViewProcessor::Process(const cv::Mat& left_raw, const cv::Mat& rig
       return out;
     }
     out.disparity = std::move(match.disparity);
+    out.edge_pixels_erased = EraseNearDepthEdges(options_.depth_edge_radius_px,
+                                                 options_.depth_edge_jump_px, &out.disparity);
     out.min_disparity = min_disparity_;
     out.num_disparities = num_disparities_;
 

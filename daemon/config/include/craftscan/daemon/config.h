@@ -59,6 +59,11 @@
 //     volume_radius_mm: 120       (0, 10000] working volume around the axis
 //     volume_min_height_mm: 1.5   [−1000, 10000] above the platter
 //     volume_max_height_mm: 200   (min, 10000]
+//     platter_radius_mm: 150      [0, 10000] the band reaches its far edge
+//     platter_band_mm: 1.5        [0, 1000] level points below it are platter
+//     free_space_tolerance_mm: 1  [0, 100]; 0 = no free-space check
+//     depth_edge_radius_px: 1     0..5 erosion at depth edges; 0 = off
+//     depth_edge_jump_px: 3       (0, 1000] what a depth edge is (px of disparity)
 //     mesh: true                  Poisson mesh after fusion
 //     measure_box: true           also measure the object as a box (edges, faces)
 //   limits:
@@ -182,6 +187,16 @@ struct PipelineSettings {
   // matcher's band reaches the platter's far edge, seen above low objects
   // (ViewProcessorOptions::platter_radius_mm).
   double platter_radius_mm = 150;
+  // Level points (normal within 30° of the axis) lower than this above the
+  // platter are the platter itself, lifted by matching noise, and dropped
+  // (mm, [0, 1000]; at or below volume_min_height_mm: off):
+  // VolumeCrop::platter_band_mm. Walls and relief below it are kept.
+  double platter_band_mm = 1.5;
+  // Erosion at depth discontinuities (EraseNearDepthEdges): pixels within
+  // depth_edge_radius_px (0..5; 0 = off) of a disparity jump larger than
+  // depth_edge_jump_px ((0, 1000]) are dropped.
+  int depth_edge_radius_px = 1;
+  double depth_edge_jump_px = 3;
   // Drop fused points other views look straight through (mm of depth
   // agreement, [0, 100]; 0 = off): VisibilityOptions::tolerance_mm.
   double free_space_tolerance_mm = 1.0;

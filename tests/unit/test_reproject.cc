@@ -234,8 +234,9 @@ TEST(Reproject, TextureFilterDropsFlatRegions) {
 
 // A silhouette: an object at disparity 60 in front of a background at 40,
 // its right half a ramp of 0.5 px per pixel (a slanted surface, no edge),
-// and a hole. Only the pixels within the radius of the 20 px jump go; the
-// ramp, the hole's rim and everything farther stay.
+// and a hole. Only the background's pixels within the radius of the 20 px
+// jump go; the object's edge, the ramp, the hole's rim and everything
+// farther stay.
 TEST(DepthEdgeErosion, ErasesThePixelsBesideAJumpOnlyAndCountsThem) {
   cv::Mat d(40, 60, CV_32FC1, cv::Scalar(40));
   for (int y = 0; y < d.rows; ++y)
@@ -243,14 +244,14 @@ TEST(DepthEdgeErosion, ErasesThePixelsBesideAJumpOnlyAndCountsThem) {
   for (int y = 28; y < 32; ++y)
     for (int x = 44; x < 48; ++x) d.at<float>(y, x) = kNan;  // a hole in the ramp
   cv::Mat eroded = d.clone();
-  EXPECT_EQ(EraseNearDepthEdges(1, 3, &eroded), std::size_t{2 * 40});  // columns 19 and 20
+  EXPECT_EQ(EraseNearDepthEdges(1, 3, &eroded), std::size_t{40});  // column 19
   int invalid = 0;
   for (int y = 0; y < eroded.rows; ++y)
     for (int x = 0; x < eroded.cols; ++x) invalid += std::isnan(eroded.at<float>(y, x)) ? 1 : 0;
-  EXPECT_EQ(invalid, 2 * 40 + 16);  // + the hole
+  EXPECT_EQ(invalid, 40 + 16);  // + the hole
   for (int y = 0; y < d.rows; ++y) {
     for (int x = 0; x < d.cols; ++x) {
-      const bool beside = x == 19 || x == 20;
+      const bool beside = x == 19;
       const bool hole = y >= 28 && y < 32 && x >= 44 && x < 48;
       if (beside || hole)
         EXPECT_TRUE(std::isnan(eroded.at<float>(y, x))) << x << "," << y;
@@ -258,10 +259,12 @@ TEST(DepthEdgeErosion, ErasesThePixelsBesideAJumpOnlyAndCountsThem) {
         EXPECT_EQ(eroded.at<float>(y, x), d.at<float>(y, x)) << x << "," << y;
     }
   }
-  // Radius 2 takes two columns on each side; a jump under the threshold or
+  // Radius 2 takes two columns (18 and 19); a jump under the threshold or
   // radius 0 takes nothing.
   eroded = d.clone();
-  EXPECT_EQ(EraseNearDepthEdges(2, 3, &eroded), std::size_t{4 * 40});
+  EXPECT_EQ(EraseNearDepthEdges(2, 3, &eroded), std::size_t{2 * 40});
+  EXPECT_TRUE(std::isnan(eroded.at<float>(5, 18)));
+  EXPECT_EQ(eroded.at<float>(5, 20), 60.f);
   eroded = d.clone();
   EXPECT_EQ(EraseNearDepthEdges(1, 25, &eroded), std::size_t{0});
   EXPECT_EQ(EraseNearDepthEdges(0, 3, &eroded), std::size_t{0});

@@ -44,23 +44,20 @@ bool ViewProcessorOptions::IsValid(std::string* why) const {
 std::size_t EraseNearDepthEdges(int radius_px, double jump_px, cv::Mat* disparity) {
   if (radius_px <= 0 || disparity == nullptr || disparity->empty()) return 0;
   CV_Assert(disparity->type() == CV_32FC1);
-  // The largest and smallest valid disparity around every pixel: invalid
-  // pixels count as neither (a hole is not a depth edge).
-  cv::Mat highest = disparity->clone(), lowest = disparity->clone();
-  cv::patchNaNs(highest, -std::numeric_limits<float>::max());
-  cv::patchNaNs(lowest, std::numeric_limits<float>::max());
-  const cv::Mat window =
-      cv::getStructuringElement(cv::MORPH_RECT, cv::Size(2 * radius_px + 1, 2 * radius_px + 1));
-  cv::dilate(highest, highest, window);
-  cv::erode(lowest, lowest, window);
+  // The largest valid disparity around every pixel (the nearest surface);
+  // invalid pixels count as none (a hole is not a depth edge).
+  cv::Mat nearest = disparity->clone();
+  cv::patchNaNs(nearest, -std::numeric_limits<float>::max());
+  cv::dilate(
+      nearest, nearest,
+      cv::getStructuringElement(cv::MORPH_RECT, cv::Size(2 * radius_px + 1, 2 * radius_px + 1)));
   std::size_t erased = 0;
   const auto jump = static_cast<float>(jump_px);
   for (int y = 0; y < disparity->rows; ++y) {
     float* d = disparity->ptr<float>(y);
-    const float* hi = highest.ptr<float>(y);
-    const float* lo = lowest.ptr<float>(y);
+    const float* near = nearest.ptr<float>(y);
     for (int x = 0; x < disparity->cols; ++x) {
-      if (std::isfinite(d[x]) && (hi[x] - d[x] > jump || d[x] - lo[x] > jump)) {
+      if (std::isfinite(d[x]) && near[x] - d[x] > jump) {
         d[x] = std::numeric_limits<float>::quiet_NaN();
         ++erased;
       }

@@ -193,8 +193,8 @@ struct PipelineSettings {
   // VolumeCrop::platter_band_mm. Walls and relief below it are kept.
   double platter_band_mm = 1.5;
   // Erosion at depth discontinuities (EraseNearDepthEdges): pixels within
-  // depth_edge_radius_px (0..5; 0 = off) of a disparity jump larger than
-  // depth_edge_jump_px ((0, 1000]) are dropped.
+  // depth_edge_radius_px (0..5; 0 = off) of a nearer surface, its disparity
+  // more than depth_edge_jump_px ((0, 1000]) above theirs, are dropped.
   int depth_edge_radius_px = 1;
   double depth_edge_jump_px = 3;
   // Drop fused points other views look straight through (mm of depth

@@ -77,6 +77,7 @@
 #include "craftscan/daemon/report.h"
 #include "craftscan/pipeline/common/atomic_file.h"
 #include "craftscan/pipeline/common/ply.h"
+#include "craftscan/pipeline/stereo/exposure_merge.h"
 #include "craftscan/pipeline/stereo/view_processing.h"
 #include "craftscan/pipeline/surface/scan_reconstruction.h"
 #include "craftscan/sim/driver_options.h"
@@ -174,6 +175,9 @@ class ScanCommand : public BenchCommand {
                     "mesh, measure_box) is used");
     sub->add_flag("--projector", projector_,
                   "A pattern projector beside the cameras (the sim driver's `projector: 1`)");
+    sub->add_option("--bracket", bracket_,
+                    "Exposure bracketing: each view also captured at these multiples of the "
+                    "exposure (ascending, > 1) and merged (MergeExposures)");
     sub->add_option("--json", json_path_, "Write the figures as JSON to this file");
     sub->add_option("--out", out_dir_,
                     "Write fused.ply, mesh.ply, mesh.obj, report.json and report.html (with "
@@ -201,6 +205,13 @@ class ScanCommand : public BenchCommand {
     }
     std::unique_ptr<sim::SimStation> station = sim::SimStation::Create(rig, &error);
     if (!station) return DataError(error);
+    for (double k : bracket_) {
+      sim::RigOptions longer = rig;
+      longer.exposure *= k;
+      std::unique_ptr<sim::SimStation> s = sim::SimStation::Create(longer, &error);
+      if (!s) return DataError("--bracket: " + error);
+      bracketed_.push_back(std::move(s));
+    }
     std::unique_ptr<sim::Scene> scene = sim::Scene::Create(scene_options, &error);
     if (!scene) return DataError(error);
 
@@ -306,9 +317,26 @@ class ScanCommand : public BenchCommand {
         times.render += t.render_ms;
         texture = t.left;
       }
+      cv::Mat left = render.left, right = render.right;
+      if (!bracketed_.empty()) {
+        std::vector<cv::Mat> ls{render.left}, rs{render.right};
+        std::vector<double> t{1.0};
+        for (std::size_t b = 0; b < bracketed_.size(); ++b) {
+          const sim::StereoRender e =
+              bracketed_[b]->Render(scene, static_cast<std::uint64_t>(k + 1000 * (b + 1)));
+          if (!e.IsUsable()) return DataError("bracket render failed: " + e.message);
+          times.render += e.render_ms;
+          ls.push_back(e.left);
+          rs.push_back(e.right);
+          t.push_back(bracket_[b]);
+        }
+        ExposureMergeOptions mo;
+        if (!MergeExposures(ls, t, mo, &left, &error) || !MergeExposures(rs, t, mo, &right, &error))
+          return DataError(error);
+      }
       if (k == views_ - 1) last_pair = Clock::now();
       const auto start = Clock::now();
-      ProcessedView v = processor.Process(render.left, render.right, texture);
+      ProcessedView v = processor.Process(left, right, texture);
       process_ms.push_back(MsSince(start));
       if (!v.ok) return DataError("view " + std::to_string(k) + ": " + v.message);
       ScanView view;
@@ -606,6 +634,7 @@ class ScanCommand : public BenchCommand {
     return f ? kExitOk : kExitDataError;
   }
 
+  std::vector<std::unique_ptr<sim::SimStation>> bracketed_;
   std::string object_ = "carved_box";
   std::string mesh_path_;
   double mesh_size_mm_ = 0;
@@ -614,6 +643,7 @@ class ScanCommand : public BenchCommand {
   int threads_ = 2;
   std::string image_size_ = "1280x1024";
   bool projector_ = false;
+  std::vector<double> bracket_;
   std::string config_path_, json_path_, out_dir_;
 };
 

@@ -1,0 +1,49 @@
+// Exposure bracketing: one view captured at several exposure times, merged
+// into one 8-bit image for the matcher. A surface with flat dark paint (the
+// egg's black, albedo ~0.04) spans a dozen grey levels at an exposure that
+// keeps the white paint unclipped: its texture (or a projector's pattern on
+// it) is a few levels against a sensor noise of ~1, and the matcher finds
+// nothing. A longer exposure lifts it clear of the noise but clips the rest.
+#pragma once
+
+#include <string>
+#include <vector>
+
+#include <opencv2/core/mat.hpp>
+
+namespace craftscan {
+
+struct ExposureMergeOptions {
+  // Output encoding: out = 255 · (r / 255)^(1 / gamma), r the merged radiance
+  // in grey levels of the reference (shortest) exposure; > 1 spreads the dark
+  // levels the longer exposures resolved. [1, 4].
+  double gamma = 2.2;
+  // A sample at or above `clip_level` is clipped (weight 0); the weight ramps
+  // down from 1 over the `clip_ramp` levels below it, so the switch between
+  // exposures leaves no seam. clip_level (0, 255], clip_ramp [0, clip_level).
+  double clip_level = 250;
+  double clip_ramp = 20;
+
+  bool IsValid(std::string* why) const;
+};
+
+// Merges `images` (8-bit, all of one size and type, CV_8UC1 or CV_8UC3) of
+// one view, exposed `relative_exposure[i]` times the first (> 0; the first
+// must be the shortest, 1), into *merged (same size and type). Per pixel and
+// channel the radiance is the least-squares estimate under fixed read noise,
+// r = Σ wᵢ tᵢ zᵢ / Σ wᵢ tᵢ² over the unclipped samples (wᵢ the clip ramp), so
+// the longest unclipped exposure dominates; where every sample is clipped, the
+// shortest exposure's value. Deterministic and the same for the left and the
+// right image, so the pair stays photometrically consistent. One image: its
+// gamma encoding. False with *error naming what is wrong (no images, sizes or
+// types differ, exposures not ascending from 1, options invalid).
+//
+// Why not cv::MergeDebevec + cv::Tonemap: MergeDebevec works in the log
+// domain of a response curve (log 0 for black: the dark paint this is for),
+// and Tonemap normalises each image by its own maximum, which differs between
+// the left and the right camera and breaks the matcher's absolute-difference
+// term.
+bool MergeExposures(const std::vector<cv::Mat>& images, const std::vector<double>& relative_exposure,
+                    const ExposureMergeOptions& options, cv::Mat* merged, std::string* error);
+
+}  // namespace craftscan

@@ -177,7 +177,9 @@ class ScanCommand : public BenchCommand {
                   "A pattern projector beside the cameras (the sim driver's `projector: 1`)");
     sub->add_option("--bracket", bracket_,
                     "Exposure bracketing: each view also captured at these multiples of the "
-                    "exposure (ascending, > 1) and merged (MergeExposures)");
+                    "exposure and merged, as the daemon's scan.exposure_bracket (which --config "
+                    "sets when this is not given)")
+        ->delimiter(',');
     sub->add_option("--json", json_path_, "Write the figures as JSON to this file");
     sub->add_option("--out", out_dir_,
                     "Write fused.ply, mesh.ply, mesh.obj, report.json and report.html (with "
@@ -193,6 +195,9 @@ class ScanCommand : public BenchCommand {
     if (!config_path_.empty() && !daemon::LoadDaemonConfig(config_path_, &config, &error))
       return DataError("--config: " + error);
     daemon::PipelineSettings settings = config.pipeline;
+    if (bracket_.empty()) bracket_ = config.scan.exposure_bracket;
+    config.scan.exposure_bracket = bracket_;
+    if (!config.IsValid(&error)) return UsageError("--bracket: " + error);
     settings.threads = threads_;
 
     sim::RigOptions rig = sim::SimRigOptions(driver);

@@ -96,7 +96,8 @@ TEST(ExposureMerge, NoSeamWhereTheLongExposureClips) {
   cv::Mat truth = radiance.row(0);
   double worst = 0;
   for (int x = 0; x < radiance.cols; ++x)
-    worst = std::max(worst, static_cast<double>(std::abs(row_mean.at<float>(x) - truth.at<float>(x))));
+    worst =
+        std::max(worst, static_cast<double>(std::abs(row_mean.at<float>(x) - truth.at<float>(x))));
   EXPECT_LT(worst, 1.2);
 }
 

@@ -315,7 +315,13 @@ class Dumper {
     out_ << YAML::Key << leaf << YAML::Value;
     if (field.is_list) {
       out_ << YAML::Flow << YAML::BeginSeq;
-      for (const std::string& item : field.get_list(config_)) out_ << YAML::DoubleQuoted << item;
+      for (const std::string& item : field.get_list(config_)) {
+        if (field.quoted) {
+          out_ << YAML::DoubleQuoted << item;
+        } else {
+          out_ << item;
+        }
+      }
       out_ << YAML::EndSeq;
     } else if (field.quoted) {
       out_ << YAML::DoubleQuoted << field.get(config_);
@@ -385,6 +391,13 @@ bool DaemonConfig::IsValid(std::string* why) const {
                          config_internal::FormatNumber(scan.step_deg) +
                          "° = " + config_internal::FormatNumber(scan.views * scan.step_deg) +
                          "° is more than a full turn");
+  }
+  if (!scan.exposure_bracket.empty() && scan.exposure_us * scan.exposure_bracket.back() > 1e7) {
+    return Fail(why,
+                "scan.exposure_bracket: exposure_us × " +
+                    config_internal::FormatNumber(scan.exposure_bracket.back()) + " = " +
+                    config_internal::FormatNumber(scan.exposure_us * scan.exposure_bracket.back()) +
+                    " µs is more than 10000000");
   }
   if (!(pipeline.volume.max_height_mm > pipeline.volume.min_height_mm)) {
     return Fail(why, "pipeline.volume_max_height_mm: must be above volume_min_height_mm (" +

@@ -225,6 +225,50 @@ Field PluginPathField() {
   return f;
 }
 
+Field ExposureBracketField() {
+  auto check_items = [](const std::vector<double>& items, std::string* what) {
+    if (items.size() > 4) {
+      *what = "must list at most 4 multiples, got " + std::to_string(items.size());
+      return false;
+    }
+    for (std::size_t i = 0; i < items.size(); ++i) {
+      if (!(items[i] > 1 && items[i] <= 64) || (i > 0 && !(items[i] > items[i - 1]))) {
+        *what = "entry " + std::to_string(i + 1) +
+                " must be a multiple of exposure_us in (1, 64], larger than the one before, got " +
+                Got(FormatNumber(items[i]));
+        return false;
+      }
+    }
+    return true;
+  };
+  Field f;
+  f.path = "scan.exposure_bracket";
+  f.is_list = true;
+  f.set_list = [=](const std::vector<std::string>& items, DaemonConfig& c, std::string* what) {
+    std::vector<double> values;
+    for (std::size_t i = 0; i < items.size(); ++i) {
+      double v = 0;
+      if (!ParseReal(items[i], &v)) {
+        *what = "entry " + std::to_string(i + 1) + " must be a number, got " + Got(items[i]);
+        return false;
+      }
+      values.push_back(v);
+    }
+    if (!check_items(values, what)) return false;
+    c.scan.exposure_bracket = values;
+    return true;
+  };
+  f.check = [=](const DaemonConfig& c, std::string* what) {
+    return check_items(c.scan.exposure_bracket, what);
+  };
+  f.get_list = [](const DaemonConfig& c) {
+    std::vector<std::string> items;
+    for (double v : c.scan.exposure_bracket) items.push_back(FormatNumber(v));
+    return items;
+  };
+  return f;
+}
+
 // OpenCV's predefined ArUco dictionaries, by the names of its enum.
 struct NamedDictionary {
   std::string_view name;
@@ -365,6 +409,7 @@ std::vector<Field> MakeFields() {
                         {0, 1e7, true}));
   f.push_back(RealField("scan.gain_db", [](DaemonConfig& c) -> double& { return c.scan.gain_db; },
                         {0, 48}));
+  f.push_back(ExposureBracketField());
   f.push_back(IntField(
       "pipeline.threads", [](DaemonConfig& c) -> int& { return c.pipeline.threads; }, 1, 256));
   f.push_back(IntField(

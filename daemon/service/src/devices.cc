@@ -1,7 +1,10 @@
 #include "craftscan/daemon/devices.h"
 
+#include <cstdio>
 #include <thread>
 #include <utility>
+
+#include "craftscan/pipeline/stereo/exposure_merge.h"
 
 namespace craftscan::daemon {
 namespace {
@@ -13,6 +16,12 @@ bool Fail(std::string* error, std::string message) {
 
 drivers::DriverStatus Error(drivers::StatusCode code, std::string message) {
   return drivers::DriverStatus::Error(code, std::move(message));
+}
+
+std::string FormatMultiple(double multiple) {
+  char text[32];
+  std::snprintf(text, sizeof text, "%g", multiple);
+  return text;
 }
 
 }  // namespace
@@ -202,6 +211,45 @@ drivers::DriverStatus DeviceManager::Capture(drivers::StereoFrame* frame,
   }
   return Error(last_code, "camera: " + std::to_string(setup_.capture_retries) +
                               " captures failed; last: " + last);
+}
+
+drivers::DriverStatus DeviceManager::CaptureBracketed(const std::vector<double>& bracket,
+                                                      drivers::StereoFrame* frame,
+                                                      const std::atomic<bool>& cancel) {
+  drivers::DriverStatus s = Capture(frame, cancel);
+  if (!s.ok() || bracket.empty()) return s;
+  const drivers::CameraSettings reference = camera_settings();
+  std::vector<cv::Mat> left{frame->left.image}, right{frame->right.image};
+  std::vector<double> exposure{1.0};
+  for (const double multiple : bracket) {
+    drivers::CameraSettings longer = reference;
+    longer.exposure_us = reference.exposure_us * multiple;
+    std::string error;
+    drivers::StereoFrame extra;
+    if (!ApplyCameraSettings(longer, &error)) {
+      s = Error(drivers::StatusCode::kInvalidArgument,
+                "exposure bracket x" + FormatMultiple(multiple) + ": " + error);
+    } else {
+      s = Capture(&extra, cancel);
+    }
+    if (!s.ok()) break;
+    left.push_back(extra.left.image);
+    right.push_back(extra.right.image);
+    exposure.push_back(multiple);
+  }
+  std::string error;
+  if (!ApplyCameraSettings(reference, &error)) {
+    const std::string why = "exposure bracket: the exposure could not be set back: " + error;
+    if (log_) log_(drivers::LogLevel::kError, why);
+    if (s.ok()) s = Error(drivers::StatusCode::kIoError, why);
+  }
+  if (!s.ok()) return s;
+  const ExposureMergeOptions options;
+  if (!MergeExposures(left, exposure, options, &frame->left.image, &error) ||
+      !MergeExposures(right, exposure, options, &frame->right.image, &error)) {
+    return Error(drivers::StatusCode::kInvalidArgument, "camera: " + error);
+  }
+  return s;
 }
 
 drivers::DriverStatus DeviceManager::MoveTo(double angle_deg) {

@@ -489,7 +489,9 @@ JobEngine::JobOutcome JobEngine::RunScanStages(ScanPlan& plan) {
     output.Close();
   };
   const StageContext context = Context(&session);
-  CaptureStage capture(context, devices_, {plan.views, plan.step_deg, options_.settle}, &moving_);
+  CaptureStage capture(context, devices_,
+                       {plan.views, plan.step_deg, options_.settle, options_.exposure_bracket},
+                       &moving_);
   MatchStage match(context, &processor, &plan.calibration, plan.views);
   ReconstructStage::Options build;
   build.views = plan.views;

@@ -125,10 +125,14 @@ StageOutcome CaptureStage::CaptureView(int k, double angle, CapturedView* item) 
     std::this_thread::sleep_for(options_.settle);
   }
   drivers::StereoFrame frame;
-  const drivers::DriverStatus captured = devices_->Capture(&frame, context_.StopFlag());
+  const drivers::DriverStatus captured =
+      devices_->CaptureBracketed(options_.exposure_bracket, &frame, context_.StopFlag());
   if (!captured.ok()) return device_error(captured);
+  nlohmann::json meta = FrameMeta(frame, angle);
+  // The stored pair is the merge; the multiples say of what.
+  if (!options_.exposure_bracket.empty()) meta["exposure_bracket"] = options_.exposure_bracket;
   if (Status stored = context_.session->StoreCapture(k, angle, frame.left.image, frame.right.image,
-                                                     FrameMeta(frame, angle), frame.texture_left);
+                                                     meta, frame.texture_left);
       !stored.ok()) {
     return StorageError(k, stored);
   }

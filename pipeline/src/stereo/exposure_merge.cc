@@ -13,11 +13,13 @@ bool ExposureMergeOptions::IsValid(std::string* why) const {
   };
   if (!(gamma >= 1 && gamma <= 4)) return fail("gamma must be in [1, 4]");
   if (!(clip_level > 0 && clip_level <= 255)) return fail("clip_level must be in (0, 255]");
-  if (!(clip_ramp >= 0 && clip_ramp < clip_level)) return fail("clip_ramp must be in [0, clip_level)");
+  if (!(clip_ramp >= 0 && clip_ramp < clip_level))
+    return fail("clip_ramp must be in [0, clip_level)");
   return true;
 }
 
-bool MergeExposures(const std::vector<cv::Mat>& images, const std::vector<double>& relative_exposure,
+bool MergeExposures(const std::vector<cv::Mat>& images,
+                    const std::vector<double>& relative_exposure,
                     const ExposureMergeOptions& options, cv::Mat* merged, std::string* error) {
   auto fail = [&](const std::string& m) {
     if (error) *error = "exposure merge: " + m;
@@ -45,9 +47,9 @@ bool MergeExposures(const std::vector<cv::Mat>& images, const std::vector<double
   std::array<float, 256> weight{};
   for (int z = 0; z < 256; ++z) {
     const double top = options.clip_level, ramp = options.clip_ramp;
-    weight[z] = z >= top ? 0.f
+    weight[z] = z >= top                     ? 0.f
                 : ramp > 0 && z > top - ramp ? static_cast<float>((top - z) / ramp)
-                                            : 1.f;
+                                             : 1.f;
   }
   constexpr int kSteps = 16;
   std::vector<std::uint8_t> encode(255 * kSteps + 1);

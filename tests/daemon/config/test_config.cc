@@ -59,7 +59,8 @@ calibration:
   board: {type: charuco, cols: 7, rows: 5, square_mm: 30, marker_mm: 22, dictionary: DICT_5X5_100}
   views: 20
   max_rms_px: 0.3
-scan: {views: 8, step_deg: 45, settle_ms: 500, exposure_us: 2500.5, gain_db: 6}
+scan: {views: 8, step_deg: 45, settle_ms: 500, exposure_us: 2500.5, gain_db: 6,
+       exposure_bracket: [4, 16.5]}
 pipeline:
   threads: 4
   min_disparity: -32
@@ -102,6 +103,7 @@ watchdog: {enabled: no}
   EXPECT_EQ(c.scan.settle_ms, 500);
   EXPECT_DOUBLE_EQ(c.scan.exposure_us, 2500.5);
   EXPECT_DOUBLE_EQ(c.scan.gain_db, 6);
+  EXPECT_EQ(c.scan.exposure_bracket, (std::vector<double>{4, 16.5}));
   EXPECT_EQ(c.pipeline.threads, 4);
   EXPECT_EQ(c.pipeline.min_disparity, -32);
   EXPECT_EQ(c.pipeline.num_disparities, 192);
@@ -239,6 +241,19 @@ INSTANTIATE_TEST_SUITE_P(
                      "scan.exposure_us: must be a number in (0, 10000000], got '0'"},
         BadValueCase{"scan: {gain_db: -3}\n",
                      "scan.gain_db: must be a number in [0, 48], got '-3'"},
+        BadValueCase{"scan: {exposure_bracket: [8, 4]}\n",
+                     "scan.exposure_bracket: entry 2 must be a multiple of exposure_us in (1, 64], "
+                     "larger than the one before, got '4'"},
+        BadValueCase{"scan: {exposure_bracket: [1]}\n",
+                     "scan.exposure_bracket: entry 1 must be a multiple of exposure_us in (1, 64], "
+                     "larger than the one before, got '1'"},
+        BadValueCase{"scan: {exposure_bracket: [2, bright]}\n",
+                     "scan.exposure_bracket: entry 2 must be a number, got 'bright'"},
+        BadValueCase{"scan: {exposure_bracket: [2, 3, 4, 5, 6]}\n",
+                     "scan.exposure_bracket: must list at most 4 multiples, got 5"},
+        BadValueCase{"scan: {exposure_bracket: 8}\n", "scan.exposure_bracket: must be a list"},
+        BadValueCase{"scan: {exposure_us: 1000000, exposure_bracket: [16]}\n",
+                     "scan.exposure_bracket: exposure_us × 16 = 16000000 µs is more than 10000000"},
         BadValueCase{"pipeline: {threads: 0}\n",
                      "pipeline.threads: must be an integer in 1..256, got '0'"},
         BadValueCase{"pipeline: {min_disparity: 5000}\n",
@@ -335,6 +350,7 @@ TEST(DaemonConfig, EnvironmentOverridesScalars) {
       {"CRAFTSCAN_SCAN_VIEWS", "4"},
       {"CRAFTSCAN_SCAN_STEP_DEG", "90"},
       {"CRAFTSCAN_PLUGINS_PATH", "/x:/y::"},
+      {"CRAFTSCAN_SCAN_EXPOSURE_BRACKET", "2:8"},
       {"CRAFTSCAN_CALIBRATION_BOARD_SQUARE_MM", "12.5"},
       {"CRAFTSCAN_WATCHDOG_ENABLED", "false"},
       {"CRAFTSCAN_TOKEN", "not a config variable: ignored"},
@@ -351,6 +367,7 @@ TEST(DaemonConfig, EnvironmentOverridesScalars) {
   EXPECT_EQ(c.scan.views, 4);
   EXPECT_DOUBLE_EQ(c.scan.step_deg, 90);
   EXPECT_EQ(c.plugins.path, (std::vector<std::string>{"/x", "/y"}));
+  EXPECT_EQ(c.scan.exposure_bracket, (std::vector<double>{2, 8}));
   EXPECT_DOUBLE_EQ(c.calibration.board.square_mm, 12.5);
   EXPECT_FALSE(c.watchdog.enabled);
 }

@@ -96,6 +96,8 @@ class DaemonFixture {
   // Appended inside the config's pipeline mapping by Prepare, e.g.
   // ", mesh: false" for tests that need no mesh.
   std::string pipeline_extra;
+  // Appended inside the config's scan mapping, e.g. ", exposure_bracket: [8]".
+  std::string scan_extra;
   // False: the pipeline keeps the daemon's default working volume (what a
   // new station starts with) instead of the one fitted to the carved box.
   bool box_volume = true;
@@ -134,7 +136,8 @@ class DaemonFixture {
     } else {
       config << devices_yaml;
     }
-    config << "scan: {settle_ms: 0}\n"
+    config << "scan: {settle_ms: 0" << scan_extra
+           << "}\n"
            // The carved box (80 x 60 x 50 mm) with a margin: the band the
            // matcher searches follows from this volume.
            << "pipeline: {threads: "

@@ -43,9 +43,10 @@ struct Running {
 // does not come up. extra_sim: more sim driver keys (", key: value…").
 std::unique_ptr<Running> StartDaemon(const std::string& image_size, long watchdog_usec = 0,
                                      bool with_calibration = true, std::string extra_sim = "",
-                                     bool box_volume = true) {
+                                     bool box_volume = true, std::string scan_extra = "") {
   auto r = std::make_unique<Running>(image_size, std::move(extra_sim));
   r->fixture.box_volume = box_volume;
+  r->fixture.scan_extra = std::move(scan_extra);
   std::string error;
   if (!r->fixture.Prepare(&error, with_calibration)) {
     ADD_FAILURE() << error;
@@ -155,19 +156,23 @@ TEST(Daemon, EmbroideryAndEggScanWithTheDefaultConfiguration) {
     const char* object;
     std::array<double, 3> truth_mm;  // oriented box extents, descending
     std::array<double, 3> tolerance_mm;
-    bool projector = false;  // the sim's pattern projector: texture frames stored
+    // The sim's pattern projector (texture frames stored) and exposure
+    // bracketing at ×8 (scan.exposure_bracket), as for black paint.
+    bool projector = false;
   };
   // The sim's egg: 55 mm tall, 45 mm across; the embroidery: a 110 mm disc
-  // 2.6 mm at its thickest (the bench's truth OBBs). With the projector the
-  // egg's OBB at 640x512 is within 2.2 / 0.1 / 0.4 mm (bench, seed 4242).
+  // 2.6 mm at its thickest (the bench's truth OBBs). With the projector and
+  // the bracket the egg's OBB at 640x512 is within 0.3 / 0.3 / 0.1 mm
+  // (craftscan-bench scan --projector --bracket 8, seed 4242; 2.2 / 0.1 /
+  // 0.4 with the projector alone) and 1.1 / 0.1 / 0.2 mm here.
   for (const Case& c : {Case{"embroidery", {109.7, 109.6, 2.5}, {1.5, 1.5, 5.0}},
                         Case{"egg", {55.0, 45.0, 44.9}, {5.0, 3.0, 3.0}},
-                        Case{"egg", {55.0, 45.0, 44.9}, {3.5, 1.5, 1.5}, true}}) {
+                        Case{"egg", {55.0, 45.0, 44.9}, {2.0, 1.0, 1.0}, true}}) {
     SCOPED_TRACE(std::string(c.object) + (c.projector ? " with the projector" : ""));
     auto r =
         StartDaemon("640x512", 0, true,
                     std::string(", object: ") + c.object + (c.projector ? ", projector: 1" : ""),
-                    /*box_volume=*/false);
+                    /*box_volume=*/false, c.projector ? ", exposure_bracket: [8]" : "");
     ASSERT_TRUE(r);
     const auto reply = r->client.Send(
         "scan", {{"object", c.object}, {"views", 6}, {"step_deg", 60}}, kOperatorToken);
@@ -185,8 +190,12 @@ TEST(Daemon, EmbroideryAndEggScanWithTheDefaultConfiguration) {
     ASSERT_TRUE(session) << error;
     for (int k = 0; k < 6; ++k) {
       cv::Mat left, right, texture;
-      ASSERT_TRUE(session->LoadCapture(k, &left, &right, nullptr, &error, &texture)) << error;
+      nlohmann::json meta;
+      ASSERT_TRUE(session->LoadCapture(k, &left, &right, &meta, &error, &texture)) << error;
       EXPECT_EQ(texture.empty(), !c.projector) << "view " << k;
+      EXPECT_EQ(meta.value("exposure_bracket", nlohmann::json::array()),
+                c.projector ? nlohmann::json::array({8.0}) : nlohmann::json::array())
+          << "view " << k << ": " << meta.dump();
       if (c.projector) {
         EXPECT_FALSE(BitExact(texture, left)) << "view " << k;
       }

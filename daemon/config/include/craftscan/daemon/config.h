@@ -50,6 +50,9 @@
 //     settle_ms: 200              0..60000 wait after a move before triggering
 //     exposure_us: 10000          (0, 10000000]
 //     gain_db: 0                  [0, 48] (as the camera command)
+//     exposure_bracket: []        multiples of exposure_us also captured per
+//                                 view and merged: each (1, 64], ascending,
+//                                 ≤ 4 of them; [] = off (e.g. [8] for black paint)
 //   pipeline:
 //     threads: 2                  1..256 worker threads per stage
 //     min_disparity: 0            px, −4096..4096
@@ -173,6 +176,11 @@ struct ScanSettings {
   int settle_ms = 200;         // wait after a move before triggering (ms), 0..60000
   double exposure_us = 10000;  // µs, (0, 10000000]
   double gain_db = 0;          // dB, [0, 48]
+  // Exposure bracketing: each view is also captured at these multiples of
+  // exposure_us and the pairs merged (MergeExposures) before matching, for
+  // dark, weakly textured paint. Each in (1, 64], ascending, at most 4;
+  // exposure_us × the largest ≤ 10000000. Empty (the default) = off.
+  std::vector<double> exposure_bracket;
 };
 
 struct PipelineSettings {

@@ -91,6 +91,17 @@ class DeviceManager {
   // Other errors keep the driver's code (kDeviceLost once reconnecting gave
   // up); the message names the camera and the cause.
   drivers::DriverStatus Capture(drivers::StereoFrame* frame, const std::atomic<bool>& cancel);
+  // Exposure bracketing: Capture at the current settings, then once more per
+  // multiple of their exposure time in `bracket` (ascending, > 1; each by
+  // ApplyCameraSettings, so a real camera stops and restarts streaming), the
+  // settings restored afterwards in any case; the pairs merged by
+  // MergeExposures into frame->left/right (the reference exposure's
+  // timestamps, frame ids, settings and texture). An empty bracket is
+  // Capture. Errors as Capture's, or kInvalidArgument for a merge or a
+  // setting the camera refuses (the message names the exposure).
+  drivers::DriverStatus CaptureBracketed(const std::vector<double>& bracket,
+                                         drivers::StereoFrame* frame,
+                                         const std::atomic<bool>& cancel);
   // A move stopped by AbortMove() ends with kAborted; a fault (alarm) with
   // kFault, a move that does not arrive with kTimeout. Messages start
   // "turntable: ".

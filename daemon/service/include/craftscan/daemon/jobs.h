@@ -88,6 +88,7 @@ struct JobEngineOptions {
   int default_views = 6;
   double default_step_deg = 60;
   std::chrono::milliseconds settle{200};
+  std::vector<double> exposure_bracket;  // CaptureStage::Options::exposure_bracket
   int queue_capacity = 2;
   int threads = 2;  // matcher and reconstruction threads
   ViewProcessorOptions view;

@@ -147,6 +147,9 @@ class CaptureStage {
     int views = 1;
     double step_deg = 0;
     std::chrono::milliseconds settle{0};
+    // Exposure bracketing (DeviceManager::CaptureBracketed): multiples of
+    // the exposure captured besides it and merged; empty = one exposure.
+    std::vector<double> exposure_bracket;
   };
   // `moving` (may be null) is true while a move is in progress, so a cancel
   // can abort it (DeviceManager::AbortMove).

@@ -43,7 +43,8 @@ struct ExposureMergeOptions {
 // and Tonemap normalises each image by its own maximum, which differs between
 // the left and the right camera and breaks the matcher's absolute-difference
 // term.
-bool MergeExposures(const std::vector<cv::Mat>& images, const std::vector<double>& relative_exposure,
+bool MergeExposures(const std::vector<cv::Mat>& images,
+                    const std::vector<double>& relative_exposure,
                     const ExposureMergeOptions& options, cv::Mat* merged, std::string* error);
 
 }  // namespace craftscan

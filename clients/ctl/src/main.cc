@@ -154,6 +154,17 @@ int main(int argc, char** argv) {
       ->check(CLI::Range(2, 360));
   scan->add_option("--step", step_deg, "turntable step between views, degrees (default 360/views)")
       ->check(CLI::Range(-360.0, 360.0));
+  std::vector<double> bracket;
+  bool no_bracket = false;
+  CLI::Option* bracket_option =
+      scan->add_option("--bracket", bracket,
+                       "exposure bracketing: also capture each view at these multiples of the "
+                       "exposure and merge (e.g. 8 for black paint; default: the station's)")
+          ->delimiter(',')
+          ->check(CLI::Range(1.0, 64.0));
+  scan->add_flag("--no-bracket", no_bracket,
+                 "one exposure per view, whatever the station's default")
+      ->excludes(bracket_option);
   add_wait(scan);
   std::string session;
   CLI::App* resume = app.add_subcommand("resume", "continue an interrupted or failed session");
@@ -236,6 +247,7 @@ int main(int argc, char** argv) {
     json args = {{"object", object}};
     if (views > 0) args["views"] = views;
     if (step_deg != 0) args["step_deg"] = step_deg;
+    if (!bracket.empty() || no_bracket) args["exposure_bracket"] = bracket;
     return ctl.Job("scan", args, wait);
   }
   if (*resume) return ctl.Job("resume", {{"session", session}}, wait);

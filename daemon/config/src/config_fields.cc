@@ -9,6 +9,8 @@
 #include <opencv2/aruco/dictionary.hpp>
 #include <utility>
 
+#include "craftscan/pipeline/stereo/exposure_merge.h"
+
 namespace craftscan::daemon::config_internal {
 namespace {
 
@@ -227,19 +229,7 @@ Field PluginPathField() {
 
 Field ExposureBracketField() {
   auto check_items = [](const std::vector<double>& items, std::string* what) {
-    if (items.size() > 4) {
-      *what = "must list at most 4 multiples, got " + std::to_string(items.size());
-      return false;
-    }
-    for (std::size_t i = 0; i < items.size(); ++i) {
-      if (!(items[i] > 1 && items[i] <= 64) || (i > 0 && !(items[i] > items[i - 1]))) {
-        *what = "entry " + std::to_string(i + 1) +
-                " must be a multiple of exposure_us in (1, 64], larger than the one before, got " +
-                Got(FormatNumber(items[i]));
-        return false;
-      }
-    }
-    return true;
+    return IsValidExposureBracket(items, what);
   };
   Field f;
   f.path = "scan.exposure_bracket";

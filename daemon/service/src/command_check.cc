@@ -14,7 +14,8 @@ namespace craftscan::daemon {
 namespace {
 
 // kNames: the string "all" or a list of 1..256 strings of min..max bytes.
-enum class ArgType { kString, kInt, kNumber, kNames };
+// kNumbers: a list of at most `max` numbers (values are the verb's to check).
+enum class ArgType { kString, kInt, kNumber, kNames, kNumbers };
 
 struct ArgSpec {
   ArgType type;
@@ -38,7 +39,8 @@ const std::map<std::string, std::map<std::string, ArgSpec>>& VerbArguments() {
       {"scan",
        {{"object", {ArgType::kString, false, 1, 128}},
         {"views", {ArgType::kInt, false, 2, 360}},
-        {"step_deg", {ArgType::kNumber, false, -360, 360}}}},
+        {"step_deg", {ArgType::kNumber, false, -360, 360}},
+        {"exposure_bracket", {ArgType::kNumbers, false, 0, 4}}}},
       {"cancel", {}},
       {"resume", {{"session", {ArgType::kString, true, 1, 128}}}},
       {"turntable",
@@ -98,6 +100,18 @@ bool CheckArguments(const std::map<std::string, ArgSpec>& spec, const nlohmann::
           *why = key + ": must be \"all\" or a list of 1..256 names of " +
                  std::to_string(static_cast<int>(s.min)) + ".." +
                  std::to_string(static_cast<int>(s.max)) + " bytes";
+          return false;
+        }
+        break;
+      }
+      case ArgType::kNumbers: {
+        bool ok = value.is_array() && value.size() <= s.max;
+        for (std::size_t i = 0; ok && i < value.size(); ++i) {
+          ok = value[i].is_number() && std::isfinite(value[i].get<double>());
+        }
+        if (!ok) {
+          *why = key + ": must be a list of at most " + std::to_string(static_cast<int>(s.max)) +
+                 " numbers";
           return false;
         }
         break;

@@ -192,6 +192,8 @@ CommandReply CommandHandler::Dispatch(const std::string& verb, const nlohmann::j
     request.object = args.value("object", std::string("object"));
     request.views = args.value("views", 0);
     request.step_deg = args.value("step_deg", 0.0);
+    if (args.contains("exposure_bracket"))  // a list of numbers (CheckCommand)
+      request.exposure_bracket = args["exposure_bracket"].get<std::vector<double>>();
     request.client = who.name;
     return started(jobs_->StartScan(request, &job, &error));
   }

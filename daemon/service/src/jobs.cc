@@ -17,6 +17,7 @@
 
 #include "craftscan/daemon/bounded_queue.h"
 #include "craftscan/pipeline/common/atomic_file.h"
+#include "craftscan/pipeline/stereo/exposure_merge.h"
 
 namespace craftscan::daemon {
 namespace {
@@ -81,12 +82,25 @@ std::string_view ToString(JobState state) {
   return "unknown";
 }
 
+namespace {
+
+// The multiples as a JSON array, built element by element (GCC 12's
+// -Warray-bounds misfires on the vector conversion of an empty vector).
+nlohmann::json BracketJson(const std::vector<double>& multiples) {
+  nlohmann::json out = nlohmann::json::array();
+  for (const double m : multiples) out.push_back(m);
+  return out;
+}
+
+}  // namespace
+
 struct JobEngine::ScanPlan {
   std::unique_ptr<Session> session;
   StereoCalibration calibration;
   int views = 0;
   double step_deg = 0;
-  bool reconstruct = true;  // false for a one-view capture
+  std::vector<double> exposure_bracket;  // CaptureStage::Options::exposure_bracket
+  bool reconstruct = true;               // false for a one-view capture
 };
 
 JobEngine::JobEngine(JobEngineOptions options, DeviceManager* devices, SessionStore* store,
@@ -303,6 +317,10 @@ bool JobEngine::StartScan(const ScanRequest& request, JobInfo* info, std::string
   if (!std::isfinite(step) || std::abs(step) < 0.1 || std::abs(step) * (views - 1) > 720) {
     return Fail(error, "step_deg must be finite, |step| >= 0.1 and span at most 720 degrees");
   }
+  const std::vector<double> bracket = request.exposure_bracket.value_or(options_.exposure_bracket);
+  if (std::string why; !IsValidExposureBracket(bracket, &why)) {
+    return Fail(error, "exposure_bracket: " + why);
+  }
   const std::optional<StereoCalibration> calibration = this->calibration();
   if (!calibration)
     return Fail(error, "no calibration: run calibrate and calibrate-turntable first");
@@ -313,8 +331,10 @@ bool JobEngine::StartScan(const ScanRequest& request, JobInfo* info, std::string
   plan->calibration = *calibration;
   plan->views = views;
   plan->step_deg = step;
+  plan->exposure_bracket = bracket;
   const nlohmann::json params = {{"views", views},
                                  {"step_deg", step},
+                                 {"exposure_bracket", BracketJson(bracket)},
                                  {"client", request.client},
                                  {"calibration_id", calibration_id()}};
   return StartSessionJob("scan", request.object, params, std::move(plan), info, error);
@@ -327,9 +347,11 @@ bool JobEngine::StartCapture(const std::string& object, JobInfo* info, std::stri
   plan->calibration = *calibration;
   plan->views = 1;
   plan->step_deg = 0;
+  plan->exposure_bracket = options_.exposure_bracket;
   plan->reconstruct = false;
-  return StartSessionJob("capture", object, {{"views", 1}, {"step_deg", 0}}, std::move(plan), info,
-                         error);
+  const nlohmann::json params = {
+      {"views", 1}, {"step_deg", 0}, {"exposure_bracket", BracketJson(plan->exposure_bracket)}};
+  return StartSessionJob("capture", object, params, std::move(plan), info, error);
 }
 
 bool JobEngine::StartSessionJob(const std::string& verb, const std::string& object,
@@ -381,6 +403,18 @@ bool JobEngine::StartResume(const std::string& session_id, JobInfo* info, std::s
   const nlohmann::json params = plan->session->params();
   plan->views = params.value("views", 0);
   plan->step_deg = params.value("step_deg", 0.0);
+  // Sessions from before bracketing have none: one exposure, as they began.
+  const nlohmann::json bracket = params.value("exposure_bracket", nlohmann::json::array());
+  std::string why;
+  bool bracket_ok = bracket.is_array();
+  for (const nlohmann::json& m : bracket_ok ? bracket : nlohmann::json::array()) {
+    bracket_ok = bracket_ok && m.is_number();
+    if (bracket_ok) plan->exposure_bracket.push_back(m.get<double>());
+  }
+  if (!bracket_ok || !IsValidExposureBracket(plan->exposure_bracket, &why)) {
+    return Fail(error, "session " + session_id + ": manifest's exposure_bracket is invalid" +
+                           (why.empty() ? "" : ": " + why));
+  }
   plan->reconstruct = plan->session->manifest().job == "scan";
   if (plan->views < 1) return Fail(error, "session " + session_id + ": manifest has no view count");
   if (!LoadCalibration(plan->session->dir() + "/calibration.yaml", &plan->calibration, error)) {
@@ -490,7 +524,7 @@ JobEngine::JobOutcome JobEngine::RunScanStages(ScanPlan& plan) {
   };
   const StageContext context = Context(&session);
   CaptureStage capture(context, devices_,
-                       {plan.views, plan.step_deg, options_.settle, options_.exposure_bracket},
+                       {plan.views, plan.step_deg, options_.settle, plan.exposure_bracket},
                        &moving_);
   MatchStage match(context, &processor, &plan.calibration, plan.views);
   ReconstructStage::Options build;

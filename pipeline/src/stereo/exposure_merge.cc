@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <array>
 #include <cmath>
+#include <cstdio>
 
 namespace craftscan {
 
@@ -15,6 +16,27 @@ bool ExposureMergeOptions::IsValid(std::string* why) const {
   if (!(clip_level > 0 && clip_level <= 255)) return fail("clip_level must be in (0, 255]");
   if (!(clip_ramp >= 0 && clip_ramp < clip_level))
     return fail("clip_ramp must be in [0, clip_level)");
+  return true;
+}
+
+bool IsValidExposureBracket(const std::vector<double>& multiples, std::string* why) {
+  if (multiples.size() > 4) {
+    if (why) *why = "must list at most 4 multiples, got " + std::to_string(multiples.size());
+    return false;
+  }
+  for (std::size_t i = 0; i < multiples.size(); ++i) {
+    const double m = multiples[i];
+    if (!(m > 1 && m <= 64) || (i > 0 && !(m > multiples[i - 1]))) {
+      char text[32];
+      std::snprintf(text, sizeof text, "%g", m);
+      if (why) {
+        *why = "entry " + std::to_string(i + 1) +
+               " must be a multiple of the exposure in (1, 64], larger than the one before, got '" +
+               text + "'";
+      }
+      return false;
+    }
+  }
   return true;
 }
 

@@ -241,12 +241,14 @@ INSTANTIATE_TEST_SUITE_P(
                      "scan.exposure_us: must be a number in (0, 10000000], got '0'"},
         BadValueCase{"scan: {gain_db: -3}\n",
                      "scan.gain_db: must be a number in [0, 48], got '-3'"},
-        BadValueCase{"scan: {exposure_bracket: [8, 4]}\n",
-                     "scan.exposure_bracket: entry 2 must be a multiple of exposure_us in (1, 64], "
-                     "larger than the one before, got '4'"},
-        BadValueCase{"scan: {exposure_bracket: [1]}\n",
-                     "scan.exposure_bracket: entry 1 must be a multiple of exposure_us in (1, 64], "
-                     "larger than the one before, got '1'"},
+        BadValueCase{
+            "scan: {exposure_bracket: [8, 4]}\n",
+            "scan.exposure_bracket: entry 2 must be a multiple of the exposure in (1, 64], "
+            "larger than the one before, got '4'"},
+        BadValueCase{
+            "scan: {exposure_bracket: [1]}\n",
+            "scan.exposure_bracket: entry 1 must be a multiple of the exposure in (1, 64], "
+            "larger than the one before, got '1'"},
         BadValueCase{"scan: {exposure_bracket: [2, bright]}\n",
                      "scan.exposure_bracket: entry 2 must be a number, got 'bright'"},
         BadValueCase{"scan: {exposure_bracket: [2, 3, 4, 5, 6]}\n",

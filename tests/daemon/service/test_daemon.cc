@@ -220,6 +220,58 @@ TEST(Daemon, EmbroideryAndEggScanWithTheDefaultConfiguration) {
   }
 }
 
+// A scan's own exposure bracket (the scan command's exposure_bracket, over
+// the station's default of none): every view is captured at ×1 and ×4 and
+// stored merged, the multiples recorded in the session's params (for a
+// resume) and in every view's meta, and the camera is back at its exposure
+// afterwards.
+TEST(Daemon, AScanTakesItsOwnExposureBracketAndRecordsIt) {
+  auto r = StartDaemon("640x512");
+  ASSERT_TRUE(r);
+  StationClient& c = r->client;
+  std::string error;
+  auto store = daemon::SessionStore::Open(r->fixture.data_dir(), StatusInto(&error));
+  ASSERT_TRUE(store) << error;
+  const auto run = [&](const std::string& verb, const nlohmann::json& args) {
+    const auto reply = c.Send(verb, args, kOperatorToken);
+    EXPECT_TRUE(reply && reply->code_name == "ok") << (reply ? reply->message : "no reply") << "\n"
+                                                   << r->fixture.Log();
+    if (!reply || reply->code_name != "ok") return std::unique_ptr<daemon::Session>();
+    const nlohmann::json job =
+        WaitForJobEnd(c, kObserverToken, reply->result["id"].get<std::string>(), 300s);
+    EXPECT_EQ(job.value("state", ""), "done") << job.dump(2) << "\n" << r->fixture.Log();
+    return store->OpenSession(reply->result["session"].get<std::string>(), StatusInto(&error));
+  };
+  // One exposure (the station's default): the plain image's mean.
+  auto plain = run("capture", {{"object", "plain"}});
+  ASSERT_TRUE(plain) << error;
+  cv::Mat plain_left, plain_right;
+  ASSERT_TRUE(plain->LoadCapture(0, &plain_left, &plain_right, nullptr, &error)) << error;
+  EXPECT_EQ(plain->params().value("exposure_bracket", nlohmann::json()), nlohmann::json::array());
+
+  auto bracketed = run(
+      "scan", {{"object", "bracketed"}, {"views", 2}, {"step_deg", 30}, {"exposure_bracket", {4}}});
+  ASSERT_TRUE(bracketed) << error;
+  EXPECT_EQ(bracketed->params().value("exposure_bracket", nlohmann::json()),
+            nlohmann::json::array({4.0}));
+  for (int k = 0; k < 2; ++k) {
+    cv::Mat left, right;
+    nlohmann::json meta;
+    ASSERT_TRUE(bracketed->LoadCapture(k, &left, &right, &meta, &error)) << error;
+    EXPECT_EQ(meta.value("exposure_bracket", nlohmann::json()), nlohmann::json::array({4.0}))
+        << meta.dump();
+    EXPECT_DOUBLE_EQ(meta.value("exposure_us", 0.0), 10000) << "the reference exposure";
+    // Merged and gamma-encoded: the scene's darks lifted well above the
+    // plain capture's (the same scene, turned by at most 30°).
+    EXPECT_GT(cv::mean(left)[1], cv::mean(plain_left)[1] + 15) << "view " << k;
+  }
+  // The camera is back at its exposure.
+  const auto camera = c.Send("camera", nlohmann::json::object(), kOperatorToken);
+  ASSERT_TRUE(camera);
+  ASSERT_EQ(camera->code_name, "ok") << camera->message;
+  EXPECT_DOUBLE_EQ(camera->result.value("exposure_us", 0.0), 10000);
+}
+
 TEST(Daemon, BadCommandsGetClearErrorsAndTheDaemonKeepsServing) {
   auto r = StartDaemon("640x512");
   ASSERT_TRUE(r);
@@ -236,6 +288,11 @@ TEST(Daemon, BadCommandsGetClearErrorsAndTheDaemonKeepsServing) {
       {"scan", "{\"views\": \"six\"}", kOperatorToken, "bad_argument"},
       {"scan", "{\"views\": 1000}", kOperatorToken, "bad_argument"},
       {"scan", "{\"colour\": 1}", kOperatorToken, "bad_argument"},
+      {"scan", "{\"exposure_bracket\": 8}", kOperatorToken, "bad_argument"},
+      {"scan", "{\"exposure_bracket\": [2, \"x\"]}", kOperatorToken, "bad_argument"},
+      {"scan", "{\"exposure_bracket\": [2, 4, 8, 16, 32]}", kOperatorToken, "bad_argument"},
+      {"scan", "{\"exposure_bracket\": [8, 4]}", kOperatorToken, "failed"},
+      {"scan", "{\"exposure_bracket\": [0.5]}", kOperatorToken, "failed"},
       {"scan", "{\"step_deg\": 1e999}", kOperatorToken, "bad_request"},
       {"scan", "[1, 2]", kOperatorToken, "bad_request"},
       {"scan", "{\"views\": 6", kOperatorToken, "bad_request"},

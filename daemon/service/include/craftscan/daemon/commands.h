@@ -40,7 +40,9 @@
 //                                        with "files": a file transfer (below)
 //   capture                              operator; {"object": str}
 //   scan                                 operator; {"object": str, "views": int 2..360,
-//                                                   "step_deg": number}
+//                                                   "step_deg": number, "exposure_bracket":
+//                                                   [number] (≤ 4; [] = off; default:
+//                                                   the station's scan.exposure_bracket)}
 //   cancel                               operator; none
 //   resume                               operator; {"session": str}
 //   turntable                            operator; {"action": "home"|"move",

@@ -122,6 +122,10 @@ struct ScanRequest {
   std::string object = "object";
   int views = 0;        // 0 = the default
   double step_deg = 0;  // 0 = 360 / views
+  // Exposure bracketing for this scan (IsValidExposureBracket; [] = off);
+  // none: the station's scan.exposure_bracket. Recorded in the session's
+  // params, so a resume captures its missing views the same way.
+  std::optional<std::vector<double>> exposure_bracket;
   std::string client;
 };
 

@@ -27,6 +27,11 @@ struct ExposureMergeOptions {
   bool IsValid(std::string* why) const;
 };
 
+// A bracket: the multiples of the reference exposure captured besides it,
+// each in (1, 64], ascending, at most 4 (empty: no bracketing). False with
+// *why (may be null) naming the first bad entry.
+bool IsValidExposureBracket(const std::vector<double>& multiples, std::string* why);
+
 // Merges `images` (8-bit, all of one size and type, CV_8UC1 or CV_8UC3) of
 // one view, exposed `relative_exposure[i]` times the first (> 0; the first
 // must be the shortest, 1), into *merged (same size and type). Per pixel and

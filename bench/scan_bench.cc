@@ -57,7 +57,6 @@
 #include <cmath>
 #include <cstdint>
 #include <cstdio>
-#include <cstdlib>
 #include <filesystem>
 #include <fstream>
 #include <iostream>
@@ -337,7 +336,6 @@ class ScanCommand : public BenchCommand {
           t.push_back(bracket_[b]);
         }
         ExposureMergeOptions mo;
-        if (const char* g = std::getenv("XGAMMA")) mo.gamma = std::atof(g);
         if (!MergeExposures(ls, t, mo, &left, &error) || !MergeExposures(rs, t, mo, &right, &error))
           return DataError(error);
       }

@@ -32,7 +32,8 @@
 //   estimated_outlier_pct  what the scan's report estimates without the
 //                      truth: fused points farther than 1 mm from the mesh
 //   views_to_truth_mm  the same for every view's own cloud at its exact pose
-//                      (what stereo alone leaves): median, p95, outlier_pct
+//                      (what stereo alone leaves): median, p95, outlier_pct,
+//                      completeness_pct (of all views' points together)
 //   completeness_pct   `visible` sampled on a 0.5 mm grid: the share with a
 //                      fused point within 1 mm
 //   mesh_to_truth_mm   the same distance for the mesh vertices more than 1 mm
@@ -49,7 +50,8 @@
 //                      closure), fuse, mesh, after_last_capture (from the last
 //                      pair in hand to the model encoded or written)
 // --out also writes fused_error.ply: the fused cloud in the object frame
-// coloured by that distance (green ≤ 0.5 mm, yellow ≤ 1 mm, red beyond).
+// coloured by that distance (green ≤ 0.5 mm, yellow ≤ 1 mm, red beyond),
+// and missed.ply: the visible surface's grid samples no fused point covers.
 // A scan that fails (e.g. a registration refused) is reported with its
 // message and exits 1; the JSON then has "status": "failed".
 #include <algorithm>
@@ -126,7 +128,7 @@ struct Figures {
   double mesh_median = NAN, mesh_p95 = NAN;
   // Every view's own cloud (ViewProcessor's output) at its exact pose: what
   // stereo alone leaves, before registration and fusion.
-  double views_median = NAN, views_p95 = NAN, views_outlier_pct = NAN;
+  double views_median = NAN, views_p95 = NAN, views_outlier_pct = NAN, views_completeness_pct = NAN;
   std::vector<double> fused_histogram;  // % of fused points per kHistogramMm bin
   MeshComponents components;
   cv::Vec3d fused_obb{0, 0, 0}, truth_obb{0, 0, 0};
@@ -183,7 +185,8 @@ class ScanCommand : public BenchCommand {
     sub->add_option("--json", json_path_, "Write the figures as JSON to this file");
     sub->add_option("--out", out_dir_,
                     "Write fused.ply, mesh.ply, mesh.obj, report.json and report.html (with "
-                    "previews/) into this folder (created)");
+                    "previews/) into this folder (created), with fused_error.ply and missed.ply "
+                    "(where outliers are and what completeness misses)");
     return sub;
   }
 
@@ -414,10 +417,8 @@ class ScanCommand : public BenchCommand {
     fig.truth_visible_grid = grid.size();
     const NearestIndex fused_index(fused);
     const std::vector<double> covered = NearestDistances(fused_index, grid);
-    fig.completeness_pct =
-        grid.empty() ? NAN : 100.0 * std::count_if(covered.begin(), covered.end(), [](double d) {
-                               return d <= kGateMm;
-                             }) / static_cast<double>(grid.size());
+    fig.completeness_pct = CoveredPct(covered);
+    fig.views_completeness_pct = CoveredPct(NearestDistances(NearestIndex(raw), grid));
     const std::vector<double> mesh_d = SurfaceDistances(truth, scene, station, geometry, vertices);
     fig.mesh_vertices = vertices.size();
     fig.mesh_median = Quantile(mesh_d, 0.5);
@@ -433,7 +434,9 @@ class ScanCommand : public BenchCommand {
       fig.box_edges = EdgeErrors(*r.box_measurement, scene.options().object.carved_box);
 
     if (!out_dir_.empty()) {
-      if (std::string why; !WriteErrorCloud(fused, fused_d, &why)) return DataError(why);
+      if (std::string why;
+          !WriteErrorCloud(fused, fused_d, &why) || !WriteMissedCloud(grid, covered, &why))
+        return DataError(why);
     }
     Print(&fig, times, {});
     if (!json_path_.empty()) return WriteJson(&fig, times, r);
@@ -487,6 +490,26 @@ class ScanCommand : public BenchCommand {
     if (Status s = WriteFileAtomically(path, EncodePly(cloud, true)); !s.ok())
       return (*why = "--out: " + s.message(), false);
     return true;
+  }
+
+  // missed.ply: the visible surface's grid samples with no fused point
+  // within the gate (what completeness_pct misses), in the object frame.
+  bool WriteMissedCloud(const std::vector<cv::Vec3f>& grid, const std::vector<double>& covered,
+                        std::string* why) const {
+    PointCloud cloud;
+    for (std::size_t i = 0; i < grid.size(); ++i)
+      if (covered[i] > kGateMm) cloud.points_mm.push_back(grid[i]);
+    const std::string path = (fs::path(out_dir_) / "missed.ply").string();
+    if (Status s = WriteFileAtomically(path, EncodePly(cloud, true)); !s.ok())
+      return (*why = "--out: " + s.message(), false);
+    return true;
+  }
+
+  static double CoveredPct(const std::vector<double>& covered) {
+    if (covered.empty()) return NAN;
+    const auto n =
+        std::count_if(covered.begin(), covered.end(), [](double d) { return d <= kGateMm; });
+    return 100.0 * static_cast<double>(n) / static_cast<double>(covered.size());
   }
 
   static double OutlierPct(const std::vector<double>& d) {
@@ -570,8 +593,10 @@ class ScanCommand : public BenchCommand {
           f->fused_histogram[0], f->fused_histogram[1], f->fused_histogram[2],
           f->fused_histogram[3], f->fused_histogram[4], f->fused_histogram[5],
           f->fused_histogram[6]);
-      std::printf("  views (stereo alone, exact poses): median %.3f p95 %.3f outlier_pct %.2f\n",
-                  f->views_median, f->views_p95, f->views_outlier_pct);
+      std::printf(
+          "  views (stereo alone, exact poses): median %.3f p95 %.3f outlier_pct %.2f "
+          "completeness_pct %.1f\n",
+          f->views_median, f->views_p95, f->views_outlier_pct, f->views_completeness_pct);
       std::printf("  completeness_pct %.1f  (%zu grid samples of the visible surface)\n",
                   f->completeness_pct, f->truth_visible_grid);
       std::printf("  mesh_to_truth_mm median %.3f p95 %.3f  largest component %.2f %% of %zu\n",
@@ -616,7 +641,8 @@ class ScanCommand : public BenchCommand {
       root["fused_error_histogram"] = bins;
       root["views_to_truth_mm"] = {{"median", Number(f->views_median)},
                                    {"p95", Number(f->views_p95)},
-                                   {"outlier_pct", Number(f->views_outlier_pct)}};
+                                   {"outlier_pct", Number(f->views_outlier_pct)},
+                                   {"completeness_pct", Number(f->views_completeness_pct)}};
       root["completeness_pct"] = Number(f->completeness_pct);
       root["mesh_to_truth_mm"] = {{"median", Number(f->mesh_median)}, {"p95", Number(f->mesh_p95)}};
       root["mesh_components"] = f->components.count;

@@ -145,6 +145,66 @@ TEST(Fusion, MultiViewSupportDropsSingleViewFloaters) {
   EXPECT_NE(error.find("min_views"), std::string::npos) << error;
 }
 
+TEST(Fusion, SupportAlongTheNormalDropsOffsetSheetsWhileLoneViewPartsStay) {
+  // Two views of the plane. A third view saw a sheet 1 mm above the plane
+  // (x, y in 10..20: a patch matched at a slightly wrong disparity), and
+  // also the plane's continuation at x 46..60 that no other view saw.
+  const PointCloud a = NoisyPlane(0.5, 0.0, 0.1, 1, {200, 100, 50}, 1);
+  const PointCloud b = NoisyPlane(0.5, 0.25, 0.1, 1, {200, 100, 50}, 2);
+  PointCloud c;
+  std::mt19937 rng(4);
+  std::normal_distribution<double> noise(0, 0.1);
+  const auto add = [&c](const cv::Vec3d& p) {
+    c.points_mm.emplace_back(p);
+    c.normals.emplace_back(kPlaneNormal);
+    c.colors_rgb.push_back({0, 0, 0});
+  };
+  for (double x = 10; x < 20; x += 0.4)
+    for (double y = 10; y < 20; y += 0.4)
+      add(cv::Vec3d(x, y, 0.2 * x + 0.1 * y + 5) + kPlaneNormal * (1.0 + noise(rng)));
+  for (double x = 46; x < 60; x += 0.4)
+    for (double y = 0; y < 40; y += 0.4)
+      add(cv::Vec3d(x, y, 0.2 * x + 0.1 * y + 5) + kPlaneNormal * noise(rng));
+  const auto count = [](const PointCloud& cloud, auto&& pred) {
+    return std::count_if(cloud.points_mm.begin(), cloud.points_mm.end(), pred);
+  };
+  const auto sheet = [](const cv::Vec3f& p) { return std::abs(PlaneDistance(p)) > 0.7; };
+  const auto lone = [](const cv::Vec3f& p) { return p[0] > 51; };  // beyond 2 × 2.5 mm of a, b
+
+  FusionOptions options;
+  options.voxel_mm = 0.5;
+  options.min_views = 2;
+  std::string error;
+  FusionStats stats;
+  // The cube test alone: the sheet lies within view_support_mm of the plane
+  // and stays; the lone part goes.
+  PointCloud fused = FuseClouds({a, b, c}, options, &error, &stats);
+  ASSERT_FALSE(fused.empty()) << error;
+  EXPECT_GT(count(fused, sheet), 100);
+  EXPECT_EQ(count(fused, lone), 0);
+  EXPECT_EQ(stats.lone_view_voxels, 0u);
+
+  options.view_support_normal_mm = 0.4;
+  options.lone_view_radius_mm = 2.5;
+  fused = FuseClouds({a, b, c}, options, &error, &stats);
+  ASSERT_FALSE(fused.empty()) << error;
+  EXPECT_LT(count(fused, sheet), 5);
+  // The lone part (9 × 40 mm, about 1440 voxels at 0.5 mm) stays whole.
+  EXPECT_GT(count(fused, lone), 1300);
+  EXPECT_GT(stats.lone_view_voxels, 1300u);
+  for (const cv::Vec3f& p : fused.points_mm) ASSERT_LT(std::abs(PlaneDistance(p)), 1.2);
+  // The plane itself, seen by a and b, is all there: 80 × 80 voxels or so.
+  EXPECT_GT(count(fused, [](const cv::Vec3f& p) { return p[0] < 40; }), 0.95 * 80 * 80);
+
+  options.view_support_normal_mm = -1;
+  EXPECT_FALSE(options.IsValid(&error));
+  EXPECT_CONTAINS(error, "view_support_normal_mm");
+  options.view_support_normal_mm = 0.4;
+  options.lone_view_radius_mm = std::numeric_limits<double>::infinity();
+  EXPECT_FALSE(options.IsValid(&error));
+  EXPECT_CONTAINS(error, "lone_view_radius_mm");
+}
+
 TEST(Fusion, SparseVoxelsAndNonFinitePointsAreDropped) {
   PointCloud cloud = NoisyPlane(0.25, 0.0, 0.05, +1, {10, 20, 30}, 3);
   const std::size_t plane_points = cloud.size();

@@ -225,14 +225,58 @@ std::size_t FilterVoxels(const std::vector<char>& keep, Voxels* voxels) {
   return dropped;
 }
 
-// Drops voxels seen by fewer than min_views clouds within view_support_mm.
+// The key of the cell of edge `cell_mm` holding voxel `key`.
+std::uint64_t CellKey(std::uint64_t key, double voxel_mm, double cell_mm) {
+  const double ratio = voxel_mm / cell_mm;
+  std::uint64_t cell = 0;
+  for (int shift : {42, 21, 0}) {
+    const auto i = static_cast<std::int64_t>((key >> shift) & kMask) - kHalfRange;
+    const auto c = static_cast<std::int64_t>(std::floor(static_cast<double>(i) * ratio));
+    cell = (cell << 21) | static_cast<std::uint64_t>(c + kHalfRange);
+  }
+  return cell;
+}
+
+// The clouds with points in the 3×3×3 cells around `cell` (cells: cell key →
+// clouds, bit c).
+std::uint64_t ViewsAroundCell(const std::unordered_map<std::uint64_t, std::uint64_t>& cells,
+                              std::uint64_t cell) {
+  std::uint64_t views = 0;
+  for (std::int64_t dx = -1; dx <= 1; ++dx)
+    for (std::int64_t dy = -1; dy <= 1; ++dy)
+      for (std::int64_t dz = -1; dz <= 1; ++dz) {
+        std::uint64_t neighbour = 0;
+        if (!NeighbourKey(cell, dx, dy, dz, &neighbour)) continue;
+        const auto it = cells.find(neighbour);
+        if (it != cells.end()) views |= it->second;
+      }
+  return views;
+}
+
+// Drops voxels seen by fewer than min_views clouds within view_support_mm
+// (and, with view_support_normal_mm, near the tangent plane), unless no
+// other cloud is within lone_view_radius_mm.
 void KeepMultiViewVoxels(const FusionOptions& options, Voxels* voxels, FusionStats* s) {
   const std::vector<std::uint64_t>& keys = voxels->keys;
+  const PointCloud& cloud = voxels->cloud;
   std::unordered_map<std::uint64_t, std::size_t> index;
   index.reserve(keys.size() * 2);
   for (std::size_t v = 0; v < keys.size(); ++v) index.emplace(keys[v], v);
   const std::int64_t r = std::max<std::int64_t>(
       1, std::llround(std::ceil(options.view_support_mm / options.voxel_mm)));
+  const bool along_normal = options.view_support_normal_mm > 0 && cloud.HasNormals();
+  const auto tol = static_cast<float>(options.view_support_normal_mm);
+  // Supports v: w lies near v's tangent plane or v near w's.
+  const auto on_plane = [&](std::size_t v, std::size_t w) {
+    const cv::Vec3f d = cloud.points_mm[w] - cloud.points_mm[v];
+    return std::abs(d.dot(cloud.normals[v])) <= tol || std::abs(d.dot(cloud.normals[w])) <= tol;
+  };
+  const double lone = options.lone_view_radius_mm;
+  std::unordered_map<std::uint64_t, std::uint64_t> cells;  // cell → clouds
+  if (lone > 0)
+    for (std::size_t v = 0; v < keys.size(); ++v)
+      cells[CellKey(keys[v], options.voxel_mm, lone)] |= voxels->views[v];
+
   std::vector<char> keep(keys.size(), 0);
   for (std::size_t v = 0; v < keys.size(); ++v) {
     std::uint64_t views = voxels->views[v];
@@ -242,9 +286,18 @@ void KeepMultiViewVoxels(const FusionOptions& options, Voxels* voxels, FusionSta
           std::uint64_t neighbour = 0;
           if (!NeighbourKey(keys[v], dx, dy, dz, &neighbour)) continue;
           const auto it = index.find(neighbour);
-          if (it != index.end()) views |= voxels->views[it->second];
+          if (it == index.end()) continue;
+          const std::uint64_t more = voxels->views[it->second] & ~views;
+          if (more && (!along_normal || on_plane(v, it->second))) views |= more;
         }
     keep[v] = std::popcount(views) >= options.min_views;
+    if (!keep[v] && lone > 0) {
+      const std::uint64_t around = ViewsAroundCell(cells, CellKey(keys[v], options.voxel_mm, lone));
+      if ((around & ~voxels->views[v]) == 0) {
+        keep[v] = 1;
+        ++s->lone_view_voxels;
+      }
+    }
   }
   s->single_view_voxels += FilterVoxels(keep, voxels);
   s->output_points = voxels->cloud.size();
@@ -255,15 +308,8 @@ void KeepMultiViewVoxels(const FusionOptions& options, Voxels* voxels, FusionSta
 // largest cluster's voxels.
 void KeepLargeClusters(const FusionOptions& options, Voxels* voxels, FusionStats* s) {
   const std::vector<std::uint64_t>& keys = voxels->keys;
-  const double ratio = options.voxel_mm / options.cluster_gap_mm;
-  const auto cell_of = [ratio](std::uint64_t key) {
-    std::uint64_t cell = 0;
-    for (int shift : {42, 21, 0}) {
-      const auto i = static_cast<std::int64_t>((key >> shift) & kMask) - kHalfRange;
-      const auto c = static_cast<std::int64_t>(std::floor(static_cast<double>(i) * ratio));
-      cell = (cell << 21) | static_cast<std::uint64_t>(c + kHalfRange);
-    }
-    return cell;
+  const auto cell_of = [&options](std::uint64_t key) {
+    return CellKey(key, options.voxel_mm, options.cluster_gap_mm);
   };
   std::unordered_map<std::uint64_t, std::size_t> cells;  // cell key → cell index
   std::vector<std::size_t> cell_of_voxel(keys.size());
@@ -343,6 +389,10 @@ bool FusionOptions::IsValid(std::string* why) const {
   if (min_views < 1) return Fail(why, "FusionOptions.min_views must be >= 1");
   if (!(view_support_mm > 0) || !std::isfinite(view_support_mm))
     return Fail(why, "FusionOptions.view_support_mm must be > 0");
+  if (!(view_support_normal_mm >= 0) || !std::isfinite(view_support_normal_mm))
+    return Fail(why, "FusionOptions.view_support_normal_mm must be finite and >= 0");
+  if (!(lone_view_radius_mm >= 0) || !std::isfinite(lone_view_radius_mm))
+    return Fail(why, "FusionOptions.lone_view_radius_mm must be finite and >= 0");
   if (!(min_normal_agreement >= 0 && min_normal_agreement <= 1))
     return Fail(why, "FusionOptions.min_normal_agreement must be within 0..1");
   if (!(min_cluster_fraction >= 0 && min_cluster_fraction <= 1))

@@ -44,6 +44,20 @@ struct FusionOptions {
   // the 64th. ≥ 1; view_support_mm > 0.
   int min_views = 1;
   double view_support_mm = 1.0;
+  // Support along the surface (mm, ≥ 0; 0 = off): with normals, a
+  // neighbouring voxel of another cloud supports only when one of the two
+  // lies within this distance of the other's tangent plane. Stereo also
+  // leaves sheets a millimetre or so off the surface (a dark or grazing patch
+  // matched at a slightly wrong disparity): they lie inside the cube of
+  // view_support_mm around the surface, but not on its plane.
+  double view_support_normal_mm = 0;
+  // A voxel without support is still kept when no other cloud has a point
+  // near it (mm, ≥ 0; 0 = off: unsupported voxels always go): a part of the
+  // surface only one view saw (a recess, the inside of a handle) is no
+  // floater. Floaters lie where other views saw the surface and did not
+  // confirm them. "Near" is the 3×3×3 block of cells of this edge around the
+  // voxel's cell: at least this distance, at most twice it.
+  double lone_view_radius_mm = 0;
   // Floaters: the kept voxels fall into clusters (cells of cluster_gap_mm
   // that touch, 26-neighbourhood, are one cluster: parts farther apart than
   // about one to two cells are separate). A cluster with fewer voxels than
@@ -64,6 +78,7 @@ struct FusionStats {
   std::size_t out_of_range_points = 0;   // dropped: beyond ±2^20 voxels from the origin
   std::size_t sparse_voxel_points = 0;   // dropped: in voxels below min_points_per_voxel
   std::size_t single_view_voxels = 0;    // dropped: supported by fewer than min_views clouds
+  std::size_t lone_view_voxels = 0;      // kept unsupported: no other cloud near them
   std::size_t small_cluster_voxels = 0;  // dropped: in clusters below min_cluster_fraction
   std::size_t clusters = 0;              // clusters before that (0: not computed)
   std::size_t output_points = 0;         // = occupied voxels kept

@@ -62,12 +62,14 @@ struct Matcher {
   std::function<SceneRun(const StereoScene&, int num_threads)> prepare;
 };
 
-SceneRun PrepareADCensus(const StereoScene& scene, int num_threads, ArmRule arm_rule) {
+SceneRun PrepareADCensus(const StereoScene& scene, int num_threads, ArmRule arm_rule,
+                         double uniqueness) {
   ADCensusOptions options;
   options.min_disparity = 0;
   options.num_disparities = scene.ndisp;
   options.num_threads = num_threads;
   options.arm_rule = arm_rule;
+  options.refinement.uniqueness = uniqueness;
   auto matcher = std::make_shared<StereoMatcher>(options);
   return [matcher, &scene] {
     DisparityResult result = matcher->Compute(scene.left, scene.right);
@@ -109,12 +111,17 @@ SceneRun PrepareSgbm(const StereoScene& scene, int num_threads) {
   };
 }
 
-std::vector<Matcher> AllMatchers() {
+// `uniqueness`: RefinementOptions::uniqueness of both AD-Census matchers.
+std::vector<Matcher> AllMatchers(double uniqueness) {
   return {
       {"adcensus",
-       [](const StereoScene& s, int n) { return PrepareADCensus(s, n, ArmRule::kImproved); }},
+       [uniqueness](const StereoScene& s, int n) {
+         return PrepareADCensus(s, n, ArmRule::kImproved, uniqueness);
+       }},
       {"adcensus-classic",
-       [](const StereoScene& s, int n) { return PrepareADCensus(s, n, ArmRule::kClassic); }},
+       [uniqueness](const StereoScene& s, int n) {
+         return PrepareADCensus(s, n, ArmRule::kClassic, uniqueness);
+       }},
       {"sgbm", PrepareSgbm},
   };
 }
@@ -208,6 +215,10 @@ class StereoCommand : public BenchCommand {
     sub->add_option("--threads", threads_, "Threads per matcher call (also OpenCV's global pool)")
         ->check(CLI::Range(1, 256))
         ->capture_default_str();
+    sub->add_option("--uniqueness", uniqueness_,
+                    "AD-Census uniqueness test (RefinementOptions::uniqueness, [0, 1); 0 = off)")
+        ->check(CLI::Range(0.0, 0.99))
+        ->capture_default_str();
     sub->add_option("--repeat", repeat_, "Runs per scene and matcher; time = median")
         ->check(CLI::Range(1, 1000))
         ->capture_default_str();
@@ -267,7 +278,7 @@ class StereoCommand : public BenchCommand {
   }
 
   int SelectMatchers(std::vector<Matcher>* selected) const {
-    const std::vector<Matcher> all = AllMatchers();
+    const std::vector<Matcher> all = AllMatchers(uniqueness_);
     for (const std::string& name : matcher_names_) {
       auto it =
           std::find_if(all.begin(), all.end(), [&](const Matcher& m) { return m.name == name; });
@@ -456,6 +467,7 @@ class StereoCommand : public BenchCommand {
     using Json = nlohmann::ordered_json;
     Json root;
     root["threads"] = threads_;
+    root["uniqueness"] = uniqueness_;
     root["scenes"] = Json::array();
     for (const SceneResult& scene : results) {
       Json s;
@@ -491,6 +503,7 @@ class StereoCommand : public BenchCommand {
   std::vector<std::string> scene_dirs_;
   std::vector<std::string> matcher_names_{"adcensus", "adcensus-classic", "sgbm"};
   int threads_ = 2;
+  double uniqueness_ = 0;
   int repeat_ = 3;
   std::string json_path_;
   std::string save_dir_;

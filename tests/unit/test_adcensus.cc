@@ -326,6 +326,38 @@ TEST(Matcher, WithoutInterpolationOutliersAreMarkedInvalid) {
   EXPECT_LT(ScoreAgainst(r.disparity, gt, 5).max_abs_err, 1.0);
 }
 
+TEST(Matcher, UniquenessMarksARepeatedPatternUnreliable) {
+  // Vertical stripes of period 8 px over the whole image: every disparity
+  // 8 px from the true one fits as well, so no winner is unique. A random
+  // texture has one clear minimum everywhere.
+  cv::Mat stripes(120, 240, CV_8UC3);
+  for (int y = 0; y < stripes.rows; ++y)
+    for (int x = 0; x < stripes.cols; ++x)
+      stripes.at<cv::Vec3b>(y, x) = (x / 4) % 2 ? cv::Vec3b(200, 200, 200) : cv::Vec3b(40, 40, 40);
+  const cv::Mat texture = RandomTexture(240, 120, 26);
+  cv::Mat gt;
+  ADCensusOptions o;
+  o.num_disparities = 40;
+  o.refinement.interpolate = false;
+  for (double uniqueness : {0.0, 0.15}) {
+    o.refinement.uniqueness = uniqueness;
+    const DisparityResult s = ComputeDisparity(stripes, RenderRightView(stripes, 20, 0, 0, &gt), o);
+    const DisparityResult t = ComputeDisparity(texture, RenderRightView(texture, 20, 0, 0, &gt), o);
+    ASSERT_TRUE(s.IsUsable() && t.IsUsable()) << s.message << t.message;
+    if (uniqueness == 0) {
+      EXPECT_EQ(s.ambiguous_pct, 0);
+      EXPECT_GT(s.valid_pct, 50);  // the left-right check keeps most of the guesses
+    } else {
+      EXPECT_GT(s.ambiguous_pct, 50);
+      EXPECT_LT(s.valid_pct, 30);
+      EXPECT_LT(t.ambiguous_pct, 1);
+      EXPECT_LT(ScoreAgainst(t.disparity, gt, 5).bad1, 1.0);
+    }
+  }
+  o.refinement.uniqueness = 1;
+  EXPECT_NE(ComputeDisparity(texture, texture, o).message.find("uniqueness"), std::string::npos);
+}
+
 TEST(Matcher, RejectsBadInputWithAClearMessage) {
   const cv::Mat a = RandomTexture(50, 40, 1), b = RandomTexture(51, 40, 2);
   ADCensusOptions o;

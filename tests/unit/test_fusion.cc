@@ -58,6 +58,33 @@ double RmsPlaneDistance(const PointCloud& cloud) {
   return std::sqrt(sum / static_cast<double>(cloud.size()));
 }
 
+// Appends a black point with normal n.
+void AddPoint(const cv::Vec3d& p, const cv::Vec3d& n, PointCloud* cloud) {
+  cloud->points_mm.emplace_back(p);
+  cloud->normals.emplace_back(n);
+  cloud->colors_rgb.push_back({0, 0, 0});
+}
+
+// Appends a sheet 1 mm above the plane over x, y in 10..20 with σ 0.1 mm
+// noise (a patch matched at a slightly wrong disparity), normal the plane's.
+void AddOffsetSheet(std::mt19937* rng, PointCloud* cloud) {
+  std::normal_distribution<double> noise(0, 0.1);
+  for (double x = 10; x < 20; x += 0.4)
+    for (double y = 10; y < 20; y += 0.4)
+      AddPoint(cv::Vec3d(x, y, 0.2 * x + 0.1 * y + 5) + kPlaneNormal * (1.0 + noise(*rng)),
+               kPlaneNormal, cloud);
+}
+
+// Views a and b of the plane, and a third view c that saw only the sheet of
+// AddOffsetSheet so far: {a, b, c}.
+std::vector<PointCloud> PlaneViewsAndASheet(std::mt19937* rng) {
+  std::vector<PointCloud> clouds{NoisyPlane(0.5, 0.0, 0.1, 1, {200, 100, 50}, 1),
+                                 NoisyPlane(0.5, 0.25, 0.1, 1, {200, 100, 50}, 2),
+                                 {}};
+  AddOffsetSheet(rng, &clouds[2]);
+  return clouds;
+}
+
 // ------------------------------------------------------------------ fusion ----
 
 TEST(Fusion, TwoNoisyCopiesReduceNoise) {
@@ -149,22 +176,14 @@ TEST(Fusion, SupportAlongTheNormalDropsOffsetSheetsWhileLoneViewPartsStay) {
   // Two views of the plane. A third view saw a sheet 1 mm above the plane
   // (x, y in 10..20: a patch matched at a slightly wrong disparity), and
   // also the plane's continuation at x 46..60 that no other view saw.
-  const PointCloud a = NoisyPlane(0.5, 0.0, 0.1, 1, {200, 100, 50}, 1);
-  const PointCloud b = NoisyPlane(0.5, 0.25, 0.1, 1, {200, 100, 50}, 2);
-  PointCloud c;
   std::mt19937 rng(4);
+  std::vector<PointCloud> clouds = PlaneViewsAndASheet(&rng);
+  PointCloud& c = clouds[2];
   std::normal_distribution<double> noise(0, 0.1);
-  const auto add = [&c](const cv::Vec3d& p) {
-    c.points_mm.emplace_back(p);
-    c.normals.emplace_back(kPlaneNormal);
-    c.colors_rgb.push_back({0, 0, 0});
-  };
-  for (double x = 10; x < 20; x += 0.4)
-    for (double y = 10; y < 20; y += 0.4)
-      add(cv::Vec3d(x, y, 0.2 * x + 0.1 * y + 5) + kPlaneNormal * (1.0 + noise(rng)));
   for (double x = 46; x < 60; x += 0.4)
     for (double y = 0; y < 40; y += 0.4)
-      add(cv::Vec3d(x, y, 0.2 * x + 0.1 * y + 5) + kPlaneNormal * noise(rng));
+      AddPoint(cv::Vec3d(x, y, 0.2 * x + 0.1 * y + 5) + kPlaneNormal * noise(rng), kPlaneNormal,
+               &c);
   const auto count = [](const PointCloud& cloud, auto&& pred) {
     return std::count_if(cloud.points_mm.begin(), cloud.points_mm.end(), pred);
   };
@@ -178,7 +197,7 @@ TEST(Fusion, SupportAlongTheNormalDropsOffsetSheetsWhileLoneViewPartsStay) {
   FusionStats stats;
   // The cube test alone: the sheet lies within view_support_mm of the plane
   // and stays; the lone part goes.
-  PointCloud fused = FuseClouds({a, b, c}, options, &error, &stats);
+  PointCloud fused = FuseClouds(clouds, options, &error, &stats);
   ASSERT_FALSE(fused.empty()) << error;
   EXPECT_GT(count(fused, sheet), 100);
   EXPECT_EQ(count(fused, lone), 0);
@@ -186,7 +205,7 @@ TEST(Fusion, SupportAlongTheNormalDropsOffsetSheetsWhileLoneViewPartsStay) {
 
   options.view_support_normal_mm = 0.4;
   options.lone_view_radius_mm = 2.5;
-  fused = FuseClouds({a, b, c}, options, &error, &stats);
+  fused = FuseClouds(clouds, options, &error, &stats);
   ASSERT_FALSE(fused.empty()) << error;
   EXPECT_LT(count(fused, sheet), 5);
   // The lone part (9 × 40 mm, about 1440 voxels at 0.5 mm) stays whole.
@@ -203,6 +222,65 @@ TEST(Fusion, SupportAlongTheNormalDropsOffsetSheetsWhileLoneViewPartsStay) {
   options.lone_view_radius_mm = std::numeric_limits<double>::infinity();
   EXPECT_FALSE(options.IsValid(&error));
   EXPECT_CONTAINS(error, "lone_view_radius_mm");
+}
+
+TEST(Fusion, PartsOnlyTheirOwnCameraFacedStayWithoutSupport) {
+  // Views a and b see the plane from cameras above it. View c, a camera off
+  // to the side at +x, sees a wall at x = 60 facing it (normal +x), which a's
+  // and b's cameras see from behind; c also left a sheet 1 mm above the
+  // plane (normal: the plane's), which a's and b's cameras face squarely.
+  std::mt19937 rng(5);
+  std::vector<PointCloud> clouds = PlaneViewsAndASheet(&rng);
+  std::normal_distribution<double> noise(0, 0.1);
+  for (double y = 0; y < 40; y += 0.4)  // the wall, in c
+    for (double z = 0; z < 20; z += 0.4)
+      AddPoint(cv::Vec3d(60 + noise(rng), y, z), {1, 0, 0}, &clouds[2]);
+  const cv::Vec3d above = cv::Vec3d(20, 20, 9) + 300 * kPlaneNormal;
+  const std::vector<cv::Vec3d> centers{
+      above + cv::Vec3d(-20, 0, 0), above + cv::Vec3d(20, 0, 0), {360, 20, 10}};
+  const auto count = [](const PointCloud& cloud, auto&& pred) {
+    return std::count_if(cloud.points_mm.begin(), cloud.points_mm.end(), pred);
+  };
+  const auto sheet = [](const cv::Vec3f& p) { return p[0] < 40 && PlaneDistance(p) > 0.7; };
+  const auto wall = [](const cv::Vec3f& p) { return p[0] > 55; };
+
+  FusionOptions options;
+  options.voxel_mm = 0.5;
+  options.min_views = 2;
+  options.view_support_normal_mm = 0.4;
+  std::string error;
+  FusionStats stats;
+  PointCloud fused = FuseClouds(clouds, options, &error, &stats, &centers);
+  ASSERT_FALSE(fused.empty()) << error;
+  EXPECT_EQ(count(fused, wall), 0);  // off: unsupported voxels go
+  EXPECT_EQ(stats.sole_view_voxels, 0u);
+
+  options.sole_view_incidence_deg = 70;
+  fused = FuseClouds(clouds, options, &error, &stats, &centers);
+  ASSERT_FALSE(fused.empty()) << error;
+  // The wall (40 × 20 mm, about 3200 voxels at 0.5 mm) stays; the sheet goes.
+  EXPECT_GT(count(fused, wall), 3000);
+  EXPECT_GT(stats.sole_view_voxels, 3000u);
+  EXPECT_LT(count(fused, sheet), 5);
+  // Without the cameras the rule has nothing to go by.
+  fused = FuseClouds(clouds, options, &error, &stats);
+  EXPECT_EQ(count(fused, wall), 0);
+  // Seen only at a grazing angle by its own camera, the wall needs support
+  // too: c's camera moved up to 80° off the wall's normal.
+  const std::vector<cv::Vec3d> grazing{
+      centers[0], centers[1], {60 + 300 * std::cos(1.4), 20, 10 + 300 * std::sin(1.4)}};
+  fused = FuseClouds(clouds, options, &error, &stats, &grazing);
+  EXPECT_LT(count(fused, wall), 100);
+
+  const std::vector<cv::Vec3d> two{centers[0], centers[1]};
+  EXPECT_TRUE(FuseClouds(clouds, options, &error, &stats, &two).empty());
+  EXPECT_CONTAINS(error, "2 camera centres for 3 clouds");
+  const std::vector<cv::Vec3d> bad{centers[0], centers[1], {kNaN, 0, 0}};
+  EXPECT_TRUE(FuseClouds(clouds, options, &error, &stats, &bad).empty());
+  EXPECT_CONTAINS(error, "camera centre is not finite");
+  options.sole_view_incidence_deg = 90;
+  EXPECT_FALSE(options.IsValid(&error));
+  EXPECT_CONTAINS(error, "sole_view_incidence_deg");
 }
 
 TEST(Fusion, SparseVoxelsAndNonFinitePointsAreDropped) {

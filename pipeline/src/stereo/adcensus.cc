@@ -65,6 +65,8 @@ bool ADCensusOptions::IsValid(std::string* why) const {
   if (!(tau_so >= 0)) return Fail(why, "tau_so must be ≥ 0");
   const RefinementOptions& r = refinement;
   if (!(r.lr_tolerance_px >= 0)) return Fail(why, "refinement.lr_tolerance_px must be ≥ 0");
+  if (!(r.uniqueness >= 0 && r.uniqueness < 1))
+    return Fail(why, "refinement.uniqueness must be in [0, 1)");
   if (r.voting_iterations < 0 || r.voting_iterations > 100)
     return Fail(why, "refinement.voting_iterations must be in [0, 100]");
   if (r.tau_s < 0) return Fail(why, "refinement.tau_s must be ≥ 0");
@@ -185,6 +187,7 @@ DisparityResult StereoMatcher::Compute(const cv::Mat& left, const cv::Mat& right
                                parallel, &stats);
       result.occluded_pct = stats.occluded_pct;
       result.mismatch_pct = stats.mismatch_pct;
+      result.ambiguous_pct = stats.ambiguous_pct;
     } else {
       index = left_index;
     }

@@ -119,7 +119,7 @@ void WinnerTakeAll(const CostVolume& cost, int min_disparity, const Parallel& pa
                    cv::Mat* left_index, cv::Mat* right_index);
 
 struct RefineStats {
-  double occluded_pct = 0, mismatch_pct = 0;
+  double occluded_pct = 0, mismatch_pct = 0, ambiguous_pct = 0;
 };
 
 // Mei's refinement on disparity indices (CV_32FC1, values 0 … ndisp−1); the

@@ -16,7 +16,7 @@
 namespace craftscan::adcensus {
 namespace {
 
-enum Label : std::uint8_t { kReliable = 0, kOccluded = 1, kMismatch = 2 };
+enum Label : std::uint8_t { kReliable = 0, kOccluded = 1, kMismatch = 2, kAmbiguous = 3 };
 
 constexpr float kNaN = std::numeric_limits<float>::quiet_NaN();
 
@@ -47,6 +47,30 @@ void DetectOutliers(const cv::Mat& left_index, const cv::Mat& right_index, int m
             break;
           }
         }
+      }
+    }
+  });
+}
+
+// Reliable pixels whose cost curve has no clear minimum become kAmbiguous:
+// c[k] > (1 − uniqueness) · min over |j − k| ≥ 2 of c[j]. The neighbours of
+// the winner are excluded: they are the same minimum, blurred.
+void MarkAmbiguous(const CostVolume& cost, const cv::Mat& left_index, double uniqueness,
+                   const Parallel& parallel, cv::Mat* labels) {
+  const int ndisp = cost.ndisp();
+  const float keep = static_cast<float>(1 - uniqueness);
+  parallel.For(0, left_index.rows, [&](int y0, int y1) {
+    for (int y = y0; y < y1; ++y) {
+      const float* l = left_index.ptr<float>(y);
+      std::uint8_t* lab = labels->ptr<std::uint8_t>(y);
+      for (int x = 0; x < left_index.cols; ++x) {
+        if (lab[x] != kReliable) continue;
+        const float* c = cost.at(y, x);
+        const int k = static_cast<int>(l[x]);
+        float second = std::numeric_limits<float>::infinity();
+        for (int j = 0; j < k - 1; ++j) second = std::min(second, c[j]);
+        for (int j = k + 2; j < ndisp; ++j) second = std::min(second, c[j]);
+        if (c[k] > keep * second) lab[x] = kAmbiguous;
       }
     }
   });
@@ -240,6 +264,12 @@ cv::Mat Refine(const cv::Mat& left_index, const cv::Mat& right_index, const Cost
     const double n = static_cast<double>(labels.total());
     stats->occluded_pct = 100.0 * cv::countNonZero(labels == kOccluded) / n;
     stats->mismatch_pct = 100.0 * cv::countNonZero(labels == kMismatch) / n;
+  }
+  if (options.uniqueness > 0) {
+    MarkAmbiguous(cost, left_index, options.uniqueness, parallel, &labels);
+    if (stats)
+      stats->ambiguous_pct =
+          100.0 * cv::countNonZero(labels == kAmbiguous) / static_cast<double>(labels.total());
   }
   cv::Mat disparity = left_index.clone();
   RegionVoting(arms, cost.ndisp(), options, parallel, &disparity, &labels);

@@ -6,6 +6,7 @@
 #include <cstdint>
 #include <exception>
 #include <limits>
+#include <numbers>
 #include <unordered_map>
 #include <utility>
 
@@ -253,10 +254,28 @@ std::uint64_t ViewsAroundCell(const std::unordered_map<std::uint64_t, std::uint6
   return views;
 }
 
+// The clouds (bit c) whose camera looked at the surface at p, normal n,
+// within max_incidence_deg of the normal.
+std::uint64_t FacingCameras(const cv::Vec3f& p, const cv::Vec3f& n,
+                            const std::vector<cv::Vec3d>& centers, double max_incidence_deg) {
+  const double cos_max = std::cos(max_incidence_deg * std::numbers::pi / 180);
+  const cv::Vec3d normal(n);
+  std::uint64_t facing = 0;
+  for (std::size_t c = 0; c < centers.size(); ++c) {
+    const cv::Vec3d ray = centers[c] - cv::Vec3d(p);
+    const double length = cv::norm(ray);
+    if (length > 0 && normal.dot(ray) > cos_max * length)
+      facing |= std::uint64_t{1} << std::min<std::size_t>(c, 63);
+  }
+  return facing;
+}
+
 // Drops voxels seen by fewer than min_views clouds within view_support_mm
 // (and, with view_support_normal_mm, near the tangent plane), unless no
-// other cloud is within lone_view_radius_mm.
-void KeepMultiViewVoxels(const FusionOptions& options, Voxels* voxels, FusionStats* s) {
+// other cloud is within lone_view_radius_mm or only their own camera faced
+// them (sole_view_incidence_deg).
+void KeepMultiViewVoxels(const FusionOptions& options, const std::vector<cv::Vec3d>* centers,
+                         Voxels* voxels, FusionStats* s) {
   const std::vector<std::uint64_t>& keys = voxels->keys;
   const PointCloud& cloud = voxels->cloud;
   std::unordered_map<std::uint64_t, std::size_t> index;
@@ -277,6 +296,8 @@ void KeepMultiViewVoxels(const FusionOptions& options, Voxels* voxels, FusionSta
     for (std::size_t v = 0; v < keys.size(); ++v)
       cells[CellKey(keys[v], options.voxel_mm, lone)] |= voxels->views[v];
 
+  const bool sole =
+      options.sole_view_incidence_deg > 0 && centers && !centers->empty() && cloud.HasNormals();
   std::vector<char> keep(keys.size(), 0);
   for (std::size_t v = 0; v < keys.size(); ++v) {
     std::uint64_t views = voxels->views[v];
@@ -297,6 +318,14 @@ void KeepMultiViewVoxels(const FusionOptions& options, Voxels* voxels, FusionSta
         keep[v] = 1;
         ++s->lone_view_voxels;
       }
+    }
+    if (!keep[v] && sole) {
+      const std::uint64_t own = voxels->views[v];
+      const std::uint64_t facing = FacingCameras(cloud.points_mm[v], cloud.normals[v], *centers,
+                                                 options.sole_view_incidence_deg);
+      if ((facing & own) == 0 || (facing & ~own) != 0) continue;
+      keep[v] = 1;
+      ++s->sole_view_voxels;
     }
   }
   s->single_view_voxels += FilterVoxels(keep, voxels);
@@ -393,6 +422,8 @@ bool FusionOptions::IsValid(std::string* why) const {
     return Fail(why, "FusionOptions.view_support_normal_mm must be finite and >= 0");
   if (!(lone_view_radius_mm >= 0) || !std::isfinite(lone_view_radius_mm))
     return Fail(why, "FusionOptions.lone_view_radius_mm must be finite and >= 0");
+  if (!(sole_view_incidence_deg >= 0 && sole_view_incidence_deg < 90))
+    return Fail(why, "FusionOptions.sole_view_incidence_deg must be in [0, 90)");
   if (!(min_normal_agreement >= 0 && min_normal_agreement <= 1))
     return Fail(why, "FusionOptions.min_normal_agreement must be within 0..1");
   if (!(min_cluster_fraction >= 0 && min_cluster_fraction <= 1))
@@ -403,7 +434,8 @@ bool FusionOptions::IsValid(std::string* why) const {
 }
 
 PointCloud FuseClouds(const std::vector<PointCloud>& clouds, const FusionOptions& options,
-                      std::string* error, FusionStats* stats) {
+                      std::string* error, FusionStats* stats,
+                      const std::vector<cv::Vec3d>* camera_centers_mm) {
   FusionStats local_stats;
   FusionStats& s = stats ? *stats : local_stats;
   s = FusionStats{};
@@ -411,6 +443,18 @@ PointCloud FuseClouds(const std::vector<PointCloud>& clouds, const FusionOptions
   try {
     InputSummary summary;
     if (!CheckInputs(clouds, options, &summary, &s, error)) return {};
+    if (camera_centers_mm && !camera_centers_mm->empty()) {
+      if (camera_centers_mm->size() != clouds.size()) {
+        Fail(error, "fusion: " + std::to_string(camera_centers_mm->size()) +
+                        " camera centres for " + std::to_string(clouds.size()) + " clouds");
+        return {};
+      }
+      for (const cv::Vec3d& c : *camera_centers_mm)
+        if (!std::isfinite(c[0]) || !std::isfinite(c[1]) || !std::isfinite(c[2])) {
+          Fail(error, "fusion: a camera centre is not finite");
+          return {};
+        }
+    }
     const KeyedPoints keyed = KeyPoints(clouds, options, &s);
     if (keyed.keyed.empty()) {
       Fail(error, "fusion: no finite input point within range (" +
@@ -426,7 +470,7 @@ PointCloud FuseClouds(const std::vector<PointCloud>& clouds, const FusionOptions
       return {};
     }
     if (options.min_views > 1) {
-      KeepMultiViewVoxels(options, &voxels, &s);
+      KeepMultiViewVoxels(options, camera_centers_mm, &voxels, &s);
       if (voxels.cloud.empty()) {
         Fail(error, "fusion: no voxel is supported by min_views = " +
                         std::to_string(options.min_views) + " clouds");

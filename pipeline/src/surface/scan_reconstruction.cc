@@ -259,11 +259,15 @@ ScanResult ReconstructImpl(const std::vector<ScanView>& views, const TurntableAx
   if (have_axis) result.turntable_from_view0 = turntable_from_rig;
   std::vector<cv::Matx44d> out_from_view(n);
   for (int k = 0; k < n; ++k) out_from_view[k] = out_from_view0 * result.view0_from_view[k];
+  // Each view's camera: the rig frame's origin is the rectified left camera.
+  std::vector<cv::Vec3d> centers(n);
+  for (int k = 0; k < n; ++k)
+    centers[k] = cv::Vec3d(out_from_view[k](0, 3), out_from_view[k](1, 3), out_from_view[k](2, 3));
   auto fuse = [&](const std::vector<PointCloud>& in_rig) {
     std::vector<PointCloud> clouds;
     clouds.reserve(n);
     for (int k = 0; k < n; ++k) clouds.push_back(TransformCloud(out_from_view[k], in_rig[k]));
-    return FuseClouds(clouds, options.fusion, &why);
+    return FuseClouds(clouds, options.fusion, &why, nullptr, &centers);
   };
   std::vector<PointCloud> fine;
   fine.reserve(n);

@@ -53,10 +53,16 @@ struct ImprovedArmOptions {        // the paper's values
 struct RefinementOptions {
   bool enabled = true;
   double lr_tolerance_px = 1.0;  // left-right check: |dL − dR| above this is an outlier
-  int voting_iterations = 5;     // iterative region voting
-  int tau_s = 20;                // minimum reliable votes in the support region
-  double tau_h = 0.4;            // minimum share of the winning disparity
-  bool interpolate = true;       // proper interpolation of the remaining outliers
+  // Uniqueness test, [0, 1); 0 = off. A pixel whose winning cost is not at
+  // least this fraction below the best cost two or more disparities away
+  // (c_best > (1 − uniqueness) · c_second) is unreliable, like a failed
+  // left-right check: a flat cost curve (weak texture, a repeated pattern)
+  // picks its winner by noise, and both views can agree on it.
+  double uniqueness = 0;
+  int voting_iterations = 5;  // iterative region voting
+  int tau_s = 20;             // minimum reliable votes in the support region
+  double tau_h = 0.4;         // minimum share of the winning disparity
+  bool interpolate = true;    // proper interpolation of the remaining outliers
   bool adjust_discontinuities = true;
   bool subpixel = true;  // parabola fit on the final cost
   int median_size = 3;   // 0 (off), 3 or 5
@@ -103,12 +109,13 @@ struct DisparityResult {
   enum class Status { kOk, kInvalidInput };
   Status status = Status::kInvalidInput;
   std::string message;
-  cv::Mat disparity;        // CV_32FC1, left view, kInvalidDisparity where none
-  cv::Mat disparity_right;  // CV_32FC1, right view (integer, before refinement)
-  double occluded_pct = 0;  // of all pixels, outliers classified as occlusion
-  double mismatch_pct = 0;  // of all pixels, outliers classified as mismatch
-  double valid_pct = 0;     // of all pixels with a disparity in the output
-  struct Timings {          // wall-clock milliseconds per stage
+  cv::Mat disparity;         // CV_32FC1, left view, kInvalidDisparity where none
+  cv::Mat disparity_right;   // CV_32FC1, right view (integer, before refinement)
+  double occluded_pct = 0;   // of all pixels, outliers classified as occlusion
+  double mismatch_pct = 0;   // of all pixels, outliers classified as mismatch
+  double ambiguous_pct = 0;  // of all pixels, passed the left-right check, failed uniqueness
+  double valid_pct = 0;      // of all pixels with a disparity in the output
+  struct Timings {           // wall-clock milliseconds per stage
     double preprocess = 0, cost = 0, arms = 0, aggregation = 0, scanline = 0;
     double refinement = 0;  // winner-take-all of both views and the refinement
     double total = 0;

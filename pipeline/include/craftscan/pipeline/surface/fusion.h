@@ -58,6 +58,17 @@ struct FusionOptions {
   // confirm them. "Near" is the 3×3×3 block of cells of this edge around the
   // voxel's cell: at least this distance, at most twice it.
   double lone_view_radius_mm = 0;
+  // Parts only their own view could see (degrees, [0, 90); 0 = off; needs
+  // normals and FuseClouds' `camera_centers_mm`): a voxel without support is
+  // also kept when its own cloud's camera looked at it within this angle of
+  // its normal and no other cloud's camera did (every other view saw it at a
+  // grazing angle or from behind, so none could have confirmed it). The
+  // underside of a jug's belly, seen obliquely from above by the one view
+  // facing it, is such a part; a mismatched patch usually lies where another
+  // view had a clear look, or faces no camera squarely. Occlusion is not
+  // considered: a voxel facing a camera that another part hides it from
+  // still needs support.
+  double sole_view_incidence_deg = 0;
   // Floaters: the kept voxels fall into clusters (cells of cluster_gap_mm
   // that touch, 26-neighbourhood, are one cluster: parts farther apart than
   // about one to two cells are separate). A cluster with fewer voxels than
@@ -79,6 +90,7 @@ struct FusionStats {
   std::size_t sparse_voxel_points = 0;   // dropped: in voxels below min_points_per_voxel
   std::size_t single_view_voxels = 0;    // dropped: supported by fewer than min_views clouds
   std::size_t lone_view_voxels = 0;      // kept unsupported: no other cloud near them
+  std::size_t sole_view_voxels = 0;      // kept unsupported: only their own camera faced them
   std::size_t small_cluster_voxels = 0;  // dropped: in clusters below min_cluster_fraction
   std::size_t clusters = 0;              // clusters before that (0: not computed)
   std::size_t output_points = 0;         // = occupied voxels kept
@@ -101,7 +113,12 @@ struct FusionStats {
 // an input that fails PointCloud::IsValid, no finite input point, or no voxel
 // left after min_points_per_voxel; *error is cleared on success. *stats (may
 // be null) is filled in either way. Never throws. Thread-safe (reentrant).
+//
+// `camera_centers_mm` (may be null or empty: sole_view_incidence_deg is then
+// not applied): the optical centre of the camera that saw each cloud, in the
+// common frame, one per cloud; another count is an error.
 PointCloud FuseClouds(const std::vector<PointCloud>& clouds, const FusionOptions& options,
-                      std::string* error, FusionStats* stats = nullptr);
+                      std::string* error, FusionStats* stats = nullptr,
+                      const std::vector<cv::Vec3d>* camera_centers_mm = nullptr);
 
 }  // namespace craftscan

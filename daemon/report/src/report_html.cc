@@ -346,6 +346,13 @@ void Reconstruction(Page& p, const Json& scan) {
           Count(*fs, "removed_points") + " of " + Count(*fs, "checked_points") +
               " view points removed (other views looked through them; per view: " + per_view + ")");
   }
+  if (const Json* f = Find(scan, "fusion"))
+    p.Row("Multi-view support",
+          Count(*f, "unsupported_voxels_dropped") +
+              " voxels no second view confirmed dropped; kept without one: " +
+              Count(*f, "lone_view_voxels_kept") + " with no other view's points near, " +
+              Count(*f, "sole_view_voxels_kept") + " that only their own camera faced; " +
+              Count(*f, "small_cluster_voxels_dropped") + " in detached clusters dropped");
   if (const Json* q = Find(scan, "quality")) {
     p.Row("Estimated floaters", Number(*q, "far_from_mesh_pct", 2) +
                                     " % of the fused points lie more than " +

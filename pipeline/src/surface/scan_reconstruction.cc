@@ -267,7 +267,7 @@ ScanResult ReconstructImpl(const std::vector<ScanView>& views, const TurntableAx
     std::vector<PointCloud> clouds;
     clouds.reserve(n);
     for (int k = 0; k < n; ++k) clouds.push_back(TransformCloud(out_from_view[k], in_rig[k]));
-    return FuseClouds(clouds, options.fusion, &why, nullptr, &centers);
+    return FuseClouds(clouds, options.fusion, &why, &result.fusion, &centers);
   };
   std::vector<PointCloud> fine;
   fine.reserve(n);
@@ -412,6 +412,17 @@ std::string ScanReportJson(const ScanResult& result) {
       vis["removed_per_view"] = result.visibility.removed_per_view;
       vis["unsupported_points"] = result.visibility.unsupported_points;
       j["free_space_check"] = vis;
+    }
+    if (result.fusion.output_points > 0) {
+      const FusionStats& f = result.fusion;
+      Json fusion;
+      fusion["input_points"] = f.input_points;
+      fusion["unsupported_voxels_dropped"] = f.single_view_voxels;
+      fusion["lone_view_voxels_kept"] = f.lone_view_voxels;
+      fusion["sole_view_voxels_kept"] = f.sole_view_voxels;
+      fusion["small_cluster_voxels_dropped"] = f.small_cluster_voxels;
+      fusion["output_points"] = f.output_points;
+      j["fusion"] = fusion;
     }
     if (result.quality.ok) {
       const CloudQuality& q = result.quality;

@@ -213,6 +213,11 @@ TEST(Daemon, EmbroideryAndEggScanWithTheDefaultConfiguration) {
     ASSERT_TRUE(report.contains("quality")) << report.dump(2);
     EXPECT_LT(report["quality"]["far_from_mesh_pct"].get<double>(), 25.0);
     EXPECT_GT(report["free_space_check"]["removed_points"].get<double>(), 0);
+    // Fusion's counts: the voxels multi-view support dropped, and the fused
+    // cloud as large as the kept voxels.
+    EXPECT_GT(report["fusion"]["unsupported_voxels_dropped"].get<double>(), 0) << report.dump(2);
+    EXPECT_EQ(report["fusion"]["output_points"].get<double>(),
+              report["fused_points"].get<double>());
     std::printf(
         "%s%s: OBB %.1f x %.1f x %.1f mm, %.2f %% of the fused points > 1 mm from the mesh\n",
         c.object, c.projector ? " (projector)" : "", e[0], e[1], e[2],

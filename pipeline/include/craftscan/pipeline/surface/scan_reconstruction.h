@@ -108,6 +108,9 @@ struct ScanResult {
   std::optional<cv::Matx44d> turntable_from_view0;
   // The free-space check (zero when no camera was given).
   VisibilityStats visibility;
+  // The last fusion's figures (after the free-space check): what multi-view
+  // support dropped and kept, and the clusters dropped as floaters.
+  FusionStats fusion;
 
   PointCloud fused;  // in the turntable frame when known, else view 0's
   MeshResult mesh;   // same frame; status kFailed with a message if not made

@@ -413,17 +413,13 @@ std::string ScanReportJson(const ScanResult& result) {
       vis["unsupported_points"] = result.visibility.unsupported_points;
       j["free_space_check"] = vis;
     }
-    if (result.fusion.output_points > 0) {
-      const FusionStats& f = result.fusion;
-      Json fusion;
-      fusion["input_points"] = f.input_points;
-      fusion["unsupported_voxels_dropped"] = f.single_view_voxels;
-      fusion["lone_view_voxels_kept"] = f.lone_view_voxels;
-      fusion["sole_view_voxels_kept"] = f.sole_view_voxels;
-      fusion["small_cluster_voxels_dropped"] = f.small_cluster_voxels;
-      fusion["output_points"] = f.output_points;
-      j["fusion"] = fusion;
-    }
+    if (const FusionStats& f = result.fusion; f.output_points > 0)
+      j["fusion"] = {{"input_points", f.input_points},
+                     {"unsupported_voxels_dropped", f.single_view_voxels},
+                     {"lone_view_voxels_kept", f.lone_view_voxels},
+                     {"sole_view_voxels_kept", f.sole_view_voxels},
+                     {"small_cluster_voxels_dropped", f.small_cluster_voxels},
+                     {"output_points", f.output_points}};
     if (result.quality.ok) {
       const CloudQuality& q = result.quality;
       Json quality;

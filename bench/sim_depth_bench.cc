@@ -3,13 +3,15 @@
 //
 //   craftscan-bench sim-depth [--object carved_box|egg|embroidery|mesh:FILE]
 //                             [--seed S] [--threads N] [--json FILE]
+//                             [--aggregation-iterations N]
 //
 // One view on the default rig (1280×1024, 100 mm baseline, ~400 mm to the
 // turntable axis, mild lens distortion, sensor noise σ = 1 grey level) with
 // the turntable at 30° so that two sides of a box show. A mesh is scaled so
 // its largest extent is 80 mm, file +Z up. The raw pair is rectified with the
 // exact calibration (cv::initUndistortRectifyMap + cv::remap, bilinear),
-// matched with craftscan's AD-Census (default options) over the object's
+// matched with craftscan's AD-Census (default options, with the station's
+// aggregation iterations, ViewProcessorOptions) over the object's
 // ground-truth disparity range ± 8 px, and reprojected with Q per pixel
 // (Z = Q·(x, y, d, 1), as ReprojectToPoints). On the rectified object pixels:
 //   depth_err_median_mm, depth_err_p90_mm  |Z − Z_true| over pixels with a disparity
@@ -41,6 +43,7 @@
 
 #include "command.h"
 #include "craftscan/pipeline/stereo/adcensus.h"
+#include "craftscan/pipeline/stereo/view_processing.h"
 #include "craftscan/sim/station.h"
 
 namespace craftscan::bench {
@@ -92,6 +95,11 @@ class SimDepthCommand : public BenchCommand {
     sub->add_flag("--fill", fill_,
                   "Fill refinement outliers by interpolation (a dense map, as on Middlebury); "
                   "by default they stay invalid, as the reconstruction uses them");
+    sub->add_option("--aggregation-iterations", aggregation_iterations_,
+                    "AD-Census cross-based aggregation iterations; by default the station's "
+                    "(pipeline.aggregation_iterations; the paper's is 4)")
+        ->check(CLI::Range(0, 16))
+        ->capture_default_str();
     return sub;
   }
 
@@ -193,6 +201,7 @@ class SimDepthCommand : public BenchCommand {
     options.min_disparity = result->min_disparity;
     options.num_disparities = result->num_disparities;
     options.num_threads = threads_;
+    options.aggregation_iterations = aggregation_iterations_;
     // A point cloud wants no invented surface: occluded and mismatched pixels
     // stay invalid unless --fill asks for the dense map.
     options.refinement.interpolate = fill_;
@@ -248,6 +257,7 @@ class SimDepthCommand : public BenchCommand {
     root["object"] = r.object;
     root["seed"] = seed_;
     root["fill"] = fill_;
+    root["aggregation_iterations"] = aggregation_iterations_;
     root["threads"] = threads_;
     root["width"] = r.width;
     root["height"] = r.height;
@@ -274,6 +284,7 @@ class SimDepthCommand : public BenchCommand {
   std::uint64_t seed_ = 1;
   int threads_ = 2;
   bool fill_ = false;
+  int aggregation_iterations_ = ViewProcessorOptions{}.aggregation_iterations;
   std::string json_path_;
 };
 

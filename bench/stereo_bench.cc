@@ -4,6 +4,7 @@
 //   craftscan-bench stereo --scenes DIR | --scene DIR [--scene DIR ...]
 //                          [--matcher adcensus,adcensus-classic,sgbm]
 //                          [--threads N] [--repeat K] [--json FILE]
+//                          [--uniqueness U] [--aggregation-iterations N]
 //                          [--save-disparity DIR]
 //
 // Threads: ADCensus gets N through its options. OpenCV's thread pool is a
@@ -62,14 +63,21 @@ struct Matcher {
   std::function<SceneRun(const StereoScene&, int num_threads)> prepare;
 };
 
+// What the stereo command changes in the AD-Census matchers' defaults.
+struct ADCensusSettings {
+  double uniqueness = 0;  // RefinementOptions::uniqueness
+  int aggregation_iterations = ADCensusOptions{}.aggregation_iterations;
+};
+
 SceneRun PrepareADCensus(const StereoScene& scene, int num_threads, ArmRule arm_rule,
-                         double uniqueness) {
+                         const ADCensusSettings& settings) {
   ADCensusOptions options;
   options.min_disparity = 0;
   options.num_disparities = scene.ndisp;
   options.num_threads = num_threads;
   options.arm_rule = arm_rule;
-  options.refinement.uniqueness = uniqueness;
+  options.refinement.uniqueness = settings.uniqueness;
+  options.aggregation_iterations = settings.aggregation_iterations;
   auto matcher = std::make_shared<StereoMatcher>(options);
   return [matcher, &scene] {
     DisparityResult result = matcher->Compute(scene.left, scene.right);
@@ -111,16 +119,16 @@ SceneRun PrepareSgbm(const StereoScene& scene, int num_threads) {
   };
 }
 
-// `uniqueness`: RefinementOptions::uniqueness of both AD-Census matchers.
-std::vector<Matcher> AllMatchers(double uniqueness) {
+// `settings` apply to both AD-Census matchers.
+std::vector<Matcher> AllMatchers(const ADCensusSettings& settings) {
   return {
       {"adcensus",
-       [uniqueness](const StereoScene& s, int n) {
-         return PrepareADCensus(s, n, ArmRule::kImproved, uniqueness);
+       [settings](const StereoScene& s, int n) {
+         return PrepareADCensus(s, n, ArmRule::kImproved, settings);
        }},
       {"adcensus-classic",
-       [uniqueness](const StereoScene& s, int n) {
-         return PrepareADCensus(s, n, ArmRule::kClassic, uniqueness);
+       [settings](const StereoScene& s, int n) {
+         return PrepareADCensus(s, n, ArmRule::kClassic, settings);
        }},
       {"sgbm", PrepareSgbm},
   };
@@ -215,9 +223,14 @@ class StereoCommand : public BenchCommand {
     sub->add_option("--threads", threads_, "Threads per matcher call (also OpenCV's global pool)")
         ->check(CLI::Range(1, 256))
         ->capture_default_str();
-    sub->add_option("--uniqueness", uniqueness_,
+    sub->add_option("--uniqueness", settings_.uniqueness,
                     "AD-Census uniqueness test (RefinementOptions::uniqueness, [0, 1); 0 = off)")
         ->check(CLI::Range(0.0, 0.99))
+        ->capture_default_str();
+    sub->add_option("--aggregation-iterations", settings_.aggregation_iterations,
+                    "AD-Census cross-based aggregation iterations (the paper's 4; the station "
+                    "runs pipeline.aggregation_iterations, default 0)")
+        ->check(CLI::Range(0, 16))
         ->capture_default_str();
     sub->add_option("--repeat", repeat_, "Runs per scene and matcher; time = median")
         ->check(CLI::Range(1, 1000))
@@ -278,7 +291,7 @@ class StereoCommand : public BenchCommand {
   }
 
   int SelectMatchers(std::vector<Matcher>* selected) const {
-    const std::vector<Matcher> all = AllMatchers(uniqueness_);
+    const std::vector<Matcher> all = AllMatchers(settings_);
     for (const std::string& name : matcher_names_) {
       auto it =
           std::find_if(all.begin(), all.end(), [&](const Matcher& m) { return m.name == name; });
@@ -467,7 +480,8 @@ class StereoCommand : public BenchCommand {
     using Json = nlohmann::ordered_json;
     Json root;
     root["threads"] = threads_;
-    root["uniqueness"] = uniqueness_;
+    root["uniqueness"] = settings_.uniqueness;
+    root["aggregation_iterations"] = settings_.aggregation_iterations;
     root["scenes"] = Json::array();
     for (const SceneResult& scene : results) {
       Json s;
@@ -503,7 +517,7 @@ class StereoCommand : public BenchCommand {
   std::vector<std::string> scene_dirs_;
   std::vector<std::string> matcher_names_{"adcensus", "adcensus-classic", "sgbm"};
   int threads_ = 2;
-  double uniqueness_ = 0;
+  ADCensusSettings settings_;
   int repeat_ = 3;
   std::string json_path_;
   std::string save_dir_;

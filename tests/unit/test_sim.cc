@@ -321,6 +321,10 @@ TEST(SimRender, TheBandReachesThePlattersFarEdge) {
   bad.platter_radius_mm = -1;
   EXPECT_FALSE(a.Init(c, bad, &error));
   EXPECT_NE(error.find("platter_radius_mm"), std::string::npos) << error;
+  bad = volume_only;
+  bad.aggregation_iterations = 17;
+  EXPECT_FALSE(a.Init(c, bad, &error));
+  EXPECT_NE(error.find("aggregation_iterations must be in 0..16"), std::string::npos) << error;
 }
 
 TEST(SimRender, ThreadCountDoesNotChangeAnything) {

@@ -512,6 +512,7 @@ std::map<std::string, std::string> CraftscanEnvironment() {
 ADCensusOptions MatcherOptions(const PipelineSettings& settings) {
   ADCensusOptions options;
   options.num_threads = settings.threads;
+  options.aggregation_iterations = settings.aggregation_iterations;
   if (settings.num_disparities > 0) {
     options.min_disparity = settings.min_disparity;
     options.num_disparities = settings.num_disparities;
@@ -535,6 +536,7 @@ ViewProcessorOptions ViewOptions(const PipelineSettings& settings) {
   options.num_disparities = settings.num_disparities;
   options.depth_edge_radius_px = settings.depth_edge_radius_px;
   options.depth_edge_jump_px = settings.depth_edge_jump_px;
+  options.aggregation_iterations = settings.aggregation_iterations;
   return options;
 }
 

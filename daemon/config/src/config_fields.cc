@@ -432,6 +432,9 @@ std::vector<Field> MakeFields() {
   f.push_back(RealField("pipeline.depth_edge_jump_px",
                         [](DaemonConfig& c) -> double& { return c.pipeline.depth_edge_jump_px; },
                         {0, 1000, true}));
+  f.push_back(IntField(
+      "pipeline.aggregation_iterations",
+      [](DaemonConfig& c) -> int& { return c.pipeline.aggregation_iterations; }, 0, 16));
   f.push_back(RealField(
       "pipeline.free_space_tolerance_mm",
       [](DaemonConfig& c) -> double& { return c.pipeline.free_space_tolerance_mm; }, {0, 100}));

@@ -38,6 +38,8 @@ bool ViewProcessorOptions::IsValid(std::string* why) const {
     return Fail(why, "depth_edge_radius_px must be in 0..5");
   if (!(depth_edge_jump_px > 0 && depth_edge_jump_px <= 1000))
     return Fail(why, "depth_edge_jump_px must be in (0, 1000]");
+  if (aggregation_iterations < 0 || aggregation_iterations > 16)
+    return Fail(why, "aggregation_iterations must be in 0..16");
   return true;
 }
 
@@ -137,6 +139,7 @@ bool ViewProcessor::Init(const StereoCalibration& calibration, const ViewProcess
   matcher.num_disparities = num_disparities_;
   matcher.num_threads = options.num_threads;
   matcher.refinement.interpolate = false;  // a point cloud wants no invented surface
+  matcher.aggregation_iterations = options.aggregation_iterations;
   if (!matcher.IsValid(&why)) return Fail(error, "matcher: " + why);
   matcher_ = std::make_unique<StereoMatcher>(matcher);
   return true;

@@ -66,6 +66,7 @@ pipeline:
   min_disparity: -32
   num_disparities: 192
   min_texture_std: 0
+  aggregation_iterations: 4
   volume_radius_mm: 90
   volume_min_height_mm: 2
   volume_max_height_mm: 150
@@ -108,6 +109,7 @@ watchdog: {enabled: no}
   EXPECT_EQ(c.pipeline.min_disparity, -32);
   EXPECT_EQ(c.pipeline.num_disparities, 192);
   EXPECT_DOUBLE_EQ(c.pipeline.min_texture_std, 0);
+  EXPECT_EQ(c.pipeline.aggregation_iterations, 4);
   EXPECT_DOUBLE_EQ(c.pipeline.volume.radius_mm, 90);
   EXPECT_DOUBLE_EQ(c.pipeline.volume.min_height_mm, 2);
   EXPECT_DOUBLE_EQ(c.pipeline.volume.max_height_mm, 150);
@@ -120,6 +122,8 @@ watchdog: {enabled: no}
   EXPECT_EQ(matcher.num_threads, 4);
   EXPECT_EQ(matcher.min_disparity, -32);
   EXPECT_EQ(matcher.num_disparities, 192);
+  EXPECT_EQ(matcher.aggregation_iterations, 4);
+  EXPECT_EQ(ViewOptions(c.pipeline).aggregation_iterations, 4);
   const ScanOptions scan = ReconstructionOptions(c.pipeline);
   EXPECT_EQ(scan.num_threads, 4);
   EXPECT_DOUBLE_EQ(scan.volume.radius_mm, 90);
@@ -262,6 +266,8 @@ INSTANTIATE_TEST_SUITE_P(
                      "pipeline.min_disparity: must be an integer in -4096..4096, got '5000'"},
         BadValueCase{"pipeline: {num_disparities: 0x40}\n",
                      "pipeline.num_disparities: must be an integer in 0..4096, got '0x40'"},
+        BadValueCase{"pipeline: {aggregation_iterations: 17}\n",
+                     "pipeline.aggregation_iterations: must be an integer in 0..16, got '17'"},
         BadValueCase{"pipeline: {min_texture_std: 256}\n",
                      "pipeline.min_texture_std: must be a number in [0, 255], got '256'"},
         BadValueCase{"pipeline: {volume_radius_mm: 0}\n",

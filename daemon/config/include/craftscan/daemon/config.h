@@ -67,6 +67,8 @@
 //     free_space_tolerance_mm: 1  [0, 100]; 0 = no free-space check
 //     depth_edge_radius_px: 1     0..5 erosion at depth edges; 0 = off
 //     depth_edge_jump_px: 3       (0, 1000] what a depth edge is (px of disparity)
+//     aggregation_iterations: 0   0..16 the matcher's cross-based aggregation
+//                                 (the paper's 4 flatten slanted weak texture)
 //     mesh: true                  Poisson mesh after fusion
 //     measure_box: true           also measure the object as a box (edges, faces)
 //   limits:
@@ -205,6 +207,9 @@ struct PipelineSettings {
   // more than depth_edge_jump_px ((0, 1000]) above theirs, are dropped.
   int depth_edge_radius_px = 1;
   double depth_edge_jump_px = 3;
+  // The matcher's cross-based aggregation iterations (0..16):
+  // ViewProcessorOptions::aggregation_iterations.
+  int aggregation_iterations = 0;
   // Drop fused points other views look straight through (mm of depth
   // agreement, [0, 100]; 0 = off): VisibilityOptions::tolerance_mm.
   double free_space_tolerance_mm = 1.0;
@@ -270,9 +275,10 @@ std::vector<std::string> ConfigEnvironmentVariables();
 // The process environment's variables that start with "CRAFTSCAN_".
 std::map<std::string, std::string> CraftscanEnvironment();
 
-// The settings as pipeline options. MatcherOptions: threads, and the
-// disparity band when num_disparities > 0 (otherwise the caller sets the
-// band it derived). ReconstructionOptions: threads, working volume, mesh.
+// The settings as pipeline options. MatcherOptions: threads, the
+// aggregation iterations, and the disparity band when num_disparities > 0
+// (otherwise the caller sets the band it derived). ReconstructionOptions: threads, working volume,
+// mesh.
 ADCensusOptions MatcherOptions(const PipelineSettings& settings);
 ReprojectOptions ReprojectionOptions(const PipelineSettings& settings);
 ScanOptions ReconstructionOptions(const PipelineSettings& settings);

@@ -40,6 +40,16 @@ struct ViewProcessorOptions {
   // before reprojection.
   int depth_edge_radius_px = 1;
   double depth_edge_jump_px = 3;
+  // The matcher's cross-based aggregation iterations
+  // (ADCensusOptions::aggregation_iterations, 0..16). The paper's 4 smooth
+  // the cost over support regions that grow with every iteration; on a
+  // station's slanted, weakly textured surfaces (dark cloth, painted
+  // shoulders, a vase's belly) that flattens the disparity into fronto-
+  // parallel plateaus, whose ends come out as sheets a millimetre off the
+  // surface, consistent enough in two views to survive fusion. The census
+  // window and the scanline optimization alone do better on every object
+  // measured (README 11.9), so the station runs with none.
+  int aggregation_iterations = 0;
 
   bool IsValid(std::string* why) const;
 };

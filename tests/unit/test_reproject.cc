@@ -272,5 +272,48 @@ TEST(DepthEdgeErosion, ErasesThePixelsBesideAJumpOnlyAndCountsThem) {
   EXPECT_EQ(EraseNearDepthEdges(1, 3, &empty), std::size_t{0});
 }
 
+// A slanted surface (a ramp of 0.5 px per pixel over 40×40 pixels) with a
+// hole, and noise: three small patches at unrelated disparities, one of them
+// touching the ramp. The patches go (all 4 + 9 + 6 pixels), the ramp and its
+// values stay exactly; a patch at least as large as the limit stays.
+TEST(DisparitySpeckles, SmallPatchesGoAndSurfacesStayUnchanged) {
+  cv::Mat d(60, 80, CV_32FC1, cv::Scalar(kNan));
+  for (int y = 10; y < 50; ++y)
+    for (int x = 10; x < 50; ++x) d.at<float>(y, x) = 100.25f + 0.5f * static_cast<float>(x);
+  for (int y = 28; y < 32; ++y)
+    for (int x = 30; x < 34; ++x) d.at<float>(y, x) = kNan;
+  auto patch = [&d](int x0, int y0, int w, int h, float value) {
+    for (int y = y0; y < y0 + h; ++y)
+      for (int x = x0; x < x0 + w; ++x) d.at<float>(y, x) = value;
+  };
+  patch(60, 5, 2, 2, 7.5f);    // 4 px, alone
+  patch(60, 40, 3, 3, 300.f);  // 9 px, alone
+  patch(50, 20, 2, 3, -20.f);  // 6 px, beside the ramp but 145 px off it
+  cv::Mat filtered = d.clone();
+  EXPECT_EQ(RemoveDisparitySpeckles(10, 2.0, &filtered), std::size_t{4 + 9 + 6});
+  for (int y = 0; y < d.rows; ++y) {
+    for (int x = 0; x < d.cols; ++x) {
+      const bool ramp =
+          x >= 10 && x < 50 && y >= 10 && y < 50 && !(y >= 28 && y < 32 && x >= 30 && x < 34);
+      if (ramp)
+        EXPECT_EQ(filtered.at<float>(y, x), d.at<float>(y, x)) << x << "," << y;
+      else
+        EXPECT_TRUE(std::isnan(filtered.at<float>(y, x))) << x << "," << y;
+    }
+  }
+  // Patches of at most the limit go: a limit of 8 keeps the 9-pixel patch.
+  filtered = d.clone();
+  EXPECT_EQ(RemoveDisparitySpeckles(8, 2.0, &filtered), std::size_t{4 + 6});
+  EXPECT_EQ(filtered.at<float>(41, 61), 300.f);
+  EXPECT_EQ(filtered.at<float>(20, 20), d.at<float>(20, 20));
+  // Off, or nothing valid: nothing changes.
+  filtered = d.clone();
+  EXPECT_EQ(RemoveDisparitySpeckles(0, 2.0, &filtered), std::size_t{0});
+  cv::Mat none(10, 10, CV_32FC1, cv::Scalar(kNan));
+  EXPECT_EQ(RemoveDisparitySpeckles(10, 2.0, &none), std::size_t{0});
+  cv::Mat empty;
+  EXPECT_EQ(RemoveDisparitySpeckles(10, 2.0, &empty), std::size_t{0});
+}
+
 }  // namespace
 }  // namespace craftscan

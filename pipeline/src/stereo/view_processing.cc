@@ -8,6 +8,7 @@
 #include <limits>
 #include <vector>
 
+#include <opencv2/calib3d.hpp>
 #include <opencv2/imgproc.hpp>
 
 #include "craftscan/pipeline/common/status.h"
@@ -40,7 +41,51 @@ bool ViewProcessorOptions::IsValid(std::string* why) const {
     return Fail(why, "depth_edge_jump_px must be in (0, 1000]");
   if (aggregation_iterations < 0 || aggregation_iterations > 16)
     return Fail(why, "aggregation_iterations must be in 0..16");
+  if (!(speckle_max_area_pct >= 0 && speckle_max_area_pct <= 1))
+    return Fail(why, "speckle_max_area_pct must be in [0, 1]");
+  if (!(speckle_range_px > 0 && speckle_range_px <= 64))
+    return Fail(why, "speckle_range_px must be in (0, 64]");
   return true;
+}
+
+std::size_t RemoveDisparitySpeckles(int max_area_px, double range_px, cv::Mat* disparity) {
+  if (max_area_px <= 0 || disparity == nullptr || disparity->empty()) return 0;
+  CV_Assert(disparity->type() == CV_32FC1);
+  // cv::filterSpeckles takes 16-bit disparities: 1/16 px as StereoSGBM's,
+  // counted from the smallest valid one (coarser if the span needs it).
+  double lo = std::numeric_limits<double>::infinity(), hi = -lo;
+  for (int y = 0; y < disparity->rows; ++y) {
+    const float* d = disparity->ptr<float>(y);
+    for (int x = 0; x < disparity->cols; ++x) {
+      if (!std::isfinite(d[x])) continue;
+      lo = std::min(lo, static_cast<double>(d[x]));
+      hi = std::max(hi, static_cast<double>(d[x]));
+    }
+  }
+  if (!(hi >= lo)) return 0;  // no valid pixel
+  const double scale = std::min(16.0, 32000.0 / std::max(hi - lo, 1.0));
+  constexpr std::int16_t kInvalid = -1;
+  cv::Mat fixed(disparity->size(), CV_16SC1);
+  for (int y = 0; y < disparity->rows; ++y) {
+    const float* d = disparity->ptr<float>(y);
+    auto* f = fixed.ptr<std::int16_t>(y);
+    for (int x = 0; x < disparity->cols; ++x)
+      f[x] = std::isfinite(d[x]) ? static_cast<std::int16_t>(std::lround((d[x] - lo) * scale))
+                                 : kInvalid;
+  }
+  cv::filterSpeckles(fixed, kInvalid, max_area_px, range_px * scale);
+  std::size_t removed = 0;
+  for (int y = 0; y < disparity->rows; ++y) {
+    float* d = disparity->ptr<float>(y);
+    const auto* f = fixed.ptr<std::int16_t>(y);
+    for (int x = 0; x < disparity->cols; ++x) {
+      if (f[x] == kInvalid && std::isfinite(d[x])) {
+        d[x] = std::numeric_limits<float>::quiet_NaN();
+        ++removed;
+      }
+    }
+  }
+  return removed;
 }
 
 std::size_t EraseNearDepthEdges(int radius_px, double jump_px, cv::Mat* disparity) {
@@ -210,6 +255,10 @@ ProcessedView ViewProcessor::Process(const cv::Mat& left_raw, const cv::Mat& rig
       return out;
     }
     out.disparity = std::move(match.disparity);
+    out.speckle_pixels = RemoveDisparitySpeckles(
+        static_cast<int>(std::lround(options_.speckle_max_area_pct / 100 *
+                                     static_cast<double>(out.disparity.total()))),
+        options_.speckle_range_px, &out.disparity);
     out.edge_pixels_erased = EraseNearDepthEdges(options_.depth_edge_radius_px,
                                                  options_.depth_edge_jump_px, &out.disparity);
     out.min_disparity = min_disparity_;

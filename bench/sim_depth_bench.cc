@@ -3,7 +3,7 @@
 //
 //   craftscan-bench sim-depth [--object carved_box|egg|embroidery|mesh:FILE]
 //                             [--seed S] [--threads N] [--json FILE]
-//                             [--aggregation-iterations N]
+//                             [--aggregation-iterations N] [--projector] [--raw]
 //
 // One view on the default rig (1280×1024, 100 mm baseline, ~400 mm to the
 // turntable axis, mild lens distortion, sensor noise σ = 1 grey level) with
@@ -12,8 +12,13 @@
 // exact calibration (cv::initUndistortRectifyMap + cv::remap, bilinear),
 // matched with craftscan's AD-Census (default options, with the station's
 // aggregation iterations, ViewProcessorOptions) over the object's
-// ground-truth disparity range ± 8 px, and reprojected with Q per pixel
-// (Z = Q·(x, y, d, 1), as ReprojectToPoints). On the rectified object pixels:
+// ground-truth disparity range ± 8 px, cleaned as the station cleans a view
+// before reprojection (ViewProcessorOptions' defaults: speckles, erosion at
+// depth edges, the texture filter; --raw: the matcher's output as it is),
+// and reprojected with Q per pixel (Z = Q·(x, y, d, 1), as
+// ReprojectToPoints). --projector lights the scene with the pattern
+// projector a station mounts on its camera head (the sim driver's
+// `projector: 1`). On the rectified object pixels:
 //   depth_err_median_mm, depth_err_p90_mm  |Z − Z_true| over pixels with a disparity
 //   valid_pct                               pixels with a disparity, % of object pixels
 //   disp_err_median_px                      |d − d_true| over the same pixels
@@ -29,6 +34,7 @@
 #include <filesystem>
 #include <fstream>
 #include <iostream>
+#include <limits>
 #include <memory>
 #include <numbers>
 #include <string>
@@ -43,6 +49,7 @@
 
 #include "command.h"
 #include "craftscan/pipeline/stereo/adcensus.h"
+#include "craftscan/pipeline/stereo/reproject.h"
 #include "craftscan/pipeline/stereo/view_processing.h"
 #include "craftscan/sim/station.h"
 
@@ -64,6 +71,8 @@ struct SimDepthResult {
   double depth_err_median_mm = NAN, depth_err_p90_mm = NAN, disp_err_median_px = NAN;
   double valid_pct = 0;
   double render_ms = 0, match_ms = 0;
+  // Pixels the station's clean-up removed (0 with --raw).
+  std::size_t speckle_pixels = 0, edge_pixels = 0, textureless_pixels = 0;
 };
 
 // q-quantile (0…1) by nearest rank.
@@ -100,6 +109,12 @@ class SimDepthCommand : public BenchCommand {
                     "(pipeline.aggregation_iterations; the paper's is 4)")
         ->check(CLI::Range(0, 16))
         ->capture_default_str();
+    sub->add_flag("--projector", projector_,
+                  "Light the scene with the pattern projector on the camera head (the sim "
+                  "driver's `projector: 1`)");
+    sub->add_flag("--raw", raw_,
+                  "Score the matcher's disparities as they are, without the station's clean-up "
+                  "(speckles, depth edges, texture filter)");
     return sub;
   }
 
@@ -118,6 +133,7 @@ class SimDepthCommand : public BenchCommand {
     sim::RigOptions rig;
     rig.num_threads = threads_;
     rig.seed = seed_;
+    if (projector_) scene_options.lighting.projector = sim::ProjectorOnCameraHead(rig);
 
     std::string error;
     std::unique_ptr<sim::SimStation> station = sim::SimStation::Create(rig, &error);
@@ -211,13 +227,34 @@ class SimDepthCommand : public BenchCommand {
     result->match_ms =
         std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count();
     if (!match.IsUsable()) return DataError("matcher failed: " + match.message);
+    cv::Mat& disparity = match.disparity;
+    if (!raw_) {  // as ViewProcessor::Process and ReprojectToPoints
+      const ViewProcessorOptions station;
+      result->speckle_pixels = RemoveDisparitySpeckles(
+          static_cast<int>(std::lround(station.speckle_max_area_pct / 100 *
+                                       static_cast<double>(disparity.total()))),
+          station.speckle_range_px, &disparity);
+      result->edge_pixels =
+          EraseNearDepthEdges(station.depth_edge_radius_px, station.depth_edge_jump_px, &disparity);
+      const cv::Mat textured =
+          TextureMask(left, ReprojectOptions{}.texture_window, station.min_texture_std);
+      for (int y = 0; y < disparity.rows; ++y) {
+        float* d = disparity.ptr<float>(y);
+        const std::uint8_t* t = textured.ptr<std::uint8_t>(y);
+        for (int x = 0; x < disparity.cols; ++x) {
+          if (t[x] || !IsValidDisparity(d[x])) continue;
+          d[x] = std::numeric_limits<float>::quiet_NaN();
+          ++result->textureless_pixels;
+        }
+      }
+    }
 
     // Depth through Q on the object pixels.
     const cv::Matx44d& Q = c.Q;
     std::vector<double> depth_errors, disparity_errors;
     for (int y = 0; y < mask.rows; ++y) {
       const std::uint8_t* m = mask.ptr<std::uint8_t>(y);
-      const float* d = match.disparity.ptr<float>(y);
+      const float* d = disparity.ptr<float>(y);
       const float* d_true = render.rectified_disparity.ptr<float>(y);
       const float* z_true = render.rectified_depth_mm.ptr<float>(y);
       for (int x = 0; x < mask.cols; ++x) {
@@ -237,10 +274,11 @@ class SimDepthCommand : public BenchCommand {
   }
 
   void Print(const SimDepthResult& r) const {
-    std::printf("sim-depth: %s, seed %llu, %d thread(s), %dx%d, turntable %.0f deg, %s\n",
-                r.object.c_str(), static_cast<unsigned long long>(seed_), threads_, r.width,
-                r.height, kTurntableAngleRad * 180 / std::numbers::pi,
-                fill_ ? "outliers filled" : "outliers invalid");
+    std::printf(
+        "sim-depth: %s, seed %llu, %d thread(s), %dx%d, turntable %.0f deg, %s, %s%s\n",
+        r.object.c_str(), static_cast<unsigned long long>(seed_), threads_, r.width, r.height,
+        kTurntableAngleRad * 180 / std::numbers::pi, fill_ ? "outliers filled" : "outliers invalid",
+        raw_ ? "raw matcher output" : "the station's clean-up", projector_ ? ", projector" : "");
     std::printf("  object pixels %ld, true disparity %.1f … %.1f px, searched [%d, %d)\n",
                 r.object_pixels, r.gt_disparity_min, r.gt_disparity_max, r.min_disparity,
                 r.min_disparity + r.num_disparities);
@@ -248,6 +286,9 @@ class SimDepthCommand : public BenchCommand {
         "  depth_err_median_mm %.3f  depth_err_p90_mm %.3f  valid_pct %.1f  "
         "disp_err_median_px %.3f\n",
         r.depth_err_median_mm, r.depth_err_p90_mm, r.valid_pct, r.disp_err_median_px);
+    if (!raw_)
+      std::printf("  removed: speckles %zu  depth edges %zu  textureless %zu pixels\n",
+                  r.speckle_pixels, r.edge_pixels, r.textureless_pixels);
     std::printf("  render_ms %.0f  match_ms %.0f\n", r.render_ms, r.match_ms);
     std::fflush(stdout);
   }
@@ -258,6 +299,11 @@ class SimDepthCommand : public BenchCommand {
     root["seed"] = seed_;
     root["fill"] = fill_;
     root["aggregation_iterations"] = aggregation_iterations_;
+    root["projector"] = projector_;
+    root["raw"] = raw_;
+    root["speckle_pixels"] = r.speckle_pixels;
+    root["edge_pixels"] = r.edge_pixels;
+    root["textureless_pixels"] = r.textureless_pixels;
     root["threads"] = threads_;
     root["width"] = r.width;
     root["height"] = r.height;
@@ -285,6 +331,8 @@ class SimDepthCommand : public BenchCommand {
   int threads_ = 2;
   bool fill_ = false;
   int aggregation_iterations_ = ViewProcessorOptions{}.aggregation_iterations;
+  bool projector_ = false;
+  bool raw_ = false;
   std::string json_path_;
 };
 

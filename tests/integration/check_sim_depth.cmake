@@ -1,12 +1,12 @@
 # Runs `craftscan-bench sim-depth` on one object and checks its JSON: the
 # median depth error on object pixels below MAX_MEDIAN_MM and at least
 # MIN_VALID_PCT % of object pixels with a disparity (and, if given, the 90th
-# percentile below MAX_P90_MM).
+# percentile below MAX_P90_MM). ARGS: more options (a CMake list).
 #   cmake -DBENCH=... -DOBJECT=carved_box -DJSON=... -DMAX_MEDIAN_MM=0.3
-#         -DMIN_VALID_PCT=95 -P check_sim_depth.cmake
+#         -DMIN_VALID_PCT=95 [-DARGS=--projector] -P check_sim_depth.cmake
 file(REMOVE "${JSON}")
 execute_process(
-  COMMAND "${BENCH}" sim-depth --object "${OBJECT}" --threads 2 --json "${JSON}"
+  COMMAND "${BENCH}" sim-depth --object "${OBJECT}" --threads 2 --json "${JSON}" ${ARGS}
   RESULT_VARIABLE code)
 if(NOT code EQUAL 0)
   message(FATAL_ERROR "craftscan-bench sim-depth exited with ${code}")

@@ -271,6 +271,25 @@ TEST(Fusion, PartsOnlyTheirOwnCameraFacedStayWithoutSupport) {
       centers[0], centers[1], {60 + 300 * std::cos(1.4), 20, 10 + 300 * std::sin(1.4)}};
   fused = FuseClouds(clouds, options, &error, &stats, &grazing);
   EXPECT_LT(count(fused, wall), 100);
+  // ... unless every other camera is behind it (a and b are): then no other
+  // view could have confirmed it, and 80° is within the hidden-view angle.
+  options.hidden_view_incidence_deg = 85;
+  fused = FuseClouds(clouds, options, &error, &stats, &grazing);
+  EXPECT_GT(count(fused, wall), 3000);
+  EXPECT_GT(stats.hidden_view_voxels, 3000u);
+  EXPECT_LT(count(fused, sheet), 5);  // a and b face the sheet: it still goes
+  // Not at 88°, beyond that angle.
+  const std::vector<cv::Vec3d> edge_on{
+      centers[0], centers[1], {60 + 300 * std::cos(1.536), 20, 10 + 300 * std::sin(1.536)}};
+  fused = FuseClouds(clouds, options, &error, &stats, &edge_on);
+  EXPECT_LT(count(fused, wall), 100);
+  // Nor when another camera sees its front, even at a grazing angle: a's
+  // camera moved out to 85° off the wall's normal, in front of it.
+  const std::vector<cv::Vec3d> witness{
+      {60 + 300 * std::cos(1.48), 20, 10 + 300 * std::sin(1.48)}, centers[1], grazing[2]};
+  fused = FuseClouds(clouds, options, &error, &stats, &witness);
+  EXPECT_LT(count(fused, wall), 100);
+  options.hidden_view_incidence_deg = 0;
 
   const std::vector<cv::Vec3d> two{centers[0], centers[1]};
   EXPECT_TRUE(FuseClouds(clouds, options, &error, &stats, &two).empty());
@@ -281,6 +300,10 @@ TEST(Fusion, PartsOnlyTheirOwnCameraFacedStayWithoutSupport) {
   options.sole_view_incidence_deg = 90;
   EXPECT_FALSE(options.IsValid(&error));
   EXPECT_CONTAINS(error, "sole_view_incidence_deg");
+  options.sole_view_incidence_deg = 70;
+  options.hidden_view_incidence_deg = -1;
+  EXPECT_FALSE(options.IsValid(&error));
+  EXPECT_CONTAINS(error, "hidden_view_incidence_deg");
 }
 
 TEST(Fusion, SparseVoxelsAndNonFinitePointsAreDropped) {

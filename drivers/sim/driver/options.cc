@@ -363,18 +363,7 @@ SceneOptions SimSceneOptions(const SimDriverOptions& options) {
         mesh.rotation_rad = RodriguesFromXyzDeg(options.mesh_rotation_deg);
         mesh.surface = options.mesh_surface;
       }
-      if (options.projector) {
-        // 30 mm above the middle of the camera bar, aimed at the rig's
-        // target (the head's geometry: SimStation::Create).
-        const RigOptions rig;
-        const double elevation = rig.elevation_deg * kRadPerDeg;
-        ProjectorOptions& p = scene.lighting.projector;
-        p.enabled = true;
-        p.target_mm = cv::Vec3d(0, 0, rig.target_height_mm);
-        p.position_mm = p.target_mm +
-                        cv::Vec3d(0, -std::cos(elevation), std::sin(elevation)) * rig.distance_mm +
-                        cv::Vec3d(0, 0, 30);
-      }
+      if (options.projector) scene.lighting.projector = ProjectorOnCameraHead(RigOptions{});
       break;
     case SimSceneType::kHeldBoard:
       scene = BoardScene(options.board);

@@ -2,6 +2,7 @@
 #include <algorithm>
 #include <cmath>
 #include <initializer_list>
+#include <numbers>
 #include <string>
 
 #include "craftscan/sim/station.h"
@@ -107,6 +108,18 @@ bool ProjectorOptions::IsValid(std::string* why) const {
   if (!(power >= 0 && power <= 10)) return Fail(why, "projector.power must be in [0, 10]");
   if (!(fill > 0 && fill < 1)) return Fail(why, "projector.fill must be in (0, 1)");
   return true;
+}
+
+ProjectorOptions ProjectorOnCameraHead(const RigOptions& rig) {
+  // The head's geometry as SimStation::Create places it.
+  const double elevation = rig.elevation_deg * std::numbers::pi / 180;
+  ProjectorOptions p;
+  p.enabled = true;
+  p.target_mm = cv::Vec3d(0, 0, rig.target_height_mm);
+  p.position_mm = p.target_mm +
+                  cv::Vec3d(0, -std::cos(elevation), std::sin(elevation)) * rig.distance_mm +
+                  cv::Vec3d(0, 0, 30);
+  return p;
 }
 
 bool LightingOptions::IsValid(std::string* why) const {

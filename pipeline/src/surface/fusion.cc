@@ -272,8 +272,9 @@ std::uint64_t FacingCameras(const cv::Vec3f& p, const cv::Vec3f& n,
 
 // Drops voxels seen by fewer than min_views clouds within view_support_mm
 // (and, with view_support_normal_mm, near the tangent plane), unless no
-// other cloud is within lone_view_radius_mm or only their own camera faced
-// them (sole_view_incidence_deg).
+// other cloud is within lone_view_radius_mm, only their own camera faced
+// them (sole_view_incidence_deg) or every other camera is behind them
+// (hidden_view_incidence_deg).
 void KeepMultiViewVoxels(const FusionOptions& options, const std::vector<cv::Vec3d>* centers,
                          Voxels* voxels, FusionStats* s) {
   const std::vector<std::uint64_t>& keys = voxels->keys;
@@ -296,8 +297,11 @@ void KeepMultiViewVoxels(const FusionOptions& options, const std::vector<cv::Vec
     for (std::size_t v = 0; v < keys.size(); ++v)
       cells[CellKey(keys[v], options.voxel_mm, lone)] |= voxels->views[v];
 
-  const bool sole =
-      options.sole_view_incidence_deg > 0 && centers && !centers->empty() && cloud.HasNormals();
+  const bool with_cameras = centers && !centers->empty() && cloud.HasNormals();
+  const bool sole = options.sole_view_incidence_deg > 0 && with_cameras;
+  const bool hidden = options.hidden_view_incidence_deg > 0 && with_cameras;
+  // Just under 90°: a camera in the tangent plane itself sees nothing.
+  constexpr double kInFrontDeg = 89.99;
   std::vector<char> keep(keys.size(), 0);
   for (std::size_t v = 0; v < keys.size(); ++v) {
     std::uint64_t views = voxels->views[v];
@@ -323,9 +327,20 @@ void KeepMultiViewVoxels(const FusionOptions& options, const std::vector<cv::Vec
       const std::uint64_t own = voxels->views[v];
       const std::uint64_t facing = FacingCameras(cloud.points_mm[v], cloud.normals[v], *centers,
                                                  options.sole_view_incidence_deg);
-      if ((facing & own) == 0 || (facing & ~own) != 0) continue;
-      keep[v] = 1;
-      ++s->sole_view_voxels;
+      if ((facing & own) != 0 && (facing & ~own) == 0) {
+        keep[v] = 1;
+        ++s->sole_view_voxels;
+      }
+    }
+    if (!keep[v] && hidden) {
+      const std::uint64_t own = voxels->views[v];
+      const cv::Vec3f& p = cloud.points_mm[v];
+      const cv::Vec3f& n = cloud.normals[v];
+      if ((FacingCameras(p, n, *centers, options.hidden_view_incidence_deg) & own) != 0 &&
+          (FacingCameras(p, n, *centers, kInFrontDeg) & ~own) == 0) {
+        keep[v] = 1;
+        ++s->hidden_view_voxels;
+      }
     }
   }
   s->single_view_voxels += FilterVoxels(keep, voxels);
@@ -424,6 +439,8 @@ bool FusionOptions::IsValid(std::string* why) const {
     return Fail(why, "FusionOptions.lone_view_radius_mm must be finite and >= 0");
   if (!(sole_view_incidence_deg >= 0 && sole_view_incidence_deg < 90))
     return Fail(why, "FusionOptions.sole_view_incidence_deg must be in [0, 90)");
+  if (!(hidden_view_incidence_deg >= 0 && hidden_view_incidence_deg < 90))
+    return Fail(why, "FusionOptions.hidden_view_incidence_deg must be in [0, 90)");
   if (!(min_normal_agreement >= 0 && min_normal_agreement <= 1))
     return Fail(why, "FusionOptions.min_normal_agreement must be within 0..1");
   if (!(min_cluster_fraction >= 0 && min_cluster_fraction <= 1))

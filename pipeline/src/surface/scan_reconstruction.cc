@@ -418,6 +418,7 @@ std::string ScanReportJson(const ScanResult& result) {
                      {"unsupported_voxels_dropped", f.single_view_voxels},
                      {"lone_view_voxels_kept", f.lone_view_voxels},
                      {"sole_view_voxels_kept", f.sole_view_voxels},
+                     {"hidden_view_voxels_kept", f.hidden_view_voxels},
                      {"small_cluster_voxels_dropped", f.small_cluster_voxels},
                      {"output_points", f.output_points}};
     if (result.quality.ok) {

@@ -64,6 +64,7 @@ ScanResult MakeScan() {
   r.fusion.single_view_voxels = 4321;
   r.fusion.lone_view_voxels = 210;
   r.fusion.sole_view_voxels = 987;
+  r.fusion.hidden_view_voxels = 123;
   r.fusion.small_cluster_voxels = 65;
   r.fusion.output_points = 3000;
   r.box.extents_mm = {120.25, 80.5, 40.75};
@@ -171,8 +172,10 @@ TEST(ReportHtml, ShowsTheMeasurementsCalibrationAndRegistration) {
        {"turntable_axis", "0.412", "0.118 mm RMS", "0.402 mm max", "5.68", "11.23"})
     EXPECT_TRUE(Contains(html, figure)) << figure;
   // Fusion: what multi-view support dropped and kept.
-  for (const char* figure : {"4321 voxels no second view confirmed dropped", "210 with no other",
-                             "987 that only their own camera faced", "65 in detached clusters"})
+  for (const char* figure :
+       {"4321 voxels no second view confirmed dropped", "210 with no other",
+        "987 that only their own camera faced", "123 that every other camera saw from behind",
+        "65 in detached clusters"})
     EXPECT_TRUE(Contains(html, figure)) << figure;
   // Pipeline text is escaped too.
   EXPECT_TRUE(Contains(html, "fitness &lt; 0.5 on one pair"));

@@ -232,6 +232,11 @@ struct ProjectorOptions {
   bool IsValid(std::string* why) const;
 };
 
+// The projector a station mounts on its camera head (the sim driver's
+// `projector: 1`): 30 mm above the middle of the camera bar, aimed at the
+// rig's target, the other fields at their defaults; enabled.
+ProjectorOptions ProjectorOnCameraHead(const RigOptions& rig);
+
 struct LightingOptions {
   double ambient = 0.3;       // radiance factor of the ambient light (≥ 0)
   double directional = 0.75;  // radiance factor of the directional light at normal incidence

@@ -69,6 +69,16 @@ struct FusionOptions {
   // considered: a voxel facing a camera that another part hides it from
   // still needs support.
   double sole_view_incidence_deg = 0;
+  // Parts no other camera could see (degrees, [0, 90); 0 = off; needs
+  // normals and the camera centres): a voxel without support is also kept
+  // when its own camera looked at it within this angle of its normal and
+  // every other cloud's camera lies behind its tangent plane, so that no
+  // other view could have confirmed it however good its matching. The band
+  // of an egg curving in towards the platter, seen from above at 75–85° by
+  // the one view in front of it and from behind by all the others, is such a
+  // part; sole_view_incidence_deg's tighter angle drops it. A patch that any
+  // other camera faces, however obliquely, still needs support.
+  double hidden_view_incidence_deg = 0;
   // Floaters: the kept voxels fall into clusters (cells of cluster_gap_mm
   // that touch, 26-neighbourhood, are one cluster: parts farther apart than
   // about one to two cells are separate). A cluster with fewer voxels than
@@ -91,6 +101,7 @@ struct FusionStats {
   std::size_t single_view_voxels = 0;    // dropped: supported by fewer than min_views clouds
   std::size_t lone_view_voxels = 0;      // kept unsupported: no other cloud near them
   std::size_t sole_view_voxels = 0;      // kept unsupported: only their own camera faced them
+  std::size_t hidden_view_voxels = 0;    // kept unsupported: every other camera behind them
   std::size_t small_cluster_voxels = 0;  // dropped: in clusters below min_cluster_fraction
   std::size_t clusters = 0;              // clusters before that (0: not computed)
   std::size_t output_points = 0;         // = occupied voxels kept

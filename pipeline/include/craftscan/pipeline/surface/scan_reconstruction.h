@@ -64,7 +64,8 @@ struct ScanOptions {
   // stereo mismatches are view-specific, see FusionOptions::min_views) near
   // its tangent plane (0.5 mm: sheets a millimetre off the surface go),
   // unless no other view saw anything within 2.5 mm or only its own camera
-  // faced it within 70° (a part only one view sees stays). Clusters under 5 % of the object's size
+  // faced it within 70° or it faced no other camera at all and its own within
+  // 85° (a part only one view sees stays). Clusters under 5 % of the object's size
   // are dropped as floaters (FusionOptions::min_cluster_fraction). README 11.9 has what each
   // bought.
   FusionOptions fusion = [] {
@@ -73,6 +74,7 @@ struct ScanOptions {
     f.view_support_normal_mm = 0.5;
     f.lone_view_radius_mm = 2.5;
     f.sole_view_incidence_deg = 70;
+    f.hidden_view_incidence_deg = 85;
     f.min_cluster_fraction = 0.05;
     return f;
   }();

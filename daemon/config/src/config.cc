@@ -537,6 +537,8 @@ ViewProcessorOptions ViewOptions(const PipelineSettings& settings) {
   options.depth_edge_radius_px = settings.depth_edge_radius_px;
   options.depth_edge_jump_px = settings.depth_edge_jump_px;
   options.aggregation_iterations = settings.aggregation_iterations;
+  options.speckle_max_area_pct = settings.speckle_max_area_pct;
+  options.speckle_range_px = settings.speckle_range_px;
   return options;
 }
 

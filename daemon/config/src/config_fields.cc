@@ -435,6 +435,12 @@ std::vector<Field> MakeFields() {
   f.push_back(IntField(
       "pipeline.aggregation_iterations",
       [](DaemonConfig& c) -> int& { return c.pipeline.aggregation_iterations; }, 0, 16));
+  f.push_back(RealField("pipeline.speckle_max_area_pct",
+                        [](DaemonConfig& c) -> double& { return c.pipeline.speckle_max_area_pct; },
+                        {0, 1}));
+  f.push_back(RealField("pipeline.speckle_range_px",
+                        [](DaemonConfig& c) -> double& { return c.pipeline.speckle_range_px; },
+                        {0, 64, true}));
   f.push_back(RealField(
       "pipeline.free_space_tolerance_mm",
       [](DaemonConfig& c) -> double& { return c.pipeline.free_space_tolerance_mm; }, {0, 100}));

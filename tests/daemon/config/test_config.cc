@@ -67,6 +67,8 @@ pipeline:
   num_disparities: 192
   min_texture_std: 0
   aggregation_iterations: 4
+  speckle_max_area_pct: 0.01
+  speckle_range_px: 1.5
   volume_radius_mm: 90
   volume_min_height_mm: 2
   volume_max_height_mm: 150
@@ -124,6 +126,8 @@ watchdog: {enabled: no}
   EXPECT_EQ(matcher.num_disparities, 192);
   EXPECT_EQ(matcher.aggregation_iterations, 4);
   EXPECT_EQ(ViewOptions(c.pipeline).aggregation_iterations, 4);
+  EXPECT_DOUBLE_EQ(ViewOptions(c.pipeline).speckle_max_area_pct, 0.01);
+  EXPECT_DOUBLE_EQ(ViewOptions(c.pipeline).speckle_range_px, 1.5);
   const ScanOptions scan = ReconstructionOptions(c.pipeline);
   EXPECT_EQ(scan.num_threads, 4);
   EXPECT_DOUBLE_EQ(scan.volume.radius_mm, 90);
@@ -268,6 +272,10 @@ INSTANTIATE_TEST_SUITE_P(
                      "pipeline.num_disparities: must be an integer in 0..4096, got '0x40'"},
         BadValueCase{"pipeline: {aggregation_iterations: 17}\n",
                      "pipeline.aggregation_iterations: must be an integer in 0..16, got '17'"},
+        BadValueCase{"pipeline: {speckle_max_area_pct: 2}\n",
+                     "pipeline.speckle_max_area_pct: must be a number in [0, 1], got '2'"},
+        BadValueCase{"pipeline: {speckle_range_px: 0}\n",
+                     "pipeline.speckle_range_px: must be a number in (0, 64], got '0'"},
         BadValueCase{"pipeline: {min_texture_std: 256}\n",
                      "pipeline.min_texture_std: must be a number in [0, 255], got '256'"},
         BadValueCase{"pipeline: {volume_radius_mm: 0}\n",

@@ -69,6 +69,8 @@
 //     depth_edge_jump_px: 3       (0, 1000] what a depth edge is (px of disparity)
 //     aggregation_iterations: 0   0..16 the matcher's cross-based aggregation
 //                                 (the paper's 4 flatten slanted weak texture)
+//     speckle_max_area_pct: 0.004 [0, 1] % of the image: smaller patches go; 0 = off
+//     speckle_range_px: 2         (0, 64] a patch's neighbours differ by at most this
 //     mesh: true                  Poisson mesh after fusion
 //     measure_box: true           also measure the object as a box (edges, faces)
 //   limits:
@@ -210,6 +212,12 @@ struct PipelineSettings {
   // The matcher's cross-based aggregation iterations (0..16):
   // ViewProcessorOptions::aggregation_iterations.
   int aggregation_iterations = 0;
+  // Speckles (RemoveDisparitySpeckles): connected disparity patches of at
+  // most speckle_max_area_pct % of the image ([0, 1]; 0 = off), neighbours
+  // within speckle_range_px ((0, 64]), are dropped before reprojection:
+  // ViewProcessorOptions::speckle_max_area_pct, speckle_range_px.
+  double speckle_max_area_pct = 0.004;
+  double speckle_range_px = 2.0;
   // Drop fused points other views look straight through (mm of depth
   // agreement, [0, 100]; 0 = off): VisibilityOptions::tolerance_mm.
   double free_space_tolerance_mm = 1.0;

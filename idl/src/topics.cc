@@ -72,7 +72,13 @@ TopicSpec<msg::Command> CommandTopic(std::string_view station) {
   return {Name(station, "command"), Qos(kControlDepth, false)};
 }
 TopicSpec<msg::Reply> ReplyTopic(std::string_view station) {
-  return {Name(station, "reply"), Qos(kControlDepth, false)};
+  // Transient-local: matching is discovered on each side separately, so a
+  // client may see the daemon's reply writer (and send its command) before
+  // that writer has seen the client's reader; a volatile reply written in
+  // that gap was lost and the client waited out its timeout (seen under CI
+  // load). The last kControlDepth replies reach a reader when it matches;
+  // clients keep only the replies to their own request ids.
+  return {Name(station, "reply"), Qos(kControlDepth, true)};
 }
 TopicSpec<msg::JobProgress> ProgressTopic(std::string_view station) {
   return {Name(station, "progress"), Qos(kControlDepth, false)};

@@ -513,6 +513,7 @@ TEST(DdsTopics, NamesTypesAndQosFollowTheDesign) {
   EXPECT_FALSE(CommandTopic("st1").qos.transient_local);
   EXPECT_TRUE(CommandTopic("st1").qos.reliable);
   EXPECT_EQ(ReplyTopic("st1").name, "craftscan/st1/reply");
+  EXPECT_TRUE(ReplyTopic("st1").qos.transient_local);
   EXPECT_EQ(ProgressTopic("st1").qos.history_depth, 16);
   EXPECT_EQ(CaptureTopic("st1").qos.history_depth, 1);
   EXPECT_EQ(DisparityTopic("st1").name, "craftscan/st1/disparity");

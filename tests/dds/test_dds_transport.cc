@@ -394,6 +394,29 @@ TEST(DdsRos, ImageIsPlainCdrInRosLayout) {
   EXPECT_LT(cdr.remaining(), 4u);  // nothing but padding follows
 }
 
+// The daemon may write a reply before its writer has discovered the
+// client's reader (each side discovers the other on its own): the reply must
+// still arrive once the reader matches.
+TEST(DdsTransport, AReplyWrittenBeforeTheReaderMatchedStillReachesIt) {
+  auto participant = MakeTestParticipant();
+  ASSERT_TRUE(participant);
+  const TopicSpec<msg::Reply> topic = ReplyTopic(UniqueStation("t"));
+  std::string error;
+  auto writer = Writer<msg::Reply>::Create(participant, topic, &error);
+  ASSERT_TRUE(writer) << error;
+  Outgoing<msg::Reply> reply;
+  reply.msg().request_id = reply.Keep("early-1");
+  reply.msg().code_name = reply.Keep("ok");
+  ASSERT_TRUE(writer->Write(reply.msg(), &error)) << error;
+
+  auto reader = Reader<msg::Reply>::Create(participant, topic, &error);
+  ASSERT_TRUE(reader) << error;
+  Sample<msg::Reply> sample;
+  ASSERT_EQ(reader->Take(kTimeout, &sample, &error), TakeStatus::kOk) << error;
+  EXPECT_EQ(View(sample->request_id), "early-1");
+  EXPECT_EQ(View(sample->code_name), "ok");
+}
+
 // craftscan's own types are @appendable: XCDR2 with a delimiter header, so
 // fields can be appended later without breaking older peers.
 TEST(DdsTransport, OwnTypesAreAppendableXcdr2) {

@@ -71,8 +71,10 @@ struct SimDepthResult {
   double depth_err_median_mm = NAN, depth_err_p90_mm = NAN, disp_err_median_px = NAN;
   double valid_pct = 0;
   double render_ms = 0, match_ms = 0;
-  // Pixels the station's clean-up removed (0 with --raw).
+  // Pixels the station's clean-up removed (0 with --raw): in the whole image,
+  // and of those on the object.
   std::size_t speckle_pixels = 0, edge_pixels = 0, textureless_pixels = 0;
+  long speckle_object_pixels = 0, edge_object_pixels = 0, textureless_object_pixels = 0;
 };
 
 // q-quantile (0…1) by nearest rank.
@@ -230,12 +232,28 @@ class SimDepthCommand : public BenchCommand {
     cv::Mat& disparity = match.disparity;
     if (!raw_) {  // as ViewProcessor::Process and ReprojectToPoints
       const ViewProcessorOptions station;
+      const auto valid_on_object = [&] {
+        long n = 0;
+        for (int y = 0; y < mask.rows; ++y) {
+          const std::uint8_t* m = mask.ptr<std::uint8_t>(y);
+          const float* d = disparity.ptr<float>(y);
+          for (int x = 0; x < mask.cols; ++x) n += m[x] && IsValidDisparity(d[x]);
+        }
+        return n;
+      };
+      long before = valid_on_object();
       result->speckle_pixels = RemoveDisparitySpeckles(
           static_cast<int>(std::lround(station.speckle_max_area_pct / 100 *
                                        static_cast<double>(disparity.total()))),
           station.speckle_range_px, &disparity);
+      long after = valid_on_object();
+      result->speckle_object_pixels = before - after;
+      before = after;
       result->edge_pixels =
           EraseNearDepthEdges(station.depth_edge_radius_px, station.depth_edge_jump_px, &disparity);
+      after = valid_on_object();
+      result->edge_object_pixels = before - after;
+      before = after;
       const cv::Mat textured =
           TextureMask(left, ReprojectOptions{}.texture_window, station.min_texture_std);
       for (int y = 0; y < disparity.rows; ++y) {
@@ -247,6 +265,7 @@ class SimDepthCommand : public BenchCommand {
           ++result->textureless_pixels;
         }
       }
+      result->textureless_object_pixels = before - valid_on_object();
     }
 
     // Depth through Q on the object pixels.
@@ -287,8 +306,11 @@ class SimDepthCommand : public BenchCommand {
         "disp_err_median_px %.3f\n",
         r.depth_err_median_mm, r.depth_err_p90_mm, r.valid_pct, r.disp_err_median_px);
     if (!raw_)
-      std::printf("  removed: speckles %zu  depth edges %zu  textureless %zu pixels\n",
-                  r.speckle_pixels, r.edge_pixels, r.textureless_pixels);
+      std::printf(
+          "  removed: speckles %zu  depth edges %zu  textureless %zu pixels "
+          "(on the object: %ld, %ld, %ld)\n",
+          r.speckle_pixels, r.edge_pixels, r.textureless_pixels, r.speckle_object_pixels,
+          r.edge_object_pixels, r.textureless_object_pixels);
     std::printf("  render_ms %.0f  match_ms %.0f\n", r.render_ms, r.match_ms);
     std::fflush(stdout);
   }
@@ -304,6 +326,9 @@ class SimDepthCommand : public BenchCommand {
     root["speckle_pixels"] = r.speckle_pixels;
     root["edge_pixels"] = r.edge_pixels;
     root["textureless_pixels"] = r.textureless_pixels;
+    root["speckle_object_pixels"] = r.speckle_object_pixels;
+    root["edge_object_pixels"] = r.edge_object_pixels;
+    root["textureless_object_pixels"] = r.textureless_object_pixels;
     root["threads"] = threads_;
     root["width"] = r.width;
     root["height"] = r.height;

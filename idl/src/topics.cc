@@ -98,6 +98,11 @@ TopicSpec<msg::SessionFile> FileTopic(std::string_view station) {
   return {Name(station, "file"), Qos(kFileTopicDepth, false)};
 }
 
+TopicSpec<msg::Preview> PreviewTopic(std::string_view station) {
+  // The newest frame only: a slow reader skips frames rather than lagging.
+  return {Name(station, "preview"), Qos(1, false)};
+}
+
 TopicSpec<ros::Image> RosImageTopic(std::string_view station, Side side) {
   return {RosName(station, std::string(ToString(side)) + "/image_raw"), RosQos(false)};
 }

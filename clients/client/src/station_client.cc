@@ -113,6 +113,7 @@ struct StationClient::Impl {
   std::unique_ptr<dds::Reader<dds::msg::JobProgress>> progress;
   std::unique_ptr<dds::Reader<dds::msg::PointCloud>> clouds;
   std::unique_ptr<dds::Reader<dds::msg::StereoCapture>> captures;
+  std::unique_ptr<dds::Reader<dds::msg::Preview>> preview;
   std::unique_ptr<dds::Reader<dds::msg::SessionFile>> files;
   std::atomic<bool> running{true};
   std::vector<std::thread> threads;
@@ -408,6 +409,45 @@ bool StationClient::SubscribeCaptures(std::function<void(const CaptureUpdate&)> 
                      std::move(convert), error);
 }
 
+bool StationClient::SubscribePreview(std::function<void(const PreviewUpdate&)> handler,
+                                     std::string* error) {
+  Impl& d = *impl_;
+  auto convert = [handler = std::move(handler)](const dds::msg::Preview& p) {
+    PreviewUpdate u;
+    u.job_id = Str(p.job_id);
+    u.frame_number = p.frame_number;
+    u.stamp_ns = p.stamp_ns;
+    u.exposure_us = p.exposure_us;
+    u.gain_db = p.gain_db;
+    u.full_width = static_cast<int>(p.full_width);
+    u.full_height = static_cast<int>(p.full_height);
+    u.width = static_cast<int>(p.width);
+    u.height = static_cast<int>(p.height);
+    u.grid_cols = static_cast<int>(p.grid_cols);
+    u.grid_rows = static_cast<int>(p.grid_rows);
+    auto copy = [](const auto& sequence, auto* into) {
+      into->assign(sequence._buffer, sequence._buffer + sequence._length);
+    };
+    copy(p.left_jpeg, &u.left.jpeg);
+    copy(p.right_jpeg, &u.right.jpeg);
+    copy(p.left_focus, &u.left.focus);
+    copy(p.right_focus, &u.right.focus);
+    copy(p.left_histogram, &u.left.histogram);
+    copy(p.right_histogram, &u.right.histogram);
+    u.left.clipped_pct = p.left_clipped_pct;
+    u.right.clipped_pct = p.right_clipped_pct;
+    u.left.black_pct = p.left_black_pct;
+    u.right.black_pct = p.right_black_pct;
+    u.overlay = Str(p.overlay);
+    // A malformed frame (focus grid of the wrong size) is skipped.
+    const std::size_t cells = static_cast<std::size_t>(u.grid_cols) * u.grid_rows;
+    if (u.left.focus.size() != cells || u.right.focus.size() != cells) return;
+    handler(u);
+  };
+  return d.Subscribe(&d.preview, dds::PreviewTopic(d.options.station), "preview",
+                     std::move(convert), error);
+}
+
 FetchResult StationClient::Fetch(const FetchRequest& request) {
   Impl& d = *impl_;
   FetchResult result;
@@ -458,7 +498,9 @@ FetchResult StationClient::Fetch(const FetchRequest& request) {
   } else {
     args["files"] = request.files;
   }
-  CallResult sent = d.Send("get", args.dump(), d.options.token, deadline, request.timeout);
+  CallResult sent =
+      d.Send("get", args.dump(), request.token.empty() ? d.options.token : request.token, deadline,
+             request.timeout);
   if (sent.status != CallStatus::kReplied) {
     return finish(sent.status == CallStatus::kUnreachable ? FetchStatus::kUnreachable
                                                           : FetchStatus::kLocalError,

@@ -27,7 +27,7 @@ struct VerbRole {
   std::string_view verb;
   Role role;
 };
-constexpr std::array<VerbRole, 12> kVerbRoles = {{
+constexpr std::array<VerbRole, 13> kVerbRoles = {{
     {"status", Role::kObserver},
     {"sessions", Role::kObserver},
     {"devices", Role::kObserver},
@@ -38,6 +38,7 @@ constexpr std::array<VerbRole, 12> kVerbRoles = {{
     {"resume", Role::kOperator},
     {"turntable", Role::kOperator},
     {"camera", Role::kOperator},
+    {"preview", Role::kOperator},
     {"calibrate", Role::kAdmin},
     {"calibrate-turntable", Role::kAdmin},
 }};

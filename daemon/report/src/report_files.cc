@@ -133,6 +133,14 @@ bool ReportOptions::IsValid(std::string* why) const {
     if (why) *why = "disparity_max_width_px must be 64..8192";
     return false;
   }
+  if (viewer_max_points < 1000 || viewer_max_points > 5000000) {
+    if (why) *why = "viewer_max_points must be 1000..5000000";
+    return false;
+  }
+  if (viewer_max_triangles < 1000 || viewer_max_triangles > 5000000) {
+    if (why) *why = "viewer_max_triangles must be 1000..5000000";
+    return false;
+  }
   return true;
 }
 

@@ -1,4 +1,6 @@
-// The report page (report.h): one HTML file, inline CSS, no JavaScript.
+// The report page (report.h): one HTML file, inline CSS; JavaScript only for
+// the 3D view (report_model.h).
+#include <algorithm>
 #include <cmath>
 #include <cstdio>
 #include <map>
@@ -8,6 +10,8 @@
 #include <nlohmann/json.hpp>
 
 #include "craftscan/daemon/report.h"
+#include "report_model.h"
+#include "viewer_bundle.h"
 
 namespace craftscan::daemon {
 namespace {
@@ -46,8 +50,11 @@ figure{margin:0}
 figure img{display:block;width:100%;height:auto;border:1px solid var(--line);border-radius:6px;background:#f6f6f6}
 figcaption{font-size:13px;color:var(--muted);margin-top:4px}
 .notes{color:var(--warn);font-size:14px}
+.viewer{position:relative;height:560px;max-height:75vh;border-radius:6px;overflow:hidden;background:#1d2125}
+.viewer.failed{height:auto;padding:14px 16px;background:#fff8c5;color:var(--warn)}
+.viewer.failed+p{display:none}
 footer{color:var(--muted);font-size:13px;margin-top:24px}
-@media print{body{background:#fff}section{break-inside:avoid;border:none}nav{display:none}}
+@media print{body{background:#fff}section{break-inside:avoid;border:none}nav,#model{display:none}}
 )css";
 
 // --- formatting ----------------------------------------------------------------
@@ -461,6 +468,15 @@ bool ReportHtml(const ReportInputs& in, const std::vector<ReportPicture>& pictur
       }
     }
 
+    // The 3D view: when there is something to show and the library has the viewer.
+    const std::string_view bundle = internal::ViewerBundle();
+    internal::ViewerModel model;
+    if (in.options.viewer && !bundle.empty()) {
+      auto budget = [](int n) { return static_cast<std::size_t>(std::clamp(n, 1000, 5000000)); };
+      model = internal::MakeViewerModel(in.fused, in.mesh, budget(in.options.viewer_max_points),
+                                        budget(in.options.viewer_max_triangles));
+    }
+
     const std::string object = in.object_name.empty() ? "Scan" : in.object_name;
     Page p;
     p << "<!DOCTYPE html>\n<html lang=\"en\">\n<head>\n<meta charset=\"utf-8\">\n"
@@ -481,7 +497,9 @@ bool ReportHtml(const ReportInputs& in, const std::vector<ReportPicture>& pictur
       p << "</p>\n";
       Headline(p, scan);
     }
-    p << "<nav><a href=\"#measurements\">Measurements</a><a href=\"#cloud\">Cloud</a><a "
+    p << "<nav><a href=\"#measurements\">Measurements</a>";
+    if (!model.empty()) p << "<a href=\"#model\">3D view</a>";
+    p << "<a href=\"#cloud\">Cloud</a><a "
          "href=\"#mesh\">Mesh</a>"
          "<a href=\"#calibration\">Calibration</a><a href=\"#registration\">Registration</a>"
          "<a href=\"#reconstruction\">Reconstruction</a><a href=\"#disparity\">Disparity "
@@ -494,6 +512,7 @@ bool ReportHtml(const ReportInputs& in, const std::vector<ReportPicture>& pictur
     }
 
     Measurements(p, scan);
+    if (!model.empty()) p << internal::ViewerSectionHtml(model);
     Pictures(p, pictures, "cloud", "cloud", "Fused point cloud", "No cloud previews.");
     Pictures(p, pictures, "mesh", "mesh", "Mesh", "No mesh previews.");
     Calibration(p, in);
@@ -505,7 +524,10 @@ bool ReportHtml(const ReportInputs& in, const std::vector<ReportPicture>& pictur
     if (!in.generated_utc.empty()) p << " on " + HtmlEscape(in.generated_utc);
     p << ". Units: millimetres and degrees. Files: fused.ply, mesh.ply, mesh.obj, "
          "report.json.</footer>\n"
-         "</main>\n</body>\n</html>\n";
+         "</main>\n";
+    // Last: the page shows before the model's megabytes are read.
+    if (!model.empty()) p << internal::ViewerScriptsHtml(model, bundle, Text(scan, "frame"));
+    p << "</body>\n</html>\n";
     *html = std::move(p.html);
     return true;
   } catch (const std::exception& e) {

@@ -49,6 +49,11 @@ const std::map<std::string, std::map<std::string, ArgSpec>>& VerbArguments() {
       {"camera",
        {{"exposure_us", {ArgType::kNumber, false, 1, 10e6}},
         {"gain_db", {ArgType::kNumber, false, 0, 48}}}},
+      {"preview",
+       {{"action", {ArgType::kString, true, 1, 16}},
+        {"fps", {ArgType::kNumber, false, 0.1, 15}},
+        {"width", {ArgType::kInt, false, 64, 4096}},
+        {"seconds", {ArgType::kNumber, false, 1, 600}}}},
       {"calibrate", {}},
       {"calibrate-turntable", {}},
   };

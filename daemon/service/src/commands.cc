@@ -5,6 +5,7 @@
 #include <cstring>
 #include <exception>
 #include <filesystem>
+#include <optional>
 #include <set>
 #include <utility>
 #include <vector>
@@ -129,6 +130,16 @@ CommandReply CommandHandler::Dispatch(const std::string& verb, const nlohmann::j
   const bool job_verb = verb == "capture" || verb == "scan" || verb == "resume" ||
                         verb == "calibrate" || verb == "calibrate-turntable" ||
                         verb == "turntable" || verb == "camera";
+  // A live preview gives way to any job; a camera change restarts it after.
+  std::optional<PreviewRequest> restart_preview;
+  if ((job_verb || verb == "preview") && jobs_->Busy() && jobs_->Current().verb == "preview" &&
+      !(verb == "preview" && args.value("action", "") == "start")) {
+    if (verb == "camera") restart_preview = jobs_->LastPreviewRequest();
+    if (!jobs_->StopPreview(std::chrono::seconds(10))) {
+      return done(ReplyCode::kBusy, "busy: the preview did not stop within 10 s");
+    }
+    if (verb == "preview") return done(ReplyCode::kOk, "preview stopped");
+  }
   if (job_verb && jobs_->Busy()) {
     const JobInfo current = jobs_->Current();
     return done(ReplyCode::kBusy, "busy: " + current.id + " (" + current.verb + ") is running",
@@ -142,8 +153,14 @@ CommandReply CommandHandler::Dispatch(const std::string& verb, const nlohmann::j
     return done(ReplyCode::kUnavailable, "the devices are not open; see the status topic");
   }
 
-  if (verb == "status")
-    return done(ReplyCode::kOk, "status", status_ ? status_() : nlohmann::json{});
+  if (verb == "status") {
+    // With the caller's identity: a console signing a user in learns the
+    // token's role from it (what to show; the daemon still checks each verb).
+    nlohmann::json status = status_ ? status_() : nlohmann::json::object();
+    if (!status.is_object()) status = nlohmann::json::object();
+    status["you"] = {{"name", who.name}, {"role", std::string(ToString(who.role))}};
+    return done(ReplyCode::kOk, "status", std::move(status));
+  }
   if (verb == "devices") {
     nlohmann::json list = DevicesJson(devices_->Reports());
     return done(ReplyCode::kOk, std::to_string(list.size()) + " devices", {{"devices", list}});
@@ -223,9 +240,31 @@ CommandReply CommandHandler::Dispatch(const std::string& verb, const nlohmann::j
     drivers::CameraSettings settings = devices_->camera_settings();
     settings.exposure_us = args.value("exposure_us", settings.exposure_us);
     settings.gain_db = args.value("gain_db", settings.gain_db);
-    if (!devices_->ApplyCameraSettings(settings, &error)) return done(ReplyCode::kFailed, error);
+    const bool applied = devices_->ApplyCameraSettings(settings, &error);
+    if (restart_preview) jobs_->StartPreview(*restart_preview, &job, nullptr);
+    if (!applied) return done(ReplyCode::kFailed, error);
     return done(ReplyCode::kOk, "camera settings applied",
                 {{"exposure_us", settings.exposure_us}, {"gain_db", settings.gain_db}});
+  }
+  if (verb == "preview") {
+    const std::string action = args["action"];
+    if (action == "stop") return done(ReplyCode::kOk, "no preview was running");
+    if (action != "start")
+      return done(ReplyCode::kBadArgument, "action: must be 'start' or 'stop'");
+    if (jobs_->Busy() && jobs_->Current().verb != "preview") {
+      const JobInfo current = jobs_->Current();
+      return done(ReplyCode::kBusy,
+                  "busy: " + current.id + " (" + current.verb + ") is running; no preview now",
+                  JobJson(current));
+    }
+    if (!devices_->IsOpen()) {
+      return done(ReplyCode::kUnavailable, "the devices are not open; see the status topic");
+    }
+    PreviewRequest request;
+    request.fps = args.value("fps", request.fps);
+    request.width = args.value("width", request.width);
+    request.seconds = args.value("seconds", request.seconds);
+    return started(jobs_->StartPreview(request, &job, &error));
   }
   return done(ReplyCode::kUnknownVerb, "unknown verb '" + verb + "'");
 }

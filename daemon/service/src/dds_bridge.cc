@@ -134,6 +134,8 @@ bool DdsPublisher::Create(const std::shared_ptr<dds::Participant>& p, const std:
          (disparity_ =
               dds::Writer<dds::msg::Disparity>::Create(p, dds::DisparityTopic(station), error)) &&
          (cloud_ = dds::Writer<dds::msg::PointCloud>::Create(p, dds::CloudTopic(station), error)) &&
+         (preview_ =
+              dds::Writer<dds::msg::Preview>::Create(p, dds::PreviewTopic(station), error)) &&
          (ros_left_ = dds::Writer<dds::ros::Image>::Create(
               p, dds::RosImageTopic(station, Side::kLeft), error)) &&
          (ros_right_ = dds::Writer<dds::ros::Image>::Create(
@@ -169,6 +171,35 @@ void DdsPublisher::Progress(const std::string& job, const std::string& stage, in
   out.msg().message = out.Keep(message);
   out.msg().stamp_ns = WallNs();
   WriteOrLog(*progress_, out.msg(), "progress");
+}
+
+void DdsPublisher::Preview(const PreviewFrame& frame) {
+  Touch();
+  dds::Outgoing<dds::msg::Preview> out;
+  dds::msg::Preview& m = out.msg();
+  m.job_id = out.Keep(frame.job_id);
+  m.frame_number = frame.sequence;
+  m.stamp_ns = frame.stamp_ns;
+  m.exposure_us = frame.exposure_us;
+  m.gain_db = frame.gain_db;
+  m.full_width = static_cast<std::uint32_t>(frame.full_size.width);
+  m.full_height = static_cast<std::uint32_t>(frame.full_size.height);
+  m.width = static_cast<std::uint32_t>(frame.size.width);
+  m.height = static_cast<std::uint32_t>(frame.size.height);
+  dds::Borrow(&m.left_jpeg, frame.left.jpeg.data(), frame.left.jpeg.size());
+  dds::Borrow(&m.right_jpeg, frame.right.jpeg.data(), frame.right.jpeg.size());
+  m.grid_cols = static_cast<std::uint32_t>(frame.grid_cols);
+  m.grid_rows = static_cast<std::uint32_t>(frame.grid_rows);
+  dds::Borrow(&m.left_focus, frame.left.focus.data(), frame.left.focus.size());
+  dds::Borrow(&m.right_focus, frame.right.focus.data(), frame.right.focus.size());
+  dds::Borrow(&m.left_histogram, frame.left.histogram.data(), frame.left.histogram.size());
+  dds::Borrow(&m.right_histogram, frame.right.histogram.data(), frame.right.histogram.size());
+  m.left_clipped_pct = frame.left.clipped_pct;
+  m.right_clipped_pct = frame.right.clipped_pct;
+  m.left_black_pct = frame.left.black_pct;
+  m.right_black_pct = frame.right.black_pct;
+  m.overlay = out.Keep(frame.overlay);
+  WriteOrLog(*preview_, m, "preview");
 }
 
 void DdsPublisher::Capture(const std::string& session, int view, double angle_deg,

@@ -126,6 +126,7 @@ class DdsPublisher : public JobSink {
   void Cloud(const std::string& session, int view, const PointCloud& cloud,
              const cv::Matx44d& world_from_cloud) override;
   void CalibrationChanged(const StereoCalibration& calibration) override;
+  void Preview(const PreviewFrame& frame) override;
 
  private:
   void Touch();
@@ -138,6 +139,7 @@ class DdsPublisher : public JobSink {
   std::unique_ptr<dds::Writer<dds::msg::StereoCapture>> capture_;
   std::unique_ptr<dds::Writer<dds::msg::Disparity>> disparity_;
   std::unique_ptr<dds::Writer<dds::msg::PointCloud>> cloud_;
+  std::unique_ptr<dds::Writer<dds::msg::Preview>> preview_;
   std::unique_ptr<dds::Writer<dds::ros::Image>> ros_left_, ros_right_;
   std::unique_ptr<dds::Writer<dds::ros::CameraInfo>> ros_info_left_, ros_info_right_;
   std::unique_ptr<dds::Writer<dds::ros::DisparityImage>> ros_disparity_;

@@ -111,7 +111,17 @@ JobEngine::JobEngine(JobEngineOptions options, DeviceManager* devices, SessionSt
       store_(store),
       sink_(sink),
       log_(std::move(log)),
-      report_(std::move(report)) {}
+      report_(std::move(report)) {
+  // Job ids carry the engine's start time (UTC HHMMSS): a client that
+  // followed job-101500-1 of a daemon that then restarted does not take
+  // the new daemon's first job for it.
+  const std::time_t now = std::time(nullptr);
+  std::tm tm{};
+  gmtime_r(&now, &tm);
+  char stamp[16];
+  std::strftime(stamp, sizeof stamp, "%H%M%S", &tm);
+  job_prefix_ = std::string("job-") + stamp + "-";
+}
 
 JobEngine::~JobEngine() { Shutdown(); }
 
@@ -217,7 +227,7 @@ bool JobEngine::Launch(const std::string& verb, const std::string& session,
     lock.lock();
   }
   current_ = JobInfo{};
-  current_.id = "job-" + std::to_string(next_job_++);
+  current_.id = job_prefix_ + std::to_string(next_job_++);
   current_.verb = verb;
   current_.state = JobState::kRunning;
   current_.session = session;
@@ -608,6 +618,87 @@ bool JobEngine::SetCurrentCalibration(const StereoCalibration& calibration, cons
   }
   if (sink_) sink_->CalibrationChanged(calibration);
   return true;
+}
+
+bool PreviewRequest::IsValid(std::string* why) const {
+  if (!(fps > 0 && fps <= 15)) return Fail(why, "fps: must be in (0, 15]");
+  if (width < 64 || width > 4096) return Fail(why, "width: must be 64..4096");
+  if (!(seconds > 0 && seconds <= 600)) return Fail(why, "seconds: must be in (0, 600]");
+  return true;
+}
+
+namespace {
+std::int64_t SteadyNs() {
+  return std::chrono::duration_cast<std::chrono::nanoseconds>(
+             std::chrono::steady_clock::now().time_since_epoch())
+      .count();
+}
+}  // namespace
+
+bool JobEngine::StartPreview(const PreviewRequest& request, JobInfo* info, std::string* error) {
+  if (!request.IsValid(error)) return false;
+  const auto until = SteadyNs() + static_cast<std::int64_t>(request.seconds * 1e9);
+  {
+    std::lock_guard lock(mutex_);
+    if (running_ && current_.verb == "preview") {
+      preview_until_ns_ = until;
+      if (info) *info = current_;
+      return true;
+    }
+  }
+  preview_until_ns_ = until;
+  {
+    std::lock_guard lock(mutex_);
+    last_preview_ = request;
+  }
+  return Launch(
+      "preview", "", [this, request] { return RunPreview(request); }, info, error);
+}
+
+PreviewRequest JobEngine::LastPreviewRequest() const {
+  std::lock_guard lock(mutex_);
+  return last_preview_;
+}
+
+bool JobEngine::StopPreview(std::chrono::milliseconds timeout) {
+  {
+    std::lock_guard lock(mutex_);
+    if (!running_ || current_.verb != "preview") return true;
+    stop_ = true;
+  }
+  return WaitIdle(timeout);
+}
+
+JobEngine::JobOutcome JobEngine::RunPreview(const PreviewRequest& request) {
+  const std::string job_id = Current().id;
+  const auto period = std::chrono::nanoseconds(static_cast<std::int64_t>(1e9 / request.fps));
+  SetStage("preview", 0, 0,
+           "streaming both cameras at " + std::to_string(static_cast<int>(request.fps + 0.5)) +
+               " frames/s until stopped");
+  std::uint32_t sequence = 0;
+  while (!stop_ && SteadyNs() < preview_until_ns_) {
+    const auto next = std::chrono::steady_clock::now() + period;
+    drivers::StereoFrame frame;
+    const drivers::DriverStatus s = devices_->Capture(&frame, stop_);
+    if (stop_) break;
+    if (!s.ok()) return {JobState::kFailed, "preview: " + s.message, {{"frames", sequence}}};
+    PreviewFrame p = MakePreviewFrame(frame.left.image, frame.right.image, request.width);
+    p.job_id = job_id;
+    p.sequence = sequence++;
+    p.stamp_ns = frame.left.timestamp_ns;
+    p.exposure_us = frame.settings.exposure_us;
+    p.gain_db = frame.settings.gain_db;
+    if (sink_) sink_->Preview(p);
+    while (!stop_ && std::chrono::steady_clock::now() < next) {
+      std::this_thread::sleep_for(std::min<std::chrono::nanoseconds>(
+          std::chrono::milliseconds(20), next - std::chrono::steady_clock::now()));
+    }
+  }
+  const std::string summary = "preview: " + std::to_string(sequence) + " frames";
+  if (stop_) return {JobState::kCancelled, summary + ", stopped", {{"frames", sequence}}};
+  return {JobState::kDone,
+          summary + ", no request for " + std::to_string(static_cast<int>(request.seconds)) + " s",
+          {{"frames", sequence}}};
 }
 
 bool JobEngine::StartCalibrate(JobInfo* info, std::string* error) {

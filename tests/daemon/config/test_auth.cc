@@ -202,12 +202,13 @@ TEST(TokenAuthority, AuthorizeChecksTokenThenRole) {
 
 TEST(Roles, VerbTable) {
   const std::vector<std::pair<std::string, Role>> table = {
-      {"status", Role::kObserver},    {"sessions", Role::kObserver},
-      {"devices", Role::kObserver},   {"get", Role::kObserver},
-      {"capture", Role::kOperator},   {"scan", Role::kOperator},
-      {"cancel", Role::kOperator},    {"resume", Role::kOperator},
-      {"turntable", Role::kOperator}, {"camera", Role::kOperator},
-      {"calibrate", Role::kAdmin},    {"calibrate-turntable", Role::kAdmin},
+      {"status", Role::kObserver},           {"sessions", Role::kObserver},
+      {"devices", Role::kObserver},          {"get", Role::kObserver},
+      {"capture", Role::kOperator},          {"scan", Role::kOperator},
+      {"cancel", Role::kOperator},           {"resume", Role::kOperator},
+      {"turntable", Role::kOperator},        {"camera", Role::kOperator},
+      {"preview", Role::kOperator},          {"calibrate", Role::kAdmin},
+      {"calibrate-turntable", Role::kAdmin},
   };
   for (const auto& [verb, role] : table) {
     const auto required = RequiredRole(verb);

@@ -88,19 +88,19 @@ class SystemdFiles : public testing::TempDirTest {
  protected:
   // The unit with ExecStart's binary replaced by an existing one (verify
   // checks that the binary is executable; craftscand is not installed here).
-  std::string TestableUnit() {
-    std::string unit = ReadFile(kSystemdDir / "craftscand.service");
-    const std::string exec = "ExecStart=/usr/bin/craftscand ";
+  std::string TestableUnit(const std::string& binary = "craftscand") {
+    std::string unit = ReadFile(kSystemdDir / (binary + ".service"));
+    const std::string exec = "ExecStart=/usr/bin/" + binary + " ";
     const auto at = unit.find(exec);
     EXPECT_NE(at, std::string::npos);
-    if (at != std::string::npos && ::access("/usr/bin/craftscand", X_OK) != 0) {
+    if (at != std::string::npos && ::access(("/usr/bin/" + binary).c_str(), X_OK) != 0) {
       unit.replace(at, exec.size(), "ExecStart=/bin/true ");
     }
     return unit;
   }
 
-  ToolRun Verify(const std::string& unit_text) {
-    const std::string unit = WriteBytes("craftscand.service", unit_text);
+  ToolRun Verify(const std::string& unit_text, const std::string& name = "craftscand.service") {
+    const std::string unit = WriteBytes(name, unit_text);
     return RunTool("'" + analyze_ + "' verify --man=no '" + unit + "'", dir_);
   }
 
@@ -119,6 +119,21 @@ TEST_F(SystemdFiles, UnitPassesSystemdAnalyzeVerify) {
       << "systemd-analyze verify:\n"
       << run.err;
   if (!run.err.empty()) std::cout << "systemd-analyze verify said:\n" << run.err;
+}
+
+// The console's unit beside it: verified the same way, a notify service
+// reading /etc/craftscan/web.yaml (the shipped craftscan-web.yaml).
+TEST_F(SystemdFiles, ConsoleUnitPassesSystemdAnalyzeVerify) {
+  const std::string text = TestableUnit("craftscan-web");
+  EXPECT_THAT(text, HasSubstr("--config /etc/craftscan/web.yaml"));
+  EXPECT_THAT(text, HasSubstr("Type=notify"));
+  EXPECT_THAT(text, HasSubstr("WatchdogSec="));
+  if (analyze_.empty()) GTEST_SKIP() << "systemd-analyze not installed (package systemd)";
+  const ToolRun run = Verify(text, "craftscan-web.service");
+  EXPECT_EQ(run.exit_code, 0) << run.err;
+  EXPECT_THAT(UnitProblems(run.err, Path("craftscan-web.service")), ::testing::IsEmpty())
+      << "systemd-analyze verify:\n"
+      << run.err;
 }
 
 // The check above can fail: a misspelt setting is caught.

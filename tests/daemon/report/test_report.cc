@@ -1,16 +1,23 @@
 // Session reports (daemon/report, report.h): the page's content and escaping,
-// the files MakeReportFiles returns, and (printed, not asserted) how long
-// the pictures take.
+// the files MakeReportFiles returns, the 3D view's inlined viewer and model
+// (decoded back to the points and triangles given), and (printed, not
+// asserted) how long the pictures take and how large the page is.
 #include <chrono>
 #include <cmath>
+#include <cstdint>
 #include <cstdio>
 #include <cstdlib>
+#include <cstring>
 #include <ctime>
 #include <filesystem>
 #include <fstream>
 #include <limits>
+#include <map>
+#include <optional>
 #include <set>
 #include <string>
+#include <tuple>
+#include <vector>
 
 #include <gtest/gtest.h>
 #include <opencv2/imgcodecs.hpp>
@@ -295,6 +302,196 @@ TEST(MakeReportFiles, MissingPartsAreNotedAndBadOptionsRefused) {
   EXPECT_TRUE(Contains(error, "scan_report_json")) << error;
 }
 
+// --- the 3D view ------------------------------------------------------------------
+
+// The text of the element with id="<id>" (a <script> holding base64), or
+// nullopt; its data-count in *count.
+std::optional<std::string> ElementText(const std::string& html, const std::string& id,
+                                       long* count = nullptr) {
+  const std::size_t at = html.find("id=\"" + id + "\"");
+  if (at == std::string::npos) return std::nullopt;
+  const std::size_t begin = html.find('>', at) + 1;
+  if (count) {
+    const std::size_t c = html.find("data-count=\"", at);
+    *count = c < begin ? std::stol(html.substr(c + 12)) : -1;
+  }
+  return html.substr(begin, html.find("</script>", begin) - begin);
+}
+
+std::string DecodeBase64(const std::string& text) {
+  auto value = [](char c) -> int {
+    if (c >= 'A' && c <= 'Z') return c - 'A';
+    if (c >= 'a' && c <= 'z') return c - 'a' + 26;
+    if (c >= '0' && c <= '9') return c - '0' + 52;
+    return c == '+' ? 62 : c == '/' ? 63 : -1;
+  };
+  std::string out;
+  std::uint32_t bits = 0;
+  int n = 0;
+  for (char c : text) {
+    const int v = value(c);
+    if (v < 0) continue;  // padding
+    bits = bits << 6 | static_cast<std::uint32_t>(v);
+    if ((n += 6) >= 8) out += static_cast<char>((bits >> (n -= 8)) & 0xff);
+  }
+  return out;
+}
+
+template <typename T>
+std::vector<T> Decode(const std::string& html, const std::string& id, long* count) {
+  const std::optional<std::string> text = ElementText(html, id, count);
+  if (!text) return {};
+  const std::string bytes = DecodeBase64(*text);
+  std::vector<T> out(bytes.size() / sizeof(T));
+  std::memcpy(out.data(), bytes.data(), out.size() * sizeof(T));  // little-endian host
+  return out;
+}
+
+struct PageModel {
+  long points = -1, vertices = -1, triangles = -1;
+  std::vector<float> cloud, mesh;
+  std::vector<std::uint8_t> cloud_colors, mesh_colors;
+  std::vector<std::uint32_t> indices;
+};
+
+PageModel ReadModel(const std::string& html) {
+  PageModel m;
+  long ignored = 0;
+  m.cloud = Decode<float>(html, "craftscan-cloud-positions", &m.points);
+  m.cloud_colors = Decode<std::uint8_t>(html, "craftscan-cloud-colors", &ignored);
+  m.mesh = Decode<float>(html, "craftscan-mesh-positions", &m.vertices);
+  m.mesh_colors = Decode<std::uint8_t>(html, "craftscan-mesh-colors", &ignored);
+  m.indices = Decode<std::uint32_t>(html, "craftscan-mesh-indices", &m.triangles);
+  return m;
+}
+
+TEST(ReportViewer, ThePageCarriesTheViewerAndTheModel) {
+  const ScanResult scan = MakeScan();  // 3000 coloured points, turntable frame
+  const TriangleMesh mesh = SphereMesh(20, 40, {0, 0, 60}, 50);
+  ReportInputs in;
+  in.scan_report_json = ScanReportJson(scan);
+  in.fused = &scan.fused;
+  in.mesh = &mesh;
+  ReportFiles files;
+  std::string error;
+  ASSERT_TRUE(MakeReportFiles(in, &files, &error)) << error;
+  const std::string& html = files.files.back().bytes;
+
+  // The section above the previews, the viewer script, the start-up script
+  // with the turntable frame's up axis.
+  const std::size_t model = html.find("<section id=\"model\">");
+  ASSERT_NE(model, std::string::npos);
+  EXPECT_LT(model, html.find("<section id=\"cloud\">"));
+  EXPECT_TRUE(Contains(html, "<div id=\"craftscan-viewer\" class=\"viewer\">"));
+  EXPECT_TRUE(Contains(html, "<a href=\"#model\">3D view</a>"));
+  const std::optional<std::string> bundle = ElementText(html, "craftscan-viewer-bundle");
+  ASSERT_TRUE(bundle);
+  EXPECT_GT(bundle->size(), 100000u);  // three.js and the viewer, minified
+  EXPECT_EQ(bundle->rfind("var CraftscanViewer=", 0), 0u) << bundle->substr(0, 80);
+  const std::size_t start = html.find("<script>", html.find("id=\"craftscan-viewer-bundle\""));
+  ASSERT_NE(start, std::string::npos);
+  EXPECT_EQ(html.find("</script>", html.find("id=\"craftscan-viewer-bundle\"")) + 10, start)
+      << "the bundle's script element ends before the start-up script";
+  EXPECT_TRUE(Contains(html.substr(start),
+                       "CraftscanViewer.create(box, {background: '#1d2125', "
+                       "up: [0, 0, 1], front: [0, -1, 0]})"));
+  EXPECT_TRUE(Contains(html, "Shown: 3000 of the 3000 fused points and the mesh's 1600 triangles"));
+
+  // The cloud whole: positions and colours as given.
+  const PageModel m = ReadModel(html);
+  EXPECT_EQ(m.points, 3000);
+  ASSERT_EQ(m.cloud.size(), 3u * 3000);
+  ASSERT_EQ(m.cloud_colors.size(), 3u * 3000);
+  for (std::size_t i : {std::size_t{0}, std::size_t{1234}, std::size_t{2999}})
+    for (int k = 0; k < 3; ++k) {
+      EXPECT_EQ(m.cloud[3 * i + k], scan.fused.points_mm[i][k]) << i;
+      EXPECT_EQ(m.cloud_colors[3 * i + k], scan.fused.colors_rgb[i][k]) << i;
+    }
+  // The mesh whole (under the triangle budget).
+  EXPECT_EQ(m.triangles, 1600);
+  EXPECT_EQ(m.vertices, static_cast<long>(mesh.vertices_mm.size()));
+  ASSERT_EQ(m.mesh.size(), 3 * mesh.vertices_mm.size());
+  EXPECT_EQ(m.mesh_colors.size(), 3 * mesh.vertices_mm.size());
+  ASSERT_EQ(m.indices.size(), 3u * 1600);
+  for (int k = 0; k < 3; ++k)
+    EXPECT_EQ(m.indices[3 * 7 + k], static_cast<std::uint32_t>(mesh.faces[7][k]));
+  EXPECT_EQ(m.mesh[3 * 5 + 2], mesh.vertices_mm[5][2]);
+}
+
+TEST(ReportViewer, BudgetsThinTheCloudAndSimplifyTheMesh) {
+  PointCloud cloud = SpherePoints(5000, {0, 0, 40}, 40, true);
+  cloud.points_mm[10] = {NAN, 0, 0};                             // left out
+  const TriangleMesh mesh = SphereMesh(40, 80, {0, 0, 40}, 40);  // 6400 triangles
+  ReportInputs in;
+  in.fused = &cloud;
+  in.mesh = &mesh;
+  in.options.viewer_max_points = 1000;
+  in.options.viewer_max_triangles = 1000;
+  std::string html, error;
+  ASSERT_TRUE(ReportHtml(in, {}, {}, &html, &error)) << error;
+  const PageModel m = ReadModel(html);
+
+  // 1000 of the 4999 finite points, each one of the cloud's, spread over all of it.
+  EXPECT_EQ(m.points, 1000);
+  ASSERT_EQ(m.cloud.size(), 3000u);
+  std::map<std::tuple<float, float, float>, std::size_t> index;
+  for (std::size_t i = 0; i < cloud.size(); ++i)
+    if (i != 10) index[{cloud.points_mm[i][0], cloud.points_mm[i][1], cloud.points_mm[i][2]}] = i;
+  std::size_t last = 0;
+  for (std::size_t k = 0; k < 1000; ++k) {
+    const auto it = index.find({m.cloud[3 * k], m.cloud[3 * k + 1], m.cloud[3 * k + 2]});
+    ASSERT_NE(it, index.end()) << "point " << k << " is not one of the cloud's";
+    EXPECT_NE(it->second, 10u);
+    if (k > 0) {
+      EXPECT_NEAR(double(it->second - last), 5.0, 1.0) << k;  // every 5th
+    }
+    last = it->second;
+  }
+  EXPECT_GE(last, 4990u);
+
+  // The mesh simplified to at most 1000 triangles, still the sphere.
+  EXPECT_LE(m.triangles, 1000);
+  EXPECT_GE(m.triangles, 400);
+  ASSERT_EQ(m.indices.size(), 3u * static_cast<std::size_t>(m.triangles));
+  ASSERT_EQ(m.mesh.size(), 3u * static_cast<std::size_t>(m.vertices));
+  EXPECT_EQ(m.mesh_colors.size(), m.mesh.size());
+  for (std::uint32_t i : m.indices) ASSERT_LT(i, static_cast<std::uint32_t>(m.vertices));
+  for (long v = 0; v < m.vertices; ++v) {
+    const double r = std::hypot(m.mesh[3 * v], m.mesh[3 * v + 1], m.mesh[3 * v + 2] - 40);
+    EXPECT_NEAR(r, 40, 3) << "vertex " << v;  // within about a cell (≈ 5 mm) of the sphere
+  }
+  EXPECT_TRUE(Contains(
+      html, "the mesh simplified to " + std::to_string(m.triangles) + " of its 6400 triangles"));
+}
+
+TEST(ReportViewer, LeftOutWithoutAModelOrWhenTurnedOff) {
+  const PointCloud cloud = SpherePoints(2000, {0, 0, 40}, 40, false);
+  ReportInputs in;
+  std::string html, error;
+  ASSERT_TRUE(ReportHtml(in, {}, {}, &html, &error)) << error;
+  EXPECT_FALSE(Contains(html, "<script"));
+  EXPECT_FALSE(Contains(html, "id=\"model\""));
+
+  in.fused = &cloud;  // no colours: positions only
+  ASSERT_TRUE(ReportHtml(in, {}, {}, &html, &error)) << error;
+  const PageModel m = ReadModel(html);
+  EXPECT_EQ(m.points, 2000);
+  EXPECT_EQ(m.cloud.size(), 6000u);
+  EXPECT_TRUE(m.cloud_colors.empty());
+  EXPECT_FALSE(Contains(html, "id=\"craftscan-mesh-"));
+  EXPECT_TRUE(Contains(html, "CraftscanViewer.create(box, {background: '#1d2125'})"));
+
+  in.options.viewer = false;
+  ASSERT_TRUE(ReportHtml(in, {}, {}, &html, &error)) << error;
+  EXPECT_FALSE(Contains(html, "<script"));
+
+  in.options = ReportOptions();
+  in.options.viewer_max_points = 10;
+  ReportFiles files;
+  EXPECT_FALSE(MakeReportFiles(in, &files, &error));
+  EXPECT_TRUE(Contains(error, "viewer_max_points")) << error;
+}
+
 // Bench-like figures, printed and not asserted. Set CRAFTSCAN_REPORT_DUMP to
 // a folder to get the files for a look.
 TEST(ReportTiming, LargeCloudAndMesh) {
@@ -349,6 +546,13 @@ TEST(ReportTiming, LargeCloudAndMesh) {
       "[ report ] MakeReportFiles (5+5 previews, 24 disparity maps 1280x960): %.0f ms CPU "
       "(%.0f ms wall), %zu files, %.1f MB\n",
       files_cpu_ms, files.render_ms, files.files.size(), bytes / 1e6);
+  std::string page, why;
+  const double page_ms = ms([&] { ASSERT_TRUE(ReportHtml(in, files.pictures, {}, &page, &why)); });
+  std::printf(
+      "[ report ] report.html %.2f MB, %.0f ms CPU (the 3D view: at most %d points, %d "
+      "triangles)\n",
+      page.size() / 1e6, page_ms, in.options.viewer_max_points, in.options.viewer_max_triangles);
+  RecordProperty("report_html_ms", std::to_string(page_ms));
   RecordProperty("cloud_preview_ms", std::to_string(cloud_ms));
   RecordProperty("mesh_preview_ms", std::to_string(mesh_ms));
   RecordProperty("report_files_ms", std::to_string(files.render_ms));

@@ -41,6 +41,7 @@ using JobProgress = craftscan_msg_JobProgress;
 using StereoCapture = craftscan_msg_StereoCapture;
 using Disparity = craftscan_msg_Disparity;
 using PointCloud = craftscan_msg_PointCloud;
+using Preview = craftscan_msg_Preview;
 }  // namespace msg
 
 // ROS 2-compatible types (type names "sensor_msgs::msg::dds_::Image_", ...).
@@ -86,6 +87,7 @@ CRAFTSCAN_DDS_MESSAGE_TRAITS(craftscan_msg_JobProgress);
 CRAFTSCAN_DDS_MESSAGE_TRAITS(craftscan_msg_StereoCapture);
 CRAFTSCAN_DDS_MESSAGE_TRAITS(craftscan_msg_Disparity);
 CRAFTSCAN_DDS_MESSAGE_TRAITS(craftscan_msg_PointCloud);
+CRAFTSCAN_DDS_MESSAGE_TRAITS(craftscan_msg_Preview);
 CRAFTSCAN_DDS_MESSAGE_TRAITS(sensor_msgs_msg_dds__Image_);
 CRAFTSCAN_DDS_MESSAGE_TRAITS(sensor_msgs_msg_dds__CameraInfo_);
 CRAFTSCAN_DDS_MESSAGE_TRAITS(sensor_msgs_msg_dds__PointCloud2_);

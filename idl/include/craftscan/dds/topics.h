@@ -10,6 +10,7 @@
 //   craftscan/<station>/disparity   Disparity      reliable, volatile, keep-last 1
 //   craftscan/<station>/cloud       PointCloud     reliable, volatile, keep-last 2
 //   craftscan/<station>/file        SessionFile    reliable, volatile, keep-last 64
+//   craftscan/<station>/preview     Preview        reliable, volatile, keep-last 1
 //   rt/craftscan/<station>/left/image_raw, right/image_raw   Image_      reliable, keep-last 1
 //   rt/craftscan/<station>/left/camera_info, right/...       CameraInfo_ reliable,
 //                                                            transient-local, keep-last 1
@@ -88,6 +89,7 @@ TopicSpec<msg::StereoCapture> CaptureTopic(std::string_view station);
 TopicSpec<msg::Disparity> DisparityTopic(std::string_view station);
 TopicSpec<msg::PointCloud> CloudTopic(std::string_view station);
 TopicSpec<msg::SessionFile> FileTopic(std::string_view station);
+TopicSpec<msg::Preview> PreviewTopic(std::string_view station);
 
 TopicSpec<ros::Image> RosImageTopic(std::string_view station, Side side);
 TopicSpec<ros::CameraInfo> RosCameraInfoTopic(std::string_view station, Side side);

@@ -124,6 +124,26 @@ struct CaptureUpdate {
   std::int64_t left_stamp_ns = 0, right_stamp_ns = 0;
 };
 
+// One image of a live preview frame.
+struct PreviewImageUpdate {
+  std::vector<std::uint8_t> jpeg;
+  std::vector<float> focus;              // grid_rows × grid_cols, row-major
+  std::vector<std::uint32_t> histogram;  // 64 bins of 4 grey levels
+  float clipped_pct = 0, black_pct = 0;
+};
+
+// A live preview frame (the preview verb, the guided calibration).
+struct PreviewUpdate {
+  std::string job_id;
+  std::uint32_t frame_number = 0;
+  std::int64_t stamp_ns = 0;
+  double exposure_us = 0, gain_db = 0;
+  int full_width = 0, full_height = 0, width = 0, height = 0;
+  int grid_cols = 0, grid_rows = 0;
+  PreviewImageUpdate left, right;
+  std::string overlay;  // JSON or ""
+};
+
 // Progress of a Fetch, after each chunk.
 struct FetchProgress {
   std::string name;  // file being received
@@ -142,6 +162,9 @@ struct FetchRequest {
   std::chrono::milliseconds timeout{10000};
   std::function<void(const FetchProgress&)> on_progress;  // may be empty; caller's thread
   const std::atomic<bool>* cancel = nullptr;              // may be null; checked every 50 ms
+  // Sent with `get` instead of ConnectOptions::token when not empty (a
+  // client relaying for several users, such as craftscan-web).
+  std::string token;
 };
 
 enum class FetchStatus {
@@ -198,6 +221,7 @@ class StationClient {
   bool SubscribeProgress(std::function<void(const ProgressUpdate&)> handler, std::string* error);
   bool SubscribeClouds(std::function<void(const CloudUpdate&)> handler, std::string* error);
   bool SubscribeCaptures(std::function<void(const CaptureUpdate&)> handler, std::string* error);
+  bool SubscribePreview(std::function<void(const PreviewUpdate&)> handler, std::string* error);
 
   // Fetches session files into request.out_dir: subscribes to the file topic
   // (once per client), waits for the daemon's file writer, sends `get` with

@@ -1,9 +1,12 @@
 // report.html for a finished scan session (DESIGN.md "Sessions on disk"):
-// one self-contained page (inline CSS, no JavaScript) with the measurements,
-// the calibration used and its quality, per-view registration quality, loop
+// one self-contained page (inline CSS) with the measurements, the
+// calibration used and its quality, per-view registration quality, loop
 // closure, stage times, and pictures — colour-mapped disparity maps and
 // previews of the fused cloud and mesh from several angles (preview.h) —
-// stored beside it as previews/*.png.
+// stored beside it as previews/*.png. Above the previews an interactive 3D
+// view of the cloud and mesh (clients/web/API.md "The 3D viewer"): the
+// viewer's script and the model are inlined, so it works from file://
+// without network; the previews stay for browsers without WebGL.
 //
 //   ReportInputs in;
 //   in.session_id = session.id();  in.object_name = manifest.object_name;
@@ -52,6 +55,14 @@ struct ReportOptions {
   // Disparity pictures are downscaled (nearest neighbour) to at most this
   // width: full-size maps of a 5 MP camera would make a 100 MB report. 64..8192.
   int disparity_max_width_px = 640;
+  // The 3D view (needs a fused cloud or a mesh; its script adds ≈ 0.6 MB).
+  // The cloud is thinned evenly to at most viewer_max_points, a mesh with
+  // more than viewer_max_triangles is simplified (vertex clustering) to at
+  // most that many: the page grows by ≈ 20 bytes per point and ≈ 26 per
+  // triangle. Each 1000..5000000.
+  bool viewer = true;
+  int viewer_max_points = 200000;
+  int viewer_max_triangles = 100000;
 
   bool IsValid(std::string* why) const;  // names the offending field
 };
@@ -87,7 +98,9 @@ struct ReportPicture {
 // The page for `inputs` showing `pictures` (in the order given within each
 // section) and listing `notes` (parts left out) near the top. Every
 // user-supplied string (object name, ids, messages, notes) is HTML-escaped.
-// inputs.options is not used. Fails (false, *error; *html untouched) only
+// Of inputs.options only the viewer fields are used (out-of-range budgets
+// are clamped to 1000..5000000); the page has scripts only when it has the
+// 3D view. Fails (false, *error; *html untouched) only
 // when scan_report_json is not empty and not a JSON object, or a picture name
 // is not a relative path of [A-Za-z0-9._/-] without "..".
 bool ReportHtml(const ReportInputs& inputs, const std::vector<ReportPicture>& pictures,
@@ -116,7 +129,8 @@ struct ReportFiles {
 // field) for invalid options, an invalid scan_report_json, or a PNG
 // encoder failure. One thread; about 1.3 s of CPU for a 200k-point cloud, a
 // 300k-triangle mesh (5 views each) and 24 disparity maps of 1280×960 at the
-// default sizes (≈ 5 MB of PNG).
+// default sizes (≈ 5 MB of PNG), of which ≈ 0.25 s for the 3D view (its mesh
+// simplified to 100k triangles; report.html ≈ 7 MB).
 bool MakeReportFiles(const ReportInputs& inputs, ReportFiles* files, std::string* error);
 
 }  // namespace craftscan::daemon

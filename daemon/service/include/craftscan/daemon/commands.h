@@ -35,7 +35,9 @@
 // kMaxRateLimitedClients, then all new names share one.
 //
 // Verbs (role; arguments):
-//   status, devices, sessions            observer; none
+//   status, devices, sessions            observer; none (status's result also
+//                                        has "you": {"name", "role"}: the
+//                                        token's entry in the tokens file)
 //   get                                  observer; {"session": str}: manifest + verification;
 //                                        with "files": a file transfer (below)
 //   capture                              operator; {"object": str}
@@ -48,6 +50,12 @@
 //   turntable                            operator; {"action": "home"|"move",
 //                                                   "angle_deg": number}
 //   camera                               operator; {"exposure_us": number, "gain_db": number}
+//                                        (during a preview: applied, the preview goes on)
+//   preview                              operator; {"action": "start"|"stop", "fps": 0.1..15,
+//                                                   "width": int 64..4096, "seconds": 1..600}
+//                                        the live preview (topic craftscan/<station>/preview)
+//                                        until `seconds` after the last start; refused busy
+//                                        while a job runs; any job verb stops it first
 //   calibrate, calibrate-turntable       admin; none
 //
 // get with files: {"session": str, "files": "all" | [name, ...],

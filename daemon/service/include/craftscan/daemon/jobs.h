@@ -51,6 +51,7 @@
 #include <opencv2/core.hpp>
 
 #include "craftscan/daemon/devices.h"
+#include "craftscan/daemon/live_preview.h"
 #include "craftscan/daemon/session_store.h"
 #include "craftscan/daemon/stages.h"
 #include "craftscan/drivers/camera.h"
@@ -81,6 +82,8 @@ class JobSink {
                      const cv::Matx44d& world_from_cloud) = 0;
   // The calibration in force changed (after calibrate / calibrate-turntable).
   virtual void CalibrationChanged(const StereoCalibration& calibration) { (void)calibration; }
+  // A live preview frame (the preview job, the guided calibration).
+  virtual void Preview(const PreviewFrame& frame) { (void)frame; }
 };
 
 struct JobEngineOptions {
@@ -118,6 +121,15 @@ struct JobInfo {
   nlohmann::json result;  // verb-specific result (measurements, calibration figures)
 };
 
+// The live preview (verb preview): frames at `fps` until `seconds` after
+// the last request, each image scaled to `width` px.
+struct PreviewRequest {
+  double fps = 4;       // (0, 15]
+  int width = 640;      // 64..4096
+  double seconds = 60;  // (0, 600]
+  bool IsValid(std::string* why) const;
+};
+
 struct ScanRequest {
   std::string object = "object";
   int views = 0;        // 0 = the default
@@ -151,7 +163,7 @@ class JobEngine {
   std::optional<StereoCalibration> calibration() const;
   std::string calibration_id() const;
 
-  // Each Start* returns false with *error when busy ("busy: job-3 (scan)
+  // Each Start* returns false with *error when busy ("busy: job-101500-3 (scan)
   // is running") or when the request is invalid; on success *info holds the
   // new job's id (and session for scan/capture/resume). StartResume takes an
   // interrupted or failed session, or one left in an active state by a job
@@ -162,6 +174,15 @@ class JobEngine {
   bool StartCalibrate(JobInfo* info, std::string* error);
   bool StartCalibrateTurntable(JobInfo* info, std::string* error);
   bool StartResume(const std::string& session_id, JobInfo* info, std::string* error);
+  // Starts the live preview, or extends the running one by request.seconds
+  // from now (its fps and width stay). Busy while another job runs.
+  bool StartPreview(const PreviewRequest& request, JobInfo* info, std::string* error);
+  // Stops a running preview (its job ends cancelled) and waits for it to
+  // end, up to `timeout`; true when no preview runs afterwards. Every verb
+  // that starts a job calls this first: a preview never holds up a scan.
+  bool StopPreview(std::chrono::milliseconds timeout);
+  // The last preview's request (to start it again after a camera change).
+  PreviewRequest LastPreviewRequest() const;
   // Asks the running job to stop at its next safe point. False if none runs.
   bool Cancel(std::string* error);
   // Cancels the running job (its session becomes interrupted) and joins it.
@@ -196,6 +217,7 @@ class JobEngine {
   // what is safe on disk then).
   JobOutcome EndSessionDone(Session& session, const std::string& detail, const std::string& stored,
                             JobOutcome done);
+  JobOutcome RunPreview(const PreviewRequest& request);
   JobOutcome RunCalibrate();
   JobOutcome RunCalibrateTurntable();
   // Makes an accepted calibration current, or the failed job saying why.
@@ -230,6 +252,7 @@ class JobEngine {
   JobInfo current_;
   bool running_ = false;
   std::uint64_t next_job_ = 1;
+  std::string job_prefix_;  // "job-HHMMSS-": the engine's start time
   std::optional<StereoCalibration> calibration_;
   std::string calibration_id_;
   // The running job's stages stop: set by Cancel, Shutdown and by a stage
@@ -237,6 +260,9 @@ class JobEngine {
   // The job's outcome says which (CombinedOutcome in jobs.cc).
   std::atomic<bool> stop_{false};
   std::atomic<bool> moving_{false};  // a scan's turntable move is in progress (Cancel aborts it)
+  // The running preview ends at this steady-clock time (ns); StartPreview extends it.
+  std::atomic<std::int64_t> preview_until_ns_{0};
+  PreviewRequest last_preview_;  // guarded by mutex_
   std::thread worker_;
 };
 

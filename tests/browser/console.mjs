@@ -1,0 +1,242 @@
+// The console in headless Chromium against the real craftscand on the sim
+// (console_station: the daemon plus craftscan-web's server):
+//   - the page loads from the console alone (every other URL refused);
+//   - an operator signs in and sees the station idle with its role;
+//   - a 4-view scan starts from the scan page, its thumbnails arrive live;
+//   - the daemon is killed mid-scan: the page says the station is gone;
+//     started again, the session shows as interrupted, Resume completes it;
+//   - the finished session opens in the 3D viewer, which draws the model
+//     (pixels differ from the background) and turns under the mouse;
+//   - an observer sees no scan button, and a forged scan from its page is
+//     refused by the daemon (forbidden), one without the console's header
+//     by the server (403).
+// Screenshots of each page in the artifacts folder.
+//
+//   node console.mjs --station-harness PATH --assets DIR
+import { spawn } from 'node:child_process';
+import readline from 'node:readline';
+import { runBrowserTest, check, drag, fractionChanged } from './lib.mjs';
+
+function arg(name) {
+  const i = process.argv.indexOf(name);
+  return i > 0 ? process.argv[i + 1] : undefined;
+}
+const harnessPath = arg('--station-harness');
+const assets = arg('--assets');
+check(harnessPath && assets, 'usage: console.mjs --station-harness PATH --assets DIR');
+
+// Starts console_station; resolves {info, send(command), stop()}.
+function startStation() {
+  return new Promise((resolve, reject) => {
+    const child = spawn(harnessPath, ['--assets', assets], { stdio: ['pipe', 'pipe', 'inherit'] });
+    const lines = readline.createInterface({ input: child.stdout });
+    const waiting = [];
+    let info = null;
+    lines.on('line', (line) => {
+      if (!info) {
+        info = JSON.parse(line);
+        resolve({
+          info,
+          send: (command) => new Promise((done) => {
+            waiting.push(done);
+            child.stdin.write(command + '\n');
+          }),
+          stop: () => { child.stdin.end(); child.kill('SIGTERM'); },
+        });
+      } else if (waiting.length) {
+        waiting.shift()(line);
+      }
+    });
+    child.on('exit', (code) => { if (!info) reject(new Error(`console_station exited with ${code}`)); });
+  });
+}
+
+// A page that may load the console's own URLs only.
+async function consolePage(browser, base) {
+  const page = await browser.newPage();
+  page.errors = [];
+  page.refused = [];
+  await page.setViewport({ width: 1280, height: 800, deviceScaleFactor: 1 });
+  await page.setRequestInterception(true);
+  page.on('request', (request) => {
+    const url = request.url();
+    if (url.startsWith(base) || /^(data|blob|about):/.test(url)) {
+      request.continue();
+    } else {
+      page.refused.push(url);
+      request.abort('internetdisconnected');
+    }
+  });
+  page.on('pageerror', (error) => page.errors.push(String(error && error.message ? error.message : error)));
+  return page;
+}
+
+const sel = (id) => `[data-testid="${id}"]`;
+
+async function signIn(page, info, token) {
+  await page.waitForSelector(sel('login-token'), { visible: true });
+  await page.$eval(sel('login-station'), (e, v) => { e.value = v; }, info.station);
+  await page.type(sel('login-token'), token);
+  await page.click(sel('login-submit'));
+  await page.waitForSelector(sel('role'), { visible: true, timeout: 15000 });
+}
+
+async function textOf(page, id) {
+  return page.$eval(sel(id), (e) => e.textContent.trim()).catch(() => '');
+}
+
+// Fetches from inside the page (its cookie, its origin).
+async function pageFetch(page, path, init) {
+  return page.evaluate(async (p, i) => {
+    const r = await fetch(p, i);
+    let body = null;
+    try { body = await r.json(); } catch { body = null; }
+    return { status: r.status, body };
+  }, path, init);
+}
+
+async function waitUntil(what, predicate, timeoutMs) {
+  const end = Date.now() + timeoutMs;
+  for (;;) {
+    if (await predicate()) return;
+    if (Date.now() > end) throw new Error(`timed out waiting for ${what}`);
+    await new Promise((r) => setTimeout(r, 250));
+  }
+}
+
+runBrowserTest('console', async (t) => {
+  const station = await startStation();
+  const { info } = station;
+  t.log('station', info.station, 'at', info.url);
+  try {
+    const page = await consolePage(t.browser, info.url);
+    const loadStart = Date.now();
+    await page.goto(info.url, { waitUntil: 'load' });
+    await page.waitForSelector(sel('login-token'), { visible: true });
+    t.log(`console loaded in ${Date.now() - loadStart} ms`);
+    await t.screenshot(page, '01-sign-in');
+
+    // A wrong token: the station's refusal is shown.
+    await page.$eval(sel('login-station'), (e, v) => { e.value = v; }, info.station);
+    await page.type(sel('login-token'), 'not-a-token-0123456789');
+    await page.click(sel('login-submit'));
+    await page.waitForFunction((s) => {
+      const e = document.querySelector(s);
+      return e && e.textContent.trim().length > 0 && e.offsetParent !== null;
+    }, { timeout: 15000 }, sel('login-error'));
+    const refusal = await textOf(page, 'login-error');
+    check(/refused|token/i.test(refusal), `login-error says "${refusal}"`);
+    await page.$eval(sel('login-token'), (e) => { e.value = ''; });
+
+    // The operator.
+    await signIn(page, info, info.operator);
+    check((await textOf(page, 'role')).includes('operator'), `role shows "${await textOf(page, 'role')}"`);
+    await page.waitForFunction((s) => document.querySelector(s)?.dataset.state === 'idle',
+                               { timeout: 15000 }, sel('station-state'));
+    check(!(await page.$(sel('nav-calibrate'))), 'an operator sees no calibration page (admin only)');
+    await page.click(sel('nav-scan'));
+    await page.waitForSelector(sel('scan-start'), { visible: true });
+    await page.$eval(sel('scan-object'), (e) => { e.value = ''; });
+    await page.type(sel('scan-object'), 'box');
+    await page.$eval(sel('scan-views'), (e) => { e.value = ''; });
+    await page.type(sel('scan-views'), '4');
+    await page.$eval(sel('scan-step'), (e) => { e.value = ''; });
+    await page.type(sel('scan-step'), '90');
+    await page.click(sel('scan-start'));
+    await page.waitForSelector(`${sel('thumbs')} figure img`, { timeout: 60000 });
+    await t.screenshot(page, '02-scan-live');
+
+    // The daemon dies mid-scan.
+    check((await station.send('kill')) === 'ok', 'killing the daemon');
+    await page.waitForSelector(sel('banner-gone'), { visible: true, timeout: 15000 });
+    await t.screenshot(page, '03-station-gone');
+    check((await station.send('start')) === 'ok', 'starting the daemon again');
+    await page.waitForSelector(sel('banner-gone'), { hidden: true, timeout: 30000 });
+
+    // The interrupted session, resumed from the sessions page.
+    await page.click(sel('nav-sessions'));
+    const interrupted = `${sel('sessions-table')} [data-state="interrupted"]`;
+    await waitUntil('the interrupted session', async () => {
+      if (await page.$(interrupted)) return true;
+      const refresh = await page.$(sel('sessions-refresh'));
+      if (refresh) await refresh.click();
+      return false;
+    }, 30000);
+    const session = await page.$eval(interrupted, (e) => e.dataset.session ||
+                                     e.closest('[data-session]').dataset.session);
+    await t.screenshot(page, '04-sessions-interrupted');
+    // Until the page has seen the station without that scan, the button says
+    // the scan runs; then it offers Resume.
+    const resumeButton = `${sel('sessions-table')} [data-session="${session}"] ${sel('session-resume')}`;
+    await page.waitForSelector(`${resumeButton}:not([disabled])`, { timeout: 20000 });
+    await page.click(resumeButton);
+    await page.waitForFunction((s) => /resume/i.test(document.querySelector(s)?.textContent || ''),
+                               { timeout: 15000 }, sel('status-line'));
+    const resumed = await page.$eval(sel('status-line'), (e) => [e.dataset.code, e.textContent.trim()]);
+    t.log('resume:', resumed.join(' — '));
+    check(resumed[0] === 'ok', `resume refused: ${resumed[1]}`);
+    await waitUntil(`session ${session} done`, async () => {
+      const r = await pageFetch(page, '/api/sessions', {});
+      const s = (r.body && r.body.sessions || []).find((x) => x.id === session);
+      return s && s.state === 'done';
+    }, 180000);
+    t.log(`session ${session} resumed to done`);
+
+    // Its model in the viewer.
+    await page.goto(`${info.url}#/sessions/${session}`, { waitUntil: 'load' });
+    await page.waitForFunction((s) => document.querySelector(s)?.dataset.state === 'ready',
+                               { timeout: 60000 }, sel('viewer'));
+    await new Promise((r) => setTimeout(r, 500));
+    const before = await t.screenshot(page, '05-session-viewer', sel('viewer'));
+    // The background is the viewer's most common colour.
+    const d = before.data;
+    const counts = new Map();
+    for (let i = 0; i < d.length; i += 4) {
+      const key = ((d[i] >> 3) << 10) | ((d[i + 1] >> 3) << 5) | (d[i + 2] >> 3);
+      counts.set(key, (counts.get(key) || 0) + 1);
+    }
+    const mode = [...counts.entries()].sort((a, b) => b[1] - a[1])[0][0];
+    const bg = [((mode >> 10) & 31) * 8 + 4, ((mode >> 5) & 31) * 8 + 4, (mode & 31) * 8 + 4];
+    let differ = 0;
+    for (let i = 0; i < d.length; i += 4) {
+      if (Math.abs(d[i] - bg[0]) + Math.abs(d[i + 1] - bg[1]) + Math.abs(d[i + 2] - bg[2]) > 48) differ++;
+    }
+    const drawn = differ / (before.width * before.height);
+    t.log(`viewer: ${(100 * drawn).toFixed(1)} % of its pixels differ from the background`);
+    check(drawn > 0.02, `the viewer shows nothing (${(100 * drawn).toFixed(2)} % drawn)`);
+    const box = await (await page.$(sel('viewer'))).boundingBox();
+    await drag(page, box.x + box.width / 2, box.y + box.height / 2, 160, 40);
+    await new Promise((r) => setTimeout(r, 500));
+    const after = await t.screenshot(page, '06-session-viewer-turned', sel('viewer'));
+    check(fractionChanged(before, after) > 0.01, 'dragging did not turn the model');
+    const measured = await textOf(page, 'measurements');
+    check(measured.length > 0, 'no measurements shown');
+
+    // The observer: no scan button; forged requests refused.
+    const context = await t.browser.createBrowserContext();
+    const observer = await consolePage(context, info.url);
+    await observer.goto(info.url, { waitUntil: 'load' });
+    await signIn(observer, info, info.observer);
+    await observer.click(sel('nav-scan'));
+    await new Promise((r) => setTimeout(r, 500));
+    check(!(await observer.$(sel('scan-start'))), 'an observer sees a scan button');
+    await t.screenshot(observer, '07-observer-scan-page');
+    const json = { 'Content-Type': 'application/json' };
+    const forged = await pageFetch(observer, '/api/command', {
+      method: 'POST', headers: { ...json, 'X-Craftscan-Request': '1' },
+      body: JSON.stringify({ verb: 'scan', args: { object: 'x', views: 4 } }),
+    });
+    check(forged.status === 200 && forged.body.code_name === 'forbidden',
+          `a forged scan: ${JSON.stringify(forged)}`);
+    const noHeader = await pageFetch(observer, '/api/command', {
+      method: 'POST', headers: json, body: JSON.stringify({ verb: 'status' }),
+    });
+    check(noHeader.status === 403, `without X-Craftscan-Request: ${noHeader.status}`);
+
+    check(page.refused.length === 0 && observer.refused.length === 0,
+          `requests outside the console: ${[...page.refused, ...observer.refused].join(', ')}`);
+    check(page.errors.length === 0, `page errors: ${page.errors.join(' | ')}`);
+  } finally {
+    station.stop();
+  }
+}, { timeoutMs: 240000 });

@@ -154,9 +154,8 @@ bool IsSessionId(const std::string& id) {
 // own status rather than relaying the Reply as it is.
 int HttpStatusOf(const std::string& code_name) {
   static const std::map<std::string, int> statuses = {
-      {"bad_request", 400}, {"bad_argument", 400}, {"too_large", 413},
-      {"unauthenticated", 401}, {"forbidden", 403}, {"not_found", 404},
-      {"busy", 409}, {"unavailable", 503}};
+      {"bad_request", 400}, {"bad_argument", 400}, {"too_large", 413}, {"unauthenticated", 401},
+      {"forbidden", 403},   {"not_found", 404},    {"busy", 409},      {"unavailable", 503}};
   const auto it = statuses.find(code_name);
   return it == statuses.end() ? 502 : it->second;
 }
@@ -172,13 +171,20 @@ json PreviewImageJson(const client::PreviewImageUpdate& image) {
 json PreviewJson(const client::PreviewUpdate& u) {
   json overlay = u.overlay.empty() ? json() : json::parse(u.overlay, nullptr, false);
   if (overlay.is_discarded()) overlay = json();
-  return {{"type", "preview"},         {"job_id", u.job_id},
-          {"frame", u.frame_number},   {"stamp_ns", u.stamp_ns},
-          {"exposure_us", u.exposure_us}, {"gain_db", u.gain_db},
-          {"width", u.width},          {"height", u.height},
-          {"full_width", u.full_width}, {"full_height", u.full_height},
-          {"grid_cols", u.grid_cols},  {"grid_rows", u.grid_rows},
-          {"left", PreviewImageJson(u.left)}, {"right", PreviewImageJson(u.right)},
+  return {{"type", "preview"},
+          {"job_id", u.job_id},
+          {"frame", u.frame_number},
+          {"stamp_ns", u.stamp_ns},
+          {"exposure_us", u.exposure_us},
+          {"gain_db", u.gain_db},
+          {"width", u.width},
+          {"height", u.height},
+          {"full_width", u.full_width},
+          {"full_height", u.full_height},
+          {"grid_cols", u.grid_cols},
+          {"grid_rows", u.grid_rows},
+          {"left", PreviewImageJson(u.left)},
+          {"right", PreviewImageJson(u.right)},
           {"overlay", overlay}};
 }
 
@@ -302,10 +308,14 @@ struct Console::Impl {
     bool changed = false;
     {
       std::lock_guard lock(s.mutex);
-      json next = {{"state", u.state},         {"devices", devices},
-                   {"job_id", u.job_id},       {"job_verb", u.job_verb},
-                   {"job_state", u.job_state}, {"progress", u.progress},
-                   {"last_error", u.last_error}, {"stamp_ns", u.stamp_ns},
+      json next = {{"state", u.state},
+                   {"devices", devices},
+                   {"job_id", u.job_id},
+                   {"job_verb", u.job_verb},
+                   {"job_state", u.job_state},
+                   {"progress", u.progress},
+                   {"last_error", u.last_error},
+                   {"stamp_ns", u.stamp_ns},
                    {"calibration_id", u.calibration_id}};
       json old = s.status;
       old.erase("stamp_ns");
@@ -372,8 +382,8 @@ struct Console::Impl {
 
   HttpResponse Refuse(const HttpRequest& request, int status, const std::string& code,
                       const std::string& message) {
-    spdlog::warn("{} {} {}: {} {}", request.peer, request.method,
-                 request.target.substr(0, 200), status, message);
+    spdlog::warn("{} {} {}: {} {}", request.peer, request.method, request.target.substr(0, 200),
+                 status, message);
     return Error(status, code, message);
   }
 
@@ -400,8 +410,7 @@ struct Console::Impl {
     if (token.empty() || token.size() > 128) {
       return Refuse(request, 401, "unauthenticated", "the token is empty or too long");
     }
-    const client::CallResult r =
-        it->second->client->CallRaw("status", "", token, Timeout());
+    const client::CallResult r = it->second->client->CallRaw("status", "", token, Timeout());
     if (r.status != client::CallStatus::kReplied) {
       return Refuse(request, 504, "unreachable",
                     "station " + station_id + " is not answering: " + r.message);
@@ -421,11 +430,10 @@ struct Console::Impl {
     }
     spdlog::info("{} signed in to {} as {} ({})", request.peer, station_id, session.name,
                  session.role);
-    HttpResponse response = JsonResponse(
-        200, {{"station", station_id},
-              {"role", session.role},
-              {"client", session.name},
-              {"stations", config.stations}});
+    HttpResponse response = JsonResponse(200, {{"station", station_id},
+                                               {"role", session.role},
+                                               {"client", session.name},
+                                               {"stations", config.stations}});
     response.headers.emplace_back("Set-Cookie", std::string(kCookieName) + "=" + cookie +
                                                     "; HttpOnly; SameSite=Strict; Path=/" +
                                                     (request.tls ? "; Secure" : ""));
@@ -494,11 +502,10 @@ struct Console::Impl {
     if (!m.reply.ok()) {
       return Refuse(request, HttpStatusOf(m.reply.code_name), m.reply.code_name, m.reply.message);
     }
-    const json outputs = m.reply.result.value("manifest", json::object())
-                             .value("outputs", json::object());
+    const json outputs =
+        m.reply.result.value("manifest", json::object()).value("outputs", json::object());
     if (!outputs.is_object() || !outputs.contains(name)) {
-      return Refuse(request, 404, "not_found",
-                    "session " + id + " has no output '" + name + "'");
+      return Refuse(request, 404, "not_found", "session " + id + " has no output '" + name + "'");
     }
     const std::string checksum = outputs[name].value("fnv1a64", std::string());
     const fs::path dir = fs::path(config.cache_dir) / who.station / id;
@@ -534,8 +541,8 @@ struct Console::Impl {
     r.content_type = ContentType(name);
     r.file_path = file.string();
     const std::string base = fs::path(name).filename().string();
-    if (r.content_type == "application/octet-stream" || request.target.find("download=1") !=
-                                                            std::string::npos) {
+    if (r.content_type == "application/octet-stream" ||
+        request.target.find("download=1") != std::string::npos) {
       r.headers.emplace_back("Content-Disposition", "attachment; filename=\"" + base + "\"");
     }
     return r;
@@ -569,8 +576,7 @@ struct Console::Impl {
       }
       const std::string type = request.header("content-type");
       if (type.rfind("application/json", 0) != 0) {
-        return Refuse(request, 415, "unsupported_media_type",
-                      "the body must be application/json");
+        return Refuse(request, 415, "unsupported_media_type", "the body must be application/json");
       }
     } else if (request.method != "GET") {
       return Refuse(request, 405, "method_not_allowed", request.method + " is not used here");
@@ -587,7 +593,8 @@ struct Console::Impl {
       json list = json::array();
       for (const std::string& id : config.stations) {
         const json st = StatusJson(*stations.at(id));
-        list.push_back({{"id", id}, {"state", st.value("state", "unknown")},
+        list.push_back({{"id", id},
+                        {"state", st.value("state", "unknown")},
                         {"online", st.value("online", false)}});
       }
       return JsonResponse(200, {{"stations", list}});
@@ -763,9 +770,10 @@ HttpResponse Console::Handle(const HttpRequest& request) {
     r = Error(500, "internal", std::string("internal error: ") + e.what());
   }
   if (request.target.rfind("/api/", 0) == 0) r.headers.emplace_back("Cache-Control", "no-store");
-  spdlog::debug("{} {} {} → {} ({} ms)", request.peer, request.method,
-                request.target.substr(0, 200), r.status,
-                std::chrono::duration_cast<std::chrono::milliseconds>(Clock::now() - start).count());
+  spdlog::debug(
+      "{} {} {} → {} ({} ms)", request.peer, request.method, request.target.substr(0, 200),
+      r.status,
+      std::chrono::duration_cast<std::chrono::milliseconds>(Clock::now() - start).count());
   return r;
 }
 

@@ -16,8 +16,8 @@
 #include <boost/beast/websocket/ssl.hpp>
 #include <deque>
 #include <mutex>
-#include <set>
 #include <optional>
+#include <set>
 #include <thread>
 #include <type_traits>
 #include <vector>
@@ -100,8 +100,8 @@ class WebSocketSession : public std::enable_shared_from_this<WebSocketSession<St
     ws_.set_option(websocket::stream_base::timeout::suggested(beast::role_type::server));
     ws_.read_message_max(64 * 1024);
     ws_.auto_fragment(false);  // one frame per message
-    ws_.async_accept(request, beast::bind_front_handler(&WebSocketSession::OnAccept,
-                                                        this->shared_from_this()));
+    ws_.async_accept(
+        request, beast::bind_front_handler(&WebSocketSession::OnAccept, this->shared_from_this()));
   }
 
  private:
@@ -147,8 +147,9 @@ class WebSocketSession : public std::enable_shared_from_this<WebSocketSession<St
   void DoWrite() {
     writing_ = true;
     ws_.text(true);
-    ws_.async_write(net::buffer(queue_.front()),
-                    beast::bind_front_handler(&WebSocketSession::OnWrite, this->shared_from_this()));
+    ws_.async_write(
+        net::buffer(queue_.front()),
+        beast::bind_front_handler(&WebSocketSession::OnWrite, this->shared_from_this()));
   }
 
   void OnWrite(beast::error_code ec, std::size_t) {
@@ -180,9 +181,8 @@ class HttpSession : public std::enable_shared_from_this<HttpSession<Stream>> {
     net::dispatch(stream_.get_executor(), [self = this->shared_from_this()] {
       if constexpr (kIsSsl<Stream>) {
         beast::get_lowest_layer(self->stream_).expires_after(kRequestTimeout);
-        self->stream_.async_handshake(
-            ssl::stream_base::server,
-            beast::bind_front_handler(&HttpSession::OnHandshake, self));
+        self->stream_.async_handshake(ssl::stream_base::server,
+                                      beast::bind_front_handler(&HttpSession::OnHandshake, self));
       } else {
         self->DoRead();
       }
@@ -322,13 +322,13 @@ class HttpSession : public std::enable_shared_from_this<HttpSession<Stream>> {
   template <class Response>
   void Write(std::shared_ptr<Response> res, bool close) {
     beast::get_lowest_layer(stream_).expires_after(std::chrono::minutes(10));
-    http::async_write(stream_, *res,
-                      [self = this->shared_from_this(), res, close](beast::error_code ec,
-                                                                    std::size_t) {
-                        if (ec) return;
-                        if (close) return self->DoClose();
-                        self->DoRead();
-                      });
+    http::async_write(
+        stream_, *res,
+        [self = this->shared_from_this(), res, close](beast::error_code ec, std::size_t) {
+          if (ec) return;
+          if (close) return self->DoClose();
+          self->DoRead();
+        });
   }
 
   void DoClose() {

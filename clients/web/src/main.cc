@@ -10,9 +10,9 @@
 #include <cstdio>
 #include <thread>
 
-#include <CLI/CLI.hpp>
 #include <spdlog/sinks/stdout_color_sinks.h>
 #include <spdlog/spdlog.h>
+#include <CLI/CLI.hpp>
 
 #include "craftscan/daemon/notify.h"
 #include "craftscan/web/console.h"
@@ -39,8 +39,8 @@ int main(int argc, char** argv) {
     spdlog::critical("{}", error);
     return 2;
   }
-  if (!listen.empty() && !web::ParseListen(listen, &config.listen_host, &config.listen_port,
-                                           &error)) {
+  if (!listen.empty() &&
+      !web::ParseListen(listen, &config.listen_host, &config.listen_port, &error)) {
     spdlog::critical("--listen: {}", error);
     return 2;
   }
@@ -63,11 +63,11 @@ int main(int argc, char** argv) {
     spdlog::critical("{}", error);
     return 1;
   }
-  const std::string url = std::string(config.tls() ? "https://" : "http://") +
-                          (config.listen_host.find(':') != std::string::npos
-                               ? "[" + config.listen_host + "]"
-                               : config.listen_host) +
-                          ":" + std::to_string(server->port()) + "/";
+  const std::string url =
+      std::string(config.tls() ? "https://" : "http://") +
+      (config.listen_host.find(':') != std::string::npos ? "[" + config.listen_host + "]"
+                                                         : config.listen_host) +
+      ":" + std::to_string(server->port()) + "/";
   spdlog::info("serving the console of {} station(s) at {}", config.stations.size(), url);
   std::printf("craftscan-web: listening on %s\n", url.c_str());
   std::fflush(stdout);

@@ -23,8 +23,8 @@ std::string AtLine(const YAML::Node& node) {
 bool ValidStationId(const std::string& id) {
   if (id.empty() || id.size() > 64) return false;
   for (char c : id) {
-    const bool ok = (c >= 'a' && c <= 'z') || (c >= 'A' && c <= 'Z') || (c >= '0' && c <= '9') ||
-                    c == '_';
+    const bool ok =
+        (c >= 'a' && c <= 'z') || (c >= 'A' && c <= 'Z') || (c >= '0' && c <= '9') || c == '_';
     if (!ok) return false;
   }
   return true;
@@ -118,12 +118,13 @@ bool ParseWebConfig(const std::string& yaml_text, WebConfig* config, std::string
   } catch (const YAML::Exception& e) {
     return Fail(error, std::string("not valid YAML: ") + e.what());
   }
-  const std::string hint = "expected a mapping starting with 'version: " +
-                           std::to_string(kWebConfigVersion) + "'";
+  const std::string hint =
+      "expected a mapping starting with 'version: " + std::to_string(kWebConfigVersion) + "'";
   if (!root || root.IsNull()) return Fail(error, "empty configuration; " + hint);
   if (!root.IsMap()) return Fail(error, "the configuration must be a mapping; " + hint);
   if (!root["version"]) {
-    return Fail(error, "version: missing; add 'version: " + std::to_string(kWebConfigVersion) + "'");
+    return Fail(error,
+                "version: missing; add 'version: " + std::to_string(kWebConfigVersion) + "'");
   }
   WebConfig c;
   for (const auto& entry : root) {

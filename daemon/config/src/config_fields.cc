@@ -388,6 +388,11 @@ std::vector<Field> MakeFields() {
   f.push_back(RealField("calibration.max_rms_px",
                         [](DaemonConfig& c) -> double& { return c.calibration.max_rms_px; },
                         {0, 10, true}));
+  f.push_back(BoolField("calibration.guided",
+                        [](DaemonConfig& c) -> bool& { return c.calibration.guided; }));
+  f.push_back(RealField("calibration.guided_max_s",
+                        [](DaemonConfig& c) -> double& { return c.calibration.guided_max_s; },
+                        {10, 3600}));
   f.push_back(IntField(
       "scan.views", [](DaemonConfig& c) -> int& { return c.scan.views; }, 2, 360));
   f.push_back(RealField("scan.step_deg", [](DaemonConfig& c) -> double& { return c.scan.step_deg; },

@@ -9,9 +9,13 @@
 #include <thread>
 #include <utility>
 
+#include <opencv2/calib3d.hpp>
 #include <opencv2/imgcodecs.hpp>
+#include <opencv2/imgproc.hpp>
 
+#include "craftscan/daemon/calibration_guide.h"
 #include "craftscan/daemon/jobs.h"
+#include "craftscan/daemon/live_preview.h"
 #include "craftscan/daemon/stages.h"
 #include "craftscan/pipeline/common/atomic_file.h"
 
@@ -85,6 +89,11 @@ CalibrationOutcome CalibrateStage::Run() {
     devices_->ShowObject();
     return Failure("calibrate: " + error);
   }
+  if (options_.guided) {
+    CalibrationOutcome out = RunGuided(dir, id);
+    devices_->ShowObject();
+    return out;
+  }
   std::vector<StereoBoardView> views;
   cv::Size image_size;
   const int wanted = options_.views;
@@ -118,6 +127,115 @@ CalibrationOutcome CalibrateStage::Run() {
                    std::to_string(wanted) + " views" + (error.empty() ? "" : " (" + error + ")"));
   }
   return Solve(views, image_size, dir, id);
+}
+
+CalibrationOutcome CalibrateStage::RunGuided(const std::string& dir, const std::string& id) {
+  std::vector<StereoBoardView> views;
+  cv::Size image_size;
+  std::unique_ptr<CalibrationGuide> guide;
+  std::int64_t first_ns = -1, last_preview_ns = -1;
+  std::uint32_t sequence = 0;
+  std::string error, last_advice;
+  const auto preview_period_ns =
+      static_cast<std::int64_t>(1e9 / std::max(0.1, options_.guided_preview_fps));
+  while (!context_.Stopping()) {
+    drivers::StereoFrame frame;
+    const drivers::DriverStatus s = devices_->Capture(&frame, context_.StopFlag());
+    if (context_.Stopping()) break;
+    if (!s.ok()) return Failure("calibrate: " + s.message);
+    const std::int64_t stamp = frame.left.timestamp_ns;
+    if (first_ns < 0) first_ns = stamp;
+    if (!guide) {
+      image_size = frame.left.image.size();
+      CalibrationGuideOptions o;
+      o.image_size = image_size;
+      o.chessboard = options_.board.type == BoardSpec::Type::kChessboard;
+      o.board_cols = options_.board.cols;
+      o.board_rows = options_.board.rows;
+      o.views_needed = options_.views;
+      o.max_views = std::max(options_.views * 2, options_.views + 10);
+      guide = std::make_unique<CalibrationGuide>(o);
+    }
+    StereoBoardView view = DetectStereoBoard("view" + std::to_string(views.size()),
+                                             frame.left.image, frame.right.image, options_.board);
+    GuideInput in;
+    in.stamp_ns = stamp;
+    in.left_found = view.left.found;
+    in.right_found = view.right.found;
+    in.left = view.left.image_points;
+    in.right = view.right.image_points;
+    if (view.left.found && options_.board.type == BoardSpec::Type::kChessboard) {
+      cv::Mat grey = frame.left.image;
+      if (grey.channels() == 3) cv::cvtColor(frame.left.image, grey, cv::COLOR_BGR2GRAY);
+      try {
+        in.blur_px = cv::estimateChessboardSharpness(
+            grey, cv::Size(options_.board.cols, options_.board.rows), view.left.image_points)[0];
+      } catch (const cv::Exception&) {
+        in.blur_px = 0;  // unknown: not judged
+      }
+    }
+    GuideDecision d = guide->Feed(in);
+    const bool taken = d.take;
+    if (d.take) {
+      char name[32];
+      std::snprintf(name, sizeof name, "/%03zu_", views.size());
+      StorePng(dir + name + "left.png", frame.left.image);
+      StorePng(dir + name + "right.png", frame.right.image);
+      views.push_back(std::move(view));
+      guide->Taken(in);
+      d = guide->Feed(in);  // "captured": the next advice
+      d.state = "captured";
+      d.take = taken;
+    }
+    if (d.take || d.advice != last_advice) {
+      std::string message = d.rejected.empty() ? d.advice : d.rejected + ": " + d.advice;
+      if (d.take) {
+        const std::array<double, 4> bars = guide->Bars();
+        char text[160];
+        std::snprintf(text, sizeof text,
+                      "view %d taken; diversity x %.2f y %.2f size %.2f skew %.2f, coverage "
+                      "%.0f %%; ",
+                      guide->views(), bars[0], bars[1], bars[2], bars[3], 100 * guide->Coverage());
+        message = text + d.advice;
+      }
+      context_.Progress("capture", guide->views(), options_.views, message);
+      last_advice = d.advice;
+    }
+    if (context_.sink && (last_preview_ns < 0 || stamp - last_preview_ns >= preview_period_ns ||
+                          d.state == "captured")) {
+      PreviewFrame p =
+          MakePreviewFrame(frame.left.image, frame.right.image, options_.guided_preview_width);
+      p.job_id = options_.job_id;
+      p.sequence = sequence++;
+      p.stamp_ns = stamp;
+      p.exposure_us = frame.settings.exposure_us;
+      p.gain_db = frame.settings.gain_db;
+      const double scale = static_cast<double>(p.size.width) / image_size.width;
+      p.overlay = guide->Overlay(d, in, scale).dump();
+      context_.sink->Preview(p);
+      last_preview_ns = stamp;
+    }
+    if (guide->Done()) break;
+    const double elapsed_s = static_cast<double>(stamp - first_ns) * 1e-9;
+    if (elapsed_s > options_.guided_max_s) {
+      const std::array<double, 4> bars = guide->Bars();
+      char text[200];
+      std::snprintf(text, sizeof text,
+                    "calibrate: not enough views after %.0f s: %d taken of %d; diversity x %.2f "
+                    "y %.2f size %.2f skew %.2f, coverage %.2f",
+                    elapsed_s, guide->views(), options_.views, bars[0], bars[1], bars[2], bars[3],
+                    guide->Coverage());
+      return Failure(text);
+    }
+  }
+  if (context_.Stopping()) return Cancelled("calibrate");
+  CalibrationOutcome out = Solve(views, image_size, dir, id);
+  const std::array<double, 4> bars = guide ? guide->Bars() : std::array<double, 4>{};
+  out.result["guided"] = {
+      {"views", views.size()},
+      {"coverage", guide ? guide->Coverage() : 0.0},
+      {"diversity", {{"x", bars[0]}, {"y", bars[1]}, {"size", bars[2]}, {"skew", bars[3]}}}};
+  return out;
 }
 
 CalibrationOutcome CalibrateStage::Solve(const std::vector<StereoBoardView>& views,

@@ -312,6 +312,8 @@ std::unique_ptr<Daemon> Daemon::Create(const DaemonConfig& config, std::string* 
   jobs.turntable_board = config.calibration.turntable_board;
   jobs.turntable_board_thickness_mm = config.calibration.turntable_board_thickness_mm;
   jobs.calibration_views = config.calibration.views;
+  jobs.calibration_guided = config.calibration.guided;
+  jobs.calibration_guided_max_s = config.calibration.guided_max_s;
   jobs.max_rms_px = config.calibration.max_rms_px;
   jobs.calibration.rectification.zero_disparity = false;
   impl->jobs = std::make_unique<JobEngine>(jobs, impl->devices.get(), impl->store.get(),

@@ -713,10 +713,13 @@ bool JobEngine::StartCalibrateTurntable(JobInfo* info, std::string* error) {
 }
 
 JobEngine::JobOutcome JobEngine::RunCalibrate() {
-  CalibrateStage stage(
-      Context(nullptr), devices_,
-      {options_.data_dir, options_.board, options_.calibration_views,
-       options_.calibration_max_attempts, options_.max_rms_px, options_.calibration});
+  CalibrateStage::Options o{options_.data_dir,          options_.board,
+                            options_.calibration_views, options_.calibration_max_attempts,
+                            options_.max_rms_px,        options_.calibration};
+  o.guided = options_.calibration_guided;
+  o.guided_max_s = options_.calibration_guided_max_s;
+  o.job_id = Current().id;
+  CalibrateStage stage(Context(nullptr), devices_, o);
   return EndCalibration("calibrate", stage.Run());
 }
 

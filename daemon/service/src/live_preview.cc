@@ -22,9 +22,10 @@ LivePreviewImage MakeLivePreviewImage(const cv::Mat& image, int width) {
   out.focus.reserve(kPreviewGridCols * kPreviewGridRows);
   for (int r = 0; r < kPreviewGridRows; ++r) {
     for (int c = 0; c < kPreviewGridCols; ++c) {
-      const cv::Rect cell(c * grey.cols / kPreviewGridCols, r * grey.rows / kPreviewGridRows,
-                          (c + 1) * grey.cols / kPreviewGridCols - c * grey.cols / kPreviewGridCols,
-                          (r + 1) * grey.rows / kPreviewGridRows - r * grey.rows / kPreviewGridRows);
+      const cv::Rect cell(
+          c * grey.cols / kPreviewGridCols, r * grey.rows / kPreviewGridRows,
+          (c + 1) * grey.cols / kPreviewGridCols - c * grey.cols / kPreviewGridCols,
+          (r + 1) * grey.rows / kPreviewGridRows - r * grey.rows / kPreviewGridRows);
       cv::Scalar mean, stddev;
       cv::meanStdDev(laplacian(cell), mean, stddev);
       out.focus.push_back(static_cast<float>(stddev[0] * stddev[0]));
@@ -66,8 +67,8 @@ PreviewFrame MakePreviewFrame(const cv::Mat& left, const cv::Mat& right, int wid
   f.left = MakeLivePreviewImage(left, width);
   f.right = MakeLivePreviewImage(right, width);
   const int w = width > 0 && width < left.cols ? width : left.cols;
-  f.size = cv::Size(w, std::max(1, static_cast<int>(left.rows * (static_cast<double>(w) / left.cols) +
-                                                    0.5)));
+  f.size = cv::Size(
+      w, std::max(1, static_cast<int>(left.rows * (static_cast<double>(w) / left.cols) + 0.5)));
   f.grid_cols = kPreviewGridCols;
   f.grid_rows = kPreviewGridRows;
   return f;

@@ -17,6 +17,7 @@
 #include "craftscan/drivers/reconnect.h"
 #include "craftscan/sim/driver_options.h"
 #include "craftscan/sim/station.h"
+#include "craftscan/sim/technician.h"
 
 namespace craftscan::sim {
 namespace {
@@ -129,16 +130,35 @@ class SimCamera final : public drivers::StereoCamera {
         // The board moved since the last frame: a scene of its own at the
         // shared scene's turntable angle (cheap: ~2 ms to place the board,
         // microseconds to build a board-only scene).
-        SceneOptions options = SimHeldBoardSceneOptions(o, *station_, id);
+        TechnicianFrame technician;
+        const double seconds = static_cast<double>(id) / o.technician_fps;
+        SceneOptions options;
+        if (o.technician) {
+          technician = TechnicianAt(*station_, o.board, seconds);
+          options = HeldBoardScene(*station_, o.board, technician.rig_from_board);
+          options.seed = o.seed;
+        } else {
+          options = SimHeldBoardSceneOptions(o, *station_, id);
+        }
         {
           std::lock_guard scene_lock(shared_->mutex);
           options.turntable_angle_rad = shared_->scene->turntable_angle_rad();
           stamp = shared_->host.now_ns();
+          // The technician's frames are stamped in their own time, so that a
+          // hold of 1.5 s lasts 1.5 s however long a render takes.
+          if (o.technician) {
+            if (technician_epoch_ns_ == 0) technician_epoch_ns_ = stamp;
+            stamp = technician_epoch_ns_ + static_cast<std::int64_t>(seconds * 1e9);
+          }
         }
         std::string error;
         const std::unique_ptr<Scene> scene = Scene::Create(options, &error);
         if (!scene) return Error(StatusCode::kFault, "Capture: held board scene: " + error);
         render = station_->Render(*scene, id, RenderOutputs::kImagesOnly);
+        if (o.technician && render.IsUsable()) {
+          ApplyMotionBlur(technician.blur_px, &render.left);
+          ApplyMotionBlur(technician.blur_px, &render.right);
+        }
       } else {
         std::lock_guard scene_lock(shared_->mutex);
         stamp = shared_->host.now_ns();
@@ -270,6 +290,7 @@ class SimCamera final : public drivers::StereoCamera {
   bool configured_ = false;
   std::unique_ptr<SimStation> station_;
   std::uint64_t next_frame_id_ = 0;
+  std::int64_t technician_epoch_ns_ = 0;  // host time of the technician's first frame
   int frames_this_connection_ = 0;
   int failures_left_ = 0;
 };

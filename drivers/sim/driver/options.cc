@@ -190,6 +190,9 @@ bool SimDriverOptions::IsValid(std::string* why) const {
   }
   if (threads < 1 || threads > 256) return Fail(why, "threads must be in [1, 256]");
   if (supersampling < 1 || supersampling > 4) return Fail(why, "supersampling must be in [1, 4]");
+  if (!(technician_fps > 0 && technician_fps <= 60)) {
+    return Fail(why, "technician_fps must be in (0, 60]");
+  }
   if (scene != SimSceneType::kObject) {
     std::string board_why;
     if (!board.IsValid(&board_why)) {
@@ -253,6 +256,12 @@ bool SimDriverOptionsFromConfig(const drivers::DriverConfig& config, SimDriverOp
       continue;
     } else if (key == "supersampling") {
       ok = ParseNumber(value, &o.supersampling);
+    } else if (key == "technician") {
+      int flag = 0;
+      ok = ParseNumber(value, &flag) && (flag == 0 || flag == 1);
+      o.technician = flag == 1;
+    } else if (key == "technician_fps") {
+      ok = ParseNumber(value, &o.technician_fps);
     } else if (key == "object") {
       ok = ObjectTypeFromString(value, &o.object);
     } else if (key == "mesh" || key.rfind("mesh_", 0) == 0) {

@@ -20,7 +20,7 @@
 namespace craftscan::testing {
 
 struct HttpReply {
-  int status = 0;  // 0: no answer
+  int status = 0;                              // 0: no answer
   std::map<std::string, std::string> headers;  // lower-case names
   std::string body;
 };
@@ -99,14 +99,14 @@ inline bool ParseHead(const std::string& raw, HttpReply* reply, std::size_t* hea
 // One request on a new connection (Connection: close); `extra` are whole
 // header lines ("Name: value").
 inline HttpReply Request(std::uint16_t port, const std::string& method, const std::string& target,
-                         const std::vector<std::string>& extra = {},
-                         const std::string& body = "",
+                         const std::vector<std::string>& extra = {}, const std::string& body = "",
                          std::chrono::milliseconds timeout = std::chrono::seconds(60)) {
   HttpReply reply;
   Socket s(port);
   if (!s.ok()) return reply;
-  std::string request = method + " " + target + " HTTP/1.1\r\nHost: 127.0.0.1:" +
-                        std::to_string(port) + "\r\nConnection: close\r\n";
+  std::string request = method + " " + target +
+                        " HTTP/1.1\r\nHost: 127.0.0.1:" + std::to_string(port) +
+                        "\r\nConnection: close\r\n";
   for (const std::string& h : extra) request += h + "\r\n";
   if (!body.empty() || method == "POST") {
     request += "Content-Length: " + std::to_string(body.size()) + "\r\n";
@@ -191,7 +191,8 @@ class WebSocketClient {
       } else if (length == 127) {
         if (raw_.size() < 10) return false;
         length = 0;
-        for (int i = 0; i < 8; ++i) length = (length << 8) | static_cast<unsigned char>(raw_[2 + i]);
+        for (int i = 0; i < 8; ++i)
+          length = (length << 8) | static_cast<unsigned char>(raw_[2 + i]);
         header = 10;
       }
       if (raw_.size() < header + length) return false;

@@ -9,6 +9,7 @@
 #include <filesystem>
 #include <fstream>
 #include <memory>
+#include <set>
 #include <string>
 #include <thread>
 
@@ -30,6 +31,9 @@ constexpr const char* kPost[] = {"X-Craftscan-Request: 1", "Content-Type: applic
 
 class ConsoleStation {
  public:
+  ConsoleStation() = default;
+  // extra_sim: DaemonFixture's (", key: value" of the sim driver).
+  explicit ConsoleStation(std::string extra_sim) : fixture_("640x512", std::move(extra_sim)) {}
   bool Start(std::string* error) {
     if (!fixture_.Prepare(error) || !fixture_.Start(error)) return false;
     assets_ = fixture_.root() + "/assets";
@@ -139,7 +143,8 @@ TEST(CraftscanWeb, SignInRolesAndEveryRefusal) {
   // Forged and malformed requests.
   r = Request(port, "POST", "/api/command", {kPost[1], observer}, R"({"verb": "status"})");
   EXPECT_EQ(r.status, 403) << "no X-Craftscan-Request: " << r.body;
-  r = Request(port, "POST", "/api/command", {kPost[0], kPost[1], observer, "Origin: http://evil.example"},
+  r = Request(port, "POST", "/api/command",
+              {kPost[0], kPost[1], observer, "Origin: http://evil.example"},
               R"({"verb": "status"})");
   EXPECT_EQ(r.status, 403) << r.body;
   EXPECT_NE(Body(r).value("error", "").find("cross-origin"), std::string::npos) << r.body;
@@ -261,8 +266,9 @@ TEST(CraftscanWeb, LivePreviewWhileIdleGivesWayToAScan) {
   EXPECT_EQ(exposure, 5000);
 
   // A scan stops the preview and runs; no preview frame during it.
-  r = station.Post(op, "/api/command",
-                   {{"verb", "scan"}, {"args", {{"object", "box"}, {"views", 2}, {"step_deg", 30}}}});
+  r = station.Post(
+      op, "/api/command",
+      {{"verb", "scan"}, {"args", {{"object", "box"}, {"views", 2}, {"step_deg", 30}}}});
   ASSERT_EQ(Body(r).value("code_name", ""), "ok") << r.body;
   const std::string job = Body(r)["result"].value("id", "");
   r = station.Post(op, "/api/command", {{"verb", "preview"}, {"args", {{"action", "start"}}}});
@@ -295,6 +301,81 @@ TEST(CraftscanWeb, LivePreviewWhileIdleGivesWayToAScan) {
   EXPECT_TRUE(ended);
 }
 
+// Guided calibration: the sim's technician moves the board, holds it,
+// blurs it, takes it out of view and too close; the daemon takes views only
+// when it is held still in a new pose, says what to do, and the calibration
+// is accepted. The console relays the feedback (preview overlays).
+TEST(CraftscanWeb, GuidedCalibrationWithASimulatedTechnician) {
+  ConsoleStation station(", technician: 1, technician_fps: 4, supersampling: 1");
+  station.fixture().calibration_yaml = "{guided: true, views: 12, guided_max_s: 300}";
+  std::string error;
+  ASSERT_TRUE(station.Start(&error)) << error;
+  const std::string admin = station.SignIn(kAdminToken);
+  ASSERT_FALSE(admin.empty()) << station.fixture().Log();
+  WebSocketClient ws(station.port(), {admin});
+  ASSERT_EQ(ws.status(), 101);
+  HttpReply r = station.Post(admin, "/api/command", {{"verb", "calibrate"}});
+  ASSERT_EQ(Body(r).value("code_name", ""), "ok") << r.body;
+  const std::string job = Body(r)["result"].value("id", "");
+
+  std::set<std::string> states, rejections, advice;
+  int overlays = 0, max_views = 0;
+  std::int64_t first_stamp = 0, last_stamp = 0;
+  std::string final_stage, final_message;
+  const auto deadline = std::chrono::steady_clock::now() + 600s;
+  while (final_stage.empty() && std::chrono::steady_clock::now() < deadline) {
+    const json m = json::parse(ws.Next(5s), nullptr, false);
+    if (!m.is_object()) continue;
+    if (m.value("type", "") == "preview" && m.value("job_id", "") == job) {
+      const json& o = m["overlay"];
+      if (!o.is_object()) continue;
+      ++overlays;
+      if (first_stamp == 0) first_stamp = m.value("stamp_ns", std::int64_t{0});
+      last_stamp = m.value("stamp_ns", std::int64_t{0});
+      states.insert(o.value("state", ""));
+      if (!o.value("rejected", "").empty()) rejections.insert(o.value("rejected", ""));
+      advice.insert(o.value("advice", ""));
+      max_views = std::max(max_views, o.value("views_accepted", 0));
+      if (o["board"].is_object()) {
+        for (const json& p : o["board"]["left"]) {
+          EXPECT_LE(p[0].get<double>(), m.value("width", 0) + 1.0) << "corners in preview px";
+        }
+      }
+    } else if (m.value("type", "") == "progress" && m.value("job_id", "") == job) {
+      const std::string stage = m.value("stage", "");
+      if (m.value("message", "").find("taken;") != std::string::npos) {
+        std::printf("  %s\n", m.value("message", "").c_str());
+      }
+      if (stage == "done" || stage == "failed" || stage == "cancelled") {
+        final_stage = stage;
+        final_message = m.value("message", "");
+      }
+    }
+  }
+  const double technician_s = static_cast<double>(last_stamp - first_stamp) * 1e-9;
+  std::printf("guided calibration: %s; %d overlays over %.0f s of technician time; states:",
+              final_message.c_str(), overlays, technician_s);
+  for (const std::string& s : states) std::printf(" %s", s.c_str());
+  std::printf("; rejected:");
+  for (const std::string& s : rejections) std::printf(" '%s'", s.c_str());
+  std::printf("\n");
+  for (const std::string& a : advice) std::printf("  advice: %s\n", a.c_str());
+  ASSERT_EQ(final_stage, "done") << final_message << station.fixture().Log().substr(0, 4000);
+  EXPECT_GE(max_views, 12);
+  EXPECT_LE(technician_s, 180) << "accepted within 3 minutes of the technician's time";
+  for (const char* s : {"searching", "moving", "holding", "captured"}) {
+    EXPECT_TRUE(states.count(s)) << "never " << s;
+  }
+  // The verdict, through the console's relay of status (the job's result).
+  r = station.Post(admin, "/api/command", {{"verb", "status"}});
+  const json result = Body(r)["result"].value("job", json::object()).value("result", json());
+  EXPECT_TRUE(result.value("accepted", false)) << result;
+  EXPECT_LE(result.value("rms_stereo_px", 9.0), 0.25) << result;
+  EXPECT_GE(result["guided"].value("coverage", 0.0), 0.75) << result;
+  std::printf("rms %.3f px, epipolar %.3f px\n", result.value("rms_stereo_px", 0.0),
+              result.value("epipolar_mean_px", 0.0));
+}
+
 TEST(CraftscanWeb, ScanLiveThenDownloadOutputsThenStationGone) {
   ConsoleStation station;
   std::string error;
@@ -305,9 +386,9 @@ TEST(CraftscanWeb, ScanLiveThenDownloadOutputsThenStationGone) {
   WebSocketClient ws(port, {op});
   ASSERT_EQ(ws.status(), 101);
 
-  HttpReply r = station.Post(op, "/api/command",
-                             {{"verb", "scan"},
-                              {"args", {{"object", "box"}, {"views", 4}, {"step_deg", 90}}}});
+  HttpReply r = station.Post(
+      op, "/api/command",
+      {{"verb", "scan"}, {"args", {{"object", "box"}, {"views", 4}, {"step_deg", 90}}}});
   ASSERT_EQ(r.status, 200) << r.body;
   ASSERT_EQ(Body(r).value("code_name", ""), "ok") << r.body;
   const std::string job = Body(r)["result"].value("id", "");
@@ -326,6 +407,9 @@ TEST(CraftscanWeb, ScanLiveThenDownloadOutputsThenStationGone) {
       EXPECT_GT(m.value("right", "").size(), 1000u);
     } else if (m.value("type", "") == "progress" && m.value("job_id", "") == job) {
       const std::string stage = m.value("stage", "");
+      if (m.value("message", "").find("taken;") != std::string::npos) {
+        std::printf("  %s\n", m.value("message", "").c_str());
+      }
       if (stage == "done" || stage == "failed" || stage == "cancelled") final_stage = stage;
     }
   }

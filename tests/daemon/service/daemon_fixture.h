@@ -101,6 +101,8 @@ class DaemonFixture {
   // False: the pipeline keeps the daemon's default working volume (what a
   // new station starts with) instead of the one fitted to the carved box.
   bool box_volume = true;
+  // When not empty, the config's calibration mapping, e.g. "{guided: true}".
+  std::string calibration_yaml;
   // When not empty, replaces the devices Prepare writes (the sim station):
   // the YAML lines under "devices:", e.g. "  camera: {driver: aravis, ...}\n".
   std::string devices_yaml;
@@ -147,6 +149,7 @@ class DaemonFixture {
            << (box_volume ? ", volume_radius_mm: 65, volume_max_height_mm: 70, platter_radius_mm: 0"
                           : "")
            << pipeline_extra << "}\n";
+    if (!calibration_yaml.empty()) config << "calibration: " << calibration_yaml << "\n";
     config.close();
     if (!with_calibration) return true;
     sim::SimDriverOptions options;

@@ -36,7 +36,8 @@ TEST(LivePreview, JpegHistogramClippingAndFocus) {
   ASSERT_EQ(p.focus.size(), static_cast<std::size_t>(kPreviewGridCols * kPreviewGridRows));
   // Row 1 (no patches): the sharp left cells measure far more than the blurred right ones.
   for (int c = 0; c < kPreviewGridCols / 2; ++c) {
-    EXPECT_GT(p.focus[kPreviewGridCols + c], 20 * p.focus[kPreviewGridCols + kPreviewGridCols - 1 - c])
+    EXPECT_GT(p.focus[kPreviewGridCols + c],
+              20 * p.focus[kPreviewGridCols + kPreviewGridCols - 1 - c])
         << "column " << c;
   }
 

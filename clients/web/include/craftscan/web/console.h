@@ -22,8 +22,8 @@
 namespace craftscan::web {
 
 struct HttpRequest {
-  std::string method;  // "GET", "POST", ...
-  std::string target;  // path and query, as received
+  std::string method;                          // "GET", "POST", ...
+  std::string target;                          // path and query, as received
   std::map<std::string, std::string> headers;  // names in lower case
   std::string body;
   std::string peer;  // "address:port", for the log
@@ -68,8 +68,7 @@ class Console {
   // A WebSocket upgrade of /api/ws: true with *station when the request
   // carries a valid session and an acceptable Origin; else false with the
   // refusal to send.
-  bool AuthorizeWebSocket(const HttpRequest& request, std::string* station,
-                          HttpResponse* refusal);
+  bool AuthorizeWebSocket(const HttpRequest& request, std::string* station, HttpResponse* refusal);
 
   // Live updates of `station` (JSON text messages, API.md). The sink is
   // called from the console's threads, must not block, and must not call

@@ -48,7 +48,6 @@ bool ParseWebConfig(const std::string& yaml_text, WebConfig* config, std::string
 bool LoadWebConfig(const std::string& path, WebConfig* config, std::string* error);
 
 // "host:port" → parts. Host may be an IPv4 address, a name or [IPv6].
-bool ParseListen(const std::string& text, std::string* host, std::uint16_t* port,
-                 std::string* why);
+bool ParseListen(const std::string& text, std::string* host, std::uint16_t* port, std::string* why);
 
 }  // namespace craftscan::web

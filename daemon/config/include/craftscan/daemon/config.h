@@ -172,6 +172,12 @@ struct CalibrationSettings {
   double turntable_board_thickness_mm = 3;  // [0, 100]
   int views = 15;                           // board views captured per calibration, 3..1000
   double max_rms_px = 0.5;  // accept threshold on the reprojection RMS (px), (0, 10]
+  // Guided: the calibrate job watches the live stream, takes a view when the
+  // board is held still in a new pose and tells the person what to do next
+  // (calibration_guide.h); `views` are then the views needed. Off: it takes
+  // `views` frames as they come (the simulator's posed board).
+  bool guided = false;
+  double guided_max_s = 600;  // give up after this long, [10, 3600]
 };
 
 struct ScanSettings {

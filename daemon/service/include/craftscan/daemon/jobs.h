@@ -101,6 +101,8 @@ struct JobEngineOptions {
   BoardSpec turntable_board;  // lying on the platter
   int calibration_views = 16;
   int calibration_max_attempts = 40;  // captures tried before giving up
+  bool calibration_guided = false;    // CalibrateStage::Options::guided
+  double calibration_guided_max_s = 600;
   double max_rms_px = 0.5;
   StereoCalibrationOptions calibration;
   std::vector<double> turntable_angles_deg{0, 60, 120, 180, 240, 300};

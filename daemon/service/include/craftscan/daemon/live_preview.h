@@ -17,10 +17,10 @@ namespace craftscan::daemon {
 
 struct LivePreviewImage {
   std::vector<std::uint8_t> jpeg;
-  std::vector<float> focus;             // grid_rows × grid_cols, row-major
+  std::vector<float> focus;              // grid_rows × grid_cols, row-major
   std::vector<std::uint32_t> histogram;  // 64 bins of 4 grey levels
-  float clipped_pct = 0;                // pixels with a channel at 255, % of the image
-  float black_pct = 0;                  // pixels with every channel at 0, %
+  float clipped_pct = 0;                 // pixels with a channel at 255, % of the image
+  float black_pct = 0;                   // pixels with every channel at 0, %
 };
 
 struct PreviewFrame {

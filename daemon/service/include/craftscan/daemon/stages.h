@@ -278,6 +278,16 @@ class CalibrateStage {
     int max_attempts = 40;
     double max_rms_px = 0.5;
     StereoCalibrationOptions calibration;
+    // Guided (calibration_guide.h): watch the stream, take a view when the
+    // board is held still, sharp and in a new pose, advise the person, until
+    // the guide is done (`views` is then the views needed) or guided_max_s
+    // of frame time pass. Preview frames with the guide's overlay are
+    // streamed at about guided_preview_fps (JobSink::Preview).
+    bool guided = false;
+    double guided_max_s = 600;
+    double guided_preview_fps = 4;
+    int guided_preview_width = 640;
+    std::string job_id;  // for the preview frames
   };
   CalibrateStage(StageContext context, DeviceManager* devices, Options options)
       : context_(std::move(context)), devices_(devices), options_(std::move(options)) {}
@@ -286,6 +296,8 @@ class CalibrateStage {
  private:
   CalibrationOutcome Solve(const std::vector<StereoBoardView>& views, cv::Size image_size,
                            const std::string& dir, const std::string& id);
+  // The guided capture loop: the views, or a failure (its message).
+  CalibrationOutcome RunGuided(const std::string& dir, const std::string& id);
 
   StageContext context_;
   DeviceManager* devices_;

@@ -27,7 +27,7 @@ struct VerbRole {
   std::string_view verb;
   Role role;
 };
-constexpr std::array<VerbRole, 13> kVerbRoles = {{
+constexpr std::array<VerbRole, 14> kVerbRoles = {{
     {"status", Role::kObserver},
     {"sessions", Role::kObserver},
     {"devices", Role::kObserver},
@@ -41,6 +41,7 @@ constexpr std::array<VerbRole, 13> kVerbRoles = {{
     {"preview", Role::kOperator},
     {"calibrate", Role::kAdmin},
     {"calibrate-turntable", Role::kAdmin},
+    {"delete", Role::kAdmin},
 }};
 
 std::optional<TokenAuthority> Fail(std::string* error, std::string message) {

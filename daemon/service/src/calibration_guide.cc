@@ -202,8 +202,8 @@ GuideDecision CalibrationGuide::Feed(const GuideInput& f) {
 void CalibrationGuide::Taken(const GuideInput& f) {
   params_.push_back(Params(f.left));
   for (const cv::Point2f& c : f.left) {
-    const int col = std::clamp(static_cast<int>(c.x * o_.grid_cols / o_.image_size.width), 0,
-                               o_.grid_cols - 1);
+    const int col =
+        std::clamp(static_cast<int>(c.x * o_.grid_cols / o_.image_size.width), 0, o_.grid_cols - 1);
     const int row = std::clamp(static_cast<int>(c.y * o_.grid_rows / o_.image_size.height), 0,
                                o_.grid_rows - 1);
     covered_[static_cast<std::size_t>(row * o_.grid_cols + col)] = true;
@@ -221,7 +221,8 @@ nlohmann::json CalibrationGuide::Overlay(const GuideDecision& d, const GuideInpu
     return list;
   };
   nlohmann::json board = nullptr;
-  if (!f.left.empty() || !f.right.empty()) board = {{"left", points(f.left)}, {"right", points(f.right)}};
+  if (!f.left.empty() || !f.right.empty())
+    board = {{"left", points(f.left)}, {"right", points(f.right)}};
   nlohmann::json cells = nlohmann::json::array();
   for (bool c : covered_) cells.push_back(c ? 1 : 0);
   const std::array<double, 4> bars = Bars();

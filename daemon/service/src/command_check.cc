@@ -54,6 +54,7 @@ const std::map<std::string, std::map<std::string, ArgSpec>>& VerbArguments() {
         {"fps", {ArgType::kNumber, false, 0.1, 15}},
         {"width", {ArgType::kInt, false, 64, 4096}},
         {"seconds", {ArgType::kNumber, false, 1, 600}}}},
+      {"delete", {{"session", {ArgType::kString, true, 1, 128}}}},
       {"calibrate", {}},
       {"calibrate-turntable", {}},
   };

@@ -145,9 +145,9 @@ CommandReply CommandHandler::Dispatch(const std::string& verb, const nlohmann::j
     return done(ReplyCode::kBusy, "busy: " + current.id + " (" + current.verb + ") is running",
                 JobJson(current));
   }
-  const bool needs_store = verb == "sessions" || verb == "get" || verb == "capture" ||
-                           verb == "scan" || verb == "resume" || verb == "calibrate" ||
-                           verb == "calibrate-turntable";
+  const bool needs_store = verb == "sessions" || verb == "get" || verb == "delete" ||
+                           verb == "capture" || verb == "scan" || verb == "resume" ||
+                           verb == "calibrate" || verb == "calibrate-turntable";
   if (needs_store && !store_) return done(ReplyCode::kUnavailable, store_unavailable_);
   if (job_verb && !devices_->IsOpen()) {
     return done(ReplyCode::kUnavailable, "the devices are not open; see the status topic");
@@ -196,6 +196,21 @@ CommandReply CommandHandler::Dispatch(const std::string& verb, const nlohmann::j
     return done(
         ReplyCode::kOk, verify.IsIntact() ? "intact" : "damaged",
         {{"manifest", manifest}, {"intact", verify.IsIntact()}, {"problems", verify.problems}});
+  }
+  if (verb == "delete") {
+    const std::string id = args["session"];
+    Status moved;
+    const std::string trash = store_->MoveToTrash(id, &moved);
+    if (trash.empty()) {
+      const ReplyCode code = moved.code() == ErrorCode::kNotFound             ? ReplyCode::kNotFound
+                             : moved.code() == ErrorCode::kFailedPrecondition ? ReplyCode::kBusy
+                             : moved.code() == ErrorCode::kInvalidArgument ? ReplyCode::kBadArgument
+                                                                           : ReplyCode::kFailed;
+      return done(code, moved.message());
+    }
+    return done(
+        ReplyCode::kOk, "session " + id + " moved to the trash",
+        {{"session", id}, {"trash", trash}, {"warning", moved.ok() ? "" : moved.message()}});
   }
   if (verb == "cancel") {
     if (!jobs_->Cancel(&error)) return done(ReplyCode::kFailed, error);

@@ -191,6 +191,35 @@ std::unique_ptr<Session> SessionStore::OpenSession(const std::string& id, Status
   return MakeSession(id, dir, std::move(lock), status);
 }
 
+std::string SessionStore::MoveToTrash(const std::string& id, Status* status) {
+  // Held open by no one: taking its lock proves it (and keeps a job from
+  // opening it while it moves).
+  std::unique_ptr<Session> session = OpenSession(id, status);
+  if (!session) return "";
+  const fs::path trash = fs::path(sessions_dir_).parent_path() / "trash";
+  std::error_code ec;
+  fs::create_directories(trash, ec);
+  if (ec) {
+    SetStatus(status, Status(ErrorCode::kIoError, "cannot make the trash folder '" +
+                                                      trash.string() + "': " + ec.message()));
+    return "";
+  }
+  fs::path target = trash / id;
+  for (int n = 2; fs::exists(target) && n < 1000; ++n)
+    target = trash / (id + "-" + std::to_string(n));
+  const std::string from = sessions_dir_ + "/" + id;
+  if (::rename(from.c_str(), target.c_str()) != 0) {
+    SetStatus(status,
+              Status(ErrorCode::kIoError, "cannot move session " + id + " to '" + target.string() +
+                                              "': " + std::strerror(errno)));
+    return "";
+  }
+  Status synced = internal::FsyncDir(sessions_dir_);
+  if (synced.ok()) synced = internal::FsyncDir(trash.string());
+  SetStatus(status, synced.ok() ? Status() : synced.WithContext("session " + id + " moved"));
+  return target.string();
+}
+
 std::vector<std::string> SessionStore::MarkInterrupted(std::vector<std::string>* problems) {
   std::vector<std::string> marked;
   std::vector<std::string> names;

@@ -128,8 +128,8 @@ TEST(CalibrationGuide, AdviceFollowsTheWeakestBarAndDoneNeedsEverything) {
   ASSERT_TRUE(take(Board(640, 200, 110, 10)));
   ASSERT_TRUE(take(Board(640, 830, 110, -10)));
   const std::array<double, 4> bars = guide.Bars();
-  std::printf("bars x %.2f y %.2f size %.2f skew %.2f, coverage %.2f\n", bars[0], bars[1],
-              bars[2], bars[3], guide.Coverage());
+  std::printf("bars x %.2f y %.2f size %.2f skew %.2f, coverage %.2f\n", bars[0], bars[1], bars[2],
+              bars[3], guide.Coverage());
   EXPECT_EQ(bars[0], 1.0);
   EXPECT_EQ(bars[1], 1.0);
   EXPECT_TRUE(guide.Done() == (bars[2] >= 1 && bars[3] >= 1 && guide.Coverage() >= 0.75));

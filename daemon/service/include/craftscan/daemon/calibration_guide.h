@@ -20,9 +20,9 @@
 // x, y and size: a stereo pair needs the whole board in both images, so its
 // centre stays within their overlap (with the station's 100 mm baseline at
 // 300–500 mm, x spans about 0.45 of the left image), and a board a person
-// can hold steady fills a fifth to a third of the picture. Done when at least views_needed views are taken,
-// every bar reaches bar_done and coverage reaches coverage_done; or when
-// max_views are taken.
+// can hold steady fills a fifth to a third of the picture. Done when at least views_needed views
+// are taken, every bar reaches bar_done and coverage reaches coverage_done; or when max_views are
+// taken.
 #pragma once
 
 #include <array>
@@ -59,10 +59,10 @@ struct GuideInput {
 };
 
 struct GuideDecision {
-  bool take = false;      // store this frame's pair as a calibration view
-  std::string state;      // searching | moving | holding | captured | rejected
-  std::string rejected;   // why a still board was not taken ("" = not rejected)
-  std::string advice;     // what the person should do now
+  bool take = false;     // store this frame's pair as a calibration view
+  std::string state;     // searching | moving | holding | captured | rejected
+  std::string rejected;  // why a still board was not taken ("" = not rejected)
+  std::string advice;    // what the person should do now
 };
 
 class CalibrationGuide {

@@ -57,6 +57,8 @@
 //                                        until `seconds` after the last start; refused busy
 //                                        while a job runs; any job verb stops it first
 //   calibrate, calibrate-turntable       admin; none
+//   delete                               admin; {"session": str}: the session folder moved to
+//                                        <data_dir>/trash (busy while a job holds it)
 //
 // get with files: {"session": str, "files": "all" | [name, ...],
 //                  "chunk_bytes": int 4096..4194304 (default 1 MiB)}

@@ -278,6 +278,14 @@ class SessionStore {
   // Thread-safe.
   std::unique_ptr<Session> OpenSession(const std::string& id, Status* status);
 
+  // Moves session `id` out of the store into <data_dir>/trash/<id> (with
+  // "-2", "-3"... when that is taken), never deleting a byte: an admin
+  // empties the trash by hand. Refused (kFailedPrecondition) while anyone
+  // holds the session open (a job), kNotFound for an unknown id,
+  // kInvalidArgument for an invalid one. Returns the trash path ("" on
+  // failure, with *status). Thread-safe.
+  std::string MoveToTrash(const std::string& id, Status* status);
+
   // Checks the files of session `id` against its manifest without taking its
   // lock (reads only; meaningful when no one is writing it). An invalid or
   // unknown id gives manifest_ok = false with the reason in problems.

@@ -13,99 +13,15 @@
 // Screenshots of each page in the artifacts folder.
 //
 //   node console.mjs --station-harness PATH --assets DIR
-import { spawn } from 'node:child_process';
-import readline from 'node:readline';
 import { runBrowserTest, check, drag, fractionChanged } from './lib.mjs';
+import {
+  consolePage, harnessArgs, pageFetch, sel, signIn, startStation, textOf, waitUntil,
+} from './station.mjs';
 
-function arg(name) {
-  const i = process.argv.indexOf(name);
-  return i > 0 ? process.argv[i + 1] : undefined;
-}
-const harnessPath = arg('--station-harness');
-const assets = arg('--assets');
-check(harnessPath && assets, 'usage: console.mjs --station-harness PATH --assets DIR');
-
-// Starts console_station; resolves {info, send(command), stop()}.
-function startStation() {
-  return new Promise((resolve, reject) => {
-    const child = spawn(harnessPath, ['--assets', assets], { stdio: ['pipe', 'pipe', 'inherit'] });
-    const lines = readline.createInterface({ input: child.stdout });
-    const waiting = [];
-    let info = null;
-    lines.on('line', (line) => {
-      if (!info) {
-        info = JSON.parse(line);
-        resolve({
-          info,
-          send: (command) => new Promise((done) => {
-            waiting.push(done);
-            child.stdin.write(command + '\n');
-          }),
-          stop: () => { child.stdin.end(); child.kill('SIGTERM'); },
-        });
-      } else if (waiting.length) {
-        waiting.shift()(line);
-      }
-    });
-    child.on('exit', (code) => { if (!info) reject(new Error(`console_station exited with ${code}`)); });
-  });
-}
-
-// A page that may load the console's own URLs only.
-async function consolePage(browser, base) {
-  const page = await browser.newPage();
-  page.errors = [];
-  page.refused = [];
-  await page.setViewport({ width: 1280, height: 800, deviceScaleFactor: 1 });
-  await page.setRequestInterception(true);
-  page.on('request', (request) => {
-    const url = request.url();
-    if (url.startsWith(base) || /^(data|blob|about):/.test(url)) {
-      request.continue();
-    } else {
-      page.refused.push(url);
-      request.abort('internetdisconnected');
-    }
-  });
-  page.on('pageerror', (error) => page.errors.push(String(error && error.message ? error.message : error)));
-  return page;
-}
-
-const sel = (id) => `[data-testid="${id}"]`;
-
-async function signIn(page, info, token) {
-  await page.waitForSelector(sel('login-token'), { visible: true });
-  await page.$eval(sel('login-station'), (e, v) => { e.value = v; }, info.station);
-  await page.type(sel('login-token'), token);
-  await page.click(sel('login-submit'));
-  await page.waitForSelector(sel('role'), { visible: true, timeout: 15000 });
-}
-
-async function textOf(page, id) {
-  return page.$eval(sel(id), (e) => e.textContent.trim()).catch(() => '');
-}
-
-// Fetches from inside the page (its cookie, its origin).
-async function pageFetch(page, path, init) {
-  return page.evaluate(async (p, i) => {
-    const r = await fetch(p, i);
-    let body = null;
-    try { body = await r.json(); } catch { body = null; }
-    return { status: r.status, body };
-  }, path, init);
-}
-
-async function waitUntil(what, predicate, timeoutMs) {
-  const end = Date.now() + timeoutMs;
-  for (;;) {
-    if (await predicate()) return;
-    if (Date.now() > end) throw new Error(`timed out waiting for ${what}`);
-    await new Promise((r) => setTimeout(r, 250));
-  }
-}
+const harness = harnessArgs('console.mjs');
 
 runBrowserTest('console', async (t) => {
-  const station = await startStation();
+  const station = await startStation(harness);
   const { info } = station;
   t.log('station', info.station, 'at', info.url);
   try {
@@ -209,8 +125,12 @@ runBrowserTest('console', async (t) => {
     await new Promise((r) => setTimeout(r, 500));
     const after = await t.screenshot(page, '06-session-viewer-turned', sel('viewer'));
     check(fractionChanged(before, after) > 0.01, 'dragging did not turn the model');
+    await page.waitForFunction((s) => (document.querySelector(s)?.textContent || '').trim().length > 0,
+                               { timeout: 20000 }, sel('measurements'))
+      .catch(() => {});
     const measured = await textOf(page, 'measurements');
     check(measured.length > 0, 'no measurements shown');
+    t.log('measurements:', measured.replace(/\s+/g, ' ').slice(0, 160));
 
     // The observer: no scan button; forged requests refused.
     const context = await t.browser.createBrowserContext();
@@ -233,10 +153,26 @@ runBrowserTest('console', async (t) => {
     });
     check(noHeader.status === 403, `without X-Craftscan-Request: ${noHeader.status}`);
 
+    // An admin moves the session to the trash (two clicks).
+    const adminContext = await t.browser.createBrowserContext();
+    const admin = await consolePage(adminContext, info.url);
+    await admin.goto(`${info.url}#/sessions`, { waitUntil: 'load' });
+    await signIn(admin, info, info.admin);
+    await admin.click(sel('nav-sessions'));
+    const deleteButton = `${sel('sessions-table')} [data-session="${session}"] ${sel('session-delete')}`;
+    await admin.waitForSelector(deleteButton, { visible: true, timeout: 15000 });
+    await admin.click(deleteButton);
+    await admin.waitForSelector(`${deleteButton}[data-confirm]`, { timeout: 5000 });
+    await t.screenshot(admin, '08-admin-delete-confirm');
+    await admin.click(deleteButton);
+    await admin.waitForFunction((s) => !document.querySelector(s), { timeout: 15000 },
+                                `${sel('sessions-table')} [data-session="${session}"]`);
+    check(!(await observer.$(sel('session-delete'))), 'an observer sees a delete button');
+
     check(page.refused.length === 0 && observer.refused.length === 0,
           `requests outside the console: ${[...page.refused, ...observer.refused].join(', ')}`);
     check(page.errors.length === 0, `page errors: ${page.errors.join(' | ')}`);
   } finally {
-    station.stop();
+    await station.stop();
   }
 }, { timeoutMs: 240000 });

@@ -12,12 +12,15 @@
 #include <signal.h>
 
 #include <cstdio>
+#include <cstdlib>
+#include <filesystem>
 #include <iostream>
 #include <string>
+#include <thread>
 
-#include <nlohmann/json.hpp>
 #include <spdlog/sinks/stdout_color_sinks.h>
 #include <spdlog/spdlog.h>
+#include <nlohmann/json.hpp>
 
 #include "craftscan/web/console.h"
 #include "craftscan/web/http_server.h"
@@ -36,7 +39,22 @@ int main(int argc, char** argv) {
   // stdout carries the protocol: the console's log goes to stderr.
   spdlog::set_default_logger(spdlog::stderr_color_mt("console"));
   if (std::getenv("CRAFTSCAN_CONSOLE_DEBUG")) spdlog::set_level(spdlog::level::debug);
+  // SIGTERM/SIGINT (a test runner ending it) must not leave craftscand
+  // running: a thread takes them and stops the daemon before exiting.
+  sigset_t signals;
+  sigemptyset(&signals);
+  sigaddset(&signals, SIGTERM);
+  sigaddset(&signals, SIGINT);
+  pthread_sigmask(SIG_BLOCK, &signals, nullptr);
   testing::DaemonFixture fixture("640x512");
+  std::thread([&fixture, signals] {
+    int sig = 0;
+    sigwait(&signals, &sig);
+    fixture.Stop(SIGKILL);
+    std::error_code ignored;
+    std::filesystem::remove_all(fixture.root(), ignored);
+    std::_Exit(0);
+  }).detach();
   std::string error;
   if (!fixture.Prepare(&error) || !fixture.Start(&error)) {
     std::fprintf(stderr, "craftscand: %s\n", error.c_str());
@@ -59,13 +77,12 @@ int main(int argc, char** argv) {
     std::fprintf(stderr, "server: %s\n", error.c_str());
     return 1;
   }
-  const nlohmann::json hello = {
-      {"url", "http://127.0.0.1:" + std::to_string(server->port()) + "/"},
-      {"station", fixture.station()},
-      {"observer", testing::kObserverToken},
-      {"operator", testing::kOperatorToken},
-      {"admin", testing::kAdminToken},
-      {"data_dir", fixture.data_dir()}};
+  const nlohmann::json hello = {{"url", "http://127.0.0.1:" + std::to_string(server->port()) + "/"},
+                                {"station", fixture.station()},
+                                {"observer", testing::kObserverToken},
+                                {"operator", testing::kOperatorToken},
+                                {"admin", testing::kAdminToken},
+                                {"data_dir", fixture.data_dir()}};
   std::cout << hello.dump() << std::endl;
   std::string line;
   while (std::getline(std::cin, line)) {

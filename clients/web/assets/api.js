@@ -23,9 +23,11 @@ export function setUnauthorizedHandler(fn) {
 
 const TIMEOUT_MS = 45000;
 
-async function request(method, path, body, { auth = true } = {}) {
+// keepalive: the request outlives the page (sent while it is left).
+async function request(method, path, body, { auth = true, keepalive = false } = {}) {
   const headers = { Accept: 'application/json' };
   const init = { method, credentials: 'same-origin', cache: 'no-store', headers };
+  if (keepalive) init.keepalive = true;
   if (method !== 'GET') {
     headers['X-Craftscan-Request'] = '1';
     headers['Content-Type'] = 'application/json';
@@ -80,7 +82,8 @@ export const api = {
   sessions: () => request('GET', '/api/sessions'),
   session: (id) => request('GET', `/api/sessions/${encodeURIComponent(id)}`),
   // The daemon's Reply as it is: {code, code_name, message, result}.
-  command: (verb, args = {}) => request('POST', '/api/command', { verb, args }),
+  // options: {keepalive} (see request).
+  command: (verb, args = {}, options = {}) => request('POST', '/api/command', { verb, args }, options),
   fileJson: (session, name) => request('GET', fileUrl(session, name)),
   fileUrl,
 };

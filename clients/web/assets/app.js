@@ -12,6 +12,9 @@
  *           page-station.js · progress.js · report.js (session result,
  *           measurements, downloads) · viewer.js (3D view, loads
  *           /assets/viewer.bundle.js on first use) · calib-guide.js
+ *           (guided calibration) · liveview.js (the Station page's live view)
+ *           · live-preview.js (preview frames: pictures, histograms, focus
+ *           map, board corners)
  *
  * Routes: #/scan (default) · #/sessions · #/sessions/<id> (one opened) ·
  *         #/calibrate (admin) · #/station
@@ -27,7 +30,8 @@
  *     station-id           the station's id in the top bar
  *     station-state        the station's state; text and data-state are one of
  *                          idle | busy | error | starting | stopping | gone | connecting
- *                          ("gone": status.online is false or the WebSocket is down)
+ *                          ("gone": status.online is false or the WebSocket is down;
+ *                          "idle" while the daemon's only job is the live preview)
  *     role                 the signed-in role (observer | operator | admin); data-role too
  *     signout              the sign-out button
  *     banner-gone          "Station not reachable" banner: in the page only while the
@@ -67,6 +71,8 @@
  *     session-open         "Open" link in a row (→ #/sessions/<id>)
  *     session-resume       "Resume" button in a row of an interrupted or failed session
  *                          (operator and admin only); also in the opened session's heading
+ *     session-delete       admins: "Delete" (first click asks "Move to trash?", data-confirm; the
+ *                          second within 5 s moves the session to the station's trash)
  *     sessions-refresh     refresh button
  *     sessions-job         line following a running scan / resume
  *     session-detail       the opened session (viewer, measurements, downloads as above)
@@ -76,13 +82,40 @@
  *     calibrate-result     the final verdict; data-state = done | failed | cancelled
  *                          | interrupted, with the job's result fields when the daemon gives them
  *     calibration-id       the calibration in use
- *     calib-guide          guided calibration panel (hidden until the daemon sends guidance),
- *                          with calib-advice, calib-rejected, calib-counts, calib-corners,
- *                          calib-coverage, calib-diversity, calib-extra
+ *     calib-guide          guided calibration panel, fed by the calibrate job's preview
+ *                          frames (overlay.kind "calibration"; hidden until the first);
+ *                          data-state = the overlay's state (searching | moving | holding |
+ *                          captured | rejected | solving), data-running = true | false
+ *       calib-state        the state in words
+ *       calib-advice       what to do next, in large type
+ *       calib-rejected     why the last view was not used (hidden when it was)
+ *       calib-counts       "n of m views"; data-accepted, data-needed
+ *       calib-hold         hold-still progress (<progress> inside; data-hold-s)
+ *       calib-corners      both cameras' live pictures (calib-left, calib-right <img>) with
+ *                          the board's corners over them (<svg data-corners="<count>"
+ *                          class="corner-layer tone-ok|tone-moving|tone-bad">); only while
+ *                          the job runs
+ *       calib-coverage     the coverage grid (one <span class="cov cov-0..4"> per cell)
+ *       calib-diversity    X, Y, Size, Skew bars (rows data-axis = x | y | size | skew)
+ *       calib-extra        any other scalar field of the overlay
  *   Station page (#/station)
+ *     preview              the live view (a card); data-frame = the last frame shown,
+ *                          data-state = off | starting | live | paused (a job stopped it) |
+ *                          stopped (no frame for 5 s) | gone, data-job = its job
+ *       preview-left, preview-right         the cameras' <img>s (swapped whole per frame)
+ *       histogram-left, histogram-right     <canvas> histograms (clipped share in red)
+ *       exposure-warning-left / -right      "Over-exposed: …" / "Under-exposed: …" (hidden when fine;
+ *                                           data-kind = over | under)
+ *       preview-note       why there is no live picture (hidden while live)
+ *       preview-start, preview-stop         operators and admins only
+ *       preview-focus      the focus heat map toggle (aria-pressed); focus-legend
+ *       preview-exposure, preview-gain      the last frame's settings, in words;
+ *                                           data-exposure-us / data-gain-db the numbers
+ *       preview-rate, preview-latency       frames/s, and latency (data-latency-ms only when
+ *                                           the frame's stamp is on this computer's clock)
  *     station-summary, station-summary-state, station-last-error, devices (table, rows
- *     data-device / data-state), stations, camera-exposure, camera-gain, camera-apply,
- *     turntable-angle, turntable-move, turntable-home, device-job
+ *     data-device / data-state), stations, camera-exposure, camera-gain, camera-apply
+ *     (beside the live view), turntable-angle, turntable-move, turntable-home, device-job
  */
 
 import { h, show } from './dom.js';
@@ -91,6 +124,7 @@ import { store, on, emit, can } from './store.js';
 import { LiveSocket } from './live.js';
 import * as jobs from './jobs.js';
 import { fmtTime } from './format.js';
+import { onPreviewMessage } from './live-preview.js';
 import { mountLogin } from './page-login.js';
 import { mountScan } from './page-scan.js';
 import { mountSessions } from './page-sessions.js';
@@ -157,6 +191,9 @@ const ctx = { store, on, emit, api, jobs, can, command, notify };
 function stationState() {
   const s = store.status;
   if (store.live === 'down' || (s && s.online === false)) return 'gone';
+  // The live preview is a job on the daemon, but gives way to any other:
+  // for the people here the station is idle.
+  if (s && s.state === 'busy' && s.job_verb === 'preview') return 'idle';
   if (s && s.state) return s.state;
   return 'connecting';
 }
@@ -167,7 +204,8 @@ function renderState() {
   shell.stateEl.textContent = state;
   shell.stateEl.dataset.state = state;
   const s = store.status;
-  shell.stateEl.title = s?.last_error ? `Last problem: ${s.last_error}` : '';
+  shell.stateEl.title = s?.last_error ? `Last problem: ${s.last_error}`
+    : s?.state === 'busy' && s.job_verb === 'preview' ? 'Idle; the live view is running' : '';
   if (s?.station) shell.stationEl.textContent = s.station;
   document.body.classList.toggle('is-gone', state === 'gone');
   renderBanner();
@@ -219,6 +257,10 @@ function onLiveMessage(msg) {
       break;
     case 'cloud':
       jobs.onCloud(msg);
+      break;
+    case 'preview':
+      jobs.onPreview(msg); // the guided calibration's overlays
+      onPreviewMessage(msg); // the live view's frames
       break;
     default:
       break; // pong and anything newer
@@ -378,6 +420,15 @@ function signedOut(message) {
 }
 
 async function signOut() {
+  // The page ends what it runs for this console (the live preview) while
+  // the session still holds.
+  const leaving = current;
+  current = null;
+  try {
+    await Promise.race([leaving?.page.unmount(), new Promise((r) => setTimeout(r, 3000))]);
+  } catch {
+    /* signing out anyway */
+  }
   try {
     await api.logout();
   } catch {

@@ -1,73 +1,52 @@
-// The guided-calibration panel (issue 17, item 4). The daemon's guided
-// calibration is still to come; this panel is its place in the console. It is
-// driven by the progress messages of a calibrate / calibrate-turntable job
-// (and any progress whose stage starts with "calibrate") and shows only the
-// parts whose fields are present — all of it stays hidden until one is.
-//
-// Fields read from the message itself or from a "guide" object inside it:
-//   advice           string: what to do next ("tilt the top away")
-//   corners          data URL, or {left, right} data URLs: the images with the
-//                    corners found drawn on them
-//   corners_left / corners_right / left / right / image   (the same, flat)
-//   coverage         [[0..1, ...], ...] rows of cells, or {rows, cols, cells: [...]},
-//                    numbers (fraction covered; counts are scaled to the
-//                    largest) or booleans
-//   diversity        {x, y, size, skew} each 0..1, or [x, y, size, skew]
-//   views_accepted / accepted     int: poses kept so far
-//   views_needed / needed / wanted int: poses wanted
-//   rejected / refused            string: why the last pose was refused
-//   verdict, rms_px, epipolar_px  the outcome when it is known
-// Any other extra scalar field is listed as it is ("Other details").
+// The guided-calibration panel (issue 17, item 4). While the calibrate job
+// runs, the daemon streams preview frames (API.md, message type "preview")
+// whose `overlay` is its feedback; jobs.onPreview files the latest on the
+// calibrate track (t.guide, with the frame in t.guideFrame) and this panel
+// shows it:
+//   {kind: "calibration",
+//    state: "searching" | "moving" | "holding" | "captured" | "rejected" | "solving",
+//    board: {left: [[x, y], ...], right: [...]} | null   (corners, in the JPEG's pixels),
+//    hold_s, hold_needed_s,                                (holding still, seconds)
+//    coverage: {cols, rows, cells: [0 | 1, ...]}           (row-major, left image),
+//    diversity: {x, y, size, skew}                         (each 0..1; 1 = enough),
+//    views_accepted, views_needed, rejected: "" | why, advice: "…"}
+// Both cameras' live pictures with the corners drawn over them (green when
+// holding or captured, amber while the board moves, red when the view was
+// refused), the advice in large type, the views kept, the hold-still
+// progress, the coverage grid and the four variety bars (as ROS's
+// camera_calibration shows X, Y, Size, Skew). When the job is over the
+// pictures, advice and hold go; what the views covered stays beside the
+// verdict (page-calibrate.js). Hidden until the first overlay.
 
 import { h, replace, show } from './dom.js';
-import { fmtValue, humanize } from './format.js';
+import { fmtNumber, fmtValue, humanize } from './format.js';
+import { createCameraPicture, createCornerLayer, drawCorners, showPair } from './live-preview.js';
 
-const BASE_KEYS = new Set(['type', 'job_id', 'stage', 'current', 'total', 'message', 'guide']);
-const IMAGE_KEYS = ['corners', 'corners_left', 'corners_right', 'left', 'right', 'image'];
 const KNOWN_KEYS = new Set([
-  ...IMAGE_KEYS, 'advice', 'coverage', 'diversity', 'views_accepted', 'accepted',
-  'views_needed', 'needed', 'wanted', 'rejected', 'refused', 'verdict', 'rms_px', 'epipolar_px',
+  'kind', 'state', 'board', 'hold_s', 'hold_needed_s', 'coverage', 'diversity',
+  'views_accepted', 'views_needed', 'rejected', 'advice',
 ]);
 
-// The guide fields of a progress message ({} when it has none).
-export function guideFields(msg) {
-  const out = {};
-  const sources = [msg];
-  if (msg && typeof msg.guide === 'object' && msg.guide) sources.push(msg.guide);
-  for (const src of sources) {
-    for (const [key, value] of Object.entries(src)) {
-      if (src === msg && BASE_KEYS.has(key)) continue;
-      if (value === undefined || value === null) continue;
-      out[key] = value;
-    }
-  }
-  return out;
+const STATE_WORDS = {
+  searching: 'Looking for the board',
+  moving: 'Board found: hold it still',
+  holding: 'Hold still…',
+  captured: 'View captured',
+  rejected: 'View not used',
+  solving: 'Computing the calibration',
+};
+
+// The corners' colour for a state: ok (green), moving (amber), bad (red).
+export function cornerTone(state) {
+  if (state === 'holding' || state === 'captured') return 'ok';
+  if (state === 'rejected') return 'bad';
+  return 'moving';
 }
 
-function isImageUrl(v) {
-  return typeof v === 'string' && (v.startsWith('data:image/') || v.startsWith('blob:') ||
-    (v.startsWith('/') && !v.startsWith('//')));
-}
-
-function images(g) {
-  const list = [];
-  const add = (url, caption) => {
-    if (isImageUrl(url)) list.push({ url, caption });
-  };
-  if (g.corners && typeof g.corners === 'object') {
-    add(g.corners.left, 'Left camera');
-    add(g.corners.right, 'Right camera');
-  } else add(g.corners, 'Corners found');
-  add(g.corners_left, 'Left camera');
-  add(g.corners_right, 'Right camera');
-  add(g.left, 'Left camera');
-  add(g.right, 'Right camera');
-  add(g.image, 'Camera');
-  return list;
-}
-
-// Coverage as {rows, cols, cells: [0..1]} or null.
-function coverageGrid(c) {
+// Coverage as {rows, cols, cells: [0..1]} or null: {cols, rows, cells},
+// rows of cells ([[...], ...]) or a flat square list; booleans or numbers
+// (counts are scaled to the largest).
+export function coverageGrid(c) {
   let rows;
   let cols;
   let cells;
@@ -86,107 +65,190 @@ function coverageGrid(c) {
     rows = Math.ceil(c.length / cols);
   } else return null;
   if (!(rows > 0 && cols > 0 && rows * cols <= 4096)) return null;
-  let values = cells.map((v) => (typeof v === 'boolean' ? (v ? 1 : 0) : Number(v) || 0));
+  let values = Array.from({ length: rows * cols }, (_, i) => {
+    const v = cells[i];
+    return typeof v === 'boolean' ? (v ? 1 : 0) : Number(v) || 0;
+  });
   const max = Math.max(...values);
   if (max > 1) values = values.map((v) => v / max);
   return { rows, cols, cells: values };
 }
 
+const AXES = [['x', 'X', 'left ↔ right'], ['y', 'Y', 'top ↔ bottom'], ['size', 'Size', 'near ↔ far'], ['skew', 'Skew', 'tilt']];
+
 function diversityBars(d) {
-  const names = [['x', 'X (left ↔ right)'], ['y', 'Y (top ↔ bottom)'], ['size', 'Size (near ↔ far)'], ['skew', 'Skew (tilt)']];
   const bars = [];
-  names.forEach(([key, label], i) => {
+  AXES.forEach(([key, label, hint], i) => {
     const v = Array.isArray(d) ? d[i] : d?.[key];
-    if (typeof v === 'number' && Number.isFinite(v)) bars.push({ key, label, value: Math.min(1, Math.max(0, v)) });
+    if (typeof v === 'number' && Number.isFinite(v)) bars.push({ key, label, hint, value: Math.min(1, Math.max(0, v)) });
   });
   return bars;
 }
 
 export function createGuide() {
-  const advice = h('p', { class: 'guide-advice', testid: 'calib-advice', role: 'status', 'aria-live': 'polite' });
-  const rejected = h('p', { class: 'guide-rejected', testid: 'calib-rejected' });
+  const stateEl = h('p', { class: 'guide-state', testid: 'calib-state' });
   const counts = h('p', { class: 'guide-counts', testid: 'calib-counts' });
-  const corners = h('div', { class: 'guide-images', testid: 'calib-corners' });
+  const countsBar = h('progress', { class: 'guide-counts-bar', max: '1', value: '0', 'aria-label': 'Views kept' });
+  const advice = h('p', { class: 'guide-advice', testid: 'calib-advice', role: 'status', 'aria-live': 'polite' });
+  const rejected = h('p', { class: 'guide-rejected', testid: 'calib-rejected', role: 'alert' });
+  const holdBar = h('progress', { max: '1', value: '0', 'aria-label': 'Holding still' });
+  const holdText = h('span', { class: 'guide-hold-text' });
+  const hold = h('div', { class: 'guide-hold', testid: 'calib-hold' }, holdText, holdBar);
+
+  const pics = {
+    left: createCameraPicture({ testid: 'calib-left', label: 'Left camera' }),
+    right: createCameraPicture({ testid: 'calib-right', label: 'Right camera' }),
+  };
+  const layers = { left: createCornerLayer(), right: createCornerLayer() };
+  for (const side of ['left', 'right']) pics[side].frame.append(layers[side]);
+  const corners = h('div', { class: 'guide-images', testid: 'calib-corners' }, pics.left.el, pics.right.el);
+
   const coverageGridEl = h('div', { class: 'coverage-grid', role: 'img' });
+  const coverageNote = h('p', { class: 'hint' });
   const coverage = h('div', { class: 'guide-coverage', testid: 'calib-coverage' },
-    h('h4', null, 'Coverage of the image'), coverageGridEl);
+    h('h4', null, 'Coverage of the left image'), coverageGridEl, coverageNote);
   const diversityList = h('div', { class: 'diversity-list' });
   const diversity = h('div', { class: 'guide-diversity', testid: 'calib-diversity' },
-    h('h4', null, 'Variety of board poses'), diversityList);
+    h('h4', null, 'Variety of board poses'), diversityList,
+    h('p', { class: 'hint' }, 'Each bar fills as the board is shown in enough places, distances and tilts.'));
   const extraList = h('dl', { class: 'kv' });
   const extra = h('details', { class: 'guide-extra', testid: 'calib-extra' },
     h('summary', null, 'Other details'), extraList);
+  const endedNote = h('p', { class: 'muted' }, 'The guided calibration has ended. What its views covered:');
   const el = h('section', { class: 'guide', testid: 'calib-guide', 'aria-label': 'Calibration guidance' },
-    advice, rejected, counts,
+    h('div', { class: 'guide-head' }, stateEl, h('div', { class: 'guide-count-box' }, counts, countsBar)),
+    endedNote, advice, rejected, hold,
     h('div', { class: 'guide-grid' }, corners, h('div', { class: 'guide-side' }, coverage, diversity)),
     extra);
 
-  let last;
-  function update(g = {}) {
-    if (g === last) return; // unchanged (tracks replace the object on change)
-    last = g;
-    let any = false;
+  let lastGuide;
+  let lastRunning;
+  let lastFrame;
+  let pending = null; // the newest {g, m} whose pictures are not shown yet
+  let drawing = false;
 
-    const adviceText = typeof g.advice === 'string' ? g.advice : '';
+  // Shows frames one at a time, always the newest next: a picture is
+  // decoded before it replaces the last, and the corners follow it.
+  async function drawPictures() {
+    drawing = true;
+    while (pending) {
+      const { g, m } = pending;
+      pending = null;
+      const w = Number(m.width) || 0;
+      const ht = Number(m.height) || 0;
+      await showPair(pics, m);
+      const board = g.board && typeof g.board === 'object' ? g.board : null;
+      for (const side of ['left', 'right']) {
+        const n = drawCorners(layers[side], board?.[side], w, ht, cornerTone(g.state));
+        pics[side].caption.textContent = `${side === 'left' ? 'Left' : 'Right'} camera · ${n ? `${n} corners` : 'board not found'}`;
+      }
+      corners.dataset.state = g.state ?? '';
+      corners.dataset.frame = String(m.frame ?? '');
+    }
+    drawing = false;
+  }
+
+  // t: the calibrate track (jobs.js) or null.
+  function update(t) {
+    const g = t?.guide ?? null;
+    const running = !!t?.running;
+    if (g === lastGuide && running === lastRunning) return;
+    lastGuide = g;
+    lastRunning = running;
+    if (!g || typeof g !== 'object') {
+      show(el, false);
+      return;
+    }
+    const state = typeof g.state === 'string' ? g.state : '';
+    el.dataset.state = state;
+    el.dataset.running = String(running);
+    show(el, true);
+    show(endedNote, !running);
+
+    stateEl.textContent = running ? STATE_WORDS[state] ?? humanize(state || 'waiting') : 'Guided calibration';
+    stateEl.dataset.state = running ? state : '';
+
+    const accepted = Number(g.views_accepted);
+    const needed = Number(g.views_needed);
+    const haveCounts = Number.isFinite(accepted) && g.views_accepted !== undefined;
+    counts.textContent = haveCounts
+      ? (Number.isFinite(needed) && needed > 0 ? `${accepted} of ${needed} views` : `${accepted} views`)
+      : '';
+    counts.dataset.accepted = haveCounts ? String(accepted) : '';
+    counts.dataset.needed = Number.isFinite(needed) ? String(needed) : '';
+    show(counts, haveCounts);
+    if (haveCounts && needed > 0) {
+      countsBar.max = needed;
+      countsBar.value = Math.min(accepted, needed);
+    }
+    show(countsBar, haveCounts && needed > 0);
+
+    let adviceText = typeof g.advice === 'string' ? g.advice : '';
+    if (!adviceText && state === 'solving') adviceText = 'Computing the calibration…';
     advice.textContent = adviceText;
-    show(advice, !!adviceText);
-    any = any || !!adviceText;
+    show(advice, running && !!adviceText);
 
-    const why = typeof g.rejected === 'string' ? g.rejected : typeof g.refused === 'string' ? g.refused : '';
-    rejected.textContent = why ? `Pose not used: ${why}` : '';
-    show(rejected, !!why);
-    any = any || !!why;
+    const why = typeof g.rejected === 'string' ? g.rejected : '';
+    rejected.textContent = why ? `Last view not used: ${why}` : '';
+    show(rejected, running && !!why);
 
-    const accepted = g.views_accepted ?? g.accepted;
-    const needed = g.views_needed ?? g.needed ?? g.wanted;
-    const parts = [];
-    if (typeof accepted === 'number') parts.push(typeof needed === 'number' ? `${accepted} of ${needed} poses kept` : `${accepted} poses kept`);
-    if (typeof g.verdict === 'string' && g.verdict) parts.push(`Verdict: ${g.verdict}`);
-    if (typeof g.rms_px === 'number') parts.push(`RMS ${fmtValue('rms_px', g.rms_px)}`);
-    if (typeof g.epipolar_px === 'number') parts.push(`epipolar error ${fmtValue('epipolar_px', g.epipolar_px)}`);
-    counts.textContent = parts.join(' · ');
-    show(counts, parts.length > 0);
-    any = any || parts.length > 0;
+    const holdS = Number(g.hold_s) || 0;
+    const holdNeeded = Number(g.hold_needed_s) || 0;
+    const holding = running && holdNeeded > 0 && ['moving', 'holding', 'captured'].includes(state);
+    if (holding) {
+      const done = state === 'captured' ? holdNeeded : Math.min(holdS, holdNeeded);
+      holdBar.max = holdNeeded;
+      holdBar.value = done;
+      holdText.textContent = state === 'captured' ? 'Captured ✓'
+        : `Hold still: ${fmtNumber(done, 1)} of ${fmtNumber(holdNeeded, 1)} s`;
+      hold.dataset.holdS = String(done);
+      hold.dataset.state = state;
+    }
+    show(hold, holding);
 
-    const imgs = images(g);
-    replace(corners, imgs.map(({ url, caption }) => h('figure', null,
-      h('img', { src: url, alt: `${caption}: calibration board with the corners found`, decoding: 'async' }),
-      h('figcaption', null, caption))));
-    show(corners, imgs.length > 0);
-    any = any || imgs.length > 0;
+    const m = t.guideFrame;
+    const pictures = running && m && m.left && m.right;
+    if (pictures && m !== lastFrame) {
+      lastFrame = m;
+      pending = { g, m };
+      if (!drawing) drawPictures();
+    }
+    show(corners, !!pictures);
 
     const grid = g.coverage !== undefined ? coverageGrid(g.coverage) : null;
     if (grid) {
       coverageGridEl.style.gridTemplateColumns = `repeat(${grid.cols}, 1fr)`;
+      const w = Number(m?.width) || 4;
+      const ht = Number(m?.height) || 3;
+      coverageGridEl.style.aspectRatio = `${w} / ${ht}`;
       const covered = grid.cells.filter((v) => v > 0).length;
-      coverageGridEl.setAttribute('aria-label',
-        `${covered} of ${grid.cells.length} image areas covered by the board`);
+      const words = `${covered} of ${grid.cells.length} areas of the image covered by the board`;
+      coverageGridEl.setAttribute('aria-label', words);
+      coverageNote.textContent = covered < grid.cells.length && running
+        ? `${words}: show it in the empty ones.` : `${words}.`;
+      coverage.dataset.covered = String(covered);
+      coverage.dataset.cells = String(grid.cells.length);
       replace(coverageGridEl, grid.cells.map((v) =>
         h('span', { class: `cov cov-${Math.min(4, Math.ceil(v * 4))}` })));
     }
     show(coverage, !!grid);
-    any = any || !!grid;
 
     const bars = g.diversity !== undefined ? diversityBars(g.diversity) : [];
     replace(diversityList, bars.map((b) => {
       const id = `div-${b.key}`;
-      return h('div', { class: 'diversity-row', dataset: { axis: b.key } },
-        h('label', { for: id }, b.label),
+      return h('div', { class: `diversity-row${b.value >= 1 ? ' enough' : ''}`, dataset: { axis: b.key, value: String(b.value) } },
+        h('label', { for: id }, h('strong', null, b.label), h('span', { class: 'muted' }, ` ${b.hint}`)),
         h('progress', { id, max: '1', value: String(b.value) }),
-        h('span', { class: 'diversity-value' }, `${Math.round(b.value * 100)}%`));
+        h('span', { class: 'diversity-value' }, b.value >= 1 ? '✓' : `${Math.round(b.value * 100)}%`));
     }));
     show(diversity, bars.length > 0);
-    any = any || bars.length > 0;
 
     const extras = Object.entries(g).filter(([k, v]) => !KNOWN_KEYS.has(k) &&
       (typeof v === 'number' || typeof v === 'string' || typeof v === 'boolean'));
     replace(extraList, extras.map(([k, v]) => [h('dt', null, humanize(k)), h('dd', null, fmtValue(k, v))]));
     show(extra, extras.length > 0);
-    any = any || extras.length > 0;
-
-    show(el, any);
   }
 
-  update({});
+  update(null);
   return { el, update };
 }

@@ -1,17 +1,23 @@
 // What the console knows of the station's jobs, fed by command replies,
-// status and the WebSocket's progress / capture / cloud messages.
+// status and the WebSocket's progress / capture / cloud / preview messages.
 //
 // One track per kind of job, each the latest job of that kind:
 //   scan       scan, resume, capture   (stages, thumbnails, the session)
-//   calibrate  calibrate, calibrate-turntable   (stages, guidance, result)
+//   calibrate  calibrate, calibrate-turntable   (stages, guidance from the
+//              preview overlays, result)
 //   device     turntable, camera
 // A job's end is its progress message whose stage is "done", "failed" or
 // "cancelled". A track the station stops reporting (the daemon restarted) is
 // ended "interrupted" once a status shows another job or none.
+//
+// The live preview is a job on the daemon too (verb "preview"), but not one
+// a person waits for: it has no track, never makes the station "busy" for
+// the console (stationBusy) and gives way to any other job on the daemon.
+// Its jobs are only remembered (isPreviewJob) so that their progress is not
+// taken for a scan's; the frames themselves are live-preview.js's.
 
 import { api } from './api.js';
 import { emit } from './store.js';
-import { guideFields } from './calib-guide.js';
 
 export const FINAL_STAGES = new Set(['done', 'failed', 'cancelled']);
 
@@ -23,6 +29,7 @@ const KIND_OF_VERB = {
   'calibrate-turntable': 'calibrate',
   turntable: 'device',
   camera: 'device',
+  preview: 'preview', // no track: see above
 };
 
 export function kindOfVerb(verb) {
@@ -45,7 +52,8 @@ function newTrack(kind) {
     thumbs: new Map(), // view index → {index, angle, left, right}
     viewPoints: new Map(), // view index → points of its cloud
     fusedPoints: 0,
-    guide: {}, // calibration guidance fields (calib-guide.js)
+    guide: null, // the guided calibration's latest overlay (calib-guide.js), or null
+    guideFrame: null, // the preview message that carried it (the pictures)
     result: null, // the job's result from the daemon, when fetched
     resultSession: '', // the session to show when the job is over
     resolving: false,
@@ -59,6 +67,7 @@ export const tracks = {
   device: newTrack('device'),
 };
 const verbOfJob = new Map(); // job id → verb
+const previewJobs = new Set(); // ids of the daemon's preview jobs
 let lastStatus = null;
 let expected = null; // {verb, at}: a job command sent whose reply has not come yet
 
@@ -71,8 +80,28 @@ export function expectJob(verb) {
 export function resetJobs() {
   for (const kind of Object.keys(tracks)) tracks[kind] = newTrack(kind);
   verbOfJob.clear();
+  previewJobs.clear();
   lastStatus = null;
   expected = null;
+}
+
+// Whether `jobId` is (known to be) one of the daemon's live-preview jobs.
+export function isPreviewJob(jobId) {
+  return !!jobId && (previewJobs.has(jobId) || verbOfJob.get(jobId) === 'preview');
+}
+
+// Whether the station is busy with a job that keeps others from starting
+// (the live preview does not: the daemon stops it for any job).
+export function stationBusy(s) {
+  return !!s && s.state === 'busy' && s.job_verb !== 'preview';
+}
+
+// Notes `jobId` as a preview job unless something says it is another
+// (a calibrate job's frames may come without an overlay).
+function notePreviewJob(jobId) {
+  if (!jobId || previewJobs.has(jobId) || findTrack(jobId)) return;
+  const verb = verbOfJob.get(jobId) ?? (lastStatus?.job_id === jobId ? lastStatus.job_verb : '');
+  if (!verb || verb === 'preview') previewJobs.add(jobId);
 }
 
 function findTrack(jobId) {
@@ -106,6 +135,10 @@ export function trackJob(verb, job) {
   const kind = kindOfVerb(job?.verb || verb);
   const id = job?.id ?? '';
   if (id) verbOfJob.set(id, job?.verb || verb);
+  if (kind === 'preview') {
+    if (id) previewJobs.add(id);
+    return null;
+  }
   let t = id ? findTrack(id) : null;
   if (t && t.kind !== kind) {
     // Progress arrived before the reply and was filed under a guessed kind.
@@ -123,7 +156,13 @@ export function trackJob(verb, job) {
 export function onProgress(m) {
   if (!m || !m.job_id) return;
   const stage = String(m.stage ?? '');
-  const kind = kindOfJob(m.job_id, stage);
+  if (stage === 'preview') previewJobs.add(m.job_id);
+  const kind = isPreviewJob(m.job_id) ? 'preview' : kindOfJob(m.job_id, stage);
+  if (kind === 'preview') {
+    previewJobs.add(m.job_id);
+    if (FINAL_STAGES.has(stage)) emit('preview-job', { id: m.job_id, state: stage, message: String(m.message ?? '') });
+    return;
+  }
   let t = tracks[kind];
   if (t.id !== m.job_id) {
     const elsewhere = findTrack(m.job_id);
@@ -150,16 +189,37 @@ export function onProgress(m) {
   if (i >= 0) t.stages[i] = row;
   else t.stages.push(row);
   t.latest = row;
-  if (t.kind === 'calibrate' || stage.startsWith('calibrate')) {
-    const fields = guideFields(m);
-    if (Object.keys(fields).length) {
-      // Images, coverage and bars stay until replaced; a refusal is about
-      // one pose only.
-      const { rejected, refused, ...kept } = t.guide;
-      t.guide = { ...kept, ...fields };
+  emit('job', t);
+}
+
+// A preview message whose overlay is the guided calibration's feedback
+// ({kind: "calibration", ...}): filed on the calibrate track of its job;
+// emits 'guide' (the track). Other preview messages are not jobs' business.
+export function onPreview(m) {
+  const overlay = m?.overlay;
+  if (!overlay || typeof overlay !== 'object' || overlay.kind !== 'calibration') {
+    if (!m?.overlay) notePreviewJob(m?.job_id);
+    return;
+  }
+  let t = tracks.calibrate;
+  if (m.job_id && t.id !== m.job_id) {
+    const elsewhere = findTrack(m.job_id);
+    if (elsewhere) {
+      // Progress came first and was filed under a guessed kind.
+      tracks[elsewhere.kind] = newTrack(elsewhere.kind);
+      elsewhere.kind = 'calibrate';
+      tracks.calibrate = t = elsewhere;
+    } else if (t.running && !t.id) {
+      t.id = m.job_id;
+    } else {
+      t = startTrack('calibrate', m.job_id, verbOfJob.get(m.job_id) || 'calibrate');
+      emit('job', t);
     }
   }
-  emit('job', t);
+  if (!t.running) return; // a late frame of a job already over
+  t.guide = overlay;
+  t.guideFrame = m;
+  emit('guide', t);
 }
 
 export function finishJob(t, state, message) {
@@ -235,7 +295,8 @@ export function onStatus(s) {
   lastStatus = s;
   if (s.job_id && s.job_verb) verbOfJob.set(s.job_id, s.job_verb);
   if (s.online === false) return; // stale: decide nothing until it is heard again
-  const active = s.state === 'busy' && s.job_id &&
+  if (s.job_id && s.job_verb === 'preview') previewJobs.add(s.job_id);
+  const active = s.state === 'busy' && s.job_id && s.job_verb !== 'preview' &&
     (s.job_state === 'running' || s.job_state === 'queued' || !s.job_state);
   if (active) {
     const kind = kindOfVerb(s.job_verb);

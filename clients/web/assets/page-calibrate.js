@@ -1,6 +1,6 @@
 // The Calibrate page (admins): stereo calibration and turntable-axis
-// calibration, their progress, the guidance panel (calib-guide.js) and the
-// final verdict.
+// calibration, their progress, the guidance panel (calib-guide.js: the
+// calibrate job's live pictures with its feedback) and the final verdict.
 
 import { h, replace, show } from './dom.js';
 import { fmtTime, fmtValue, humanize, stageLabel } from './format.js';
@@ -49,7 +49,8 @@ export function mountCalibrate(root, ctx) {
         h('p', { class: 'muted' }, 'Place the calibration board flat on the turntable.'),
         startTable)),
     h('section', { class: 'card', 'aria-labelledby': 'calib-progress-title' },
-      jobTitle, guide.el, progress.el, result, h('div', { class: 'button-row' }, cancelBtn)));
+      // The verdict (once there is one) above what the guidance achieved.
+      jobTitle, result, guide.el, progress.el, h('div', { class: 'button-row' }, cancelBtn)));
 
   async function start(verb, button) {
     button.disabled = true;
@@ -96,7 +97,7 @@ export function mountCalibrate(root, ctx) {
   function update() {
     const t = jobs.tracks.calibrate;
     const s = store.status;
-    const busy = (s && s.state === 'busy') || Object.values(jobs.tracks).some((x) => x.running);
+    const busy = jobs.stationBusy(s) || Object.values(jobs.tracks).some((x) => x.running);
     startStereo.disabled = busy;
     startTable.disabled = busy;
     cancelBtn.disabled = !(t.running);
@@ -105,11 +106,12 @@ export function mountCalibrate(root, ctx) {
     jobTitle.textContent = t.verb ? (VERB_WORDS[t.verb] ?? stageLabel(t.verb)) : 'Progress';
     calibId.textContent = s?.calibration_id || 'none yet';
     progress.update(t.id || t.running || t.final ? t : null);
-    guide.update(t.guide);
+    guide.update(t);
     renderResult(t);
   }
 
-  cleanups.push(ctx.on('job', update), ctx.on('status', update));
+  cleanups.push(ctx.on('job', update), ctx.on('status', update),
+    ctx.on('guide', (t) => guide.update(t))); // every calibration frame: the guide only
   update();
   return {
     unmount() {

@@ -230,7 +230,7 @@ export function mountScan(root, ctx) {
     const t = jobs.tracks.scan;
     const s = store.status;
     const reachable = s && s.online !== false && store.live === 'up';
-    const stationBusy = s && s.state === 'busy';
+    const stationBusy = jobs.stationBusy(s); // not the live preview: a scan stops it
     const anyRunning = Object.values(jobs.tracks).some((x) => x.running);
     startBtn.disabled = !!(stationBusy || anyRunning);
     cancelBtn.disabled = !(t.running || stationBusy);

@@ -11,6 +11,7 @@ const REFRESH_MS = 15000;
 export function mountSessions(root, ctx, param) {
   const { jobs } = ctx;
   const operator = ctx.can('operator');
+  const admin = ctx.can('admin');
   const cleanups = [];
   let sessions = [];
   let openId = '';
@@ -52,6 +53,41 @@ export function mountSessions(root, ctx, param) {
     refresh();
   }
 
+  // Admins: the session moved to the station's trash (never unlinked).
+  // Two clicks: the first asks, the second (within 5 s) does it.
+  function deleteButton(s) {
+    if (!admin) return null;
+    const b = h('button', {
+      type: 'button', class: 'btn btn-small btn-danger', testid: 'session-delete',
+      'aria-label': `Move session ${s.id} to the trash`,
+    }, 'Delete');
+    let armed = null;
+    b.addEventListener('click', async () => {
+      if (!armed) {
+        b.textContent = 'Move to trash?';
+        b.dataset.confirm = '1';
+        armed = setTimeout(() => {
+          armed = null;
+          b.textContent = 'Delete';
+          delete b.dataset.confirm;
+        }, 5000);
+        return;
+      }
+      clearTimeout(armed);
+      armed = null;
+      b.disabled = true;
+      const reply = await ctx.command('delete', { session: s.id });
+      if (!reply || reply.code !== 0) {
+        b.disabled = false;
+        b.textContent = 'Delete';
+        delete b.dataset.confirm;
+      }
+      if (openId === s.id && reply && reply.code === 0) location.hash = '#/sessions';
+      refresh();
+    });
+    return b;
+  }
+
   function resumeButton(s) {
     if (!operator || !RESUMABLE.has(s.state)) return null;
     const running = jobs.tracks.scan.running && jobs.tracks.scan.session === s.id;
@@ -80,7 +116,7 @@ export function mountSessions(root, ctx, param) {
     h('td', { class: 'num' }, views),
     h('td', { title: s.created ?? '' }, fmtDate(s.created)),
     h('td', { class: 'col-updated', title: s.updated ?? '' }, fmtDate(s.updated)),
-    h('td', { class: 'actions' }, open, ' ', resumeButton(s)));
+    h('td', { class: 'actions' }, open, ' ', resumeButton(s), ' ', deleteButton(s)));
   }
 
   function renderTable() {

@@ -1,8 +1,11 @@
-// The Station page: the station's state and devices, camera exposure and
-// gain, and the turntable (home / move) for operators.
+// The Station page: the live view of both cameras (liveview.js) with the
+// camera exposure and gain beside it, the station's state and devices, and
+// the turntable (home / move) for operators.
 
 import { h, field, replace, show } from './dom.js';
 import { fmtNumber, fmtTime } from './format.js';
+import { createLiveView } from './liveview.js';
+import { livePreview } from './live-preview.js';
 
 export function mountStation(root, ctx) {
   const { store, jobs } = ctx;
@@ -22,8 +25,12 @@ export function mountStation(root, ctx) {
   const stationsList = h('ul', { class: 'stations-list', testid: 'stations' });
   const deviceJob = h('p', { class: 'job-line', testid: 'device-job', role: 'status', 'aria-live': 'polite', hidden: true });
 
+  const cameraSlot = h('div', { class: 'live-camera-form' });
+  const liveView = createLiveView(ctx, { side: cameraSlot });
+
   root.append(
     h('h1', { class: 'page-title', tabindex: '-1' }, 'Station'),
+    liveView.el,
     h('div', { class: 'station-layout' },
       h('div', null,
         h('section', { class: 'card', 'aria-labelledby': 'station-summary-title' },
@@ -85,9 +92,23 @@ export function mountStation(root, ctx) {
     });
     home.addEventListener('click', () => turntable({ action: 'home' }, home));
 
+    // The form starts from the settings the live frames were taken with
+    // (the status does not carry them), unless someone is typing.
+    const prefill = (m) => {
+      for (const [input, value] of [[exposure, m?.exposure_us], [gain, m?.gain_db]]) {
+        if (typeof value === 'number' && input.value === '' && document.activeElement !== input) {
+          input.value = String(Math.round(value * 10) / 10);
+        }
+      }
+    };
+    cleanups.push(ctx.on('preview', prefill));
+    prefill(livePreview.frame);
+
+    cameraSlot.append(
+      h('h3', { id: 'station-camera-title' }, 'Exposure and gain'),
+      h('p', { class: 'muted small' }, 'Applied to both cameras; the live view goes on with the new settings.'),
+      cameraForm);
     controls.append(
-      h('section', { class: 'card', 'aria-labelledby': 'station-camera-title' },
-        h('h2', { id: 'station-camera-title' }, 'Cameras'), cameraForm),
       h('section', { class: 'card', 'aria-labelledby': 'station-table-title' },
         h('h2', { id: 'station-table-title' }, 'Turntable'), tableForm),
       deviceJob);
@@ -101,10 +122,13 @@ export function mountStation(root, ctx) {
     const rows = [];
     const add = (label, value, testid) => rows.push(h('dt', null, label), h('dd', { testid }, value));
     add('Station', s?.station || store.me?.station || '—');
-    add('State', !s ? 'unknown' : reachable ? s.state || 'unknown' : 'not reachable', 'station-summary-state');
+    const previewOnly = s?.state === 'busy' && s.job_verb === 'preview'; // gives way to any job
+    add('State', !s ? 'unknown' : !reachable ? 'not reachable' : previewOnly ? 'idle (live view running)' : s.state || 'unknown',
+      'station-summary-state');
     if (s?.job_id) {
       const pct = typeof s.progress === 'number' ? ` · ${fmtNumber(s.progress * 100, 0)}%` : '';
-      add('Job', `${s.job_verb || 'job'} ${s.job_id} — ${s.job_state || ''}${s.job_state === 'running' ? pct : ''}`);
+      const verb = s.job_verb === 'preview' ? 'live view' : s.job_verb || 'job';
+      add('Job', `${verb} ${s.job_id} — ${s.job_state || ''}${s.job_state === 'running' ? pct : ''}`);
     }
     add('Calibration', s?.calibration_id || 'none');
     if (s?.last_error) add('Last problem', s.last_error, 'station-last-error');
@@ -122,9 +146,15 @@ export function mountStation(root, ctx) {
 
   function renderStations() {
     const list = store.stations ?? [];
+    const stateOf = (st) => {
+      // The signed-in station's own status is newer, and knows the job.
+      const s = st.id === store.me?.station ? store.status : null;
+      if (s && s.online !== false) return jobs.stationBusy(s) || s.state !== 'busy' ? s.state : 'idle';
+      return st.state;
+    };
     replace(stationsList, list.map((st) => h('li', { dataset: { station: st.id } },
       h('strong', null, st.id), ' ',
-      h('span', { class: `badge state-${st.online === false ? 'gone' : st.state}` }, st.online === false ? 'not reachable' : st.state || 'unknown'),
+      h('span', { class: `badge state-${st.online === false ? 'gone' : stateOf(st)}` }, st.online === false ? 'not reachable' : stateOf(st) || 'unknown'),
       st.id === store.me?.station ? h('span', { class: 'muted' }, ' (signed in)') : null)));
     if (!list.length) stationsList.append(h('li', { class: 'muted' }, store.me?.station ?? ''));
   }
@@ -148,7 +178,10 @@ export function mountStation(root, ctx) {
     renderStations();
   }).catch(() => renderStations());
 
-  cleanups.push(ctx.on('status', renderStatus), ctx.on('live', renderStatus), ctx.on('job', (t) => {
+  cleanups.push(ctx.on('status', () => {
+    renderStatus();
+    renderStations();
+  }), ctx.on('live', renderStatus), ctx.on('job', (t) => {
     if (t?.kind === 'device') renderDeviceJob();
   }));
   renderStatus();
@@ -157,6 +190,7 @@ export function mountStation(root, ctx) {
   return {
     unmount() {
       for (const off of cleanups) off();
+      return liveView.dispose(); // stops the preview this page runs
     },
   };
 }

@@ -2,7 +2,10 @@
 //
 // Events: 'status' (store.status changed), 'live' (WebSocket state),
 // 'job' (a job track changed; data: the track), 'job-final' (a job ended),
-// 'thumb' (a view thumbnail arrived; data: view index), 'cloud'.
+// 'thumb' (a view thumbnail arrived; data: view index), 'cloud',
+// 'preview' (a live-view frame; data: the message), 'preview-job' (a preview
+// job ended; data: {id, state, message}), 'guide' (a guided-calibration
+// overlay arrived; data: the calibrate track).
 
 const listeners = new Map();
 
@@ -32,6 +35,7 @@ export const store = {
   live: 'connecting', // the WebSocket: 'connecting' | 'up' | 'down'
   liveRetryAt: 0, // when 'down': the time of the next attempt (ms since epoch)
   scanForm: null, // the scan form's values, kept across page changes
+  previewFocus: false, // the live view's focus heat map is on
 };
 
 export const ROLE_RANK = { observer: 0, operator: 1, admin: 2 };

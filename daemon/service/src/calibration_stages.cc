@@ -207,7 +207,7 @@ CalibrationOutcome CalibrateStage::RunGuided(const std::string& dir, const std::
           MakePreviewFrame(frame.left.image, frame.right.image, options_.guided_preview_width);
       p.job_id = options_.job_id;
       p.sequence = sequence++;
-      p.stamp_ns = stamp;
+      p.stamp_ns = WallStamp(stamp);
       p.exposure_us = frame.settings.exposure_us;
       p.gain_db = frame.settings.gain_db;
       const double scale = static_cast<double>(p.size.width) / image_size.width;

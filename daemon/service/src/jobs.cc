@@ -635,6 +635,16 @@ std::int64_t SteadyNs() {
 }
 }  // namespace
 
+std::int64_t WallStamp(std::int64_t steady_ns) {
+  const std::int64_t wall = std::chrono::duration_cast<std::chrono::nanoseconds>(
+                                std::chrono::system_clock::now().time_since_epoch())
+                                .count();
+  const std::int64_t age = SteadyNs() - steady_ns;
+  // A frame stamped on the steady clock a moment ago: its wall time. Any
+  // other stamp (a simulated clock): now.
+  return age >= 0 && age < std::int64_t{10'000'000'000} ? wall - age : wall;
+}
+
 bool JobEngine::StartPreview(const PreviewRequest& request, JobInfo* info, std::string* error) {
   if (!request.IsValid(error)) return false;
   const auto until = SteadyNs() + static_cast<std::int64_t>(request.seconds * 1e9);
@@ -685,7 +695,7 @@ JobEngine::JobOutcome JobEngine::RunPreview(const PreviewRequest& request) {
     PreviewFrame p = MakePreviewFrame(frame.left.image, frame.right.image, request.width);
     p.job_id = job_id;
     p.sequence = sequence++;
-    p.stamp_ns = frame.left.timestamp_ns;
+    p.stamp_ns = WallStamp(frame.left.timestamp_ns);
     p.exposure_us = frame.settings.exposure_us;
     p.gain_db = frame.settings.gain_db;
     if (sink_) sink_->Preview(p);

@@ -77,10 +77,10 @@ cv::Vec2d CentrePx(const SimStation& station, const cv::Matx44d& rig_from_board,
 }
 
 cv::Matx44d Pose(const SimStation& station, const BoardSpec& board,
-                 const std::vector<Segment>& schedule,
-                 const std::vector<cv::Matx44d>& held, double t, TechnicianFrame* frame) {
-  const auto it = std::find_if(schedule.begin(), schedule.end(),
-                               [t](const Segment& s) { return t < s.end; });
+                 const std::vector<Segment>& schedule, const std::vector<cv::Matx44d>& held,
+                 double t, TechnicianFrame* frame) {
+  const auto it =
+      std::find_if(schedule.begin(), schedule.end(), [t](const Segment& s) { return t < s.end; });
   const Segment& s = it == schedule.end() ? schedule.back() : *it;
   const int n = static_cast<int>(held.size());
   const cv::Matx44d& target = held[static_cast<std::size_t>(s.pose)];

@@ -10,6 +10,7 @@
 #include <fstream>
 #include <memory>
 #include <set>
+#include <sstream>
 #include <string>
 #include <thread>
 
@@ -79,6 +80,69 @@ class ConsoleStation {
 json Body(const HttpReply& r) {
   json j = json::parse(r.body, nullptr, false);
   return j.is_discarded() ? json() : j;
+}
+
+// Runs a shell command; its stdout.
+std::string Shell(const std::string& command) {
+  std::string out;
+  FILE* pipe = ::popen(command.c_str(), "r");
+  if (!pipe) return out;
+  char buffer[4096];
+  std::size_t n = 0;
+  while ((n = std::fread(buffer, 1, sizeof buffer, pipe)) > 0) out.append(buffer, n);
+  ::pclose(pipe);
+  return out;
+}
+
+// With a certificate the console speaks HTTPS only (OpenSSL's own client
+// checks it); a missing key is refused at start, naming the key.
+TEST(CraftscanWeb, ServesHttpsWithACertificate) {
+  char dir_template[] = "/tmp/craftscan-web-tls-XXXXXX";
+  const std::string dir = ::mkdtemp(dir_template);
+  std::ostringstream make_cert;
+  make_cert << "openssl req -x509 -newkey rsa:2048 -nodes -keyout " << dir << "/key.pem -out "
+            << dir << "/cert.pem -days 1 -subj /CN=localhost >/dev/null 2>&1; echo $?";
+  ASSERT_EQ(Shell(make_cert.str()), "0\n");
+  std::filesystem::create_directories(dir + "/assets");
+  std::ofstream(dir + "/assets/index.html") << "<!doctype html><title>secure console</title>";
+  web::WebConfig config;
+  config.listen_port = 0;
+  config.stations = {"nobody"};
+  config.domain_id = 1 + static_cast<std::uint32_t>(::getpid() % 200);
+  config.dds_config = dds::LoopbackOnlyConfigXml();
+  config.assets_dir = dir + "/assets";
+  config.cache_dir = dir + "/cache";
+  config.tls_certificate = dir + "/cert.pem";
+  config.tls_private_key = dir + "/missing.pem";
+  std::string error;
+  auto console = web::Console::Create(config, &error);
+  ASSERT_TRUE(console) << error;
+  EXPECT_FALSE(web::HttpServer::Start(console.get(), &error));
+  EXPECT_NE(error.find("tls.private_key"), std::string::npos) << error;
+  console.reset();
+
+  config.tls_private_key = dir + "/key.pem";
+  console = web::Console::Create(config, &error);
+  ASSERT_TRUE(console) << error;
+  auto server = web::HttpServer::Start(console.get(), &error);
+  ASSERT_TRUE(server) << error;
+  const std::string port = std::to_string(server->port());
+  std::ostringstream get;
+  get << "printf 'GET / HTTP/1.1\\r\\nHost: 127.0.0.1:" << port
+      << "\\r\\nConnection: close\\r\\n\\r\\n' | timeout 10 openssl s_client -connect 127.0.0.1:"
+      << port << " -quiet 2>/dev/null";
+  const std::string https = Shell(get.str());
+  EXPECT_NE(https.find("HTTP/1.1 200"), std::string::npos) << https;
+  EXPECT_NE(https.find("secure console"), std::string::npos) << https;
+  EXPECT_NE(https.find("Strict-Transport-Security"), std::string::npos) << https;
+  // Plain HTTP on the TLS port gets no page.
+  const HttpReply plain = Request(server->port(), "GET", "/", {}, "", 5s);
+  EXPECT_NE(plain.status, 200);
+  EXPECT_EQ(plain.body.find("secure console"), std::string::npos);
+  server.reset();
+  console.reset();
+  std::error_code ignored;
+  std::filesystem::remove_all(dir, ignored);
 }
 
 TEST(CraftscanWeb, SignInRolesAndEveryRefusal) {

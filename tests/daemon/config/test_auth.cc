@@ -208,7 +208,7 @@ TEST(Roles, VerbTable) {
       {"cancel", Role::kOperator},           {"resume", Role::kOperator},
       {"turntable", Role::kOperator},        {"camera", Role::kOperator},
       {"preview", Role::kOperator},          {"calibrate", Role::kAdmin},
-      {"calibrate-turntable", Role::kAdmin},
+      {"calibrate-turntable", Role::kAdmin}, {"delete", Role::kAdmin},
   };
   for (const auto& [verb, role] : table) {
     const auto required = RequiredRole(verb);

@@ -43,6 +43,12 @@ inline constexpr int kPreviewHistogramBins = 64;
 // `width` px wide (never enlarged), JPEG quality 80.
 LivePreviewImage MakeLivePreviewImage(const cv::Mat& image, int width);
 
+// The wall-clock time of a frame stamped on the steady clock (the drivers'
+// HostServices::now_ns) within the last 10 s; now for any other stamp (the
+// simulated technician's clock). Preview stamps are wall clock, so a
+// console can tell its latency.
+std::int64_t WallStamp(std::int64_t steady_ns);
+
 // Both images (the same size); the job fills in job_id, sequence, stamp,
 // exposure, gain and overlay.
 PreviewFrame MakePreviewFrame(const cv::Mat& left, const cv::Mat& right, int width);

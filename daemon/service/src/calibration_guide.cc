@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdio>
 
 #include <opencv2/imgproc.hpp>
 
@@ -25,7 +26,52 @@ double MaxMotion(const std::vector<cv::Point2f>& a, const std::vector<cv::Point2
   return m;
 }
 
+// The corners of both images as the console draws them (preview px), or null.
+nlohmann::json BoardJson(const GuideInput& f, double scale) {
+  auto points = [scale](const std::vector<cv::Point2f>& c) {
+    nlohmann::json list = nlohmann::json::array();
+    for (const cv::Point2f& p : c) {
+      list.push_back({std::round(p.x * scale * 10) / 10, std::round(p.y * scale * 10) / 10});
+    }
+    return list;
+  };
+  if (f.left.empty() && f.right.empty()) return nullptr;
+  return {{"left", points(f.left)}, {"right", points(f.right)}};
+}
+
+// The least distance of `c` from the image's edges, as a share of its
+// width (x) or height (y).
+double EdgeMargin(const std::vector<cv::Point2f>& c, cv::Size size) {
+  double m = 1;
+  for (const cv::Point2f& p : c) {
+    const double x = static_cast<double>(p.x) / size.width;
+    const double y = static_cast<double>(p.y) / size.height;
+    m = std::min({m, x, 1 - x, y, 1 - y});
+  }
+  return m;
+}
+
 }  // namespace
+
+bool BoardStillness::Feed(std::int64_t stamp_ns, const std::vector<cv::Point2f>& corners,
+                          double still_px) {
+  const double motion = MaxMotion(corners, last_);
+  last_ = corners;
+  if (motion > still_px) {
+    since_ns_ = stamp_ns;
+    hold_s_ = 0;
+    return false;
+  }
+  if (since_ns_ < 0) since_ns_ = stamp_ns;
+  hold_s_ = static_cast<double>(stamp_ns - since_ns_) * 1e-9;
+  return true;
+}
+
+void BoardStillness::Reset() {
+  last_.clear();
+  since_ns_ = -1;
+  hold_s_ = 0;
+}
 
 CalibrationGuide::CalibrationGuide(CalibrationGuideOptions options) : o_(std::move(options)) {
   covered_.assign(static_cast<std::size_t>(o_.grid_cols * o_.grid_rows), false);
@@ -137,26 +183,18 @@ GuideDecision CalibrationGuide::Feed(const GuideInput& f) {
   GuideDecision d;
   const bool whole = f.left_found && f.right_found;
   if (!f.left_found && !f.right_found) {
-    still_since_ns_ = -1;
-    hold_s_ = 0;
-    last_left_.clear();
+    still_.Reset();
     need_move_ = false;
     d.state = "searching";
     d.advice = "Hold the board up in front of both cameras";
     return d;
   }
-  const double motion = MaxMotion(f.left, last_left_);
-  last_left_ = f.left;
-  if (motion > o_.still_px) {
-    still_since_ns_ = f.stamp_ns;
-    hold_s_ = 0;
+  if (!still_.Feed(f.stamp_ns, f.left, o_.still_px)) {
     need_move_ = false;
     d.state = "moving";
     d.advice = params_.empty() ? "Hold the board still" : Advice();
     return d;
   }
-  if (still_since_ns_ < 0) still_since_ns_ = f.stamp_ns;
-  hold_s_ = static_cast<double>(f.stamp_ns - still_since_ns_) * 1e-9;
   if (need_move_) {
     d.state = "captured";
     d.advice = "Taken. " + Advice();
@@ -168,7 +206,7 @@ GuideDecision CalibrationGuide::Feed(const GuideInput& f) {
     d.advice = "Both cameras must see the whole board: move it towards the middle or farther away";
     return d;
   }
-  if (hold_s_ < o_.hold_s) {
+  if (still_.hold_s() < o_.hold_s) {
     d.state = "holding";
     d.advice = "Hold still";
     return d;
@@ -213,28 +251,122 @@ void CalibrationGuide::Taken(const GuideInput& f) {
 
 nlohmann::json CalibrationGuide::Overlay(const GuideDecision& d, const GuideInput& f,
                                          double scale) const {
-  auto points = [scale](const std::vector<cv::Point2f>& c) {
-    nlohmann::json list = nlohmann::json::array();
-    for (const cv::Point2f& p : c) {
-      list.push_back({std::round(p.x * scale * 10) / 10, std::round(p.y * scale * 10) / 10});
-    }
-    return list;
-  };
-  nlohmann::json board = nullptr;
-  if (!f.left.empty() || !f.right.empty())
-    board = {{"left", points(f.left)}, {"right", points(f.right)}};
   nlohmann::json cells = nlohmann::json::array();
   for (bool c : covered_) cells.push_back(c ? 1 : 0);
   const std::array<double, 4> bars = Bars();
   return {{"kind", "calibration"},
           {"state", d.state},
-          {"board", board},
-          {"hold_s", std::round(hold_s_ * 10) / 10},
+          {"board", BoardJson(f, scale)},
+          {"hold_s", std::round(still_.hold_s() * 10) / 10},
           {"hold_needed_s", o_.hold_s},
           {"coverage", {{"cols", o_.grid_cols}, {"rows", o_.grid_rows}, {"cells", cells}}},
           {"diversity", {{"x", bars[0]}, {"y", bars[1]}, {"size", bars[2]}, {"skew", bars[3]}}},
           {"views_accepted", views()},
           {"views_needed", o_.views_needed},
+          {"rejected", d.rejected},
+          {"advice", d.advice}};
+}
+
+// --- the turntable axis ----------------------------------------------------------
+
+GuideDecision PlatterGuide::Place(const GuideInput& f) {
+  GuideDecision d;
+  if (!f.left_found && !f.right_found) {
+    still_.Reset();
+    d.state = "searching";
+    d.advice = "Lay the board flat on the platter, printed side up, near its middle";
+    return d;
+  }
+  if (!f.left_found || !f.right_found) {
+    still_.Reset();
+    d.state = "rejected";
+    d.rejected = "board cut off";
+    d.advice = std::string("The ") + (f.left_found ? "right" : "left") +
+               " camera does not see the whole board: move it towards the middle of the platter";
+    return d;
+  }
+  if (!still_.Feed(f.stamp_ns, f.left, o_.still_px)) {
+    d.state = "moving";
+    d.advice = "Let go of the board: it must lie still on the platter";
+    return d;
+  }
+  if (EdgeMargin(f.left, o_.image_size) < o_.min_margin) {
+    d.state = "rejected";
+    d.rejected = "near the edge";
+    d.advice =
+        "The board is at the edge of the picture: move it towards the middle of the "
+        "platter, so that it stays in view as it turns";
+    return d;
+  }
+  if (still_.hold_s() < o_.hold_s) {
+    d.state = "holding";
+    d.advice = "Hands off the platter";
+    return d;
+  }
+  if (f.blur_px > o_.max_blur_px) {
+    d.state = "rejected";
+    d.rejected = "blurred";
+    d.advice = "The picture is blurred: add light, or check the focus";
+    return d;
+  }
+  d.take = true;
+  d.state = "captured";
+  d.advice = "Keep clear: the platter turns now";
+  return d;
+}
+
+void PlatterGuide::StartAngle(int index, double angle_deg, std::int64_t stamp_ns) {
+  angle_index_ = index;
+  angle_deg_ = angle_deg;
+  angle_start_ns_ = stamp_ns;
+  last_left_.clear();
+}
+
+GuideDecision PlatterGuide::Turn(const GuideInput& f) {
+  GuideDecision d;
+  if (angle_start_ns_ < 0) angle_start_ns_ = f.stamp_ns;
+  const double waited_s = static_cast<double>(f.stamp_ns - angle_start_ns_) * 1e-9;
+  const bool still = f.left_found && MaxMotion(f.left, last_left_) <= o_.still_px;
+  last_left_ = f.left_found ? f.left : std::vector<cv::Point2f>{};
+  char at[64];
+  std::snprintf(at, sizeof at, "at %.0f°", angle_deg_);
+  if (still) {
+    ++found_;
+    steps_.push_back({{"angle_deg", angle_deg_}, {"found", true}});
+    d.take = true;
+    d.state = "captured";
+    d.advice = std::string("Board measured ") + at + "; keep clear of the platter";
+    return d;
+  }
+  if (waited_s >= o_.angle_wait_s) {
+    ++missed_;
+    steps_.push_back({{"angle_deg", angle_deg_}, {"found", false}});
+    d.state = "missed";
+    d.rejected = f.left_found ? "board moving" : "board not found";
+    d.advice = std::string("The board was not seen lying still ") + at +
+               ": keep hands and tools out of the view; if the board slid, stop and lay it "
+               "again";
+    return d;
+  }
+  d.state = f.left_found ? "moving" : "searching";
+  d.advice = f.left_found
+                 ? std::string("Waiting for the board to lie still ") + at
+                 : std::string("Looking for the board ") + at + ": keep out of the cameras' view";
+  return d;
+}
+
+nlohmann::json PlatterGuide::Overlay(const GuideDecision& d, const GuideInput& f,
+                                     double scale) const {
+  return {{"kind", "calibration"},
+          {"mode", "turntable"},
+          {"state", d.state},
+          {"board", BoardJson(f, scale)},
+          {"hold_s", std::round(still_.hold_s() * 10) / 10},
+          {"hold_needed_s", o_.hold_s},
+          {"angle_deg", placing() ? nlohmann::json(nullptr) : nlohmann::json(angle_deg_)},
+          {"steps", steps_},
+          {"views_accepted", found_},
+          {"views_needed", o_.angles},
           {"rejected", d.rejected},
           {"advice", d.advice}};
 }

@@ -53,6 +53,66 @@ void StorePng(const std::string& path, const cv::Mat& image) {
   WriteFileAtomically(path, std::string(png.begin(), png.end()), nullptr);
 }
 
+// What a guide is fed for one frame: the detections, and for a chessboard
+// found in the left image its blur (cv::estimateChessboardSharpness).
+GuideInput GuideInputOf(const drivers::StereoFrame& frame, const StereoBoardView& view,
+                        const BoardSpec& board) {
+  GuideInput in;
+  in.stamp_ns = frame.left.timestamp_ns;
+  in.left_found = view.left.found;
+  in.right_found = view.right.found;
+  in.left = view.left.image_points;
+  in.right = view.right.image_points;
+  if (view.left.found && board.type == BoardSpec::Type::kChessboard) {
+    cv::Mat grey = frame.left.image;
+    if (grey.channels() == 3) cv::cvtColor(frame.left.image, grey, cv::COLOR_BGR2GRAY);
+    try {
+      in.blur_px = cv::estimateChessboardSharpness(grey, cv::Size(board.cols, board.rows),
+                                                   view.left.image_points)[0];
+    } catch (const cv::Exception&) {
+      in.blur_px = 0;  // unknown: not judged
+    }
+  }
+  return in;
+}
+
+// Streams guided-calibration frames with their overlay (JobSink::Preview)
+// at about `fps`, and always when `now` is set.
+class GuidePreview {
+ public:
+  GuidePreview(const StageContext& context, std::string job_id, double fps, int width)
+      : context_(context),
+        job_id_(std::move(job_id)),
+        period_ns_(static_cast<std::int64_t>(1e9 / std::max(0.1, fps))),
+        width_(width) {}
+
+  bool Due(std::int64_t stamp_ns, bool now) const {
+    return context_.sink && (now || last_ns_ < 0 || stamp_ns - last_ns_ >= period_ns_);
+  }
+  // The overlay's corners are in preview px: `scale` (preview / full px) is
+  // passed to `overlay`.
+  template <typename OverlayFn>
+  void Publish(const drivers::StereoFrame& frame, OverlayFn overlay) {
+    PreviewFrame p = MakePreviewFrame(frame.left.image, frame.right.image, width_);
+    p.job_id = job_id_;
+    p.sequence = sequence_++;
+    p.stamp_ns = WallStamp(frame.left.timestamp_ns);
+    p.exposure_us = frame.settings.exposure_us;
+    p.gain_db = frame.settings.gain_db;
+    p.overlay = overlay(static_cast<double>(p.size.width) / frame.left.image.cols).dump();
+    context_.sink->Preview(p);
+    last_ns_ = frame.left.timestamp_ns;
+  }
+
+ private:
+  const StageContext& context_;
+  std::string job_id_;
+  std::int64_t period_ns_;
+  int width_;
+  std::int64_t last_ns_ = -1;
+  std::uint32_t sequence_ = 0;
+};
+
 }  // namespace
 
 std::string NewCalibrationDir(const std::string& data_dir, std::string* id, std::string* error) {
@@ -133,11 +193,10 @@ CalibrationOutcome CalibrateStage::RunGuided(const std::string& dir, const std::
   std::vector<StereoBoardView> views;
   cv::Size image_size;
   std::unique_ptr<CalibrationGuide> guide;
-  std::int64_t first_ns = -1, last_preview_ns = -1;
-  std::uint32_t sequence = 0;
+  std::int64_t first_ns = -1;
   std::string error, last_advice;
-  const auto preview_period_ns =
-      static_cast<std::int64_t>(1e9 / std::max(0.1, options_.guided_preview_fps));
+  GuidePreview preview(context_, options_.job_id, options_.guided_preview_fps,
+                       options_.guided_preview_width);
   while (!context_.Stopping()) {
     drivers::StereoFrame frame;
     const drivers::DriverStatus s = devices_->Capture(&frame, context_.StopFlag());
@@ -158,22 +217,7 @@ CalibrationOutcome CalibrateStage::RunGuided(const std::string& dir, const std::
     }
     StereoBoardView view = DetectStereoBoard("view" + std::to_string(views.size()),
                                              frame.left.image, frame.right.image, options_.board);
-    GuideInput in;
-    in.stamp_ns = stamp;
-    in.left_found = view.left.found;
-    in.right_found = view.right.found;
-    in.left = view.left.image_points;
-    in.right = view.right.image_points;
-    if (view.left.found && options_.board.type == BoardSpec::Type::kChessboard) {
-      cv::Mat grey = frame.left.image;
-      if (grey.channels() == 3) cv::cvtColor(frame.left.image, grey, cv::COLOR_BGR2GRAY);
-      try {
-        in.blur_px = cv::estimateChessboardSharpness(
-            grey, cv::Size(options_.board.cols, options_.board.rows), view.left.image_points)[0];
-      } catch (const cv::Exception&) {
-        in.blur_px = 0;  // unknown: not judged
-      }
-    }
+    const GuideInput in = GuideInputOf(frame, view, options_.board);
     GuideDecision d = guide->Feed(in);
     const bool taken = d.take;
     if (d.take) {
@@ -201,19 +245,8 @@ CalibrationOutcome CalibrateStage::RunGuided(const std::string& dir, const std::
       context_.Progress("capture", guide->views(), options_.views, message);
       last_advice = d.advice;
     }
-    if (context_.sink && (last_preview_ns < 0 || stamp - last_preview_ns >= preview_period_ns ||
-                          d.state == "captured")) {
-      PreviewFrame p =
-          MakePreviewFrame(frame.left.image, frame.right.image, options_.guided_preview_width);
-      p.job_id = options_.job_id;
-      p.sequence = sequence++;
-      p.stamp_ns = WallStamp(stamp);
-      p.exposure_us = frame.settings.exposure_us;
-      p.gain_db = frame.settings.gain_db;
-      const double scale = static_cast<double>(p.size.width) / image_size.width;
-      p.overlay = guide->Overlay(d, in, scale).dump();
-      context_.sink->Preview(p);
-      last_preview_ns = stamp;
+    if (preview.Due(stamp, d.state == "captured")) {
+      preview.Publish(frame, [&](double scale) { return guide->Overlay(d, in, scale); });
     }
     if (guide->Done()) break;
     const double elapsed_s = static_cast<double>(stamp - first_ns) * 1e-9;
@@ -293,6 +326,14 @@ CalibrationOutcome CalibrateTurntableStage::Run() {
   std::vector<TurntableStep> steps;
   std::string error;
   const auto& angles = options_.angles_deg;
+  if (options_.guided) {
+    const bool ok = RunGuided(&steps, &error);
+    devices_->MoveTo(0);
+    devices_->ShowObject();
+    if (context_.Stopping()) return Cancelled("calibrate-turntable");
+    if (!ok) return Failure("calibrate-turntable: " + error);
+    return Solve(steps);
+  }
   for (std::size_t i = 0; i < angles.size() && !context_.Stopping(); ++i) {
     if (moving_) *moving_ = true;
     const drivers::DriverStatus moved = devices_->MoveTo(angles[i]);
@@ -319,7 +360,80 @@ CalibrationOutcome CalibrateTurntableStage::Run() {
   devices_->ShowObject();
   if (context_.Stopping()) return Cancelled("calibrate-turntable");
   if (steps.size() < angles.size()) return Failure("calibrate-turntable: " + error);
+  return Solve(steps);
+}
 
+bool CalibrateTurntableStage::RunGuided(std::vector<TurntableStep>* steps, std::string* error) {
+  std::unique_ptr<PlatterGuide> guide;
+  GuidePreview preview(context_, options_.job_id, options_.guided_preview_fps,
+                       options_.guided_preview_width);
+  std::int64_t first_ns = -1;
+  std::string last_advice;
+  const auto& angles = options_.angles_deg;
+  int angle = -1;  // placing
+  while (!context_.Stopping()) {
+    drivers::StereoFrame frame;
+    const drivers::DriverStatus s = devices_->Capture(&frame, context_.StopFlag());
+    if (context_.Stopping()) return false;
+    if (!s.ok()) return Fail(error, s.message);
+    const std::int64_t stamp = frame.left.timestamp_ns;
+    if (first_ns < 0) first_ns = stamp;
+    if (!guide) {
+      PlatterGuideOptions o;
+      o.image_size = frame.left.image.size();
+      o.angles = static_cast<int>(angles.size());
+      guide = std::make_unique<PlatterGuide>(o);
+    }
+    // Placing needs both images (the board whole in both); turning only the left.
+    StereoBoardView view;
+    if (angle < 0) {
+      view = DetectStereoBoard("platter", frame.left.image, frame.right.image, options_.board);
+    } else {
+      view.left = DetectBoard(frame.left.image, options_.board);
+    }
+    const GuideInput in = GuideInputOf(frame, view, options_.board);
+    const GuideDecision d = angle < 0 ? guide->Place(in) : guide->Turn(in);
+    if (preview.Due(stamp, d.state == "captured" || d.state == "missed")) {
+      preview.Publish(frame, [&](double scale) { return guide->Overlay(d, in, scale); });
+    }
+    if (d.advice != last_advice || d.take || d.state == "missed") {
+      const std::string message = d.rejected.empty() ? d.advice : d.rejected + ": " + d.advice;
+      context_.Progress(angle < 0 ? "place" : "capture", guide->found(),
+                        static_cast<int>(angles.size()), message);
+      last_advice = d.advice;
+    }
+    if (angle >= 0 && (d.take || d.state == "missed")) {
+      TurntableStep step;
+      step.commanded_angle_rad = angles[static_cast<std::size_t>(angle)] * kDegToRad;
+      step.left = view.left;
+      if (!d.take) {
+        step.left.found = false;
+        step.left.message = d.rejected;
+      }
+      steps->push_back(std::move(step));
+    }
+    if (d.take || d.state == "missed") {
+      if (++angle >= static_cast<int>(angles.size())) return true;
+      if (moving_) *moving_ = true;
+      const drivers::DriverStatus moved = devices_->MoveTo(angles[static_cast<std::size_t>(angle)]);
+      if (moving_) *moving_ = false;
+      if (!moved.ok()) return Fail(error, moved.message);
+      std::this_thread::sleep_for(options_.settle);
+      guide->StartAngle(angle, angles[static_cast<std::size_t>(angle)], -1);
+    }
+    const double elapsed_s = static_cast<double>(stamp - first_ns) * 1e-9;
+    if (elapsed_s > options_.guided_max_s) {
+      char text[160];
+      std::snprintf(
+          text, sizeof text, "gave up after %.0f s (%s): ", elapsed_s,
+          angle < 0 ? "the board was not laid still in view" : "the turns were not finished");
+      return Fail(error, text + last_advice);
+    }
+  }
+  return false;
+}
+
+CalibrationOutcome CalibrateTurntableStage::Solve(const std::vector<TurntableStep>& steps) {
   TurntableAxisOptions axis_options;
   axis_options.board_thickness_mm = options_.board_thickness_mm;
   const TurntableAxisResult r = CalibrateTurntableAxis(calibration_, steps, axis_options);
@@ -331,11 +445,25 @@ CalibrationOutcome CalibrateTurntableStage::Run() {
                            {"verdict_reason", r.verdict_reason}};
   StereoCalibration calibration = calibration_;
   if (!r.IsUsable() || !ApplyTurntableAxis(r, &calibration)) {
-    return Failure(
-        "calibrate-turntable: rejected: " + (r.message.empty() ? r.verdict_reason : r.message),
-        result);
+    std::string missed;
+    for (const TurntableStep& step : steps) {
+      if (step.left.found) continue;
+      char at[32];
+      std::snprintf(at, sizeof at, "%s%.0f°", missed.empty() ? "" : ", ",
+                    step.commanded_angle_rad / kDegToRad);
+      missed += at;
+    }
+    if (!missed.empty()) {
+      missed = "; the board was not measured at " + missed +
+               ": lay it nearer the middle of the platter, printed side up, and keep clear "
+               "while it turns";
+    }
+    return Failure("calibrate-turntable: rejected: " +
+                       (r.message.empty() ? r.verdict_reason : r.message) + missed,
+                   result);
   }
   std::string id;
+  std::string error;
   const std::string dir = NewCalibrationDir(options_.data_dir, &id, &error);
   if (dir.empty() || !SaveCalibration(dir + "/calibration.yaml", calibration, &error) ||
       !WriteFileAtomically(dir + "/report.json", result.dump(2), &error)) {

@@ -733,12 +733,19 @@ JobEngine::JobOutcome JobEngine::RunCalibrate() {
   return EndCalibration("calibrate", stage.Run());
 }
 
+CalibrateTurntableStage::Options JobEngine::TurntableOptions() {
+  CalibrateTurntableStage::Options o{options_.data_dir, options_.turntable_board,
+                                     options_.turntable_angles_deg, options_.settle,
+                                     options_.turntable_board_thickness_mm};
+  o.guided = options_.calibration_guided;
+  o.guided_max_s = options_.calibration_guided_max_s;
+  o.job_id = Current().id;
+  return o;
+}
+
 JobEngine::JobOutcome JobEngine::RunCalibrateTurntable() {
-  CalibrateTurntableStage stage(
-      Context(nullptr), devices_,
-      {options_.data_dir, options_.turntable_board, options_.turntable_angles_deg, options_.settle,
-       options_.turntable_board_thickness_mm},
-      *calibration(), &moving_);
+  CalibrateTurntableStage stage(Context(nullptr), devices_, TurntableOptions(), *calibration(),
+                                &moving_);
   return EndCalibration("calibrate-turntable", stage.Run());
 }
 

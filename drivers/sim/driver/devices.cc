@@ -126,17 +126,25 @@ class SimCamera final : public drivers::StereoCamera {
     try {
       StereoRender render;
       std::int64_t stamp = 0;
-      if (o.scene == SimSceneType::kHeldBoard) {
+      if (o.scene == SimSceneType::kHeldBoard ||
+          (o.scene == SimSceneType::kPlatterBoard && o.technician)) {
         // The board moved since the last frame: a scene of its own at the
         // shared scene's turntable angle (cheap: ~2 ms to place the board,
         // microseconds to build a board-only scene).
-        TechnicianFrame technician;
+        cv::Vec2d blur_px{0, 0};
         const double seconds = static_cast<double>(id) / o.technician_fps;
         SceneOptions options;
-        if (o.technician) {
-          technician = TechnicianAt(*station_, o.board, seconds);
+        if (o.scene == SimSceneType::kPlatterBoard) {
+          const PlatterTechnicianFrame technician = PlatterTechnicianAt(*station_, seconds);
+          options = PlatterBoardScene(o.board, technician.centre_off_axis_mm, technician.yaw_rad);
+          options.board.enabled = technician.board_visible;
+          options.seed = o.seed;
+          blur_px = technician.blur_px;
+        } else if (o.technician) {
+          const TechnicianFrame technician = TechnicianAt(*station_, o.board, seconds);
           options = HeldBoardScene(*station_, o.board, technician.rig_from_board);
           options.seed = o.seed;
+          blur_px = technician.blur_px;
         } else {
           options = SimHeldBoardSceneOptions(o, *station_, id);
         }
@@ -156,8 +164,8 @@ class SimCamera final : public drivers::StereoCamera {
         if (!scene) return Error(StatusCode::kFault, "Capture: held board scene: " + error);
         render = station_->Render(*scene, id, RenderOutputs::kImagesOnly);
         if (o.technician && render.IsUsable()) {
-          ApplyMotionBlur(technician.blur_px, &render.left);
-          ApplyMotionBlur(technician.blur_px, &render.right);
+          ApplyMotionBlur(blur_px, &render.left);
+          ApplyMotionBlur(blur_px, &render.right);
         }
       } else {
         std::lock_guard scene_lock(shared_->mutex);

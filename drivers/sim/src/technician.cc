@@ -149,6 +149,58 @@ TechnicianFrame TechnicianAt(const SimStation& station, const BoardSpec& board, 
   return frame;
 }
 
+namespace {
+
+struct PlatterPlacement {
+  bool visible = false;
+  double off_axis_mm = 0, yaw_rad = 0;
+  const char* activity = "";
+};
+
+PlatterPlacement PlatterPlacementAt(double t, double off_axis_mm) {
+  constexpr double kFetched = 1.5, kSlid = 2.7, kAdjusted = 3.7, kLean = 5.2, kLeanEnd = 5.8;
+  if (t < kFetched) return {false, off_axis_mm, 0, "out of view"};
+  if (t < kSlid) {
+    const double u = (t - kFetched) / (kSlid - kFetched);
+    const double eased = 0.5 - 0.5 * std::cos(CV_PI * u);
+    return {true, off_axis_mm + 40 * (1 - eased), 0.6 * (1 - eased), "placing"};
+  }
+  if (t < kAdjusted) {
+    const double u = (t - kSlid) / (kAdjusted - kSlid);
+    return {true, off_axis_mm + 1.2 * std::sin(3 * CV_PI * u), 0.01 * std::sin(2 * CV_PI * u),
+            "adjusting"};
+  }
+  if (t >= kLean && t < kLeanEnd) return {false, off_axis_mm, 0, "leaning in"};
+  return {true, off_axis_mm, 0, "lying"};
+}
+
+// The left image position (px) of a world point at turntable angle 0.
+cv::Vec2d WorldPx(const SimStation& station, const cv::Vec3d& p) {
+  const cv::Vec4d q = station.rig_from_world() * cv::Vec4d(p[0], p[1], p[2], 1);
+  const double f = station.calibration().rectified_focal_px();
+  return {f * q[0] / q[2], f * q[1] / q[2]};
+}
+
+}  // namespace
+
+PlatterTechnicianFrame PlatterTechnicianAt(const SimStation& station, double seconds,
+                                           double centre_off_axis_mm) {
+  const double t = std::max(0.0, seconds);
+  const PlatterPlacement now = PlatterPlacementAt(t, centre_off_axis_mm);
+  const PlatterPlacement later = PlatterPlacementAt(t + kExposureS, centre_off_axis_mm);
+  PlatterTechnicianFrame frame;
+  frame.board_visible = now.visible;
+  frame.centre_off_axis_mm = now.off_axis_mm;
+  frame.yaw_rad = now.yaw_rad;
+  frame.activity = now.activity;
+  if (now.visible && later.visible) {
+    // The board's centre lies at (off axis, 0) on the platter (PlatterBoardScene).
+    frame.blur_px =
+        WorldPx(station, {later.off_axis_mm, 0, 0}) - WorldPx(station, {now.off_axis_mm, 0, 0});
+  }
+  return frame;
+}
+
 void ApplyMotionBlur(const cv::Vec2d& blur_px, cv::Mat* image) {
   const double length = std::hypot(blur_px[0], blur_px[1]);
   if (length < 0.5 || image->empty()) return;

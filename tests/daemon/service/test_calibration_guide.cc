@@ -2,7 +2,10 @@
 // board corners: nothing is taken until the board has been still for the
 // hold time, a blurred or repeated pose is refused with its reason, the
 // advice follows the weakest diversity bar, and the guide is done only when
-// the views, bars and coverage are there.
+// the views, bars and coverage are there. The turntable's guide
+// (PlatterGuide) turns only once the board lies still, whole and away from
+// the picture's edges, and at each angle uses a still board or gives up on
+// the angle after its wait.
 #include <gtest/gtest.h>
 
 #include "craftscan/daemon/calibration_guide.h"
@@ -138,6 +141,93 @@ TEST(CalibrationGuide, AdviceFollowsTheWeakestBarAndDoneNeedsEverything) {
   EXPECT_DOUBLE_EQ(overlay["board"]["left"][0][0].get<double>(), (640 - 160) * 0.5);
   EXPECT_EQ(overlay["coverage"]["cells"].size(), 12u);
   EXPECT_EQ(overlay["views_accepted"], guide.views());
+}
+
+// --- the turntable axis -------------------------------------------------------
+
+PlatterGuideOptions PlatterOptions() {
+  PlatterGuideOptions o;
+  o.image_size = cv::Size(1280, 1024);
+  o.angles = 3;
+  return o;
+}
+
+TEST(PlatterGuide, TurnsOnlyOnceTheBoardLiesStillWholeAndAwayFromTheEdges) {
+  PlatterGuide guide(PlatterOptions());
+  std::int64_t n = 0;
+  GuideDecision d = guide.Place(Frame(n++, {}));
+  EXPECT_EQ(d.state, "searching");
+  EXPECT_NE(d.advice.find("Lay the board"), std::string::npos) << d.advice;
+  // Seen by the left camera only.
+  GuideInput left_only = Frame(n++, Board(640, 600, 40));
+  left_only.right_found = false;
+  left_only.right.clear();
+  d = guide.Place(left_only);
+  EXPECT_EQ(d.rejected, "board cut off");
+  EXPECT_NE(d.advice.find("right camera"), std::string::npos) << d.advice;
+  // A hand still moving it.
+  for (int i = 0; i < 4; ++i) {
+    d = guide.Place(Frame(n++, Board(640 + 2 * i, 600, 40)));
+    EXPECT_EQ(d.state, "moving");
+    EXPECT_NE(d.advice.find("Let go"), std::string::npos) << d.advice;
+  }
+  // Still, but its corners 10 px from the right edge.
+  for (int i = 0; i < 12; ++i) {
+    d = guide.Place(Frame(n++, Board(1270 - 4 * 40, 600, 40)));
+    EXPECT_FALSE(d.take);
+  }
+  EXPECT_EQ(d.rejected, "near the edge");
+  // Moved to the middle: one second of stillness, then it turns.
+  int frames = 0;
+  do {
+    d = guide.Place(Frame(n++, Board(640, 600, 40)));
+    ++frames;
+  } while (!d.take && frames < 30);
+  EXPECT_TRUE(d.take);
+  EXPECT_EQ(frames, 9);  // the frame it arrived in moved; 8 more make 1 s
+  // Blurred: not turned.
+  PlatterGuide blurred(PlatterOptions());
+  for (int i = 0; i < 20; ++i) d = blurred.Place(Frame(i, Board(640, 600, 40), 5.0));
+  EXPECT_FALSE(d.take);
+  EXPECT_EQ(d.rejected, "blurred");
+}
+
+TEST(PlatterGuide, UsesAStillBoardAtEachAngleAndGivesUpOnAnAngleAfterItsWait) {
+  PlatterGuide guide(PlatterOptions());
+  std::int64_t n = 0;
+  // Angle 0: found still in its second frame.
+  guide.StartAngle(0, 0, -1);
+  EXPECT_FALSE(guide.Turn(Frame(n++, Board(640, 600, 40))).take);
+  GuideDecision d = guide.Turn(Frame(n++, Board(640, 600, 40)));
+  EXPECT_TRUE(d.take);
+  EXPECT_EQ(guide.found(), 1);
+  // Angle 120: hidden for 1 s, then seen sliding, then still.
+  guide.StartAngle(1, 120, -1);
+  for (int i = 0; i < 8; ++i) {
+    d = guide.Turn(Frame(n++, {}));
+    EXPECT_EQ(d.state, "searching");
+  }
+  EXPECT_EQ(guide.Turn(Frame(n++, Board(600, 600, 40))).state, "moving");
+  EXPECT_EQ(guide.Turn(Frame(n++, Board(603, 600, 40))).state, "moving");
+  EXPECT_TRUE(guide.Turn(Frame(n++, Board(603.2, 600, 40))).take);
+  // Angle 240: never seen; given up after angle_wait_s (4 s = 32 frames).
+  guide.StartAngle(2, 240, -1);
+  int frames = 0;
+  do {
+    d = guide.Turn(Frame(n++, {}));
+    ++frames;
+  } while (d.state != "missed" && frames < 100);
+  EXPECT_EQ(frames, 33);
+  EXPECT_EQ(d.rejected, "board not found");
+  EXPECT_NE(d.advice.find("240°"), std::string::npos) << d.advice;
+  EXPECT_EQ(guide.found(), 2);
+  EXPECT_EQ(guide.missed(), 1);
+  const nlohmann::json o = guide.Overlay(d, Frame(n, {}), 0.5);
+  EXPECT_EQ(o["mode"], "turntable");
+  ASSERT_EQ(o["steps"].size(), 3u);
+  EXPECT_EQ(o["steps"][1]["angle_deg"], 120);
+  EXPECT_EQ(o["steps"][2]["found"], false);
+  EXPECT_EQ(o["views_accepted"], 2);
 }
 
 }  // namespace

@@ -106,6 +106,14 @@ class FakeSink : public JobSink {
     std::lock_guard lock(mutex_);
     clouds_.push_back(view);
   }
+  void Preview(const PreviewFrame& frame) override {
+    std::lock_guard lock(mutex_);
+    overlays_.push_back(nlohmann::json::parse(frame.overlay, nullptr, false));
+  }
+  std::vector<nlohmann::json> overlays() const {
+    std::lock_guard lock(mutex_);
+    return overlays_;
+  }
 
   // Waits until `n` jobs have published their end.
   bool WaitEnds(int n, std::chrono::seconds timeout = 300s) {
@@ -138,6 +146,7 @@ class FakeSink : public JobSink {
     return out;
   }
   mutable std::mutex mutex_;
+  std::vector<nlohmann::json> overlays_;
   std::condition_variable changed_;
   std::vector<Event> events_;
   std::vector<int> captures_, disparities_, clouds_;
@@ -166,10 +175,13 @@ class Station {
   std::string Open() {
     std::string error;
     sim::SimDriverOptions sim_options;
-    if (!sim::SimDriverOptionsFromConfig({{"image_size", kImageSize}}, &sim_options, &error))
+    const std::string image_size =
+        extra_.count("image_size") ? extra_.at("image_size") : std::string(kImageSize);
+    if (!sim::SimDriverOptionsFromConfig({{"image_size", image_size}}, &sim_options, &error))
       return error;
     auto rig = sim::SimStation::Create(sim::SimRigOptions(sim_options), &error);
     if (!rig) return error;
+    truth_ = rig->calibration();
     fs::create_directories(data_dir_ + "/calibration");
     if (!SaveCalibration(data_dir_ + "/calibration/current.yaml", rig->calibration(), &error))
       return error;
@@ -192,6 +204,7 @@ class Station {
     options.default_step_deg = 360.0 / kViews;
     options.settle = 0ms;
     options.threads = TestThreads();
+    options.calibration_guided = guided;
     PipelineSettings pipeline;  // the carved box with a margin, as daemon_fixture.h
     pipeline.threads = TestThreads();
     pipeline.volume.radius_mm = 65;
@@ -215,6 +228,9 @@ class Station {
     if (!engine_->LoadCurrentCalibration(&error)) return "calibration: " + error;
     return {};
   }
+
+  bool guided = false;  // JobEngineOptions::calibration_guided, set before Open
+  const StereoCalibration& truth() const { return truth_; }
 
   // Waits for the job started last to end (its final Progress included).
   JobInfo Wait() {
@@ -345,6 +361,7 @@ class Station {
 
   std::string data_dir_;
   drivers::DriverConfig extra_;
+  StereoCalibration truth_;
   FakeSink sink_;
   std::unique_ptr<DeviceManager> devices_;
   std::unique_ptr<SessionStore> store_;
@@ -524,6 +541,77 @@ TEST_F(JobStages, CancelAbortsACalibrateTurntableMove) {
   EXPECT_EQ(job.state, JobState::kCancelled) << job.message << "\n" << station.Log();
   EXPECT_EQ(job.message, "calibrate-turntable cancelled; nothing changed");
   EXPECT_EQ(station.engine().calibration_id(), calibration_before);
+}
+
+// Guided calibrate-turntable with the sim's technician laying the board
+// (PlatterTechnicianAt): the platter waits while it is empty, while the
+// board slides and while their hand adjusts it; it turns only once the board
+// lies still, waits out their leaning in over the platter at one angle, and
+// finds the axis as exactly as the unguided job (test_daemon: direction
+// 0.2°, point 2 mm).
+TEST_F(JobStages, GuidedCalibrateTurntableWaitsForTheBoardToLieStillAndFindsTheAxis) {
+  Station station(data_dir(), {{"image_size", "640x512"},
+                               {"technician", "1"},
+                               {"technician_fps", "8"},
+                               {"supersampling", "1"}});
+  station.guided = true;
+  OPEN_STATION(station);
+  JobInfo info;
+  std::string error;
+  ASSERT_TRUE(station.engine().StartCalibrateTurntable(&info, &error)) << error;
+  const JobInfo job = station.Wait();
+  ASSERT_EQ(job.state, JobState::kDone) << job.message << "\n" << station.Log();
+  std::printf("guided calibrate-turntable: %s\n", job.result.dump().c_str());
+  EXPECT_EQ(job.result.value("steps_used", 0), 6);
+
+  // What the person was told, in order: lay the board, let go, hands off,
+  // then the turns, one of them waiting for the board to be seen again.
+  std::vector<std::string> place, capture;
+  for (const auto& e : station.sink().events()) {
+    if (e.stage == "place") place.push_back(e.message);
+    if (e.stage == "capture") capture.push_back(e.message);
+  }
+  auto index_of = [](const std::vector<std::string>& list, const std::string& part) {
+    for (std::size_t i = 0; i < list.size(); ++i) {
+      if (Contains(list[i], part)) return static_cast<int>(i);
+    }
+    return -1;
+  };
+  const int lay = index_of(place, "Lay the board"), let_go = index_of(place, "Let go"),
+            hands_off = index_of(place, "Hands off"), turns = index_of(place, "platter turns");
+  EXPECT_EQ(lay, 0) << ::testing::PrintToString(place);
+  EXPECT_GT(let_go, lay) << ::testing::PrintToString(place);
+  EXPECT_GT(hands_off, let_go) << ::testing::PrintToString(place);
+  EXPECT_GT(turns, hands_off) << ::testing::PrintToString(place);
+  int measured = 0;
+  for (const std::string& m : capture) measured += Contains(m, "Board measured") ? 1 : 0;
+  EXPECT_EQ(measured, 6) << ::testing::PrintToString(capture);
+  EXPECT_GE(index_of(capture, "Looking for the board"), 0)
+      << "the lean-in was not waited out: " << ::testing::PrintToString(capture);
+
+  // The overlays the console draws: the turntable's, with corners while the
+  // board lies, and the angles measured.
+  int with_corners = 0;
+  nlohmann::json last;
+  for (const nlohmann::json& o : station.sink().overlays()) {
+    ASSERT_TRUE(o.is_object());
+    EXPECT_EQ(o.value("mode", ""), "turntable");
+    if (o["board"].is_object() && o["board"]["left"].size() > 0) ++with_corners;
+    last = o;
+  }
+  EXPECT_GT(with_corners, 3);
+  EXPECT_EQ(last["steps"].size(), 6u) << last.dump();
+
+  StereoCalibration measured_calibration;
+  ASSERT_TRUE(
+      LoadCalibration(data_dir() + "/calibration/current.yaml", &measured_calibration, &error))
+      << error;
+  const TurntableAxis& axis = measured_calibration.turntable;
+  const TurntableAxis& truth = station.truth().turntable;
+  ASSERT_TRUE(axis.valid);
+  const double cos_angle = axis.direction_in_rig.dot(truth.direction_in_rig);
+  EXPECT_LT(std::acos(std::min(1.0, cos_angle)) * 180 / CV_PI, 0.2);
+  EXPECT_LT(cv::norm(axis.point_in_rig_mm - truth.point_in_rig_mm), 2.0);
 }
 
 TEST_F(JobStages, CameraLostMidScanInterruptsTheScanAndResumeCompletesIt) {

@@ -175,7 +175,9 @@ struct CalibrationSettings {
   // Guided: the calibrate job watches the live stream, takes a view when the
   // board is held still in a new pose and tells the person what to do next
   // (calibration_guide.h); `views` are then the views needed. Off: it takes
-  // `views` frames as they come (the simulator's posed board).
+  // `views` frames as they come (the simulator's posed board). Guided,
+  // calibrate-turntable waits for the board to lie still in view before it
+  // turns and measures a still board at each angle (PlatterGuide).
   bool guided = false;
   double guided_max_s = 600;  // give up after this long, [10, 3600]
 };

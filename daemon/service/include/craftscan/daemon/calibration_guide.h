@@ -65,6 +65,22 @@ struct GuideDecision {
   std::string advice;    // what the person should do now
 };
 
+// How long a board's corners (left image) have stayed still: no corner
+// moving more than still_px between consecutive frames, timed by the
+// frames' stamps.
+class BoardStillness {
+ public:
+  // This frame's corners; false if they moved (the hold starts again).
+  bool Feed(std::int64_t stamp_ns, const std::vector<cv::Point2f>& corners, double still_px);
+  void Reset();  // the board is gone
+  double hold_s() const { return hold_s_; }
+
+ private:
+  std::vector<cv::Point2f> last_;
+  std::int64_t since_ns_ = -1;
+  double hold_s_ = 0;
+};
+
 class CalibrationGuide {
  public:
   explicit CalibrationGuide(CalibrationGuideOptions options);
@@ -77,7 +93,7 @@ class CalibrationGuide {
   bool Done() const;
   std::array<double, 4> Bars() const;  // x, y, size, skew progress, 0..1
   double Coverage() const;             // share of grid cells covered, 0..1
-  double hold_s() const { return hold_s_; }
+  double hold_s() const { return still_.hold_s(); }
   // The console's overlay (API.md "preview"): state, corners scaled by
   // `scale` (preview px per full px), hold, coverage, diversity, counts,
   // rejection and advice.
@@ -93,10 +109,61 @@ class CalibrationGuide {
   CalibrationGuideOptions o_;
   std::vector<std::array<double, 4>> params_;
   std::vector<bool> covered_;
-  std::vector<cv::Point2f> last_left_;
-  std::int64_t still_since_ns_ = -1;
-  double hold_s_ = 0;
+  BoardStillness still_;
   bool need_move_ = false;  // after a capture, the board must move before the next
+};
+
+// Guided turntable-axis calibration (calibrate-turntable with
+// calibration.guided): a person lays the board on the platter, and the
+// guide decides when it may turn and, at each angle, which frame to use.
+//
+// Placing: the turntable waits until the board is found whole in both
+// images, at least min_margin (of the image's width and height) inside
+// every edge of the left image (it must stay in the picture as it turns),
+// sharp, and still (no corner moving more than still_px between frames)
+// for hold_s by the frames' stamps: a hand still on the board or a board
+// still settling keeps it waiting. Then "ready": hands off, it turns.
+// Turning: after each move, the frame used is the first whose board (left
+// image) lies still against the previous frame of that angle, so a board
+// sliding on a jerky platter or a hand reaching in is not measured; a
+// board not found still within angle_wait_s is recorded as missed at that
+// angle and the guide goes on.
+struct PlatterGuideOptions {
+  cv::Size image_size;
+  int angles = 6;
+  double hold_s = 1.0;
+  double still_px = 0.5;
+  double max_blur_px = 3.0;
+  double min_margin = 0.03;
+  double angle_wait_s = 4;
+};
+
+class PlatterGuide {
+ public:
+  explicit PlatterGuide(PlatterGuideOptions options) : o_(std::move(options)) {}
+
+  // Placing. take = true: the board lies still in view; start turning.
+  GuideDecision Place(const GuideInput& frame);
+  // Turning: call at each new angle (its index and degrees) before its frames.
+  void StartAngle(int index, double angle_deg, std::int64_t stamp_ns);
+  // take = true: use this frame's board at the current angle;
+  // state "missed": give up on this angle (the board was not found still).
+  GuideDecision Turn(const GuideInput& frame);
+
+  int found() const { return found_; }
+  int missed() const { return missed_; }
+  bool placing() const { return angle_index_ < 0; }
+  nlohmann::json Overlay(const GuideDecision& decision, const GuideInput& frame,
+                         double scale) const;
+
+ private:
+  PlatterGuideOptions o_;
+  BoardStillness still_;
+  std::vector<cv::Point2f> last_left_;  // turning: the previous frame's at this angle
+  std::int64_t angle_start_ns_ = -1;
+  int angle_index_ = -1, found_ = 0, missed_ = 0;
+  double angle_deg_ = 0;
+  std::vector<nlohmann::json> steps_;  // {angle_deg, found}
 };
 
 }  // namespace craftscan::daemon

@@ -222,6 +222,7 @@ class JobEngine {
   JobOutcome RunPreview(const PreviewRequest& request);
   JobOutcome RunCalibrate();
   JobOutcome RunCalibrateTurntable();
+  CalibrateTurntableStage::Options TurntableOptions();
   // Makes an accepted calibration current, or the failed job saying why.
   JobOutcome EndCalibration(const std::string& verb, CalibrationOutcome outcome);
   StageContext Context(Session* session);

@@ -315,6 +315,15 @@ class CalibrateTurntableStage {
     std::vector<double> angles_deg;
     std::chrono::milliseconds settle{0};
     double board_thickness_mm = 3;
+    // Guided (PlatterGuide, calibration_guide.h): wait until the board lies
+    // still in view, then at each angle use the first frame with the board
+    // lying still; preview frames with the guide's overlay as in
+    // CalibrateStage. Gives up after guided_max_s of frame time.
+    bool guided = false;
+    double guided_max_s = 600;
+    double guided_preview_fps = 4;
+    int guided_preview_width = 640;
+    std::string job_id;
   };
   CalibrateTurntableStage(StageContext context, DeviceManager* devices, Options options,
                           StereoCalibration calibration, std::atomic<bool>* moving = nullptr)
@@ -326,6 +335,11 @@ class CalibrateTurntableStage {
   CalibrationOutcome Run();
 
  private:
+  // The guided capture: the steps at every angle (found or missed), or false
+  // with `error` (or cancelled).
+  bool RunGuided(std::vector<TurntableStep>* steps, std::string* error);
+  CalibrationOutcome Solve(const std::vector<TurntableStep>& steps);
+
   StageContext context_;
   DeviceManager* devices_;
   Options options_;

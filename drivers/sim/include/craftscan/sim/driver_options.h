@@ -41,11 +41,14 @@
 //   image_size              WxH, px; the default rig scaled to it     (1280x1024)
 //   seed                    scene textures and sensor noise           (1)
 //   threads                 render threads, 1…256                     (1)
-//   technician              0|1: held_board only: a simulated person holds the
+//   technician              0|1: held_board: a simulated person holds the
 //                           board instead of a new pose per frame: frame id i
 //                           is i / technician_fps seconds into their moves
 //                           (TechnicianAt, technician.h: moves blurred, holds,
-//                           out of view, too close), frame stamps in that time (0)
+//                           out of view, too close), frame stamps in that time;
+//                           platter_board: the person lays the board on the
+//                           platter first (PlatterTechnicianAt: empty platter,
+//                           sliding, adjusting, then lying; leaning in once) (0)
 //   technician_fps          frames per simulated second, (0, 60]           (8)
 //   supersampling           s: s×s samples per pixel, 1…4 (1 = point sampled:
 //                           a quarter of the rays, board corners ~2× noisier) (2)
@@ -137,7 +140,7 @@ struct SimDriverOptions {
   std::uint64_t seed = 1;
   int threads = 1;
   int supersampling = 2;             // 1…4
-  bool technician = false;           // held_board: TechnicianAt instead of a pose per frame
+  bool technician = false;           // board scenes: a simulated person (technician.h)
   double technician_fps = 8;         // (0, 60]
   double turntable_speed_deg_s = 0;  // 0 = instantaneous
   int drop_frame_every = 0;          // 0 = off, else ≥ 2

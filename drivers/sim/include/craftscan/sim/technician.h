@@ -9,6 +9,7 @@
 //   every 6th        they first take the board out of the view for a second
 //   every 7th        they first hold it far too close (cut off) for a second
 // The schedule depends on time only, so a frame at time t is reproducible.
+// PlatterTechnicianAt: the same for a board laid on the platter.
 #pragma once
 
 #include <cstdint>
@@ -32,6 +33,27 @@ struct TechnicianFrame {
 
 // The technician at `seconds` after the board was first shown.
 TechnicianFrame TechnicianAt(const SimStation& station, const BoardSpec& board, double seconds);
+
+// The same person laying a board on the platter for the turntable-axis
+// calibration (platter_board scene), on a fixed schedule:
+//   0 – 1.5 s     the platter is empty (they fetch the board)
+//   1.5 – 2.7 s   they slide it into place from farther out, turned
+//   2.7 – 3.7 s   their hand still adjusts it (a millimetre or so)
+//   from 3.7 s    it lies still, `centre_off_axis_mm` off the axis, turning
+//                 with the platter
+//   5.2 – 5.8 s   they lean in over the platter: the board is hidden (with
+//                 8 frames a second, while the platter turns)
+// blur_px: the board's apparent motion during the exposure while sliding
+// or adjusting (left image, at turntable angle 0, where the placing is).
+struct PlatterTechnicianFrame {
+  bool board_visible = false;
+  double centre_off_axis_mm = 20;
+  double yaw_rad = 0;
+  cv::Vec2d blur_px{0, 0};
+  std::string activity;  // "out of view", "placing", "adjusting", "lying", "leaning in"
+};
+PlatterTechnicianFrame PlatterTechnicianAt(const SimStation& station, double seconds,
+                                           double centre_off_axis_mm = 20);
 
 // Blurs `image` (in place) along `blur_px` (a linear motion blur of that
 // length); no-op below half a pixel.

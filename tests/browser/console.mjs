@@ -2,8 +2,13 @@
 // (console_station: the daemon plus craftscan-web's server):
 //   - the page loads from the console alone (every other URL refused);
 //   - an operator signs in and sees the station idle with its role;
-//   - a 4-view scan starts from the scan page, its thumbnails arrive live;
-//   - the daemon is killed mid-scan: the page says the station is gone;
+//   - a 4-view scan starts from the scan page, its thumbnails arrive live,
+//     each view's disparity under its picture once matched (a false-colour
+//     picture, decoded in the page: coloured where valid, not one colour,
+//     its caption's "% valid" the share of coloured pixels);
+//   - the daemon is killed mid-scan: the page says the station is gone; the
+//     scan page, left and opened again, still shows the views' pictures and
+//     disparities;
 //     started again, the session shows as interrupted, Resume completes it;
 //   - the finished session opens in the 3D viewer, which draws the model
 //     (pixels differ from the background) and turns under the mouse;
@@ -19,6 +24,54 @@ import {
 } from './station.mjs';
 
 const harness = harnessArgs('console.mjs');
+
+// The Scan page's disparity pictures, decoded through a canvas in the page:
+// [{view, src, valid (data-valid), caption, hasPicture (the camera's
+// thumbnail too), width, height, coloured (share of pixels not black),
+// colours (occupied bins of 8 levels per channel), topShare (the most common
+// bin's share, black counted as one)}].
+async function disparityPictures(page) {
+  return page.$$eval(`${sel('thumbs')} figure[data-view]`, async (figures) => {
+    const out = [];
+    for (const figure of figures) {
+      const img = figure.querySelector('[data-testid="thumb-disparity"]');
+      if (!img) continue;
+      const picture = new Image();
+      picture.src = img.src;
+      await picture.decode();
+      const canvas = document.createElement('canvas');
+      canvas.width = picture.naturalWidth;
+      canvas.height = picture.naturalHeight;
+      const g = canvas.getContext('2d');
+      g.drawImage(picture, 0, 0);
+      const d = g.getImageData(0, 0, canvas.width, canvas.height).data;
+      const bins = new Map();
+      let black = 0;
+      for (let i = 0; i < d.length; i += 4) {
+        if (d[i] + d[i + 1] + d[i + 2] < 60) {
+          black++;
+          continue;
+        }
+        const key = ((d[i] >> 5) << 6) | ((d[i + 1] >> 5) << 3) | (d[i + 2] >> 5);
+        bins.set(key, (bins.get(key) || 0) + 1);
+      }
+      const pixels = canvas.width * canvas.height;
+      out.push({
+        view: Number(figure.dataset.view),
+        src: img.src,
+        valid: Number(img.dataset.valid),
+        caption: figure.querySelector('[data-testid="thumb-disparity-caption"]')?.textContent.trim() ?? '',
+        hasPicture: !!figure.querySelector('.thumb-button img'),
+        width: canvas.width,
+        height: canvas.height,
+        coloured: (pixels - black) / pixels,
+        colours: bins.size,
+        topShare: Math.max(black, ...bins.values()) / pixels,
+      });
+    }
+    return out;
+  });
+}
 
 runBrowserTest('console', async (t) => {
   const station = await startStation(harness);
@@ -60,12 +113,40 @@ runBrowserTest('console', async (t) => {
     await page.type(sel('scan-step'), '90');
     await page.click(sel('scan-start'));
     await page.waitForSelector(`${sel('thumbs')} figure img`, { timeout: 60000 });
+    // The views' disparities, as they are matched.
+    await page.waitForFunction((s) => document.querySelectorAll(s).length >= 2, { timeout: 60000 },
+                               `${sel('thumbs')} ${sel('thumb-disparity')}`);
+    const shown = await disparityPictures(page);
     await t.screenshot(page, '02-scan-live');
+    await t.screenshot(page, '02-scan-live-views', sel('thumbs'));
+    for (const p of shown) {
+      t.log(`view ${p.view}: ${p.caption}; ${p.width}x${p.height}, ${(100 * p.coloured).toFixed(1)} % coloured, ` +
+            `${p.colours} colours, the commonest ${(100 * p.topShare).toFixed(1)} %`);
+      check(p.hasPicture, `view ${p.view}: a disparity without the camera's picture`);
+      check(p.width > 0 && p.width <= 320, `view ${p.view}: disparity picture ${p.width} px wide`);
+      check(p.valid > 0.05 && p.valid <= 1, `view ${p.view}: valid fraction ${p.valid}`);
+      check(p.caption === `disparity, ${Math.round(100 * p.valid)} % valid`, `view ${p.view}: caption "${p.caption}"`);
+      check(Math.abs(p.coloured - p.valid) < 0.1,
+            `view ${p.view}: ${(100 * p.coloured).toFixed(1)} % of the picture coloured, ${(100 * p.valid).toFixed(1)} % valid`);
+      check(p.colours >= 4 && p.topShare < 0.9, `view ${p.view}: the disparity picture is (nearly) one colour`);
+    }
 
     // The daemon dies mid-scan.
     check((await station.send('kill')) === 'ok', 'killing the daemon');
     await page.waitForSelector(sel('banner-gone'), { visible: true, timeout: 15000 });
     await t.screenshot(page, '03-station-gone');
+    // The scan page left and opened again: its views' pictures and
+    // disparities are still there (from the console's memory: the station
+    // is gone).
+    await page.click(sel('nav-sessions'));
+    await page.waitForSelector(sel('sessions-refresh'), { visible: true });
+    await page.click(sel('nav-scan'));
+    await page.waitForSelector(`${sel('thumbs')} ${sel('thumb-disparity')}`, { timeout: 5000 });
+    const again = await disparityPictures(page);
+    for (const p of shown) {
+      check(again.some((q) => q.view === p.view && q.src === p.src && q.hasPicture),
+            `view ${p.view}: its disparity is gone after the scan page was opened again`);
+    }
     check((await station.send('start')) === 'ok', 'starting the daemon again');
     await page.waitForSelector(sel('banner-gone'), { hidden: true, timeout: 30000 });
 

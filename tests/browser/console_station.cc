@@ -3,7 +3,12 @@
 // for the three roles, a private loopback DDS domain) with craftscan-web's
 // server in this process in front of it on a free port.
 //
-//   console_station --assets DIR
+//   console_station --assets DIR [--sim-extra ", key: value..."] [--calibration YAML]
+//
+// --sim-extra: more sim driver keys (DaemonFixture's extra_sim), e.g.
+// ", technician: 1, technician_fps: 4, supersampling: 1" for the simulated
+// technician of a guided calibration; --calibration: the config's
+// calibration mapping, e.g. "{guided: true, views: 12}".
 //
 // Prints one JSON line {"url", "station", "observer", "operator", "admin",
 // "data_dir"} once both answer, then reads commands, one per line, from
@@ -28,12 +33,16 @@
 
 int main(int argc, char** argv) {
   using namespace craftscan;
-  std::string assets;
+  std::string assets, sim_extra, calibration;
   for (int i = 1; i + 1 < argc; ++i) {
-    if (std::string(argv[i]) == "--assets") assets = argv[i + 1];
+    const std::string name = argv[i];
+    if (name == "--assets") assets = argv[i + 1];
+    if (name == "--sim-extra") sim_extra = argv[i + 1];
+    if (name == "--calibration") calibration = argv[i + 1];
   }
   if (assets.empty()) {
-    std::fprintf(stderr, "usage: console_station --assets DIR\n");
+    std::fprintf(stderr,
+                 "usage: console_station --assets DIR [--sim-extra TEXT] [--calibration YAML]\n");
     return 2;
   }
   // stdout carries the protocol: the console's log goes to stderr.
@@ -46,7 +55,8 @@ int main(int argc, char** argv) {
   sigaddset(&signals, SIGTERM);
   sigaddset(&signals, SIGINT);
   pthread_sigmask(SIG_BLOCK, &signals, nullptr);
-  testing::DaemonFixture fixture("640x512");
+  testing::DaemonFixture fixture("640x512", sim_extra);
+  fixture.calibration_yaml = calibration;
   std::thread([&fixture, signals] {
     int sig = 0;
     sigwait(&signals, &sig);

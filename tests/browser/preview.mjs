@@ -33,6 +33,7 @@ async function liveState(page) {
       left: img('preview-left'),
       right: img('preview-right'),
       exposure: document.querySelector('[data-testid="preview-exposure"]')?.dataset.exposureUs ?? '',
+      latency: document.querySelector('[data-testid="preview-latency"]')?.dataset.latencyMs ?? '',
     };
   }, { panel: sel('preview') });
 }
@@ -81,6 +82,14 @@ runBrowserTest('preview', async (t) => {
     await page.click(sel('preview-start'));
     const frames = await collectFrames(page, 3, 30000);
     t.log('frames', frames.map((f) => f.key).join(', '));
+    // A figure, not a check: exposure to screen over a dozen frames (the
+    // daemon and the browser share this machine's clock).
+    const timed = await collectFrames(page, 12, 60000);
+    const latencies = timed.map((f) => Number(f.latency)).filter((v) => v >= 0).sort((a, b) => a - b);
+    if (latencies.length) {
+      t.log(`preview latency, exposure to screen: median ${latencies[latencies.length >> 1]} ms, ` +
+            `max ${latencies[latencies.length - 1]} ms over ${latencies.length} frames`);
+    }
     check(frames.every((f) => f.left.startsWith('data:image/jpeg') && f.right.startsWith('data:image/jpeg')),
           'the pictures are not JPEG data URLs');
     for (const side of ['left', 'right']) {

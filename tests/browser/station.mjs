@@ -1,6 +1,6 @@
-// Shared by the console's browser tests (console.mjs, preview.mjs): the
-// console_station harness (craftscand on the sim plus craftscan-web's server)
-// and the pages that talk to it.
+// Shared by the console's browser tests (console.mjs, preview.mjs,
+// calibrate.mjs): the console_station harness (craftscand on the sim plus
+// craftscan-web's server) and the pages that talk to it.
 import { spawn } from 'node:child_process';
 import readline from 'node:readline';
 import { check } from './lib.mjs';
@@ -23,10 +23,15 @@ export function harnessArgs(script) {
  * Starts console_station; resolves {info, send(command) → its answer line,
  * stop()}. stop() closes its stdin and waits for it to end (it stops the
  * daemon); SIGTERM (which it also handles) if it has not ended in 10 s.
+ * simExtra: more sim driver keys (", technician: 1, ..."); calibration: the
+ * daemon config's calibration mapping ("{guided: true, ...}").
  */
-export function startStation({ harnessPath, assets }) {
+export function startStation({ harnessPath, assets, simExtra = '', calibration = '' }) {
   return new Promise((resolve, reject) => {
-    const child = spawn(harnessPath, ['--assets', assets], { stdio: ['pipe', 'pipe', 'inherit'] });
+    const args = ['--assets', assets];
+    if (simExtra) args.push('--sim-extra', simExtra);
+    if (calibration) args.push('--calibration', calibration);
+    const child = spawn(harnessPath, args, { stdio: ['pipe', 'pipe', 'inherit'] });
     const lines = readline.createInterface({ input: child.stdout });
     const waiting = [];
     let info = null;

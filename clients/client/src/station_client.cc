@@ -113,6 +113,7 @@ struct StationClient::Impl {
   std::unique_ptr<dds::Reader<dds::msg::JobProgress>> progress;
   std::unique_ptr<dds::Reader<dds::msg::PointCloud>> clouds;
   std::unique_ptr<dds::Reader<dds::msg::StereoCapture>> captures;
+  std::unique_ptr<dds::Reader<dds::msg::Disparity>> disparity;
   std::unique_ptr<dds::Reader<dds::msg::Preview>> preview;
   std::unique_ptr<dds::Reader<dds::msg::SessionFile>> files;
   std::atomic<bool> running{true};
@@ -406,6 +407,30 @@ bool StationClient::SubscribeCaptures(std::function<void(const CaptureUpdate&)> 
     handler(u);
   };
   return d.Subscribe(&d.captures, dds::CaptureTopic(d.options.station), "captures",
+                     std::move(convert), error);
+}
+
+bool StationClient::SubscribeDisparity(std::function<void(const DisparityUpdate&)> handler,
+                                       std::string* error) {
+  Impl& d = *impl_;
+  auto convert = [handler = std::move(handler)](const dds::msg::Disparity& m) {
+    DisparityUpdate u;
+    cv::Mat map;
+    std::string why;
+    if (!dds::DisparityToMat(m, &map, &why)) return;
+    u.session = Str(m.session);
+    u.view_index = m.view_index;
+    u.disparity = map.clone();  // the message's buffer is reused by the next take
+    u.f_px = m.f_px;
+    u.baseline_mm = m.baseline_mm;
+    u.cx_offset_px = m.cx_offset_px;
+    u.min_disparity = m.min_disparity;
+    u.max_disparity = m.max_disparity;
+    u.stamp_ns = m.stamp_ns;
+    u.frame_id = Str(m.frame_id);
+    handler(u);
+  };
+  return d.Subscribe(&d.disparity, dds::DisparityTopic(d.options.station), "disparity",
                      std::move(convert), error);
 }
 

@@ -55,7 +55,13 @@
  *     progress-bar         <progress> of the current stage (current/total)
  *     progress-message     the stage's message
  *     thumbs               the view thumbnails: one <figure data-view="<index>"> per view,
- *                          each with one <img> (the left camera's picture)
+ *                          with the left camera's picture (an <img> in a button) once
+ *                          captured and, once matched, the view's disparity:
+ *       thumb-disparity    its false-colour picture (<img>; data-valid = the valid fraction
+ *                          0..1; blue far, red near, black where no match)
+ *       thumb-disparity-caption  "disparity, 87 % valid"
+ *                          Both stay for the current scan when the page is left and opened
+ *                          again (not across a browser reload: the console keeps no history)
  *     viewer               the 3D viewer's container (the element given to
  *                          CraftscanViewer.create); data-state = loading | ready | error,
  *                          data-mode = cloud | mesh | both, data-points, data-triangles
@@ -97,6 +103,8 @@
  *                          the job runs
  *       calib-coverage     the coverage grid (one <span class="cov cov-0..4"> per cell)
  *       calib-diversity    X, Y, Size, Skew bars (rows data-axis = x | y | size | skew)
+ *       calib-angles       turntable (mode "turntable"): the angles measured, li data-angle,
+ *                          data-found; data-found on the box = how many found
  *       calib-extra        any other scalar field of the overlay
  *   Station page (#/station)
  *     preview              the live view (a card); data-frame = the last frame shown,
@@ -254,6 +262,9 @@ function onLiveMessage(msg) {
       break;
     case 'capture':
       jobs.onCapture(msg);
+      break;
+    case 'disparity':
+      jobs.onDisparity(msg);
       break;
     case 'cloud':
       jobs.onCloud(msg);

@@ -10,6 +10,13 @@
 //    coverage: {cols, rows, cells: [0 | 1, ...]}           (row-major, left image),
 //    diversity: {x, y, size, skew}                         (each 0..1; 1 = enough),
 //    views_accepted, views_needed, rejected: "" | why, advice: "…"}
+// or, for the turntable axis (calibrate-turntable, guided), mode: "turntable"
+// with no coverage or diversity but the angle being measured and the steps:
+//   {kind: "calibration", mode: "turntable", state (… | "missed"), board,
+//    hold_s, hold_needed_s (the board lying still before it turns),
+//    angle_deg: null (placing) | degrees, steps: [{angle_deg, found}, ...],
+//    views_accepted (angles measured), views_needed (angles), rejected, advice}
+// shown as the angles measured (✓) and missed (✗).
 // Both cameras' live pictures with the corners drawn over them (green when
 // holding or captured, amber while the board moves, red when the view was
 // refused), the advice in large type, the views kept, the hold-still
@@ -24,7 +31,7 @@ import { createCameraPicture, createCornerLayer, drawCorners, showPair } from '.
 
 const KNOWN_KEYS = new Set([
   'kind', 'state', 'board', 'hold_s', 'hold_needed_s', 'coverage', 'diversity',
-  'views_accepted', 'views_needed', 'rejected', 'advice',
+  'views_accepted', 'views_needed', 'rejected', 'advice', 'mode', 'angle_deg', 'steps',
 ]);
 
 const STATE_WORDS = {
@@ -34,6 +41,7 @@ const STATE_WORDS = {
   captured: 'View captured',
   rejected: 'View not used',
   solving: 'Computing the calibration',
+  missed: 'Angle not measured',
 };
 
 // The corners' colour for a state: ok (green), moving (amber), bad (red).
@@ -111,6 +119,9 @@ export function createGuide() {
   const diversity = h('div', { class: 'guide-diversity', testid: 'calib-diversity' },
     h('h4', null, 'Variety of board poses'), diversityList,
     h('p', { class: 'hint' }, 'Each bar fills as the board is shown in enough places, distances and tilts.'));
+  const anglesList = h('ul', { class: 'guide-angles' });
+  const angles = h('div', { class: 'guide-angles-box', testid: 'calib-angles' },
+    h('h4', null, 'Turntable angles measured'), anglesList);
   const extraList = h('dl', { class: 'kv' });
   const extra = h('details', { class: 'guide-extra', testid: 'calib-extra' },
     h('summary', null, 'Other details'), extraList);
@@ -118,7 +129,7 @@ export function createGuide() {
   const el = h('section', { class: 'guide', testid: 'calib-guide', 'aria-label': 'Calibration guidance' },
     h('div', { class: 'guide-head' }, stateEl, h('div', { class: 'guide-count-box' }, counts, countsBar)),
     endedNote, advice, rejected, hold,
-    h('div', { class: 'guide-grid' }, corners, h('div', { class: 'guide-side' }, coverage, diversity)),
+    h('div', { class: 'guide-grid' }, corners, h('div', { class: 'guide-side' }, coverage, diversity, angles)),
     extra);
 
   let lastGuide;
@@ -171,8 +182,10 @@ export function createGuide() {
     const accepted = Number(g.views_accepted);
     const needed = Number(g.views_needed);
     const haveCounts = Number.isFinite(accepted) && g.views_accepted !== undefined;
+    const turntable = g.mode === 'turntable';
+    const unit = turntable ? 'angles' : 'views';
     counts.textContent = haveCounts
-      ? (Number.isFinite(needed) && needed > 0 ? `${accepted} of ${needed} views` : `${accepted} views`)
+      ? (Number.isFinite(needed) && needed > 0 ? `${accepted} of ${needed} ${unit}` : `${accepted} ${unit}`)
       : '';
     counts.dataset.accepted = haveCounts ? String(accepted) : '';
     counts.dataset.needed = Number.isFinite(needed) ? String(needed) : '';
@@ -199,8 +212,8 @@ export function createGuide() {
       const done = state === 'captured' ? holdNeeded : Math.min(holdS, holdNeeded);
       holdBar.max = holdNeeded;
       holdBar.value = done;
-      holdText.textContent = state === 'captured' ? 'Captured ✓'
-        : `Hold still: ${fmtNumber(done, 1)} of ${fmtNumber(holdNeeded, 1)} s`;
+      holdText.textContent = state === 'captured' ? (turntable ? 'Measured ✓' : 'Captured ✓')
+        : `${turntable ? 'Lying still' : 'Hold still'}: ${fmtNumber(done, 1)} of ${fmtNumber(holdNeeded, 1)} s`;
       hold.dataset.holdS = String(done);
       hold.dataset.state = state;
     }
@@ -242,6 +255,14 @@ export function createGuide() {
         h('span', { class: 'diversity-value' }, b.value >= 1 ? '✓' : `${Math.round(b.value * 100)}%`));
     }));
     show(diversity, bars.length > 0);
+
+    const steps = Array.isArray(g.steps) ? g.steps.filter((x) => x && typeof x === 'object') : [];
+    replace(anglesList, steps.map((x) => h('li', {
+      class: x.found ? 'found' : 'missed',
+      dataset: { angle: String(x.angle_deg), found: String(!!x.found) },
+    }, `${fmtNumber(Number(x.angle_deg), 0)}° ${x.found ? '✓' : '✗'}`)));
+    angles.dataset.found = String(steps.filter((x) => x.found).length);
+    show(angles, turntable);
 
     const extras = Object.entries(g).filter(([k, v]) => !KNOWN_KEYS.has(k) &&
       (typeof v === 'number' || typeof v === 'string' || typeof v === 'boolean'));

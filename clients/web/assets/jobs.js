@@ -1,8 +1,10 @@
 // What the console knows of the station's jobs, fed by command replies,
-// status and the WebSocket's progress / capture / cloud / preview messages.
+// status and the WebSocket's progress / capture / disparity / cloud /
+// preview messages.
 //
 // One track per kind of job, each the latest job of that kind:
-//   scan       scan, resume, capture   (stages, thumbnails, the session)
+//   scan       scan, resume, capture   (stages, thumbnails and disparity
+//              pictures of the views, the session)
 //   calibrate  calibrate, calibrate-turntable   (stages, guidance from the
 //              preview overlays, result)
 //   device     turntable, camera
@@ -50,6 +52,7 @@ function newTrack(kind) {
     latest: null, // the last progress: {name, current, total, message}
     final: null, // {state: "done"|"failed"|"cancelled"|"interrupted", message}
     thumbs: new Map(), // view index → {index, angle, left, right}
+    disparities: new Map(), // view index → {index, image, valid, width, height, scaleMin, scaleMax}
     viewPoints: new Map(), // view index → points of its cloud
     fusedPoints: 0,
     guide: null, // the guided calibration's latest overlay (calib-guide.js), or null
@@ -317,18 +320,46 @@ export function onStatus(s) {
   }
 }
 
+// The scan track, its views' pictures cleared when `session` is another
+// session than the one they show.
+function scanTrackOf(session) {
+  const t = tracks.scan;
+  if (session && t.session !== session) {
+    if (t.session) {
+      t.thumbs.clear();
+      t.disparities.clear();
+    }
+    t.session = session;
+  }
+  return t;
+}
+
 export function onCapture(m) {
   if (!m || typeof m.view_index !== 'number') return;
-  const t = tracks.scan;
-  if (m.session && t.session !== m.session) {
-    if (t.session) t.thumbs.clear();
-    t.session = m.session;
-  }
+  const t = scanTrackOf(m.session);
   t.thumbs.set(m.view_index, {
     index: m.view_index,
     angle: typeof m.angle_deg === 'number' ? m.angle_deg : null,
     left: typeof m.left === 'string' ? m.left : '',
     right: typeof m.right === 'string' ? m.right : '',
+  });
+  emit('thumb', m.view_index);
+}
+
+// A view's disparity picture (message "disparity"): kept beside the view's
+// thumbnail; emits 'thumb' (the view index) like a capture.
+export function onDisparity(m) {
+  if (!m || typeof m.view_index !== 'number' || typeof m.image !== 'string' || !m.image) return;
+  const t = scanTrackOf(m.session);
+  const num = (v) => (typeof v === 'number' && Number.isFinite(v) ? v : null);
+  t.disparities.set(m.view_index, {
+    index: m.view_index,
+    image: m.image,
+    valid: Math.min(1, Math.max(0, num(m.valid_fraction) ?? 0)),
+    width: num(m.width),
+    height: num(m.height),
+    scaleMin: num(m.scale_min),
+    scaleMax: num(m.scale_max),
   });
   emit('thumb', m.view_index);
 }

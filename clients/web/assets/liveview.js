@@ -130,11 +130,11 @@ export function createLiveView(ctx, { side = null } = {}) {
         : `${m.width} × ${m.height}`;
       el.dataset.frame = String(m.frame ?? '');
       el.dataset.job = String(m.job_id ?? '');
-      const lat = latencyMs(m, livePreview.at);
+      const lat = latencyMs(m, Date.now()); // on screen now: exposure to display
       latencyEl.textContent = lat === null ? 'latency —' : `latency ${fmtNumber(lat, 0)} ms`;
       latencyEl.title = lat === null
         ? 'The frames are stamped with the station’s own clock, which this computer cannot compare with.'
-        : 'Time from the exposure to this frame’s arrival (meaningful when the station and this computer share a clock).';
+        : 'Time from the exposure to this frame on screen (meaningful when the station and this computer share a clock).';
       if (lat === null) delete latencyEl.dataset.latencyMs;
       else latencyEl.dataset.latencyMs = String(Math.round(lat));
     }

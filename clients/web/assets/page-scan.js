@@ -1,5 +1,6 @@
 // The Scan page: start / cancel a scan, its progress per stage, the view
-// thumbnails as they arrive, and the finished model with its measurements.
+// thumbnails as they arrive with each view's disparity under its picture
+// (once matched), and the finished model with its measurements.
 
 import { h, append, field, replace, show } from './dom.js';
 import { fmtNumber } from './format.js';
@@ -130,7 +131,7 @@ export function mountScan(root, ctx) {
     h('p', { class: 'muted small' }, 'When a scan is finished, its 3D model and measurements appear at the top of this page.'));
 
   const thumbs = h('div', { class: 'thumbs', testid: 'thumbs', role: 'list', 'aria-label': 'Views captured' });
-  const thumbsNote = h('p', { class: 'muted' }, 'The views appear here as the cameras take them.');
+  const thumbsNote = h('p', { class: 'muted' }, 'The views appear here as the cameras take them, each with its disparity (blue far, red near) once matched.');
   const dialogImgs = h('div', { class: 'dialog-images' });
   const dialogTitle = h('h3', null, '');
   const dialog = h('dialog', { class: 'view-dialog', 'aria-label': 'View' },
@@ -156,28 +157,53 @@ export function mountScan(root, ctx) {
       formCard ? h('div', { class: 'scan-left' }, formCard) : null,
       h('div', { class: 'scan-right' }, progressCard, thumbsCard)));
 
-  function thumbFigure(v) {
-    const angle = v.angle === null ? '' : ` · ${fmtNumber(v.angle, 1)}°`;
-    const points = jobs.tracks.scan.viewPoints.get(v.index);
-    const caption = `View ${v.index + 1}${angle}`;
-    const img = h('img', { src: v.left || v.right, alt: `${caption}, left camera`, decoding: 'async', loading: 'lazy' });
+  // "disparity, 87 % valid"
+  function disparityWords(d) {
+    return `disparity, ${Math.round(d.valid * 100)} % valid`;
+  }
+
+  // What the colours of a disparity picture mean, for its title and the dialog.
+  function disparityLegend(d) {
+    const range = d.scaleMin !== null && d.scaleMax !== null
+      ? ` ${fmtNumber(d.scaleMin, 1)}–${fmtNumber(d.scaleMax, 1)} px` : '';
+    return `Disparity${range}: blue far, red near; black where the cameras found no match`;
+  }
+
+  // View `index`: the left camera's picture (a button opening both cameras
+  // and the disparity larger) and, once the view is matched, its disparity.
+  function thumbFigure(index) {
+    const t = jobs.tracks.scan;
+    const v = t.thumbs.get(index);
+    const d = t.disparities.get(index);
+    const angle = v && v.angle !== null ? ` · ${fmtNumber(v.angle, 1)}°` : '';
+    const points = t.viewPoints.get(index);
+    const caption = `View ${index + 1}${angle}`;
+    const picture = v ? v.left || v.right : '';
+    const img = picture ? h('img', { src: picture, alt: `${caption}, left camera`, decoding: 'async', loading: 'lazy' }) : null;
     const button = h('button', { type: 'button', class: 'thumb-button', 'aria-label': `Show ${caption} larger` }, img);
     button.addEventListener('click', () => {
       dialogTitle.textContent = caption;
       replace(dialogImgs,
-        v.left ? h('figure', null, h('img', { src: v.left, alt: `${caption}, left camera` }), h('figcaption', null, 'Left camera')) : null,
-        v.right ? h('figure', null, h('img', { src: v.right, alt: `${caption}, right camera` }), h('figcaption', null, 'Right camera')) : null);
+        v?.left ? h('figure', null, h('img', { src: v.left, alt: `${caption}, left camera` }), h('figcaption', null, 'Left camera')) : null,
+        v?.right ? h('figure', null, h('img', { src: v.right, alt: `${caption}, right camera` }), h('figcaption', null, 'Right camera')) : null,
+        d ? h('figure', null, h('img', { src: d.image, alt: `${caption}, disparity` }),
+          h('figcaption', null, `${disparityLegend(d)} (${Math.round(d.valid * 100)} % matched)`)) : null);
       if (typeof dialog.showModal === 'function') dialog.showModal();
     });
-    return h('figure', { class: 'thumb', role: 'listitem', dataset: { view: String(v.index) } },
-      button,
+    const disparity = d ? h('div', { class: 'thumb-disparity', title: disparityLegend(d) },
+      h('img', { src: d.image, alt: `${caption}, disparity`, decoding: 'async', testid: 'thumb-disparity', dataset: { valid: String(d.valid) } }),
+      h('span', { class: 'thumb-disparity-caption', testid: 'thumb-disparity-caption' }, disparityWords(d))) : null;
+    return h('figure', { class: 'thumb', role: 'listitem', dataset: { view: String(index) } },
+      img ? button : null, // a view captured before a resume has its disparity only
+      disparity,
       h('figcaption', null, caption, points ? h('span', { class: 'muted' }, ` · ${fmtNumber(points)} pts`) : null));
   }
 
   function renderThumb(index) {
-    const v = jobs.tracks.scan.thumbs.get(index);
-    if (!v || !(v.left || v.right)) return;
-    const fig = thumbFigure(v);
+    const t = jobs.tracks.scan;
+    const v = t.thumbs.get(index);
+    if (!(v && (v.left || v.right)) && !t.disparities.has(index)) return;
+    const fig = thumbFigure(index);
     const old = thumbs.querySelector(`[data-view="${index}"]`);
     if (old) old.replaceWith(fig);
     else {
@@ -191,8 +217,9 @@ export function mountScan(root, ctx) {
   function renderAllThumbs() {
     replace(thumbs);
     const t = jobs.tracks.scan;
-    for (const index of [...t.thumbs.keys()].sort((a, b) => a - b)) renderThumb(index);
-    show(thumbsNote, t.thumbs.size === 0);
+    const views = new Set([...t.thumbs.keys(), ...t.disparities.keys()]);
+    for (const index of [...views].sort((a, b) => a - b)) renderThumb(index);
+    show(thumbsNote, views.size === 0);
   }
 
   function renderResult() {
@@ -245,7 +272,7 @@ export function mountScan(root, ctx) {
     }
     const track = jobs.tracks.scan;
     progress.update(track);
-    if (track.thumbs.size === 0 && thumbs.children.length) renderAllThumbs();
+    if (track.thumbs.size === 0 && track.disparities.size === 0 && thumbs.children.length) renderAllThumbs();
     renderResult();
     updateButtons();
   }

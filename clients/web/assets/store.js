@@ -2,7 +2,8 @@
 //
 // Events: 'status' (store.status changed), 'live' (WebSocket state),
 // 'job' (a job track changed; data: the track), 'job-final' (a job ended),
-// 'thumb' (a view thumbnail arrived; data: view index), 'cloud',
+// 'thumb' (a view's thumbnail or disparity picture arrived; data: view
+// index), 'cloud',
 // 'preview' (a live-view frame; data: the message), 'preview-job' (a preview
 // job ended; data: {id, state, message}), 'guide' (a guided-calibration
 // overlay arrived; data: the calibrate track).

@@ -15,10 +15,9 @@
 #include <thread>
 
 #include <nlohmann/json.hpp>
-#include <opencv2/imgcodecs.hpp>
-#include <opencv2/imgproc.hpp>
 
 #include "craftscan/client/station_client.h"
+#include "craftscan/web/pictures.h"
 
 namespace craftscan::web {
 namespace {
@@ -28,7 +27,6 @@ using Clock = std::chrono::steady_clock;
 using nlohmann::json;
 
 constexpr const char* kCookieName = "craftscan_session";
-constexpr int kThumbnailWidth = 320;
 constexpr auto kStationSilence = std::chrono::seconds(3);
 constexpr auto kStatusRepeat = std::chrono::seconds(2);
 
@@ -44,46 +42,6 @@ std::string RandomHex(std::size_t bytes) {
     hex += digits[c & 15];
   }
   return hex;
-}
-
-std::string Base64(const std::vector<unsigned char>& data) {
-  static const char* table = "ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789+/";
-  std::string out;
-  out.reserve((data.size() + 2) / 3 * 4);
-  std::size_t i = 0;
-  for (; i + 2 < data.size(); i += 3) {
-    const unsigned v = (data[i] << 16) | (data[i + 1] << 8) | data[i + 2];
-    out += table[(v >> 18) & 63];
-    out += table[(v >> 12) & 63];
-    out += table[(v >> 6) & 63];
-    out += table[v & 63];
-  }
-  if (i + 1 == data.size()) {
-    const unsigned v = data[i] << 16;
-    out += table[(v >> 18) & 63];
-    out += table[(v >> 12) & 63];
-    out += "==";
-  } else if (i + 2 == data.size()) {
-    const unsigned v = (data[i] << 16) | (data[i + 1] << 8);
-    out += table[(v >> 18) & 63];
-    out += table[(v >> 12) & 63];
-    out += table[(v >> 6) & 63];
-    out += '=';
-  }
-  return out;
-}
-
-// A JPEG data URL of `image` scaled to at most kThumbnailWidth wide.
-std::string Thumbnail(const cv::Mat& image) {
-  if (image.empty()) return "";
-  cv::Mat small = image;
-  if (image.cols > kThumbnailWidth) {
-    const double s = static_cast<double>(kThumbnailWidth) / image.cols;
-    cv::resize(image, small, cv::Size(), s, s, cv::INTER_AREA);
-  }
-  std::vector<unsigned char> jpeg;
-  if (!cv::imencode(".jpg", small, jpeg, {cv::IMWRITE_JPEG_QUALITY, 80})) return "";
-  return "data:image/jpeg;base64," + Base64(jpeg);
 }
 
 HttpResponse JsonResponse(int status, const json& body) {
@@ -725,9 +683,14 @@ std::unique_ptr<Console> Console::Create(const WebConfig& config, std::string* e
                                           {"session", u.session},
                                           {"view_index", u.view_index},
                                           {"angle_deg", u.angle_deg},
-                                          {"left", Thumbnail(u.left)},
-                                          {"right", Thumbnail(u.right)}}
+                                          {"left", JpegDataUrl(u.left)},
+                                          {"right", JpegDataUrl(u.right)}}
                                          .dump());
+            },
+            &sub_error) &&
+        st->client->SubscribeDisparity(
+            [raw, st](const client::DisparityUpdate& u) {
+              raw->Broadcast(st->id, DisparityMessage(u).dump());
             },
             &sub_error) &&
         st->client->SubscribePreview(

@@ -40,8 +40,8 @@ export const version = '1';
 // fewer, down to MIN_LOD_POINTS) so that turning stays fluid.
 const DEFAULT_LOD_POINTS = 300000;
 const MIN_LOD_POINTS = 30000;
-const LOD_SLOW_FPS = 20;  // below: draw fewer while moving
-const LOD_FAST_FPS = 45;  // above: draw more (up to lodPoints)
+const LOD_SLOW_FPS = 30;  // below: draw fewer while moving (turning stays at 30 fps or more)
+const LOD_FAST_FPS = 50;  // above: draw more (up to lodPoints)
 // The camera rests once it has not changed for this long (ms).
 const REST_DELAY_MS = 200;
 // Orbit damping time constant (s): the glide after a drag decays by e every

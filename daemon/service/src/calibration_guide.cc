@@ -140,6 +140,7 @@ std::string CalibrationGuide::Advice() const {
   if (*std::min_element(bars.begin(), bars.end()) >= o_.bar_done &&
       Coverage() >= o_.coverage_done) {
     const int more = std::max(0, o_.views_needed - views());
+    if (more == 0) return "Enough views: put the board down; the calibration is computed now";
     return "Hold the board still in another pose: " + std::to_string(more) + " more view" +
            (more == 1 ? "" : "s") + " to go";
   }

@@ -371,84 +371,9 @@ TEST(CraftscanWeb, LivePreviewWhileIdleGivesWayToAScan) {
   EXPECT_TRUE(ended);
 }
 
-// Guided calibration: the sim's technician moves the board, holds it,
-// blurs it, takes it out of view and too close; the daemon takes views only
-// when it is held still in a new pose, says what to do, and the calibration
-// is accepted. The console relays the feedback (preview overlays).
-TEST(CraftscanWeb, GuidedCalibrationWithASimulatedTechnician) {
-  if (TestImageSize("640x512") != "640x512") {
-    GTEST_SKIP() << "the held board is too small to find at the sanitizers' image size "
-                 << TestImageSize("640x512");
-  }
-  ConsoleStation station(", technician: 1, technician_fps: 4, supersampling: 1");
-  station.fixture().calibration_yaml = "{guided: true, views: 12, guided_max_s: 300}";
-  std::string error;
-  ASSERT_TRUE(station.Start(&error)) << error;
-  const std::string admin = station.SignIn(kAdminToken);
-  ASSERT_FALSE(admin.empty()) << station.fixture().Log();
-  WebSocketClient ws(station.port(), {admin});
-  ASSERT_EQ(ws.status(), 101);
-  HttpReply r = station.Post(admin, "/api/command", {{"verb", "calibrate"}});
-  ASSERT_EQ(Body(r).value("code_name", ""), "ok") << r.body;
-  const std::string job = Body(r)["result"].value("id", "");
-
-  std::set<std::string> states, rejections, advice;
-  int overlays = 0, max_views = 0;
-  std::int64_t first_stamp = 0, last_stamp = 0;
-  std::string final_stage, final_message;
-  const auto deadline = std::chrono::steady_clock::now() + 600s;
-  while (final_stage.empty() && std::chrono::steady_clock::now() < deadline) {
-    const json m = json::parse(ws.Next(5s), nullptr, false);
-    if (!m.is_object()) continue;
-    if (m.value("type", "") == "preview" && m.value("job_id", "") == job) {
-      const json& o = m["overlay"];
-      if (!o.is_object()) continue;
-      ++overlays;
-      if (first_stamp == 0) first_stamp = m.value("stamp_ns", std::int64_t{0});
-      last_stamp = m.value("stamp_ns", std::int64_t{0});
-      states.insert(o.value("state", ""));
-      if (!o.value("rejected", "").empty()) rejections.insert(o.value("rejected", ""));
-      advice.insert(o.value("advice", ""));
-      max_views = std::max(max_views, o.value("views_accepted", 0));
-      if (o["board"].is_object()) {
-        for (const json& p : o["board"]["left"]) {
-          EXPECT_LE(p[0].get<double>(), m.value("width", 0) + 1.0) << "corners in preview px";
-        }
-      }
-    } else if (m.value("type", "") == "progress" && m.value("job_id", "") == job) {
-      const std::string stage = m.value("stage", "");
-      if (m.value("message", "").find("taken;") != std::string::npos) {
-        std::printf("  %s\n", m.value("message", "").c_str());
-      }
-      if (stage == "done" || stage == "failed" || stage == "cancelled") {
-        final_stage = stage;
-        final_message = m.value("message", "");
-      }
-    }
-  }
-  const double technician_s = static_cast<double>(last_stamp - first_stamp) * 1e-9;
-  std::printf("guided calibration: %s; %d overlays over %.0f s of technician time; states:",
-              final_message.c_str(), overlays, technician_s);
-  for (const std::string& s : states) std::printf(" %s", s.c_str());
-  std::printf("; rejected:");
-  for (const std::string& s : rejections) std::printf(" '%s'", s.c_str());
-  std::printf("\n");
-  for (const std::string& a : advice) std::printf("  advice: %s\n", a.c_str());
-  ASSERT_EQ(final_stage, "done") << final_message << station.fixture().Log().substr(0, 4000);
-  EXPECT_GE(max_views, 12);
-  EXPECT_LE(technician_s, 180) << "accepted within 3 minutes of the technician's time";
-  for (const char* s : {"searching", "moving", "holding", "captured"}) {
-    EXPECT_TRUE(states.count(s)) << "never " << s;
-  }
-  // The verdict, through the console's relay of status (the job's result).
-  r = station.Post(admin, "/api/command", {{"verb", "status"}});
-  const json result = Body(r)["result"].value("job", json::object()).value("result", json());
-  EXPECT_TRUE(result.value("accepted", false)) << result;
-  EXPECT_LE(result.value("rms_stereo_px", 9.0), 0.25) << result;
-  EXPECT_GE(result["guided"].value("coverage", 0.0), 0.75) << result;
-  std::printf("rms %.3f px, epipolar %.3f px\n", result.value("rms_stereo_px", 0.0),
-              result.value("epipolar_mean_px", 0.0));
-}
+// The guided calibration with the sim's technician, through the console, is
+// the browser test tests/browser/calibrate.mjs (the page, and every overlay
+// the page is sent).
 
 TEST(CraftscanWeb, ScanLiveThenDownloadOutputsThenStationGone) {
   ConsoleStation station;
@@ -467,8 +392,10 @@ TEST(CraftscanWeb, ScanLiveThenDownloadOutputsThenStationGone) {
   ASSERT_EQ(Body(r).value("code_name", ""), "ok") << r.body;
   const std::string job = Body(r)["result"].value("id", "");
 
-  // Live: captures with thumbnails, progress to the job's end.
+  // Live: captures with thumbnails, each view's disparity picture, progress
+  // to the job's end.
   int captures = 0;
+  std::set<int> disparities;
   std::string final_stage, session;
   const auto deadline = std::chrono::steady_clock::now() + 300s;
   while (final_stage.empty() && std::chrono::steady_clock::now() < deadline) {
@@ -479,6 +406,14 @@ TEST(CraftscanWeb, ScanLiveThenDownloadOutputsThenStationGone) {
       session = m.value("session", "");
       EXPECT_EQ(m.value("left", "").rfind("data:image/jpeg;base64,", 0), 0u);
       EXPECT_GT(m.value("right", "").size(), 1000u);
+    } else if (m.value("type", "") == "disparity") {
+      disparities.insert(m.value("view_index", -1));
+      EXPECT_EQ(m.value("image", "").rfind("data:image/jpeg;base64,", 0), 0u) << m.dump();
+      EXPECT_EQ(std::to_string(m.value("width", 0)) + "x" + std::to_string(m.value("height", 0)),
+                TestImageSize("640x512"));
+      EXPECT_GT(m.value("valid_fraction", 0.0), 0.05) << "the box fills part of the view";
+      EXPECT_LE(m.value("valid_fraction", 2.0), 1.0);
+      EXPECT_LT(m.value("scale_min", 1e9), m.value("scale_max", -1e9));
     } else if (m.value("type", "") == "progress" && m.value("job_id", "") == job) {
       const std::string stage = m.value("stage", "");
       if (m.value("message", "").find("taken;") != std::string::npos) {
@@ -489,6 +424,7 @@ TEST(CraftscanWeb, ScanLiveThenDownloadOutputsThenStationGone) {
   }
   ASSERT_EQ(final_stage, "done") << station.fixture().Log();
   EXPECT_EQ(captures, 4);
+  EXPECT_EQ(disparities, (std::set<int>{0, 1, 2, 3}));
   ASSERT_FALSE(session.empty());
 
   // Sessions and the manifest through the console.

@@ -1,13 +1,14 @@
 // A DDS client of one station for the daemon's tests, over the client
 // library (craftscan/client/station_client.h): sends Commands and waits for
 // their Replies, and collects what the daemon publishes (progress, captures,
-// clouds, status) into vectors the tests read under Lock() or in WaitFor().
-// Also: a second client that keeps every StationStatus sample
+// disparity maps, clouds, status) into vectors the tests read under Lock()
+// or in WaitFor(). Also: a second client that keeps every StationStatus sample
 // (StatusWatcher), and waiting for a job's end through the status verb
 // (WaitForJobEnd).
 #pragma once
 
 #include <algorithm>
+#include <cfloat>
 #include <chrono>
 #include <condition_variable>
 #include <cstdint>
@@ -20,6 +21,7 @@
 #include <vector>
 
 #include <nlohmann/json.hpp>
+#include <opencv2/core.hpp>
 
 #include "craftscan/client/station_client.h"
 #include "craftscan/pipeline/common/point_cloud.h"
@@ -45,6 +47,26 @@ struct CaptureRecord {
   int width = 0, height = 0;
   std::uint64_t left_hash = 0;  // FNV-1a of the left pixels
 };
+
+struct DisparityRecord {
+  std::string session;
+  int view = 0;
+  int width = 0, height = 0;
+  std::int64_t valid_pixels = 0;  // finite values
+  std::uint64_t hash = 0;         // FNV-1a of the map's bytes
+  float min_disparity = 0, max_disparity = 0, f_px = 0, baseline_mm = 0;
+};
+
+// What tests compare of a disparity map (CV_32FC1): its finite pixels and
+// the FNV-1a of its bytes (rows packed).
+inline void SummarizeDisparity(const cv::Mat& map, std::int64_t* valid_pixels,
+                               std::uint64_t* hash) {
+  const cv::Mat packed = map.isContinuous() ? map : map.clone();
+  client::Fnv1a64Hasher hasher;
+  hasher.Update(packed.data, packed.total() * packed.elemSize());
+  *hash = hasher.value();
+  *valid_pixels = cv::countNonZero((packed >= -FLT_MAX) & (packed <= FLT_MAX));
+}
 
 class StationClient {
  public:
@@ -79,6 +101,21 @@ class StationClient {
                    captures.push_back({c.session, c.view_index, c.angle_deg, c.left.cols,
                                        c.left.rows, hash.value()});
                  });
+               },
+               error) &&
+           client_->SubscribeDisparity(
+               [this](const client::DisparityUpdate& d) {
+                 DisparityRecord r;
+                 r.session = d.session;
+                 r.view = d.view_index;
+                 r.width = d.disparity.cols;
+                 r.height = d.disparity.rows;
+                 r.min_disparity = d.min_disparity;
+                 r.max_disparity = d.max_disparity;
+                 r.f_px = d.f_px;
+                 r.baseline_mm = d.baseline_mm;
+                 SummarizeDisparity(d.disparity, &r.valid_pixels, &r.hash);
+                 Record([&] { disparities.push_back(std::move(r)); });
                },
                error) &&
            client_->SubscribeStatus(
@@ -124,6 +161,7 @@ class StationClient {
   std::vector<std::string> progress_messages;
   std::vector<CloudRecord> clouds;
   std::vector<CaptureRecord> captures;
+  std::vector<DisparityRecord> disparities;
   std::string last_status_state, last_job_state, last_job_id;
   std::unique_lock<std::mutex> Lock() { return std::unique_lock(mutex_); }
 

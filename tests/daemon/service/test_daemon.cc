@@ -14,6 +14,7 @@
 #include <set>
 #include <string>
 #include <thread>
+#include <vector>
 
 #include <opencv2/core.hpp>
 
@@ -41,6 +42,16 @@ struct Running {
 
 // Starts the daemon and a client; fails the test (returns null) if either
 // does not come up. extra_sim: more sim driver keys (", key: value…").
+// The views of `session` among published records (CloudRecord,
+// DisparityRecord, ...).
+template <typename Record>
+std::set<int> ViewsOf(const std::vector<Record>& records, const std::string& session) {
+  std::set<int> views;
+  for (const Record& r : records)
+    if (r.session == session) views.insert(r.view);
+  return views;
+}
+
 std::unique_ptr<Running> StartDaemon(const std::string& image_size, long watchdog_usec = 0,
                                      bool with_calibration = true, std::string extra_sim = "",
                                      bool box_volume = true, std::string scan_extra = "") {
@@ -95,13 +106,7 @@ TEST(Daemon, ScanOfSixViewsPublishesEverythingAndStoresTheSession) {
 
   // Clouds: 6 views and the fused one, all of this session.
   ASSERT_TRUE(client.WaitFor(
-      [&](StationClient& c) {
-        std::set<int> views;
-        for (const CloudRecord& cloud : c.clouds)
-          if (cloud.session == session_id) views.insert(cloud.view);
-        return views.size() == 7;
-      },
-      30s));
+      [&](StationClient& c) { return ViewsOf(c.clouds, session_id).size() == 7; }, 30s));
   // Progress per stage.
   {
     auto lock = client.Lock();
@@ -113,6 +118,9 @@ TEST(Daemon, ScanOfSixViewsPublishesEverythingAndStoresTheSession) {
     }
     EXPECT_EQ(client.captures.size(), 6u);
   }
+  // Disparity maps: one per view, each the map the session stored.
+  ASSERT_TRUE(client.WaitFor(
+      [&](StationClient& c) { return ViewsOf(c.disparities, session_id).size() == 6; }, 30s));
 
   // The session on disk is done, intact, and holds what was published.
   std::string error;
@@ -128,6 +136,23 @@ TEST(Daemon, ScanOfSixViewsPublishesEverythingAndStoresTheSession) {
     EXPECT_TRUE(manifest.outputs.count(output)) << output;
   }
   auto lock = client.Lock();
+  for (const DisparityRecord& published : client.disparities) {
+    if (published.session != session_id) continue;
+    SCOPED_TRACE("disparity of view " + std::to_string(published.view));
+    cv::Mat stored;
+    ASSERT_TRUE(session->LoadDisparity(published.view, &stored, &error)) << error;
+    EXPECT_EQ(published.width, stored.cols);
+    EXPECT_EQ(published.height, stored.rows);
+    std::int64_t valid = 0;
+    std::uint64_t hash = 0;
+    SummarizeDisparity(stored, &valid, &hash);
+    EXPECT_EQ(published.valid_pixels, valid);
+    EXPECT_GT(valid, stored.total() / 20) << "the box fills part of every view";
+    EXPECT_EQ(published.hash, hash) << "published and stored maps differ";
+    EXPECT_LT(published.min_disparity, published.max_disparity);
+    EXPECT_GT(published.f_px, 0);
+    EXPECT_GT(published.baseline_mm, 0);
+  }
   for (const CloudRecord& published : client.clouds) {
     if (published.session != session_id) continue;
     PointCloud stored;

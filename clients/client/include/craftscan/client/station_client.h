@@ -1,8 +1,8 @@
 // A DDS client of one craftscan station (DESIGN.md "DDS interface"): sends
 // Commands and waits for their Replies, subscribes to what the daemon
-// publishes (status, job progress, clouds, captures) and fetches session
-// files (`get` with files). Used by craftscanctl and the tests; no DDS type
-// appears in this header.
+// publishes (status, job progress, clouds, captures, disparity maps, preview
+// frames) and fetches session files (`get` with files). Used by craftscanctl,
+// craftscan-web and the tests; no DDS type appears in this header.
 //
 //   ConnectOptions options;
 //   options.station = "station1";
@@ -124,6 +124,22 @@ struct CaptureUpdate {
   std::int64_t left_stamp_ns = 0, right_stamp_ns = 0;
 };
 
+// A view's disparity map as the daemon matched it (the Disparity topic).
+struct DisparityUpdate {
+  std::string session;
+  int view_index = 0;
+  // CV_32FC1, height × width, owned copy: d = x_left − x_right in rectified
+  // px, NaN (or ±inf) where the matcher found none.
+  cv::Mat disparity;
+  float f_px = 0;  // rectified focal length
+  float baseline_mm = 0;
+  float cx_offset_px = 0;   // rectified cx_left − cx_right
+  float min_disparity = 0;  // the searched range, px
+  float max_disparity = 0;
+  std::int64_t stamp_ns = 0;
+  std::string frame_id;
+};
+
 // One image of a live preview frame.
 struct PreviewImageUpdate {
   std::vector<std::uint8_t> jpeg;
@@ -216,11 +232,13 @@ class StationClient {
   // for every sample taken, in order, until the client is destroyed. Each
   // kind may be subscribed once (false with *error the second time). A
   // handler must return quickly and must not destroy the client; it may
-  // call Call(). Malformed clouds/captures are skipped.
+  // call Call(). Malformed clouds/captures/disparity maps/preview frames are
+  // skipped.
   bool SubscribeStatus(std::function<void(const StatusUpdate&)> handler, std::string* error);
   bool SubscribeProgress(std::function<void(const ProgressUpdate&)> handler, std::string* error);
   bool SubscribeClouds(std::function<void(const CloudUpdate&)> handler, std::string* error);
   bool SubscribeCaptures(std::function<void(const CaptureUpdate&)> handler, std::string* error);
+  bool SubscribeDisparity(std::function<void(const DisparityUpdate&)> handler, std::string* error);
   bool SubscribePreview(std::function<void(const PreviewUpdate&)> handler, std::string* error);
 
   // Fetches session files into request.out_dir: subscribes to the file topic

@@ -442,6 +442,7 @@ bool StationClient::SubscribePreview(std::function<void(const PreviewUpdate&)> h
     u.job_id = Str(p.job_id);
     u.frame_number = p.frame_number;
     u.stamp_ns = p.stamp_ns;
+    u.ready_ns = p.ready_ns;
     u.exposure_us = p.exposure_us;
     u.gain_db = p.gain_db;
     u.full_width = static_cast<int>(p.full_width);

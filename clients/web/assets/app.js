@@ -120,7 +120,9 @@
  *       preview-exposure, preview-gain      the last frame's settings, in words;
  *                                           data-exposure-us / data-gain-db the numbers
  *       preview-rate, preview-latency       frames/s, and latency (data-latency-ms only when
- *                                           the frame's stamp is on this computer's clock)
+ *                                           the frame's stamp is on this computer's clock:
+ *                                           exposure to screen; data-ready-ms: from the frame
+ *                                           in the daemon's hands to screen)
  *     station-summary, station-summary-state, station-last-error, devices (table, rows
  *     data-device / data-state), stations, camera-exposure, camera-gain, camera-apply
  *     (beside the live view), turntable-angle, turntable-move, turntable-home, device-job

@@ -43,6 +43,11 @@ const STATE_WORDS = {
   solving: 'Computing the calibration',
   missed: 'Angle not measured',
 };
+const TURNTABLE_WORDS = {
+  moving: 'Board moving: let it lie still',
+  holding: 'Board lying still…',
+  captured: 'Measured',
+};
 
 // The corners' colour for a state: ok (green), moving (amber), bad (red).
 export function cornerTone(state) {
@@ -151,7 +156,10 @@ export function createGuide() {
       const board = g.board && typeof g.board === 'object' ? g.board : null;
       for (const side of ['left', 'right']) {
         const n = drawCorners(layers[side], board?.[side], w, ht, cornerTone(g.state));
-        pics[side].caption.textContent = `${side === 'left' ? 'Left' : 'Right'} camera · ${n ? `${n} corners` : 'board not found'}`;
+        // Turning, the axis is measured in the left image only.
+        const unused = !n && side === 'right' && g.mode === 'turntable' && g.angle_deg != null;
+        pics[side].caption.textContent = `${side === 'left' ? 'Left' : 'Right'} camera · ${
+          n ? `${n} corners` : unused ? 'not used while turning' : 'board not found'}`;
       }
       corners.dataset.state = g.state ?? '';
       corners.dataset.frame = String(m.frame ?? '');
@@ -176,7 +184,8 @@ export function createGuide() {
     show(el, true);
     show(endedNote, !running);
 
-    stateEl.textContent = running ? STATE_WORDS[state] ?? humanize(state || 'waiting') : 'Guided calibration';
+    const words = (g.mode === 'turntable' && TURNTABLE_WORDS[state]) || STATE_WORDS[state];
+    stateEl.textContent = running ? words ?? humanize(state || 'waiting') : 'Guided calibration';
     stateEl.dataset.state = running ? state : '';
 
     const accepted = Number(g.views_accepted);

@@ -43,8 +43,8 @@ export function arrivalRate() {
 // now − stamp in ms when the frame's stamp is on this computer's clock (the
 // station's and the console's on one machine, or synchronised); null when
 // it cannot be (negative or above a minute: another clock, or monotonic).
-export function latencyMs(m, receivedAt = Date.now()) {
-  const stamp = Number(m?.stamp_ns);
+export function latencyMs(m, receivedAt = Date.now(), field = 'stamp_ns') {
+  const stamp = Number(m?.[field]);
   if (!(stamp > 0)) return null;
   const ms = receivedAt - stamp / 1e6;
   return ms > -1000 && ms < 60000 ? Math.max(0, ms) : null;

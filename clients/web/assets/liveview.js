@@ -130,13 +130,18 @@ export function createLiveView(ctx, { side = null } = {}) {
         : `${m.width} × ${m.height}`;
       el.dataset.frame = String(m.frame ?? '');
       el.dataset.job = String(m.job_id ?? '');
-      const lat = latencyMs(m, Date.now()); // on screen now: exposure to display
-      latencyEl.textContent = lat === null ? 'latency —' : `latency ${fmtNumber(lat, 0)} ms`;
+      const shown = Date.now(); // on screen now
+      const lat = latencyMs(m, shown); // exposure to display
+      const fromReady = latencyMs(m, shown, 'ready_ns'); // the frame in the daemon's hands to display
+      latencyEl.textContent = lat === null ? 'latency —'
+        : `latency ${fmtNumber(lat, 0)} ms${fromReady === null ? '' : ` (camera ${fmtNumber(Math.max(0, lat - fromReady), 0)} ms)`}`;
       latencyEl.title = lat === null
         ? 'The frames are stamped with the station’s own clock, which this computer cannot compare with.'
         : 'Time from the exposure to this frame on screen (meaningful when the station and this computer share a clock).';
       if (lat === null) delete latencyEl.dataset.latencyMs;
       else latencyEl.dataset.latencyMs = String(Math.round(lat));
+      if (fromReady === null) delete latencyEl.dataset.readyMs;
+      else latencyEl.dataset.readyMs = String(Math.round(fromReady));
     }
     drawing = false;
   }

@@ -133,6 +133,7 @@ json PreviewJson(const client::PreviewUpdate& u) {
           {"job_id", u.job_id},
           {"frame", u.frame_number},
           {"stamp_ns", u.stamp_ns},
+          {"ready_ns", u.ready_ns},
           {"exposure_us", u.exposure_us},
           {"gain_db", u.gain_db},
           {"width", u.width},

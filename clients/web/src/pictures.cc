@@ -69,8 +69,8 @@ DisparityPicture RenderDisparity(const cv::Mat& disparity_px, int max_width) {
 
   cv::Mat small = disparity_px;
   if (max_width > 0 && disparity_px.cols > max_width) {
-    const int height = std::max(
-        1, static_cast<int>(std::lround(double(disparity_px.rows) * max_width / disparity_px.cols)));
+    const int height = std::max(1, static_cast<int>(std::lround(double(disparity_px.rows) *
+                                                                max_width / disparity_px.cols)));
     cv::resize(disparity_px, small, {max_width, height}, 0, 0, cv::INTER_NEAREST);
   }
   // Finite pixels (every comparison with NaN is false; ±inf is out of range).

@@ -91,12 +91,14 @@ class GuidePreview {
   }
   // The overlay's corners are in preview px: `scale` (preview / full px) is
   // passed to `overlay`.
+  // `ready_ns`: when the capture returned (WallNow).
   template <typename OverlayFn>
-  void Publish(const drivers::StereoFrame& frame, OverlayFn overlay) {
+  void Publish(const drivers::StereoFrame& frame, std::int64_t ready_ns, OverlayFn overlay) {
     PreviewFrame p = MakePreviewFrame(frame.left.image, frame.right.image, width_);
     p.job_id = job_id_;
     p.sequence = sequence_++;
     p.stamp_ns = WallStamp(frame.left.timestamp_ns);
+    p.ready_ns = ready_ns;
     p.exposure_us = frame.settings.exposure_us;
     p.gain_db = frame.settings.gain_db;
     p.overlay = overlay(static_cast<double>(p.size.width) / frame.left.image.cols).dump();
@@ -202,6 +204,7 @@ CalibrationOutcome CalibrateStage::RunGuided(const std::string& dir, const std::
     const drivers::DriverStatus s = devices_->Capture(&frame, context_.StopFlag());
     if (context_.Stopping()) break;
     if (!s.ok()) return Failure("calibrate: " + s.message);
+    const std::int64_t ready_ns = WallNow();
     const std::int64_t stamp = frame.left.timestamp_ns;
     if (first_ns < 0) first_ns = stamp;
     if (!guide) {
@@ -246,7 +249,7 @@ CalibrationOutcome CalibrateStage::RunGuided(const std::string& dir, const std::
       last_advice = d.advice;
     }
     if (preview.Due(stamp, d.state == "captured")) {
-      preview.Publish(frame, [&](double scale) { return guide->Overlay(d, in, scale); });
+      preview.Publish(frame, ready_ns, [&](double scale) { return guide->Overlay(d, in, scale); });
     }
     if (guide->Done()) break;
     const double elapsed_s = static_cast<double>(stamp - first_ns) * 1e-9;
@@ -376,6 +379,7 @@ bool CalibrateTurntableStage::RunGuided(std::vector<TurntableStep>* steps, std::
     const drivers::DriverStatus s = devices_->Capture(&frame, context_.StopFlag());
     if (context_.Stopping()) return false;
     if (!s.ok()) return Fail(error, s.message);
+    const std::int64_t ready_ns = WallNow();
     const std::int64_t stamp = frame.left.timestamp_ns;
     if (first_ns < 0) first_ns = stamp;
     if (!guide) {
@@ -394,7 +398,7 @@ bool CalibrateTurntableStage::RunGuided(std::vector<TurntableStep>* steps, std::
     const GuideInput in = GuideInputOf(frame, view, options_.board);
     const GuideDecision d = angle < 0 ? guide->Place(in) : guide->Turn(in);
     if (preview.Due(stamp, d.state == "captured" || d.state == "missed")) {
-      preview.Publish(frame, [&](double scale) { return guide->Overlay(d, in, scale); });
+      preview.Publish(frame, ready_ns, [&](double scale) { return guide->Overlay(d, in, scale); });
     }
     if (d.advice != last_advice || d.take || d.state == "missed") {
       const std::string message = d.rejected.empty() ? d.advice : d.rejected + ": " + d.advice;

@@ -180,6 +180,7 @@ void DdsPublisher::Preview(const PreviewFrame& frame) {
   m.job_id = out.Keep(frame.job_id);
   m.frame_number = frame.sequence;
   m.stamp_ns = frame.stamp_ns;
+  m.ready_ns = frame.ready_ns;
   m.exposure_us = frame.exposure_us;
   m.gain_db = frame.gain_db;
   m.full_width = static_cast<std::uint32_t>(frame.full_size.width);

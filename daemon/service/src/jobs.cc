@@ -635,6 +635,8 @@ std::int64_t SteadyNs() {
 }
 }  // namespace
 
+std::int64_t WallNow() { return WallStamp(SteadyNs()); }
+
 std::int64_t WallStamp(std::int64_t steady_ns) {
   const std::int64_t wall = std::chrono::duration_cast<std::chrono::nanoseconds>(
                                 std::chrono::system_clock::now().time_since_epoch())
@@ -692,10 +694,12 @@ JobEngine::JobOutcome JobEngine::RunPreview(const PreviewRequest& request) {
     const drivers::DriverStatus s = devices_->Capture(&frame, stop_);
     if (stop_) break;
     if (!s.ok()) return {JobState::kFailed, "preview: " + s.message, {{"frames", sequence}}};
+    const std::int64_t ready_ns = WallNow();
     PreviewFrame p = MakePreviewFrame(frame.left.image, frame.right.image, request.width);
     p.job_id = job_id;
     p.sequence = sequence++;
     p.stamp_ns = WallStamp(frame.left.timestamp_ns);
+    p.ready_ns = ready_ns;
     p.exposure_us = frame.settings.exposure_us;
     p.gain_db = frame.settings.gain_db;
     if (sink_) sink_->Preview(p);

@@ -152,7 +152,8 @@ struct PreviewImageUpdate {
 struct PreviewUpdate {
   std::string job_id;
   std::uint32_t frame_number = 0;
-  std::int64_t stamp_ns = 0;
+  std::int64_t stamp_ns = 0;  // capture (wall clock)
+  std::int64_t ready_ns = 0;  // in the daemon's hands (wall clock); 0 = not sent
   double exposure_us = 0, gain_db = 0;
   int full_width = 0, full_height = 0, width = 0, height = 0;
   int grid_cols = 0, grid_rows = 0;

@@ -26,7 +26,8 @@ struct LivePreviewImage {
 struct PreviewFrame {
   std::string job_id;
   std::uint32_t sequence = 0;
-  std::int64_t stamp_ns = 0;
+  std::int64_t stamp_ns = 0;  // capture (wall clock)
+  std::int64_t ready_ns = 0;  // the frame in the daemon's hands (wall clock)
   double exposure_us = 0, gain_db = 0;
   cv::Size full_size;  // the cameras' images
   cv::Size size;       // the JPEGs'
@@ -48,6 +49,8 @@ LivePreviewImage MakeLivePreviewImage(const cv::Mat& image, int width);
 // simulated technician's clock). Preview stamps are wall clock, so a
 // console can tell its latency.
 std::int64_t WallStamp(std::int64_t steady_ns);
+// The wall clock now, ns since the epoch.
+std::int64_t WallNow();
 
 // Both images (the same size); the job fills in job_id, sequence, stamp,
 // exposure, gain and overlay.

@@ -22,7 +22,10 @@
 //   depth_err_median_mm, depth_err_p90_mm  |Z − Z_true| over pixels with a disparity
 //   valid_pct                               pixels with a disparity, % of object pixels
 //   disp_err_median_px                      |d − d_true| over the same pixels
-// and render_ms (both cameras + ground truth), match_ms (one matcher call).
+// and render_ms (both cameras + ground truth), match_ms (one matcher call,
+// on a new matcher: its first-touch page faults count), the matcher's own
+// stage times, and match_peak_rss_mb (the process's peak resident memory
+// while matching, images included).
 //
 // Threads: the renderer and the matcher get N through their options; OpenCV's
 // global pool (remap) is set to N for the run and restored.
@@ -71,11 +74,32 @@ struct SimDepthResult {
   double depth_err_median_mm = NAN, depth_err_p90_mm = NAN, disp_err_median_px = NAN;
   double valid_pct = 0;
   double render_ms = 0, match_ms = 0;
+  DisparityResult::Timings match_stages;  // the matcher's own stage times
+  double match_peak_rss_mb = NAN;         // process peak RSS while matching (VmHWM)
   // Pixels the station's clean-up removed (0 with --raw): in the whole image,
   // and of those on the object.
   std::size_t speckle_pixels = 0, edge_pixels = 0, textureless_pixels = 0;
   long speckle_object_pixels = 0, edge_object_pixels = 0, textureless_object_pixels = 0;
 };
+
+// Resets the process's peak resident set size (Linux: "5" to
+// /proc/self/clear_refs), so that PeakRssMb() afterwards tells the peak of
+// what follows. False where that is not possible.
+bool ResetPeakRss() {
+  std::ofstream clear("/proc/self/clear_refs");
+  clear << "5";
+  clear.close();
+  return static_cast<bool>(clear);
+}
+
+// VmHWM from /proc/self/status in MB (NaN if unreadable).
+double PeakRssMb() {
+  std::ifstream status("/proc/self/status");
+  std::string line;
+  while (std::getline(status, line))
+    if (line.rfind("VmHWM:", 0) == 0) return std::stod(line.substr(6)) / 1024.0;
+  return NAN;
+}
 
 // q-quantile (0…1) by nearest rank.
 double Quantile(std::vector<double>* values, double q) {
@@ -223,12 +247,15 @@ class SimDepthCommand : public BenchCommand {
     // A point cloud wants no invented surface: occluded and mismatched pixels
     // stay invalid unless --fill asks for the dense map.
     options.refinement.interpolate = fill_;
+    const bool peak_reset = ResetPeakRss();
     StereoMatcher matcher(options);
     const auto start = std::chrono::steady_clock::now();
     DisparityResult match = matcher.Compute(left, right);
     result->match_ms =
         std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count();
     if (!match.IsUsable()) return DataError("matcher failed: " + match.message);
+    result->match_stages = match.time_ms;
+    if (peak_reset) result->match_peak_rss_mb = PeakRssMb();
     cv::Mat& disparity = match.disparity;
     if (!raw_) {  // as ViewProcessor::Process and ReprojectToPoints
       const ViewProcessorOptions station;
@@ -311,7 +338,13 @@ class SimDepthCommand : public BenchCommand {
           "(on the object: %ld, %ld, %ld)\n",
           r.speckle_pixels, r.edge_pixels, r.textureless_pixels, r.speckle_object_pixels,
           r.edge_object_pixels, r.textureless_object_pixels);
-    std::printf("  render_ms %.0f  match_ms %.0f\n", r.render_ms, r.match_ms);
+    std::printf("  render_ms %.0f  match_ms %.0f  match_peak_rss_mb %.0f\n", r.render_ms,
+                r.match_ms, r.match_peak_rss_mb);
+    const DisparityResult::Timings& t = r.match_stages;
+    std::printf(
+        "  match stages (ms): preprocess %.0f  cost %.0f  arms %.0f  aggregation %.0f  "
+        "scanline+wta %.0f  refinement %.0f\n",
+        t.preprocess, t.cost, t.arms, t.aggregation, t.scanline, t.refinement);
     std::fflush(stdout);
   }
 
@@ -344,6 +377,11 @@ class SimDepthCommand : public BenchCommand {
     root["disp_err_median_px"] = ToJson(r.disp_err_median_px);
     root["render_ms"] = ToJson(r.render_ms);
     root["match_ms"] = ToJson(r.match_ms);
+    root["match_peak_rss_mb"] = ToJson(r.match_peak_rss_mb);
+    const DisparityResult::Timings& t = r.match_stages;
+    root["match_stages_ms"] = {
+        {"preprocess", t.preprocess},   {"cost", t.cost},         {"arms", t.arms},
+        {"aggregation", t.aggregation}, {"scanline", t.scanline}, {"refinement", t.refinement}};
     std::ofstream out(json_path_, std::ios::trunc);
     if (out) out << root.dump(2) << "\n";
     out.close();

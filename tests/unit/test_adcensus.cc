@@ -60,9 +60,10 @@ TEST(Cost, MatchesMeiFormulaIncludingOutOfImageDisparities) {
     for (int x = 0; x < left.cols; ++x) {
       for (int k = 0; k < ndisp; ++k) {
         const int xr = x - (min_disparity + k);
-        const float got = cost.at(y, x)[k];
+        // Fixed point: each ρ term rounded to 1/kCostScale.
+        const double got = static_cast<double>(cost.at(y, x)[k]) / adcensus::kCostScale;
         if (xr < 0 || xr >= left.cols) {
-          EXPECT_EQ(got, 1.5f);
+          EXPECT_EQ(cost.at(y, x)[k], 1.5 * adcensus::kCostScale);
           ++checked_out_of_image;
           continue;
         }
@@ -71,7 +72,8 @@ TEST(Cost, MatchesMeiFormulaIncludingOutOfImageDisparities) {
             (std::abs(a[0] - b[0]) + std::abs(a[1] - b[1]) + std::abs(a[2] - b[2])) / 3.0;
         const int hamming = std::popcount(cl[y * left.cols + x] ^ cr[y * left.cols + xr]);
         const double expected = (1 - std::exp(-ad / 10)) + (1 - std::exp(-hamming / 30.0));
-        ASSERT_NEAR(got, expected, 1e-6) << "at " << x << "," << y << " k " << k;
+        ASSERT_NEAR(got, expected, 1.0 / adcensus::kCostScale + 1e-9)
+            << "at " << x << "," << y << " k " << k;
       }
     }
   }
@@ -191,10 +193,11 @@ TEST(Aggregation, SupportRegionAverageMatchesBruteForce) {
   const int ndisp = 3;
   adcensus::CostVolume cost(img.cols, img.rows, ndisp);
   std::mt19937 rng(5);
-  std::uniform_real_distribution<float> u(0, 2);
+  std::uniform_int_distribution<int> u(0, 2 * adcensus::kCostScale);
   for (int y = 0; y < img.rows; ++y)
     for (int x = 0; x < img.cols; ++x)
-      for (int k = 0; k < cost.stride(); ++k) cost.at(y, x)[k] = k < ndisp ? u(rng) : 0.f;
+      for (int k = 0; k < cost.stride(); ++k)
+        cost.at(y, x)[k] = static_cast<adcensus::Cost>(k < ndisp ? u(rng) : 0);
   std::vector<float> original(static_cast<std::size_t>(img.total()) * ndisp);
   for (int y = 0; y < img.rows; ++y)
     for (int x = 0; x < img.cols; ++x)
@@ -213,7 +216,9 @@ TEST(Aggregation, SupportRegionAverageMatchesBruteForce) {
             sum += original[(v * img.cols + u2) * ndisp + k];
         }
         ASSERT_EQ(n, adcensus::SupportSize(arms, y, x, true));
-        ASSERT_NEAR(cost.at(y, x)[k], sum / n, 1e-4) << x << "," << y;
+        // Two roundings: the horizontal segment means (at most 0.5 each,
+        // weighted back by their lengths) and the region mean.
+        ASSERT_NEAR(cost.at(y, x)[k], sum / n, 1.0 + 1e-6) << x << "," << y;
       }
     }
   }
@@ -293,18 +298,26 @@ TEST(Matcher, SerialAndThreadedResultsAreIdentical) {
   const cv::Mat left = RandomTexture(180, 140, 24);
   cv::Mat gt;
   const cv::Mat right = RenderRightView(left, 15, 0.05, 0, &gt);
-  ADCensusOptions o;
-  o.num_disparities = 40;
-  o.num_threads = 1;
-  const DisparityResult serial = ComputeDisparity(left, right, o);
-  o.num_threads = 2;
-  const DisparityResult two = ComputeDisparity(left, right, o);
-  o.num_threads = 3;
-  const DisparityResult three = ComputeDisparity(left, right, o);
-  ASSERT_TRUE(serial.IsUsable() && two.IsUsable() && three.IsUsable());
-  const std::size_t bytes = serial.disparity.total() * sizeof(float);
-  EXPECT_EQ(0, std::memcmp(serial.disparity.data, two.disparity.data, bytes));
-  EXPECT_EQ(0, std::memcmp(serial.disparity.data, three.disparity.data, bytes));
+  // With aggregation (two volumes) and without it, outliers filled or left
+  // invalid (the station's setting: one volume, costs recomputed in place).
+  for (const int iterations : {4, 0}) {
+    ADCensusOptions o;
+    o.num_disparities = 40;
+    o.aggregation_iterations = iterations;
+    o.refinement.interpolate = iterations != 0;
+    o.num_threads = 1;
+    const DisparityResult serial = ComputeDisparity(left, right, o);
+    o.num_threads = 2;
+    const DisparityResult two = ComputeDisparity(left, right, o);
+    o.num_threads = 3;
+    const DisparityResult three = ComputeDisparity(left, right, o);
+    ASSERT_TRUE(serial.IsUsable() && two.IsUsable() && three.IsUsable());
+    const std::size_t bytes = serial.disparity.total() * sizeof(float);
+    EXPECT_EQ(0, std::memcmp(serial.disparity.data, two.disparity.data, bytes)) << iterations;
+    EXPECT_EQ(0, std::memcmp(serial.disparity.data, three.disparity.data, bytes)) << iterations;
+    EXPECT_EQ(0, std::memcmp(serial.disparity_right.data, three.disparity_right.data, bytes))
+        << iterations;
+  }
 }
 
 TEST(Matcher, WithoutInterpolationOutliersAreMarkedInvalid) {

@@ -93,8 +93,8 @@ DisparityResult InvalidInput(std::string message) {
 
 struct StereoMatcher::Workspace {
   explicit Workspace(int num_threads) : parallel(num_threads) {}
-  Parallel parallel;  // the arena lives as long as the matcher
-  adcensus::CostVolume cost, scratch;
+  Parallel parallel;                   // the arena lives as long as the matcher
+  adcensus::CostVolume cost, scratch;  // aggregated costs; scanline sums
 };
 
 StereoMatcher::StereoMatcher(ADCensusOptions options)
@@ -124,7 +124,7 @@ DisparityResult StereoMatcher::Compute(const cv::Mat& left, const cv::Mat& right
   if (left.cols < 2 || left.rows < 2) return InvalidInput("images must be at least 2x2 pixels");
   const double voxels =
       static_cast<double>(left.cols) * left.rows * ((options.num_disparities + 15) / 16 * 16);
-  if (voxels > 1.0e9)  // two float volumes live at once: 8 GB at this limit
+  if (voxels > 1.0e9)  // up to two 16-bit volumes live at once: 4 GB at this limit
     return InvalidInput("cost volume too large: width·height·num_disparities = " +
                         std::to_string(static_cast<long long>(voxels)) +
                         " exceeds 1e9; narrow the disparity range or match at lower resolution");
@@ -157,9 +157,10 @@ DisparityResult StereoMatcher::Compute(const cv::Mat& left, const cv::Mat& right
         adcensus::CensusTransform(pr.grey, options.census_width, options.census_height, parallel);
     adcensus::CostVolume& cost = workspace_->cost;
     cost.Reshape(left.cols, left.rows, ndisp);
-    adcensus::ComputeCost(img_l, img_r, census_l, census_r, dmin, options.lambda_ad,
-                          options.lambda_census, static_cast<float>(options.out_of_image_cost),
-                          parallel, &cost);
+    const adcensus::CostComputer cost_computer(img_l, img_r, census_l, census_r, dmin, ndisp,
+                                               options.lambda_ad, options.lambda_census,
+                                               options.out_of_image_cost);
+    adcensus::ComputeCost(cost_computer, parallel, &cost);
     result.time_ms.cost = MsSince(t);
 
     t = Clock::now();
@@ -171,20 +172,31 @@ DisparityResult StereoMatcher::Compute(const cv::Mat& left, const cv::Mat& right
     adcensus::Aggregate(arms, options.aggregation_iterations, parallel, &cost);
     result.time_ms.aggregation = MsSince(t);
 
+    // Scanline optimization (when on) is fused with the winner-take-all; its
+    // time is counted as scanline.
     t = Clock::now();
-    if (options.scanline_optimization)
-      adcensus::ScanlineOptimize(img_l, img_r, dmin, options, parallel, &cost,
-                                 &workspace_->scratch);
+    cv::Mat left_index, right_index;
+    const adcensus::CostVolume* final_cost = &cost;
+    if (options.scanline_optimization && options.aggregation_iterations == 0) {
+      // The costs are cheap to recompute row by row: the scanline sums
+      // overwrite them in place, one volume instead of two.
+      adcensus::ScanlineOptimize(img_l, img_r, dmin, options, parallel, nullptr, &cost_computer,
+                                 &cost, &left_index, &right_index);
+    } else if (options.scanline_optimization) {
+      adcensus::ScanlineOptimize(img_l, img_r, dmin, options, parallel, &cost, nullptr,
+                                 &workspace_->scratch, &left_index, &right_index);
+      final_cost = &workspace_->scratch;
+    }
     result.time_ms.scanline = MsSince(t);
 
     t = Clock::now();
-    cv::Mat left_index, right_index;
-    adcensus::WinnerTakeAll(cost, dmin, parallel, &left_index, &right_index);
+    if (!options.scanline_optimization)
+      adcensus::WinnerTakeAll(cost, dmin, parallel, &left_index, &right_index);
     cv::Mat index;
     if (options.refinement.enabled) {
       adcensus::RefineStats stats;
-      index = adcensus::Refine(left_index, right_index, cost, dmin, img_l, arms, options.refinement,
-                               parallel, &stats);
+      index = adcensus::Refine(left_index, right_index, *final_cost, dmin, img_l, arms,
+                               options.refinement, parallel, &stats);
       result.occluded_pct = stats.occluded_pct;
       result.mismatch_pct = stats.mismatch_pct;
       result.ambiguous_pct = stats.ambiguous_pct;

@@ -1,9 +1,13 @@
 // Cross-based cost aggregation, scanline optimization and winner-take-all.
 //
-// All passes run over the [y][x][d] volume with the disparity axis innermost,
-// so every inner loop is a contiguous, vectorizable loop over d. Horizontal
-// passes are row-local (one row of the volume fits in L2); vertical passes
-// walk rows top to bottom over a band of columns, keeping one row of state.
+// All passes run over [y][x][d] volumes of 16-bit fixed-point costs
+// (adcensus_internal.h) with the disparity axis innermost, so every inner
+// loop is a contiguous loop over d that vectorizes across disparities.
+// Horizontal passes are row-local (one row of the volume stays in L2);
+// vertical passes walk rows top to bottom over a band of columns, keeping one
+// row of state per column. All arithmetic is on integers (or rounds each
+// value on its own), so results do not depend on how rows or bands are split
+// between threads.
 #include <hwy/highway.h>
 
 #include <algorithm>
@@ -17,64 +21,106 @@
 namespace craftscan::adcensus {
 namespace {
 
-using Buffer = std::vector<float>;
+namespace hn = hwy::HWY_NAMESPACE;
+// 16 costs (256 bits) per vector: the padded stride is a multiple of 16.
+using CostTag = hn::CappedTag<Cost, 16>;
 
-// Columns per vertical-pass work item: small enough to balance two threads,
-// large enough that each row access is a long contiguous run.
+constexpr Cost kMaxCost = std::numeric_limits<Cost>::max();
+
+// Columns per vertical-aggregation work item: small enough to balance two
+// threads, large enough that each row access is a long contiguous run.
 constexpr int kColumnBand = 4;
+// Columns per vertical-scanline work item. Its state is one padded disparity
+// row per column (a few kB) and the band's top→bottom path values,
+// height × kScanBand × stride costs (2.6 MB at 1280×1024×160).
+constexpr int kScanBand = 8;
 // How far ahead (rows) vertical passes prefetch the volume.
 constexpr int kPrefetchRows = 4;
 
-// out[k] = (hi[k] − lo[k]) · scale over the padded disparity axis.
-inline void WindowSum(const float* __restrict hi, const float* __restrict lo, float scale, int n,
-                      float* __restrict out) {
-  for (int k = 0; k < n; ++k) out[k] = (hi[k] - lo[k]) * scale;
+// Fetches the costs of columns [x0, x0 + n) of row y into cache.
+inline void PrefetchRun(const CostVolume& cost, int y, int x0, int n) {
+  const char* p = reinterpret_cast<const char*>(cost.at(y, x0));
+  const std::size_t bytes = static_cast<std::size_t>(n) * cost.stride() * sizeof(Cost);
+  for (std::size_t off = 0; off < bytes; off += 64) __builtin_prefetch(p + off);
 }
 
-inline void Accumulate(const float* __restrict prev, const float* __restrict add, int n,
-                       float* __restrict out) {
-  for (int k = 0; k < n; ++k) out[k] = prev[k] + add[k];
+// ---------------------------------------------------------------------------
+// Aggregation
+//
+// A pass along one axis computes, for every pixel p and disparity,
+//   out(p) = round(scale(p) · Σ_{q on p's arm along the axis} weight(q) · in(q)).
+// Values between passes are always rounded costs, never raw sums (they would
+// overflow 16 bits): a pass that ends an iteration stores the support-region
+// mean (scale = 1 / support size); a pass that starts one stores the mean
+// over the pixel's own arm segment (scale = 1 / segment length), and the next
+// pass, along the other axis, weights it by that length to get the segment
+// sum back. The result is the exact region mean up to one rounding per pass.
+
+struct Pass {
+  const std::vector<std::int32_t>* weight;  // per pixel; nullptr = 1
+  const std::vector<float>* scale;          // per pixel
+};
+
+// Prefix sums are unsigned: a whole column of padding lanes (kPadCost times
+// an arm length per row) can pass 2^31, and unsigned arithmetic wraps with
+// defined behaviour. A window's difference is exact, as every window sum
+// (at most 69 × 69 × kPadCost) is far below 2^31.
+using Prefix = std::uint32_t;
+
+// out[k] = prev[k] + w · add[k] over the padded disparity axis (add ≥ 0).
+template <class T>
+inline void AccumulateWeighted(const Prefix* __restrict prev, const T* __restrict add,
+                               std::int32_t w, int n, Prefix* __restrict out) {
+  const Prefix weight = static_cast<Prefix>(w);
+  for (int k = 0; k < n; ++k) out[k] = prev[k] + static_cast<Prefix>(add[k]) * weight;
 }
 
-// One pass of cross aggregation along one axis: each pixel's value becomes
-// the sum along its arm, scaled by the pixel's 1 / support size when the pass
-// ends an iteration (scale given) or left as a raw sum (nullptr).
-using PassScale = const std::vector<float>*;
+// out[k] = round((hi[k] − lo[k]) · scale); sums are non-negative.
+template <class T>
+inline void WindowMean(const Prefix* __restrict hi, const Prefix* __restrict lo, float scale, int n,
+                       T* __restrict out) {
+  for (int k = 0; k < n; ++k)
+    out[k] = static_cast<T>(static_cast<std::int32_t>(
+        static_cast<float>(static_cast<std::int32_t>(hi[k] - lo[k])) * scale + 0.5f));
+}
 
 // Runs consecutive horizontal passes on each row while the row is in cache:
 // one read and one write of the volume however many passes there are.
-void HorizontalPasses(const Arms& arms, std::initializer_list<PassScale> passes,
+// Working memory per thread: a prefix-sum row, (width + 1) × stride uint32.
+void HorizontalPasses(const Arms& arms, std::initializer_list<Pass> passes,
                       const Parallel& parallel, CostVolume* cost) {
   const int width = cost->width(), stride = cost->stride();
   parallel.For(0, cost->height(), [&](int y0, int y1) {
-    Buffer prefix(static_cast<std::size_t>(width + 1) * stride);
+    std::vector<Prefix> prefix(static_cast<std::size_t>(width + 1) * stride);
     for (int y = y0; y < y1; ++y) {
-      for (PassScale inv_count : passes) {
-        std::fill_n(prefix.data(), stride, 0.f);
-        for (int x = 0; x < width; ++x)
-          Accumulate(&prefix[static_cast<std::size_t>(x) * stride], cost->at(y, x), stride,
-                     &prefix[static_cast<std::size_t>(x + 1) * stride]);
+      for (const Pass& pass : passes) {
+        std::fill_n(prefix.data(), stride, 0);
+        for (int x = 0; x < width; ++x) {
+          const std::int32_t w = pass.weight ? (*pass.weight)[arms.index(y, x)] : 1;
+          AccumulateWeighted(&prefix[static_cast<std::size_t>(x) * stride], cost->at(y, x), w,
+                             stride, &prefix[static_cast<std::size_t>(x + 1) * stride]);
+        }
         for (int x = 0; x < width; ++x) {
           const std::size_t i = arms.index(y, x);
-          const float scale = inv_count ? (*inv_count)[i] : 1.f;
-          WindowSum(&prefix[static_cast<std::size_t>(x + arms.right[i] + 1) * stride],
-                    &prefix[static_cast<std::size_t>(x - arms.left[i]) * stride], scale, stride,
-                    cost->at(y, x));
+          WindowMean(&prefix[static_cast<std::size_t>(x + arms.right[i] + 1) * stride],
+                     &prefix[static_cast<std::size_t>(x - arms.left[i]) * stride], (*pass.scale)[i],
+                     stride, cost->at(y, x));
         }
       }
     }
   });
 }
 
-// The vertical counterpart on bands of columns: the band is copied out once,
-// every pass runs on the copy (prefix sums down the band), and it is written
-// back once.
-void VerticalPasses(const Arms& arms, std::initializer_list<PassScale> passes,
-                    const Parallel& parallel, CostVolume* cost) {
+// The vertical counterpart on bands of columns: the band is copied out once
+// (as int32, height × band × stride), every pass runs on the copy (prefix
+// sums down the band), and it is written back once.
+void VerticalPasses(const Arms& arms, std::initializer_list<Pass> passes, const Parallel& parallel,
+                    CostVolume* cost) {
   const int width = cost->width(), height = cost->height(), stride = cost->stride();
   const int bands = (width + kColumnBand - 1) / kColumnBand;
   parallel.For(0, bands, [&](int b0, int b1) {
-    Buffer prefix, data;
+    std::vector<Prefix> prefix;
+    std::vector<std::int32_t> data;
     for (int b = b0; b < b1; ++b) {
       const int x0 = b * kColumnBand, x1 = std::min(width, x0 + kColumnBand);
       const std::size_t band = static_cast<std::size_t>(x1 - x0) * stride;
@@ -83,43 +129,95 @@ void VerticalPasses(const Arms& arms, std::initializer_list<PassScale> passes,
       for (int y = 0; y < height; ++y) {
         // Rows of a band lie one volume row apart: the hardware prefetcher
         // does not follow, so fetch a few rows ahead by hand.
-        if (y + kPrefetchRows < height) {
-          const char* ahead = reinterpret_cast<const char*>(cost->at(y + kPrefetchRows, x0));
-          for (std::size_t off = 0; off < band * sizeof(float); off += 64)
-            __builtin_prefetch(ahead + off);
-        }
-        std::copy_n(cost->at(y, x0), band, &data[y * band]);
+        if (y + kPrefetchRows < height) PrefetchRun(*cost, y + kPrefetchRows, x0, x1 - x0);
+        const Cost* in = cost->at(y, x0);
+        std::int32_t* out = &data[y * band];
+        for (std::size_t k = 0; k < band; ++k) out[k] = in[k];
       }
-      for (PassScale inv_count : passes) {
-        std::fill_n(prefix.data(), band, 0.f);
-        for (int y = 0; y < height; ++y)
-          Accumulate(&prefix[y * band], &data[y * band], static_cast<int>(band),
-                     &prefix[(y + 1) * band]);
+      for (const Pass& pass : passes) {
+        std::fill_n(prefix.data(), band, 0);
+        for (int y = 0; y < height; ++y) {
+          for (int x = x0; x < x1; ++x) {
+            const std::int32_t w = pass.weight ? (*pass.weight)[arms.index(y, x)] : 1;
+            const std::size_t off = static_cast<std::size_t>(x - x0) * stride;
+            AccumulateWeighted(&prefix[y * band + off], &data[y * band + off], w, stride,
+                               &prefix[(y + 1) * band + off]);
+          }
+        }
         for (int y = 0; y < height; ++y) {
           for (int x = x0; x < x1; ++x) {
             const std::size_t i = arms.index(y, x);
-            const float scale = inv_count ? (*inv_count)[i] : 1.f;
             const std::size_t off = static_cast<std::size_t>(x - x0) * stride;
-            WindowSum(&prefix[(y + arms.down[i] + 1) * band + off],
-                      &prefix[(y - arms.up[i]) * band + off], scale, stride, &data[y * band + off]);
+            WindowMean(&prefix[(y + arms.down[i] + 1) * band + off],
+                       &prefix[(y - arms.up[i]) * band + off], (*pass.scale)[i], stride,
+                       &data[y * band + off]);
           }
         }
       }
-      for (int y = 0; y < height; ++y) std::copy_n(&data[y * band], band, cost->at(y, x0));
+      for (int y = 0; y < height; ++y) {
+        const std::int32_t* in = &data[y * band];
+        Cost* out = cost->at(y, x0);
+        for (std::size_t k = 0; k < band; ++k) out[k] = static_cast<Cost>(in[k]);
+      }
     }
   });
 }
 
-// 1 / support size for each pixel.
-std::vector<float> InverseSupportSizes(const Arms& arms, bool horizontal_first,
-                                       const Parallel& parallel) {
-  std::vector<float> inv(static_cast<std::size_t>(arms.width) * arms.height);
-  parallel.For(0, arms.height, [&](int y0, int y1) {
-    for (int y = y0; y < y1; ++y)
-      for (int x = 0; x < arms.width; ++x)
-        inv[arms.index(y, x)] = 1.f / static_cast<float>(SupportSize(arms, y, x, horizontal_first));
+// Per-pixel factors of the passes: arm segment lengths along each axis, their
+// inverses, and 1 / support size for each iteration order.
+struct PassFactors {
+  std::vector<std::int32_t> len_h, len_v;
+  std::vector<float> inv_len_h, inv_len_v, inv_support_h, inv_support_v;
+};
+
+PassFactors ComputePassFactors(const Arms& arms, bool need_vertical_first,
+                               const Parallel& parallel) {
+  PassFactors f;
+  const int width = arms.width, height = arms.height;
+  const std::size_t n = static_cast<std::size_t>(width) * height;
+  f.len_h.resize(n);
+  f.len_v.resize(n);
+  f.inv_len_h.resize(n);
+  f.inv_len_v.resize(n);
+  f.inv_support_h.resize(n);
+  if (need_vertical_first) f.inv_support_v.resize(n);
+  parallel.For(0, height, [&](int y0, int y1) {
+    for (int y = y0; y < y1; ++y) {
+      for (int x = 0; x < width; ++x) {
+        const std::size_t i = arms.index(y, x);
+        f.len_h[i] = arms.left[i] + arms.right[i] + 1;
+        f.len_v[i] = arms.up[i] + arms.down[i] + 1;
+        f.inv_len_h[i] = 1.f / static_cast<float>(f.len_h[i]);
+        f.inv_len_v[i] = 1.f / static_cast<float>(f.len_v[i]);
+      }
+    }
   });
-  return inv;
+  // Support sizes (as SupportSize) from prefix sums of the segment lengths:
+  // horizontal-first, len_h summed down each column over the vertical arm;
+  // vertical-first, len_v summed along each row over the horizontal arm.
+  std::vector<std::int32_t> down_column(static_cast<std::size_t>(height + 1) * width, 0);
+  for (int y = 0; y < height; ++y)
+    for (int x = 0; x < width; ++x)
+      down_column[static_cast<std::size_t>(y + 1) * width + x] =
+          down_column[static_cast<std::size_t>(y) * width + x] + f.len_h[arms.index(y, x)];
+  parallel.For(0, height, [&](int y0, int y1) {
+    std::vector<std::int32_t> along_row(width + 1, 0);
+    for (int y = y0; y < y1; ++y) {
+      if (need_vertical_first)
+        for (int x = 0; x < width; ++x) along_row[x + 1] = along_row[x] + f.len_v[arms.index(y, x)];
+      for (int x = 0; x < width; ++x) {
+        const std::size_t i = arms.index(y, x);
+        const int size_h = down_column[static_cast<std::size_t>(y + arms.down[i] + 1) * width + x] -
+                           down_column[static_cast<std::size_t>(y - arms.up[i]) * width + x];
+        f.inv_support_h[i] = 1.f / static_cast<float>(size_h);
+        if (need_vertical_first) {
+          const int size_v = along_row[x + arms.right[i] + 1] - along_row[x - arms.left[i]];
+          f.inv_support_v[i] = 1.f / static_cast<float>(size_v);
+        }
+      }
+    }
+  });
+  return f;
 }
 
 }  // namespace
@@ -143,33 +241,147 @@ int SupportSize(const Arms& arms, int y, int x, bool horizontal_first) {
 
 void Aggregate(const Arms& arms, int iterations, const Parallel& parallel, CostVolume* cost) {
   if (iterations <= 0) return;
-  const std::vector<float> inv_h = InverseSupportSizes(arms, true, parallel);
-  const std::vector<float> inv_v =
-      iterations > 1 ? InverseSupportSizes(arms, false, parallel) : std::vector<float>();
-  // Iteration i is horizontal-first (H, then V scaled by inv_h) for even i and
-  // vertical-first (V, then H scaled by inv_v) for odd i. Consecutive passes
-  // along the same axis run fused: H | V V | H H | V V | H for 4 iterations.
-  HorizontalPasses(arms, {nullptr}, parallel, cost);
+  const PassFactors f = ComputePassFactors(arms, iterations > 1, parallel);
+  // Iteration i is horizontal-first for even i: H (segment means), then V
+  // weighted by the horizontal lengths and scaled to the region mean; odd i
+  // is the transpose. Consecutive passes along the same axis run fused:
+  // H | V V | H H | V V | H for 4 iterations.
+  const Pass h_start{nullptr, &f.inv_len_h}, v_start{nullptr, &f.inv_len_v};
+  const Pass v_end{&f.len_h, &f.inv_support_h}, h_end{&f.len_v, &f.inv_support_v};
+  HorizontalPasses(arms, {h_start}, parallel, cost);
   for (int it = 0; it < iterations; ++it) {
     const bool last = it + 1 == iterations;
     if (it % 2 == 0) {
       if (last) {
-        VerticalPasses(arms, {&inv_h}, parallel, cost);
+        VerticalPasses(arms, {v_end}, parallel, cost);
       } else {
-        VerticalPasses(arms, {&inv_h, nullptr}, parallel, cost);
+        VerticalPasses(arms, {v_end, v_start}, parallel, cost);
       }
     } else {
       if (last) {
-        HorizontalPasses(arms, {&inv_v}, parallel, cost);
+        HorizontalPasses(arms, {h_end}, parallel, cost);
       } else {
-        HorizontalPasses(arms, {&inv_v, nullptr}, parallel, cost);
+        HorizontalPasses(arms, {h_end, h_start}, parallel, cost);
       }
     }
   }
 }
 
 // ---------------------------------------------------------------------------
+// Winner-take-all
+
+namespace {
+
+// Index of the first minimum of c[0 … n) (n a multiple of the vector width;
+// lanes past the real disparities hold large costs and never win).
+inline int ArgMin(const Cost* __restrict c, int n) {
+  const CostTag d;
+  const int lanes = static_cast<int>(hn::Lanes(d));
+  auto best = hn::Set(d, kMaxCost);
+  auto best_k = hn::Zero(d);
+  auto k_vec = hn::Iota(d, 0);
+  const auto step = hn::Set(d, static_cast<Cost>(lanes));
+  for (int k = 0; k < n; k += lanes) {
+    const auto v = hn::LoadU(d, c + k);
+    const auto better = hn::Lt(v, best);  // strict: each lane keeps its first minimum
+    best = hn::IfThenElse(better, v, best);
+    best_k = hn::IfThenElse(better, k_vec, best_k);
+    k_vec = hn::Add(k_vec, step);
+  }
+  // Among lanes holding the minimum, the smallest index: the first minimum.
+  const auto at_min = hn::Eq(best, hn::MinOfLanes(d, best));
+  return hn::GetLane(hn::MinOfLanes(d, hn::IfThenElse(at_min, best_k, hn::Set(d, kMaxCost))));
+}
+
+// The right view's winners, gathered in the same pass over a row of the
+// volume as the left view's (no diagonal walk): left pixel x at index k
+// matches x_r = x − d_min − k. Entries are kept reversed,
+// j = width − 1 − x_r + margin, so that each pixel's candidates form one
+// contiguous run j0 + k. Runs also touch entries outside the image (ignored)
+// and padding lanes (never a real winner).
+class RightWinners {
+ public:
+  RightWinners(int width, int min_disparity, int stride)
+      : width_(width),
+        min_disparity_(min_disparity),
+        stride_(stride),
+        margin_(stride + std::abs(min_disparity) + 1),
+        best_(width + 2 * margin_),
+        best_k_(width + 2 * margin_) {}
+
+  void Reset() {
+    std::fill(best_.begin(), best_.end(), kMaxCost);
+    std::fill(best_k_.begin(), best_k_.end(), Cost{-1});
+  }
+
+  // Offers the costs of left pixel x. Each entry must end with its first
+  // minimum (lowest k): with pixels offered in increasing x (increasing k per
+  // entry) a strict "<" keeps it, in decreasing x a "≤" does.
+  void Offer(int x, const Cost* __restrict c, bool decreasing_x) {
+    const CostTag d;
+    const int lanes = static_cast<int>(hn::Lanes(d));
+    Cost* __restrict best = &best_[width_ - 1 - x + min_disparity_ + margin_];
+    Cost* __restrict best_k = &best_k_[width_ - 1 - x + min_disparity_ + margin_];
+    auto k_vec = hn::Iota(d, 0);
+    const auto step = hn::Set(d, static_cast<Cost>(lanes));
+    for (int k = 0; k < stride_; k += lanes) {
+      const auto v = hn::LoadU(d, c + k);
+      const auto b = hn::LoadU(d, best + k);
+      const auto better = decreasing_x ? hn::Not(hn::Lt(b, v)) : hn::Lt(v, b);  // v ≤ b : v < b
+      hn::StoreU(hn::IfThenElse(better, v, b), d, best + k);
+      hn::StoreU(hn::IfThenElse(better, k_vec, hn::LoadU(d, best_k + k)), d, best_k + k);
+      k_vec = hn::Add(k_vec, step);
+    }
+  }
+
+  // Writes the winning index per right pixel (NaN where no real winner).
+  void Write(int ndisp, float* r) const {
+    for (int xr = 0; xr < width_; ++xr) {
+      const int k = best_k_[width_ - 1 - xr + margin_];
+      r[xr] = k < 0 || k >= ndisp ? std::numeric_limits<float>::quiet_NaN() : static_cast<float>(k);
+    }
+  }
+
+ private:
+  int width_, min_disparity_, stride_, margin_;
+  std::vector<Cost> best_, best_k_;
+};
+
+}  // namespace
+
+void WinnerTakeAll(const CostVolume& cost, int min_disparity, const Parallel& parallel,
+                   cv::Mat* left_index, cv::Mat* right_index) {
+  const int width = cost.width(), height = cost.height(), stride = cost.stride();
+  left_index->create(height, width, CV_32FC1);
+  right_index->create(height, width, CV_32FC1);
+  parallel.For(0, height, [&](int y0, int y1) {
+    RightWinners right(width, min_disparity, stride);
+    for (int y = y0; y < y1; ++y) {
+      float* l = left_index->ptr<float>(y);
+      right.Reset();
+      for (int x = 0; x < width; ++x) {
+        const Cost* c = cost.at(y, x);
+        l[x] = static_cast<float>(ArgMin(c, stride));
+        right.Offer(x, c, false);
+      }
+      right.Write(cost.ndisp(), right_index->ptr<float>(y));
+    }
+  });
+}
+
+// ---------------------------------------------------------------------------
 // Scanline optimization
+//
+// Two passes over the aggregated volume C:
+//  1. vertical paths on bands of columns (one padded disparity row of state
+//     per column, the band's top→bottom values in a band buffer):
+//     S(y, x) = L_top→bottom + L_bottom→top, S in *result (which may be C's
+//     own memory: S(y, x) is written after C(y, x) is read for the last time);
+//  2. horizontal paths row by row (C's row read or recomputed, the row's
+//     left→right values in a row buffer of width × stride costs, in L2),
+//     fused with the final sum S += L_left→right + L_right→left and the
+//     winner-take-all of both views, so S is read and written once more and
+//     never walked again for the winners.
 
 namespace {
 
@@ -183,94 +395,170 @@ class RightDiffs {
       : width_(right.cols), xr_hi_(right.cols + std::abs(min_disparity) + 2) {
     const int xr_lo = -std::abs(min_disparity) - ndisp - 2;  // ndisp: the padded stride
     len_ = xr_hi_ - xr_lo + 1;
-    data_.assign(static_cast<std::size_t>(right.rows + 1) * len_, 0.f);
+    data_.assign(static_cast<std::size_t>(right.rows + 1) * len_, 0);
     const int ch = right.channels();
     for (int y = 0; y < right.rows; ++y) {
       if (vertical && y == 0) continue;
       const std::uint8_t* r = right.ptr<std::uint8_t>(y);
       const std::uint8_t* prev = vertical ? right.ptr<std::uint8_t>(y - 1) : r;
-      float* out = &data_[static_cast<std::size_t>(y) * len_];
+      Cost* out = &data_[static_cast<std::size_t>(y) * len_];
       for (int xr = vertical ? 0 : 1; xr < width_; ++xr)
         out[xr_hi_ - xr] =
-            ColourDiff(r + ch * xr, prev + ch * (vertical ? xr : xr - 1), ch) >= tau_so ? 1.f : 0.f;
+            ColourDiff(r + ch * xr, prev + ch * (vertical ? xr : xr - 1), ch) >= tau_so ? 1 : 0;
     }
   }
   // Row y (0 … rows; row `rows` is all zero), values for x_r = base − k.
-  const float* At(int y, int base_xr) const {
+  const Cost* At(int y, int base_xr) const {
     return &data_[static_cast<std::size_t>(y) * len_ + (xr_hi_ - base_xr)];
   }
 
  private:
   int width_, xr_hi_, len_;
-  std::vector<float> data_;  // 32-bit like the costs, so PathStep vectorizes at full width
+  std::vector<Cost> data_;  // 16-bit like the costs, so PathStep loads them at full width
 };
 
 struct Penalties {
-  float p1[3], p2[3];  // index: number of colour differences at or above tau_so
+  Cost p1[3], p2[3];  // index: number of colour differences at or above tau_so
 };
 
 // One step of a path: out = a + min(prev, prev(k±1) + P1, prev_min + P2) − prev_min,
 // over the whole padded disparity axis [0, n) (n a multiple of the vector
-// width). prev has one sentinel before and after (prev[-1], prev[n]). Padding
-// lanes carry costs ≥ kPadCost, so they never win the minimum.
+// width). prev has one sentinel (kMaxCost) before and after (prev[-1],
+// prev[n]); additions saturate. Padding lanes carry costs ≥ kPadCost, more
+// than any real path value, so they never win the minimum.
 // Returns min over k of out.
-inline float PathStep(const float* __restrict a, const float* __restrict prev, float prev_min,
-                      bool d1_big, const float* __restrict d2_big, const Penalties& pen, int n,
-                      float* __restrict out) {
-  namespace hn = hwy::HWY_NAMESPACE;
-  const hn::ScalableTag<float> d;
+inline Cost PathStep(const Cost* __restrict a, const Cost* __restrict prev, Cost prev_min,
+                     bool d1_big, const Cost* __restrict d2_big, const Penalties& pen, int n,
+                     Cost* __restrict out) {
+  const CostTag d;
   const int lanes = static_cast<int>(hn::Lanes(d));
   // Penalties when the right image's difference is below / at or above tau_so.
-  const float p1_small = pen.p1[d1_big ? 1 : 0], p1_big = pen.p1[d1_big ? 2 : 1];
-  const float p2_small = pen.p2[d1_big ? 1 : 0], p2_big = pen.p2[d1_big ? 2 : 1];
-  const auto p1_lo = hn::Set(d, p1_small), p1_step = hn::Set(d, p1_big - p1_small);
-  const auto p2_lo = hn::Set(d, p2_small), p2_step = hn::Set(d, p2_big - p2_small);
+  const auto p1_small = hn::Set(d, pen.p1[d1_big ? 1 : 0]);
+  const auto p1_big = hn::Set(d, pen.p1[d1_big ? 2 : 1]);
   const auto vprev_min = hn::Set(d, prev_min);
-  auto vmin = hn::Set(d, std::numeric_limits<float>::infinity());
+  const auto jump_small = hn::SaturatedAdd(vprev_min, hn::Set(d, pen.p2[d1_big ? 1 : 0]));
+  const auto jump_big = hn::SaturatedAdd(vprev_min, hn::Set(d, pen.p2[d1_big ? 2 : 1]));
+  const auto zero = hn::Zero(d);
+  auto vmin = hn::Set(d, kMaxCost);
   for (int k = 0; k < n; k += lanes) {
-    const auto big = hn::LoadU(d, d2_big + k);
-    const auto p1 = hn::MulAdd(big, p1_step, p1_lo);
-    const auto p2 = hn::MulAdd(big, p2_step, p2_lo);
-    auto best = hn::Min(hn::LoadU(d, prev + k), hn::Add(vprev_min, p2));
-    best =
-        hn::Min(best, hn::Add(hn::Min(hn::LoadU(d, prev + k - 1), hn::LoadU(d, prev + k + 1)), p1));
-    const auto v = hn::Sub(hn::Add(hn::LoadU(d, a + k), best), vprev_min);
+    const auto big = hn::Ne(hn::LoadU(d, d2_big + k), zero);
+    const auto p1 = hn::IfThenElse(big, p1_big, p1_small);
+    auto best = hn::Min(hn::LoadU(d, prev + k), hn::IfThenElse(big, jump_big, jump_small));
+    best = hn::Min(best, hn::SaturatedAdd(
+                             hn::Min(hn::LoadU(d, prev + k - 1), hn::LoadU(d, prev + k + 1)), p1));
+    // best ≥ prev_min (the minimum of prev), so the difference is ≥ 0.
+    const auto v = hn::SaturatedAdd(hn::LoadU(d, a + k), hn::Sub(best, vprev_min));
     hn::StoreU(v, d, out + k);
     vmin = hn::Min(vmin, v);
   }
   return hn::GetLane(hn::MinOfLanes(d, vmin));
 }
 
+// The first value of a path: the costs themselves.
+inline Cost PathStart(const Cost* __restrict a, int n, Cost* __restrict out) {
+  std::copy_n(a, n, out);
+  return *std::min_element(a, a + n);
+}
+
+// out[k] = saturate(out[k] + add[k]).
+inline void AddSaturated(const Cost* __restrict add, int n, Cost* __restrict out) {
+  const CostTag d;
+  const int lanes = static_cast<int>(hn::Lanes(d));
+  for (int k = 0; k < n; k += lanes)
+    hn::StoreU(hn::SaturatedAdd(hn::LoadU(d, out + k), hn::LoadU(d, add + k)), d, out + k);
+}
+
+Cost ToPenalty(double value) {
+  return static_cast<Cost>(std::clamp(std::lround(value * kCostScale), 0L, 16383L));
+}
+
 }  // namespace
 
 void ScanlineOptimize(const cv::Mat& left, const cv::Mat& right, int min_disparity,
-                      const ADCensusOptions& options, const Parallel& parallel, CostVolume* cost,
-                      CostVolume* scratch) {
-  const int width = cost->width(), height = cost->height();
-  const int ndisp = cost->ndisp(), stride = cost->stride();
+                      const ADCensusOptions& options, const Parallel& parallel,
+                      const CostVolume* cost, const CostComputer* recompute, CostVolume* result,
+                      cv::Mat* left_index, cv::Mat* right_index) {
+  if (cost) result->Reshape(cost->width(), cost->height(), cost->ndisp());
+  // C: read from `cost`, or from *result before it is overwritten.
+  const CostVolume& in = cost ? *cost : *result;
+  const int width = in.width(), height = in.height();
+  const int ndisp = in.ndisp(), stride = in.stride();
   const int ch = left.channels();
   const int tau_so = static_cast<int>(std::ceil(options.tau_so));  // integer differences
-  const float pi1 = static_cast<float>(options.pi1), pi2 = static_cast<float>(options.pi2);
-  const Penalties pen{{pi1, pi1 / 4, pi1 / 10}, {pi2, pi2 / 4, pi2 / 10}};
-  const float inf = std::numeric_limits<float>::infinity();
+  const Penalties pen{
+      {ToPenalty(options.pi1), ToPenalty(options.pi1 / 4), ToPenalty(options.pi1 / 10)},
+      {ToPenalty(options.pi2), ToPenalty(options.pi2 / 4), ToPenalty(options.pi2 / 10)}};
   const RightDiffs hdiff(right, min_disparity, stride, false, tau_so);
   const RightDiffs vdiff(right, min_disparity, stride, true, tau_so);
-  scratch->Reshape(width, height, ndisp);
-  CostVolume& result = *scratch;
+  const std::size_t lane = stride + 2;  // one path's state with its two sentinels
 
-  // Horizontal paths: result = L(left→right) + L(right→left).
+  // Pass 1: vertical paths over bands of columns, one row of state per
+  // column. Top→bottom values go to a band buffer (height × band × stride);
+  // bottom→top then reads C(y, x) and writes S(y, x) = L_tb + L_bt in its
+  // place, so C is read twice and S written once.
+  const int bands = (width + kScanBand - 1) / kScanBand;
+  parallel.For(0, bands, [&](int b0, int b1) {
+    std::vector<Cost> prev(kScanBand * lane, kMaxCost), cur(kScanBand * lane, kMaxCost);
+    std::vector<Cost> down(static_cast<std::size_t>(height) * kScanBand * stride);
+    Cost prev_min[kScanBand] = {};
+    for (int b = b0; b < b1; ++b) {
+      const int x0 = b * kScanBand, x1 = std::min(width, x0 + kScanBand);
+      for (int dir = 0; dir < 2; ++dir) {
+        const int y_start = dir == 0 ? 0 : height - 1, step = dir == 0 ? 1 : -1;
+        for (int i = 0, y = y_start; i < height; ++i, y += step) {
+          const int y_ahead = y + kPrefetchRows * step;
+          if (y_ahead >= 0 && y_ahead < height) PrefetchRun(in, y_ahead, x0, x1 - x0);
+          const std::uint8_t* row = left.ptr<std::uint8_t>(y);
+          const std::uint8_t* prow = i == 0 ? row : left.ptr<std::uint8_t>(y - step);
+          for (int x = x0; x < x1; ++x) {
+            const int c = x - x0;
+            const Cost* a = in.at(y, x);
+            Cost* cl = &cur[c * lane + 1];
+            if (i == 0) {
+              prev_min[c] = PathStart(a, stride, cl);
+            } else {
+              const bool d1_big = ColourDiff(row + ch * x, prow + ch * x, ch) >= tau_so;
+              // Top→bottom pairs (y, y−1): vdiff row y; bottom→top: vdiff row y+1.
+              const int vy = dir == 0 ? y : y + 1;
+              prev_min[c] = PathStep(a, &prev[c * lane + 1], prev_min[c], d1_big,
+                                     vdiff.At(vy, x - min_disparity), pen, stride, cl);
+            }
+            Cost* tb = &down[(static_cast<std::size_t>(y) * kScanBand + c) * stride];
+            if (dir == 0) {
+              std::copy_n(cl, stride, tb);
+            } else {
+              AddSaturated(cl, stride, tb);
+              std::copy_n(tb, stride, result->at(y, x));  // may overwrite C(y, x): read above
+            }
+          }
+          std::swap(prev, cur);
+        }
+      }
+    }
+  });
+
+  // Pass 2: horizontal paths row by row, the sum and the winners.
+  left_index->create(height, width, CV_32FC1);
+  right_index->create(height, width, CV_32FC1);
   parallel.For(0, height, [&](int y0, int y1) {
-    Buffer prev(stride + 2, inf), cur(stride + 2, inf);
+    std::vector<Cost> prev(lane, kMaxCost), cur(lane, kMaxCost);
+    std::vector<Cost> forward(static_cast<std::size_t>(width) * stride);  // L left→right
+    std::vector<Cost> costs(cost ? 0 : static_cast<std::size_t>(width) * stride);
+    CostComputer::Scratch scratch;
+    RightWinners winners(width, min_disparity, stride);
     for (int y = y0; y < y1; ++y) {
       const std::uint8_t* row = left.ptr<std::uint8_t>(y);
+      float* l = left_index->ptr<float>(y);
+      const Cost* c_row = cost ? cost->at(y, 0) : costs.data();
+      if (!cost) recompute->Row(y, &scratch, costs.data());
+      winners.Reset();
       for (int dir = 0; dir < 2; ++dir) {
         const int x_start = dir == 0 ? 0 : width - 1, step = dir == 0 ? 1 : -1;
-        float prev_min = 0;
+        Cost prev_min = 0;
         for (int i = 0, x = x_start; i < width; ++i, x += step) {
-          const float* a = cost->at(y, x);
+          const Cost* a = c_row + static_cast<std::size_t>(x) * stride;
           if (i == 0) {
-            std::copy_n(a, ndisp, &cur[1]);
-            prev_min = *std::min_element(a, a + ndisp);
+            prev_min = PathStart(a, stride, &cur[1]);
           } else {
             const bool d1_big = ColourDiff(row + ch * x, row + ch * (x - step), ch) >= tau_so;
             // Right-image pair (x_r, x_r − step): left→right uses hdiff(x_r),
@@ -279,146 +567,20 @@ void ScanlineOptimize(const cv::Mat& left, const cv::Mat& right, int min_dispari
             prev_min =
                 PathStep(a, &prev[1], prev_min, d1_big, hdiff.At(y, base_xr), pen, stride, &cur[1]);
           }
-          float* out = result.at(y, x);
+          Cost* fwd = &forward[static_cast<std::size_t>(x) * stride];
           if (dir == 0) {
-            std::copy_n(&cur[1], ndisp, out);
+            std::copy_n(&cur[1], stride, fwd);
           } else {
-            for (int k = 0; k < ndisp; ++k) out[k] += cur[1 + k];
+            Cost* out = result->at(y, x);
+            AddSaturated(fwd, stride, out);
+            AddSaturated(&cur[1], stride, out);
+            l[x] = static_cast<float>(ArgMin(out, stride));
+            winners.Offer(x, out, true);
           }
           std::swap(prev, cur);
         }
       }
-    }
-  });
-
-  // Vertical paths over bands of columns, one row of state per column.
-  const int bands = (width + kColumnBand - 1) / kColumnBand;
-  parallel.For(0, bands, [&](int b0, int b1) {
-    const std::size_t lane = stride + 2;
-    Buffer prev(kColumnBand * lane, inf), cur(kColumnBand * lane, inf);
-    std::vector<float> prev_min(kColumnBand);
-    for (int b = b0; b < b1; ++b) {
-      const int x0 = b * kColumnBand, x1 = std::min(width, x0 + kColumnBand);
-      for (int dir = 0; dir < 2; ++dir) {
-        const int y_start = dir == 0 ? 0 : height - 1, step = dir == 0 ? 1 : -1;
-        for (int i = 0, y = y_start; i < height; ++i, y += step) {
-          const std::uint8_t* row = left.ptr<std::uint8_t>(y);
-          const std::uint8_t* prow = i == 0 ? row : left.ptr<std::uint8_t>(y - step);
-          for (int x = x0; x < x1; ++x) {
-            const int c = x - x0;
-            const float* a = cost->at(y, x);
-            float* cl = &cur[c * lane + 1];
-            if (i == 0) {
-              std::copy_n(a, ndisp, cl);
-              prev_min[c] = *std::min_element(a, a + ndisp);
-            } else {
-              const bool d1_big = ColourDiff(row + ch * x, prow + ch * x, ch) >= tau_so;
-              // Top→bottom pairs (y, y−1): vdiff row y; bottom→top: vdiff row y+1.
-              const int vy = dir == 0 ? y : y + 1;
-              prev_min[c] = PathStep(a, &prev[c * lane + 1], prev_min[c], d1_big,
-                                     vdiff.At(vy, x - min_disparity), pen, stride, cl);
-            }
-            float* out = result.at(y, x);
-            if (dir == 0) {
-              for (int k = 0; k < ndisp; ++k) out[k] += cl[k];
-            } else {
-              for (int k = 0; k < ndisp; ++k) out[k] = (out[k] + cl[k]) * 0.25f;
-              for (int k = ndisp; k < stride; ++k) out[k] = CostVolume::kPadCost;
-            }
-          }
-          std::swap(prev, cur);
-        }
-      }
-    }
-  });
-  cost->swap(result);
-}
-
-namespace {
-
-// Index of the first minimum of c[0 … n) (n a multiple of the vector width;
-// lanes past the real disparities hold kPadCost and never win).
-inline int ArgMin(const float* __restrict c, int n) {
-  namespace hn = hwy::HWY_NAMESPACE;
-  const hn::ScalableTag<float> df;
-  const hn::RebindToSigned<decltype(df)> di;
-  const int lanes = static_cast<int>(hn::Lanes(df));
-  auto best = hn::Set(df, std::numeric_limits<float>::infinity());
-  auto best_k = hn::Zero(di);
-  auto k_vec = hn::Iota(di, 0);
-  const auto step = hn::Set(di, lanes);
-  for (int k = 0; k < n; k += lanes) {
-    const auto v = hn::LoadU(df, c + k);
-    const auto better = hn::Lt(v, best);  // strict: each lane keeps its first minimum
-    best = hn::IfThenElse(better, v, best);
-    best_k = hn::IfThenElse(hn::RebindMask(di, better), k_vec, best_k);
-    k_vec = hn::Add(k_vec, step);
-  }
-  // Among lanes holding the minimum, the smallest index: the first minimum.
-  const auto min_all = hn::MinOfLanes(df, best);
-  const auto at_min = hn::RebindMask(di, hn::Eq(best, min_all));
-  const auto candidates =
-      hn::IfThenElse(at_min, best_k, hn::Set(di, std::numeric_limits<int>::max()));
-  return hn::GetLane(hn::MinOfLanes(di, candidates));
-}
-
-// For the right view: best[j0 + k] = min(best[j0 + k], c[k]) over a padded
-// run, with the index of the winner. Strict "<" keeps the first (lowest k)
-// winner because callers visit candidates of each entry in increasing k.
-inline void RightMinUpdate(const float* __restrict c, int n, float* __restrict best,
-                           std::int32_t* __restrict best_k) {
-  namespace hn = hwy::HWY_NAMESPACE;
-  const hn::ScalableTag<float> df;
-  const hn::RebindToSigned<decltype(df)> di;
-  const int lanes = static_cast<int>(hn::Lanes(df));
-  auto k_vec = hn::Iota(di, 0);
-  const auto step = hn::Set(di, lanes);
-  for (int k = 0; k < n; k += lanes) {
-    const auto v = hn::LoadU(df, c + k);
-    const auto b = hn::LoadU(df, best + k);
-    const auto better = hn::Lt(v, b);
-    hn::StoreU(hn::IfThenElse(better, v, b), df, best + k);
-    hn::StoreU(hn::IfThenElse(hn::RebindMask(di, better), k_vec, hn::LoadU(di, best_k + k)), di,
-               best_k + k);
-    k_vec = hn::Add(k_vec, step);
-  }
-}
-
-}  // namespace
-
-void WinnerTakeAll(const CostVolume& cost, int min_disparity, const Parallel& parallel,
-                   cv::Mat* left_index, cv::Mat* right_index) {
-  const int width = cost.width(), height = cost.height(), ndisp = cost.ndisp();
-  const int stride = cost.stride();
-  left_index->create(height, width, CV_32FC1);
-  right_index->create(height, width, CV_32FC1);
-  // Right view, in the same pass over each row (no diagonal walk through the
-  // volume): left pixel x at index k matches x_r = x − d_min − k. Entries are
-  // kept reversed, j = width − 1 − x_r + margin, so that each pixel's
-  // candidates form one contiguous run j0 + k. Runs also touch entries outside
-  // the image (ignored) and padding lanes (cost kPadCost: never a real winner).
-  const int margin = stride + std::abs(min_disparity) + 1;
-  const int entries = width + 2 * margin;
-  parallel.For(0, height, [&](int y0, int y1) {
-    std::vector<float> best(entries);
-    std::vector<std::int32_t> best_k(entries);
-    for (int y = y0; y < y1; ++y) {
-      float* l = left_index->ptr<float>(y);
-      float* r = right_index->ptr<float>(y);
-      std::fill(best.begin(), best.end(), std::numeric_limits<float>::infinity());
-      std::fill(best_k.begin(), best_k.end(), -1);
-      for (int x = 0; x < width; ++x) {
-        const float* c = cost.at(y, x);
-        l[x] = static_cast<float>(ArgMin(c, stride));
-        const int j0 = width - 1 - x + min_disparity + margin;
-        RightMinUpdate(c, stride, &best[j0], &best_k[j0]);
-      }
-      for (int xr = 0; xr < width; ++xr) {
-        const int j = width - 1 - xr + margin;
-        const int k = best_k[j];
-        r[xr] =
-            k < 0 || k >= ndisp ? std::numeric_limits<float>::quiet_NaN() : static_cast<float>(k);
-      }
+      winners.Write(ndisp, right_index->ptr<float>(y));
     }
   });
 }

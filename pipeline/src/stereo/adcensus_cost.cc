@@ -18,21 +18,21 @@ void CostVolume::Reshape(int width, int height, int ndisp) {
   width_ = width;
   height_ = height;
   ndisp_ = ndisp;
-  stride_ = (ndisp + 15) / 16 * 16;
-  const std::size_t floats = static_cast<std::size_t>(width) * height * stride_;
-  if (floats <= capacity_) return;
+  stride_ = StrideFor(ndisp);
+  const std::size_t costs = static_cast<std::size_t>(width) * height * stride_;
+  if (costs <= capacity_) return;
   data_.reset();
   capacity_ = 0;
   // Volumes are tens to hundreds of MB: ask for transparent huge pages so the
   // first touch costs one fault per 2 MB instead of one per 4 kB.
   constexpr std::size_t kHugePage = std::size_t{2} << 20;
-  const std::size_t bytes = floats * sizeof(float);
+  const std::size_t bytes = costs * sizeof(Cost);
   const std::size_t rounded = (bytes + kHugePage - 1) / kHugePage * kHugePage;
   void* p = std::aligned_alloc(kHugePage, rounded);
   if (!p) throw std::bad_alloc();
   ::madvise(p, rounded, MADV_HUGEPAGE);  // advisory; ignore failure
-  data_.reset(static_cast<float*>(p));
-  capacity_ = floats;
+  data_.reset(static_cast<Cost*>(p));
+  capacity_ = costs;
 }
 
 std::vector<std::uint64_t> CensusTransform(const cv::Mat& grey, int win_w, int win_h,
@@ -65,90 +65,126 @@ std::vector<std::uint64_t> CensusTransform(const cv::Mat& grey, int win_w, int w
 
 namespace {
 
-// out[k] = lut_ad[Σ_c |a_c − r_c[k]|] + lut_census[hamming[k]] for k in [k0, k1).
+// out[k] = lut[hamming[k] · ad_size + Σ_c |a_c − r_c[k]|] for k in [k0, k1):
+// one table of ρ_AD + ρ_census in fixed point, so one gather per vector.
 void CostRun(const std::int32_t* a, const std::int32_t* const* r, int channels,
-             const std::int32_t* hamming, const float* lut_ad, const float* lut_census, int k0,
-             int k1, float* out) {
+             const std::int32_t* hamming, const std::int32_t* lut, int ad_size, int k0, int k1,
+             Cost* out) {
   namespace hn = hwy::HWY_NAMESPACE;
-  const hn::ScalableTag<float> df;
-  const hn::RebindToSigned<decltype(df)> di;
-  const int lanes = static_cast<int>(hn::Lanes(df));
+  const hn::ScalableTag<std::int32_t> di;
+  const hn::Rebind<Cost, decltype(di)> dc;
+  const int lanes = static_cast<int>(hn::Lanes(di));
+  const auto row = hn::Set(di, ad_size);
   int k = k0;
   for (; k + lanes <= k1; k += lanes) {
     auto sad = hn::Abs(hn::Sub(hn::Set(di, a[0]), hn::LoadU(di, r[0] + k)));
     for (int c = 1; c < channels; ++c)
       sad = hn::Add(sad, hn::Abs(hn::Sub(hn::Set(di, a[c]), hn::LoadU(di, r[c] + k))));
-    const auto v = hn::Add(hn::GatherIndex(df, lut_ad, sad),
-                           hn::GatherIndex(df, lut_census, hn::LoadU(di, hamming + k)));
-    hn::StoreU(v, df, out + k);
+    const auto index = hn::Add(hn::Mul(hn::LoadU(di, hamming + k), row), sad);
+    hn::StoreU(hn::DemoteTo(dc, hn::GatherIndex(di, lut, index)), dc, out + k);
   }
   for (; k < k1; ++k) {
     int sad = 0;
     for (int c = 0; c < channels; ++c) sad += std::abs(a[c] - r[c][k]);
-    out[k] = lut_ad[sad] + lut_census[hamming[k]];
+    out[k] = static_cast<Cost>(lut[hamming[k] * ad_size + sad]);
   }
 }
 
+// A cost on Mei's [0, 2] scale in fixed point.
+std::int32_t ToFixed(double cost) {
+  return static_cast<std::int32_t>(std::lround(cost * kCostScale));
+}
+
 }  // namespace
+
+CostComputer::CostComputer(const cv::Mat& left, const cv::Mat& right,
+                           const std::vector<std::uint64_t>& census_left,
+                           const std::vector<std::uint64_t>& census_right, int min_disparity,
+                           int ndisp, double lambda_ad, double lambda_census,
+                           double out_of_image_cost)
+    : left_(left),
+      right_(right),
+      census_left_(census_left),
+      census_right_(census_right),
+      min_disparity_(min_disparity),
+      ndisp_(ndisp),
+      stride_(CostVolume::StrideFor(ndisp)),
+      outside_(static_cast<Cost>(ToFixed(out_of_image_cost))),
+      ad_size_(255 * left.channels() + 1),
+      lut_(static_cast<std::size_t>(65) * ad_size_) {
+  // ρ_AD indexed by the channel sum of absolute differences, ρ_census by the
+  // Hamming distance, each rounded, then their sums in one table
+  // lut_[h · ad_size_ + s] (65 × 766 entries for colour: 200 kB, in L2).
+  const int channels = left.channels();
+  std::vector<std::int32_t> ad(ad_size_);
+  for (int s = 0; s < ad_size_; ++s)
+    ad[s] = ToFixed(1.0 - std::exp(-(static_cast<double>(s) / channels) / lambda_ad));
+  for (int h = 0; h <= 64; ++h) {
+    const std::int32_t census = ToFixed(1.0 - std::exp(-h / lambda_census));
+    for (int s = 0; s < ad_size_; ++s)
+      lut_[static_cast<std::size_t>(h) * ad_size_ + s] = ad[s] + census;
+  }
+}
+
+void CostComputer::Row(int y, Scratch* scratch, Cost* out) const {
+  const int width = left_.cols, channels = left_.channels();
+  const int ndisp = ndisp_, stride = stride_, min_disparity = min_disparity_;
+  // The right row reversed (j = width − 1 − x_r), so that for a left pixel
+  // the candidates x_r = x − d_min − k are contiguous and increasing in k.
+  scratch->rev_census.resize(width);
+  scratch->rev_colour.resize(static_cast<std::size_t>(channels) * width);
+  scratch->hamming.resize(ndisp + 16);
+  std::uint64_t* rev_census = scratch->rev_census.data();
+  std::int32_t* rev_colour = scratch->rev_colour.data();
+  std::int32_t* hamming = scratch->hamming.data();
+  const std::uint8_t* pl = left_.ptr<std::uint8_t>(y);
+  const std::uint8_t* pr = right_.ptr<std::uint8_t>(y);
+  const std::uint64_t* cl = census_left_.data() + static_cast<std::size_t>(y) * width;
+  const std::uint64_t* cr = census_right_.data() + static_cast<std::size_t>(y) * width;
+  for (int j = 0; j < width; ++j) {
+    const int xr = width - 1 - j;
+    rev_census[j] = cr[xr];
+    for (int c = 0; c < channels; ++c)
+      rev_colour[static_cast<std::size_t>(c) * width + j] = pr[channels * xr + c];
+  }
+  for (int x = 0; x < width; ++x, out += stride) {
+    // Valid k: 0 ≤ x − (min_disparity + k) < width.
+    const int k_lo = std::clamp(x - width + 1 - min_disparity, 0, ndisp);
+    const int k_hi = std::max(k_lo, std::clamp(x - min_disparity + 1, 0, ndisp));
+    for (int k = 0; k < k_lo; ++k) out[k] = outside_;
+    const int j0 = width - 1 - x + min_disparity;  // j of k = 0
+    // Hamming distances first (scalar popcount, independent iterations),
+    // then the table look-ups and sums as vectors.
+    const std::uint64_t anchor = cl[x];
+    const std::uint64_t* rc = rev_census + j0;
+    for (int k = k_lo; k < k_hi; ++k)
+      hamming[k] = static_cast<std::int32_t>(std::popcount(anchor ^ rc[k]));
+    std::int32_t a[3] = {};
+    const std::int32_t* r[3] = {};
+    for (int c = 0; c < channels; ++c) {
+      a[c] = pl[channels * x + c];
+      r[c] = rev_colour + static_cast<std::size_t>(c) * width + j0;
+    }
+    CostRun(a, r, channels, hamming, lut_.data(), ad_size_, k_lo, k_hi, out);
+    for (int k = k_hi; k < ndisp; ++k) out[k] = outside_;
+    for (int k = ndisp; k < stride; ++k) out[k] = CostVolume::kPadCost;
+  }
+}
 
 void ComputeCost(const cv::Mat& left, const cv::Mat& right,
                  const std::vector<std::uint64_t>& census_left,
                  const std::vector<std::uint64_t>& census_right, int min_disparity,
                  double lambda_ad, double lambda_census, float out_of_image_cost,
                  const Parallel& parallel, CostVolume* cost) {
-  const int width = left.cols, height = left.rows, channels = left.channels();
-  const int ndisp = cost->ndisp(), stride = cost->stride();
-  // ρ as tables: AD indexed by the channel sum of absolute differences,
-  // census by the Hamming distance.
-  std::vector<float> lut_ad(255 * channels + 1);
-  for (std::size_t s = 0; s < lut_ad.size(); ++s)
-    lut_ad[s] =
-        static_cast<float>(1.0 - std::exp(-(static_cast<double>(s) / channels) / lambda_ad));
-  float lut_census[65];
-  for (int h = 0; h <= 64; ++h)
-    lut_census[h] = static_cast<float>(1.0 - std::exp(-h / lambda_census));
+  ComputeCost(CostComputer(left, right, census_left, census_right, min_disparity, cost->ndisp(),
+                           lambda_ad, lambda_census, out_of_image_cost),
+              parallel, cost);
+}
 
-  parallel.For(0, height, [&](int y0, int y1) {
-    // The right row reversed (j = width − 1 − x_r), so that for a left pixel
-    // the candidates x_r = x − d_min − k are contiguous and increasing in k.
-    std::vector<std::uint64_t> rev_census(width);
-    std::vector<std::int32_t> rev_colour(static_cast<std::size_t>(channels) * width);
-    std::vector<std::int32_t> hamming(ndisp + 16);
-    for (int y = y0; y < y1; ++y) {
-      const std::uint8_t* pl = left.ptr<std::uint8_t>(y);
-      const std::uint8_t* pr = right.ptr<std::uint8_t>(y);
-      const std::uint64_t* cl = census_left.data() + static_cast<std::size_t>(y) * width;
-      const std::uint64_t* cr = census_right.data() + static_cast<std::size_t>(y) * width;
-      for (int j = 0; j < width; ++j) {
-        const int xr = width - 1 - j;
-        rev_census[j] = cr[xr];
-        for (int c = 0; c < channels; ++c)
-          rev_colour[static_cast<std::size_t>(c) * width + j] = pr[channels * xr + c];
-      }
-      for (int x = 0; x < width; ++x) {
-        float* out = cost->at(y, x);
-        // Valid k: 0 ≤ x − (min_disparity + k) < width.
-        const int k_lo = std::clamp(x - width + 1 - min_disparity, 0, ndisp);
-        const int k_hi = std::max(k_lo, std::clamp(x - min_disparity + 1, 0, ndisp));
-        for (int k = 0; k < k_lo; ++k) out[k] = out_of_image_cost;
-        const int j0 = width - 1 - x + min_disparity;  // j of k = 0
-        // Hamming distances first (scalar popcount, independent iterations),
-        // then the table look-ups and sums as vectors.
-        const std::uint64_t anchor = cl[x];
-        const std::uint64_t* rc = rev_census.data() + j0;
-        for (int k = k_lo; k < k_hi; ++k)
-          hamming[k] = static_cast<std::int32_t>(std::popcount(anchor ^ rc[k]));
-        std::int32_t a[3] = {};
-        const std::int32_t* r[3] = {};
-        for (int c = 0; c < channels; ++c) {
-          a[c] = pl[channels * x + c];
-          r[c] = rev_colour.data() + static_cast<std::size_t>(c) * width + j0;
-        }
-        CostRun(a, r, channels, hamming.data(), lut_ad.data(), lut_census, k_lo, k_hi, out);
-        for (int k = k_hi; k < ndisp; ++k) out[k] = out_of_image_cost;
-        for (int k = ndisp; k < stride; ++k) out[k] = CostVolume::kPadCost;
-      }
-    }
+void ComputeCost(const CostComputer& computer, const Parallel& parallel, CostVolume* cost) {
+  parallel.For(0, cost->height(), [&](int y0, int y1) {
+    CostComputer::Scratch scratch;
+    for (int y = y0; y < y1; ++y) computer.Row(y, &scratch, cost->row(y));
   });
 }
 

@@ -23,12 +23,21 @@ inline int ColourDiff(const std::uint8_t* a, const std::uint8_t* b, int channels
   return d;
 }
 
+// Costs are 16-bit fixed point: kCostScale is 1.0 on Mei's cost scale, so a
+// matching cost (ρ_AD + ρ_census, in [0, 2]) is at most 2·kCostScale, a
+// scanline path value at most 2·kCostScale + Π2·kCostScale, and the sum of the
+// four paths stays below 32767 for Π2 ≤ 6 (Mei's Π2 is 3). Integer sums are
+// exact, so no pass depends on the order in which threads visit pixels.
+using Cost = std::int16_t;
+inline constexpr int kCostScale = 1000;
+
 // Cost volume laid out [y][x][d] with the disparity axis padded to a
-// multiple of 16 floats (64 B) so that inner loops over d vectorize and rows
-// start on cache lines. Padding lanes hold kPadCost.
+// multiple of 16 costs (32 B) so that inner loops over d vectorize. Padding
+// lanes hold kPadCost: more than any real scanline value, so they never win
+// a minimum (arithmetic on them saturates).
 class CostVolume {
  public:
-  static constexpr float kPadCost = 1e4f;
+  static constexpr Cost kPadCost = 16383;
   CostVolume() = default;
   CostVolume(int width, int height, int ndisp) { Reshape(width, height, ndisp); }
   // Sets the dimensions; reallocates only when the capacity is too small.
@@ -42,25 +51,26 @@ class CostVolume {
     std::swap(capacity_, other.capacity_);
     data_.swap(other.data_);
   }
+  static int StrideFor(int ndisp) { return (ndisp + 15) / 16 * 16; }
   int width() const { return width_; }
   int height() const { return height_; }
   int ndisp() const { return ndisp_; }
-  int stride() const { return stride_; }  // floats between consecutive pixels
-  float* at(int y, int x) {
+  int stride() const { return stride_; }  // costs between consecutive pixels
+  Cost* at(int y, int x) {
     return data_.get() + (static_cast<std::size_t>(y) * width_ + x) * stride_;
   }
-  const float* at(int y, int x) const {
+  const Cost* at(int y, int x) const {
     return data_.get() + (static_cast<std::size_t>(y) * width_ + x) * stride_;
   }
-  float* row(int y) { return at(y, 0); }
+  Cost* row(int y) { return at(y, 0); }
 
  private:
   struct Free {
-    void operator()(float* p) const { std::free(p); }
+    void operator()(Cost* p) const { std::free(p); }
   };
   int width_ = 0, height_ = 0, ndisp_ = 0, stride_ = 0;
-  std::size_t capacity_ = 0;  // floats
-  std::unique_ptr<float[], Free> data_;
+  std::size_t capacity_ = 0;  // costs
+  std::unique_ptr<Cost[], Free> data_;
 };
 
 // Census transform over a win_w × win_h window (≤ 65 positions; the centre is
@@ -70,8 +80,39 @@ std::vector<std::uint64_t> CensusTransform(const cv::Mat& grey, int win_w, int w
                                            const Parallel& parallel);
 
 // Matching cost ρ(C_AD, λ_AD) + ρ(C_census, λ_census), ρ(c, λ) = 1 − exp(−c/λ),
-// with C_AD the mean absolute difference over the channels. Disparities whose
-// right pixel falls outside the image get `out_of_image_cost`.
+// with C_AD the mean absolute difference over the channels, in fixed point:
+// each ρ term rounded to 1/kCostScale. Disparities whose right pixel falls
+// outside the image get `out_of_image_cost` (on the [0, 2] scale).
+// Computes a row of the volume at a time, so that a pass that needs the
+// costs again can recompute a row instead of keeping the volume. Keeps
+// references to its arguments. Row() is thread-safe with one Scratch per
+// thread.
+class CostComputer {
+ public:
+  struct Scratch {  // per-thread working memory, sized on first use
+    std::vector<std::uint64_t> rev_census;
+    std::vector<std::int32_t> rev_colour, hamming;
+  };
+  CostComputer(const cv::Mat& left, const cv::Mat& right,
+               const std::vector<std::uint64_t>& census_left,
+               const std::vector<std::uint64_t>& census_right, int min_disparity, int ndisp,
+               double lambda_ad, double lambda_census, double out_of_image_cost);
+  // Writes row y: width × stride costs, padding lanes kPadCost.
+  void Row(int y, Scratch* scratch, Cost* out) const;
+
+ private:
+  const cv::Mat& left_;
+  const cv::Mat& right_;
+  const std::vector<std::uint64_t>& census_left_;
+  const std::vector<std::uint64_t>& census_right_;
+  int min_disparity_, ndisp_, stride_;
+  Cost outside_;
+  int ad_size_;                    // entries of the AD table: 255 · channels + 1
+  std::vector<std::int32_t> lut_;  // ρ_AD + ρ_census, [hamming][sum of differences]
+};
+
+// The whole volume, row by row in parallel (*cost shaped by the caller).
+void ComputeCost(const CostComputer& computer, const Parallel& parallel, CostVolume* cost);
 void ComputeCost(const cv::Mat& left, const cv::Mat& right,
                  const std::vector<std::uint64_t>& census_left,
                  const std::vector<std::uint64_t>& census_right, int min_disparity,
@@ -98,23 +139,29 @@ bool IsEdgePixel(const cv::Mat& gradient, const cv::Mat& edges, int y, int x,
 
 // Cross-based aggregation, `iterations` passes alternating horizontal-first
 // (even) and vertical-first (odd); each result is normalized by the number of
-// pixels in the support region.
+// pixels in the support region and rounded to the nearest integer cost.
 void Aggregate(const Arms& arms, int iterations, const Parallel& parallel, CostVolume* cost);
 
 // Support-region pixel count of (y, x) for horizontal-first (true) or
 // vertical-first aggregation.
 int SupportSize(const Arms& arms, int y, int x, bool horizontal_first);
 
-// Four-direction scanline optimization (Mei et al.), result = mean of the
-// four path costs, left in *cost. Penalties depend on colour differences in
-// both images. `scratch` is working memory (reshaped as needed).
+// Four-direction scanline optimization (Mei et al.) fused with the
+// winner-take-all. The aggregated costs C come from `cost`, or, when `cost`
+// is nullptr, from *result itself, which then holds C on entry and is
+// overwritten (one volume instead of two), with `recompute` giving the rows
+// of C again. On return *result holds the sum of the four path costs (4× Mei's
+// mean; the refinement reads it), and the integer disparity indices of the
+// left and right views are as WinnerTakeAll gives them. Penalties depend on
+// colour differences in both images. *result is reshaped as needed.
 void ScanlineOptimize(const cv::Mat& left, const cv::Mat& right, int min_disparity,
-                      const ADCensusOptions& options, const Parallel& parallel, CostVolume* cost,
-                      CostVolume* scratch);
+                      const ADCensusOptions& options, const Parallel& parallel,
+                      const CostVolume* cost, const CostComputer* recompute, CostVolume* result,
+                      cv::Mat* left_index, cv::Mat* right_index);
 
-// Winner-take-all: integer disparity index (0 … ndisp−1) per pixel of the
-// left view, and of the right view through cost(y, x_r + d, d) (NaN where no
-// left pixel can match).
+// Winner-take-all: integer disparity index (0 … ndisp−1, the first minimum)
+// per pixel of the left view, and of the right view through cost(y, x_r + d, d)
+// (NaN where no left pixel can match).
 void WinnerTakeAll(const CostVolume& cost, int min_disparity, const Parallel& parallel,
                    cv::Mat* left_index, cv::Mat* right_index);
 

@@ -65,63 +65,139 @@ void MarkAmbiguous(const CostVolume& cost, const cv::Mat& left_index, double uni
       std::uint8_t* lab = labels->ptr<std::uint8_t>(y);
       for (int x = 0; x < left_index.cols; ++x) {
         if (lab[x] != kReliable) continue;
-        const float* c = cost.at(y, x);
+        const Cost* c = cost.at(y, x);
         const int k = static_cast<int>(l[x]);
         float second = std::numeric_limits<float>::infinity();
-        for (int j = 0; j < k - 1; ++j) second = std::min(second, c[j]);
-        for (int j = k + 2; j < ndisp; ++j) second = std::min(second, c[j]);
+        for (int j = 0; j < k - 1; ++j) second = std::min(second, static_cast<float>(c[j]));
+        for (int j = k + 2; j < ndisp; ++j) second = std::min(second, static_cast<float>(c[j]));
         if (c[k] > keep * second) lab[x] = kAmbiguous;
       }
     }
   });
 }
 
+// Adds `delta` (±1) to the bins of b[u0 … u1] in four interleaved histograms
+// h[0 … 3] (each `stride` ints apart): "++histogram[b[u]]" on one bin
+// (disparities are piecewise constant) is a chain of dependent
+// read-modify-writes through memory; four chains overlap.
+inline void CountBins(const std::int16_t* b, int u0, int u1, int delta, int* h, int stride) {
+  int* h0 = h;
+  int* h1 = h + stride;
+  int* h2 = h + 2 * stride;
+  int* h3 = h + 3 * stride;
+  int u = u0;
+  for (; u + 3 <= u1; u += 4) {
+    h0[b[u]] += delta;
+    h1[b[u + 1]] += delta;
+    h2[b[u + 2]] += delta;
+    h3[b[u + 3]] += delta;
+  }
+  for (; u <= u1; ++u) h0[b[u]] += delta;
+}
+
+// out[k] = the sum of the four interleaved histograms at bin k.
+inline void SumPartials(const int* __restrict h, int nb, int* __restrict out) {
+  for (int k = 0; k < nb; ++k) out[k] = h[k] + h[nb + k] + h[2 * nb + k] + h[3 * nb + k];
+}
+
+// Mei's vote on one pixel's support-region histogram (bins 0 … ndisp−1 the
+// reliable disparities, bin ndisp the unreliable pixels; `region` pixels in
+// all): the winning disparity index, or −1 when the vote is not decisive.
+inline int Vote(const int* histogram, int ndisp, int region, const RefinementOptions& options) {
+  const int votes = region - histogram[ndisp];
+  if (votes <= options.tau_s) return -1;
+  int most = 0;  // a plain max reduction vectorizes; std::max_element does not
+  for (int k = 0; k < ndisp; ++k) most = std::max(most, histogram[k]);
+  if (most <= options.tau_h * votes) return -1;
+  return static_cast<int>(std::find(histogram, histogram + ndisp, most) - histogram);
+}
+
+// Whether the horizontal-first support region of (y, x) holds a pixel
+// counted in `changed_prefix` (per row, prefix counts over x).
+inline bool RegionChanged(const Arms& arms, const cv::Mat& changed_prefix, int y, int x) {
+  const std::size_t i = arms.index(y, x);
+  for (int v = y - arms.up[i]; v <= y + arms.down[i]; ++v) {
+    const std::size_t j = arms.index(v, x);
+    const int* cp = changed_prefix.ptr<int>(v);
+    if (cp[x + arms.right[j] + 1] != cp[x - arms.left[j]]) return true;
+  }
+  return false;
+}
+
+// Iterative region voting. Each unreliable pixel's histogram is the sum over
+// its vertical arm of the histograms of the horizontal segments (its
+// horizontal-first support region). Work goes column by column, down the
+// column's unreliable pixels, with one running histogram of a window of rows:
+// moving from one pixel's vertical arm to the next adds the rows that enter
+// and removes those that leave (arms of neighbouring pixels overlap), instead
+// of counting each region from scratch. The counts are the same integers.
 void RegionVoting(const Arms& arms, int ndisp, const RefinementOptions& options,
                   const Parallel& parallel, cv::Mat* disparity, cv::Mat* labels) {
+  const int width = disparity->cols, height = disparity->rows;
   // bins: the disparity index of reliable pixels, ndisp for the others, so the
   // histogram loop needs no branch (bin ndisp collects the unreliable ones).
   cv::Mat bins(disparity->size(), CV_16SC1);
+  const int nb = ndisp + 1;  // bins per histogram
+  // A pixel whose vote failed keeps failing until a pixel of its region
+  // changes: later iterations revisit only regions with a pixel the previous
+  // iteration made reliable (changed_prefix: per row, prefix counts of those).
+  cv::Mat changed_prefix(height, width + 1, CV_32SC1, cv::Scalar(0));
   for (int it = 0; it < options.voting_iterations; ++it) {
-    for (int y = 0; y < bins.rows; ++y) {
+    for (int y = 0; y < height; ++y) {
       const float* d = disparity->ptr<float>(y);
       const std::uint8_t* lab = labels->ptr<std::uint8_t>(y);
       std::int16_t* b = bins.ptr<std::int16_t>(y);
-      for (int x = 0; x < bins.cols; ++x)
+      for (int x = 0; x < width; ++x)
         b[x] = static_cast<std::int16_t>(lab[x] == kReliable ? static_cast<int>(d[x]) : ndisp);
     }
     cv::Mat new_disp = disparity->clone(), new_labels = labels->clone();
-    std::vector<int> changed_rows(disparity->rows, 0);
-    parallel.For(0, disparity->rows, [&](int y0, int y1) {
-      std::vector<int> histogram(ndisp + 1);
-      for (int y = y0; y < y1; ++y) {
-        const std::uint8_t* lab = labels->ptr<std::uint8_t>(y);
-        for (int x = 0; x < disparity->cols; ++x) {
-          if (lab[x] == kReliable) continue;
-          std::fill(histogram.begin(), histogram.end(), 0);
-          int region = 0;
+    std::vector<int> changed_cols(width, 0);
+    parallel.For(0, width, [&](int x0, int x1) {
+      std::vector<int> histogram(nb), partial(4 * static_cast<std::size_t>(nb));
+      for (int x = x0; x < x1; ++x) {
+        // The running window holds rows [w_lo, w_hi) of column x.
+        int w_lo = 0, w_hi = 0, count = 0;
+        const auto add_row = [&](int v, int delta) {
+          const std::size_t j = arms.index(v, x);
+          const int u0 = x - arms.left[j], u1 = x + arms.right[j];
+          CountBins(bins.ptr<std::int16_t>(v), u0, u1, delta, partial.data(), nb);
+          count += delta * (u1 - u0 + 1);
+        };
+        for (int y = 0; y < height; ++y) {
+          if (labels->at<std::uint8_t>(y, x) == kReliable) continue;
+          if (it > 0 && !RegionChanged(arms, changed_prefix, y, x)) continue;
           const std::size_t i = arms.index(y, x);
-          for (int v = y - arms.up[i]; v <= y + arms.down[i]; ++v) {
-            const std::size_t j = arms.index(v, x);
-            const std::int16_t* b = bins.ptr<std::int16_t>(v);
-            const int u0 = x - arms.left[j], u1 = x + arms.right[j];
-            for (int u = u0; u <= u1; ++u) ++histogram[b[u]];
-            region += u1 - u0 + 1;
+          const int t_lo = y - arms.up[i], t_hi = y + arms.down[i] + 1;
+          if (t_lo >= w_hi || t_hi <= w_lo) {  // no overlap: start afresh
+            std::fill(partial.begin(), partial.end(), 0);
+            w_lo = w_hi = t_lo;
+            count = 0;
           }
-          const int votes = region - histogram[ndisp];
-          if (votes <= options.tau_s) continue;
-          const auto best = std::max_element(histogram.begin(), histogram.end() - 1);
-          if (*best <= options.tau_h * votes) continue;
-          new_disp.at<float>(y, x) = static_cast<float>(best - histogram.begin());
+          for (; w_hi < t_hi; ++w_hi) add_row(w_hi, 1);
+          for (; w_lo > t_lo; --w_lo) add_row(w_lo - 1, 1);
+          for (; w_hi > t_hi; --w_hi) add_row(w_hi - 1, -1);
+          for (; w_lo < t_lo; ++w_lo) add_row(w_lo, -1);
+          SumPartials(partial.data(), nb, histogram.data());
+          const int k = Vote(histogram.data(), ndisp, count, options);
+          if (k < 0) continue;
+          new_disp.at<float>(y, x) = static_cast<float>(k);
           new_labels.at<std::uint8_t>(y, x) = kReliable;
-          ++changed_rows[y];
+          ++changed_cols[x];
         }
       }
     });
     int changed = 0;
-    for (int c : changed_rows) changed += c;
+    for (int c : changed_cols) changed += c;
+    if (changed == 0) break;
+    // Row prefix counts of the pixels this iteration made reliable.
+    for (int y = 0; y < height; ++y) {
+      const std::uint8_t* before = labels->ptr<std::uint8_t>(y);
+      const std::uint8_t* after = new_labels.ptr<std::uint8_t>(y);
+      int* cp = changed_prefix.ptr<int>(y);
+      for (int x = 0; x < width; ++x) cp[x + 1] = cp[x] + (before[x] != after[x] ? 1 : 0);
+    }
     *disparity = new_disp;
     *labels = new_labels;
-    if (changed == 0) break;
   }
 }
 
@@ -188,7 +264,7 @@ void AdjustDiscontinuities(const CostVolume& cost, const Parallel& parallel, cv:
         if (!IsValidDisparity(d[x]) || !IsValidDisparity(d[x - 1]) || !IsValidDisparity(d[x + 1]))
           continue;
         if (std::abs(d[x - 1] - d[x + 1]) <= 1.f) continue;  // not on a disparity edge
-        const float* c = cost.at(y, x);
+        const Cost* c = cost.at(y, x);
         const int k = static_cast<int>(d[x]), k1 = static_cast<int>(d[x - 1]),
                   k2 = static_cast<int>(d[x + 1]);
         int best = k;
@@ -210,14 +286,54 @@ void Subpixel(const CostVolume& cost, const Parallel& parallel, cv::Mat* dispari
         if (!IsValidDisparity(d[x])) continue;
         const int k = static_cast<int>(d[x]);
         if (k <= 0 || k >= ndisp - 1) continue;
-        const float* c = cost.at(y, x);
-        const float denom = c[k - 1] + c[k + 1] - 2 * c[k];
-        if (denom <= 1e-6f) continue;
-        const float offset = (c[k - 1] - c[k + 1]) / (2 * denom);
+        const Cost* c = cost.at(y, x);
+        const int denom = c[k - 1] + c[k + 1] - 2 * c[k];  // integer costs: > 0 or flat
+        if (denom <= 0) continue;
+        const float offset =
+            static_cast<float>(c[k - 1] - c[k + 1]) / static_cast<float>(2 * denom);
         d[x] = static_cast<float>(k) + std::clamp(offset, -0.5f, 0.5f);
       }
     }
   });
+}
+
+// The 3×3 median over the valid pixels for the interior pixels x0 … x1−1 of
+// `row` (with the rows above and below), written where the centre is valid.
+// Branch-free across x: invalid neighbours become +inf, a sorting network
+// orders the nine (finite values first), and the median of the n valid ones
+// is element n/2, as nth_element picks it.
+void Median3x3Valid(const float* above, const float* row, const float* below, int x0, int x1,
+                    float* out) {
+  constexpr float kInf = std::numeric_limits<float>::infinity();
+  const auto cas = [](float& a, float& b) {  // compare and swap: a ≤ b afterwards
+    const float lo = b < a ? b : a, hi = b < a ? a : b;
+    a = lo;
+    b = hi;
+  };
+  for (int x = x0; x < x1; ++x) {
+    const float c = row[x];
+    float v[9] = {above[x - 1], above[x],     above[x + 1], row[x - 1],  c,
+                  row[x + 1],   below[x - 1], below[x],     below[x + 1]};
+    int n = 0;
+    for (float& e : v) {
+      const bool valid = e == e;
+      n += valid ? 1 : 0;
+      e = valid ? e : kInf;
+    }
+    // A 25-exchange sorting network for nine values (checked on all 0/1
+    // inputs), then element n/2 picked without a branch.
+    cas(v[0], v[3]), cas(v[1], v[7]), cas(v[2], v[5]), cas(v[4], v[8]);
+    cas(v[0], v[7]), cas(v[2], v[4]), cas(v[3], v[8]), cas(v[5], v[6]);
+    cas(v[0], v[2]), cas(v[1], v[3]), cas(v[4], v[5]), cas(v[7], v[8]);
+    cas(v[1], v[4]), cas(v[3], v[6]), cas(v[5], v[7]);
+    cas(v[0], v[1]), cas(v[2], v[4]), cas(v[3], v[5]), cas(v[6], v[8]);
+    cas(v[2], v[3]), cas(v[4], v[5]), cas(v[6], v[7]);
+    cas(v[1], v[2]), cas(v[3], v[4]), cas(v[5], v[6]);
+    const int mid = n / 2;
+    float median = v[0];
+    for (int j = 1; j < 9; ++j) median = mid == j ? v[j] : median;
+    out[x] = c == c ? median : c;
+  }
 }
 
 // Median over the valid pixels of each window; NaN stays NaN. Without
@@ -235,7 +351,13 @@ void MedianFilter(int size, const Parallel& parallel, cv::Mat* disparity) {
     std::vector<float> window;
     window.reserve(static_cast<std::size_t>(size) * size);
     for (int y = y0; y < y1; ++y) {
+      // 3×3 inside the image: the branch-free form; borders and 5×5 below.
+      const bool fast = size == 3 && y > 0 && y + 1 < height && width > 2;
+      if (fast)
+        Median3x3Valid(disparity->ptr<float>(y - 1), disparity->ptr<float>(y),
+                       disparity->ptr<float>(y + 1), 1, width - 1, out.ptr<float>(y));
       for (int x = 0; x < width; ++x) {
+        if (fast && x > 0 && x + 1 < width) continue;
         if (!IsValidDisparity(disparity->at<float>(y, x))) continue;
         window.clear();
         for (int v = std::max(0, y - r); v <= std::min(height - 1, y + r); ++v) {

@@ -185,14 +185,18 @@ TEST(Daemon, EmbroideryAndEggScanWithTheDefaultConfiguration) {
     // bracketing at ×8 (scan.exposure_bracket), as for black paint.
     bool projector = false;
   };
-  // The sim's egg: 55 mm tall, 45 mm across; the embroidery: a 110 mm disc
-  // 2.6 mm at its thickest (the bench's truth OBBs). With the projector and
-  // the bracket the egg's OBB at 640x512 is within 0.3 / 0.3 / 0.1 mm
-  // (craftscan-bench scan --projector --bracket 8, seed 4242; 2.2 / 0.1 /
-  // 0.4 with the projector alone) and 1.1 / 0.1 / 0.2 mm here.
+  // The truths are the bench's truth OBBs at 640x512 (the box of the surface
+  // some view's left camera sees): the embroidery, a 110 mm disc 2.6 mm at
+  // its thickest; the egg, 60 mm tall and 45 across, of which the cameras see
+  // the part from 3.5 mm above the platter up, 55.6 mm. The egg's lower end
+  // is its weakest: a band seen only at grazing angles, with a few mixed
+  // pixels below it where the egg meets the platter, so its long axis moves
+  // by about +-1 mm between seeds (craftscan-bench scan --image-size 640x512
+  // --projector --bracket 8: 56.4, 55.3, 56.3 mm at seeds 4242, 7, 99) and
+  // measures 57.0 here.
   for (const Case& c : {Case{"embroidery", {109.7, 109.6, 2.5}, {1.5, 1.5, 5.0}},
-                        Case{"egg", {55.0, 45.0, 44.9}, {5.0, 3.0, 3.0}},
-                        Case{"egg", {55.0, 45.0, 44.9}, {2.0, 1.0, 1.0}, true}}) {
+                        Case{"egg", {55.6, 44.9, 44.9}, {5.0, 3.0, 3.0}},
+                        Case{"egg", {55.6, 44.9, 44.9}, {2.0, 1.0, 1.0}, true}}) {
     SCOPED_TRACE(std::string(c.object) + (c.projector ? " with the projector" : ""));
     auto r =
         StartDaemon("640x512", 0, true,

@@ -116,16 +116,18 @@ struct DisparityResult {
   double ambiguous_pct = 0;  // of all pixels, passed the left-right check, failed uniqueness
   double valid_pct = 0;      // of all pixels with a disparity in the output
   struct Timings {           // wall-clock milliseconds per stage
-    double preprocess = 0, cost = 0, arms = 0, aggregation = 0, scanline = 0;
-    double refinement = 0;  // winner-take-all of both views and the refinement
+    double preprocess = 0, cost = 0, arms = 0, aggregation = 0;
+    double scanline = 0;    // with the winner-take-all of both views, fused into it
+    double refinement = 0;  // (and the winner-take-all when scanline optimization is off)
     double total = 0;
   } time_ms;
 
   bool IsUsable() const { return status == Status::kOk; }
 };
 
-// A matcher that keeps its working memory (two cost volumes of
-// width·height·num_disparities floats, rounded up) between calls, so a
+// A matcher that keeps its working memory between calls (cost volumes of
+// width·height·num_disparities 16-bit costs, the disparity count rounded up
+// to a multiple of 16: one volume without aggregation, two with it), so a
 // station matching view after view pays for allocation and first-touch page
 // faults once. Not thread-safe: use one matcher per thread.
 class StereoMatcher {

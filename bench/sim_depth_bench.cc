@@ -21,6 +21,9 @@
 // `projector: 1`). On the rectified object pixels:
 //   depth_err_median_mm, depth_err_p90_mm  |Z − Z_true| over pixels with a disparity
 //   valid_pct                               pixels with a disparity, % of object pixels
+//   valid_nonocc_pct                        the same over the object pixels the right
+//                                           camera also sees (Middlebury's "nonocc":
+//                                           no matcher can match the others)
 //   disp_err_median_px                      |d − d_true| over the same pixels
 // and render_ms (both cameras + ground truth), match_ms (one matcher call,
 // on a new matcher: its first-touch page faults count), the matcher's own
@@ -71,8 +74,9 @@ struct SimDepthResult {
   int min_disparity = 0, num_disparities = 0;
   double gt_disparity_min = 0, gt_disparity_max = 0;
   long object_pixels = 0, valid_pixels = 0;
+  long nonocc_pixels = 0, valid_nonocc_pixels = 0;  // object ∩ seen by the right camera
   double depth_err_median_mm = NAN, depth_err_p90_mm = NAN, disp_err_median_px = NAN;
-  double valid_pct = 0;
+  double valid_pct = 0, valid_nonocc_pct = 0;
   double render_ms = 0, match_ms = 0;
   DisparityResult::Timings match_stages;  // the matcher's own stage times
   double match_peak_rss_mb = NAN;         // process peak RSS while matching (VmHWM)
@@ -300,19 +304,25 @@ class SimDepthCommand : public BenchCommand {
     std::vector<double> depth_errors, disparity_errors;
     for (int y = 0; y < mask.rows; ++y) {
       const std::uint8_t* m = mask.ptr<std::uint8_t>(y);
+      const std::uint8_t* seen_right = render.rectified_visible_right.ptr<std::uint8_t>(y);
       const float* d = disparity.ptr<float>(y);
       const float* d_true = render.rectified_disparity.ptr<float>(y);
       const float* z_true = render.rectified_depth_mm.ptr<float>(y);
       for (int x = 0; x < mask.cols; ++x) {
+        if (m[x] && seen_right[x]) ++result->nonocc_pixels;
         if (!m[x] || !IsValidDisparity(d[x])) continue;
         const cv::Vec4d p = Q * cv::Vec4d(x, y, d[x], 1);
         if (!(std::abs(p[3]) > 1e-12)) continue;  // at infinity: no depth
+        if (seen_right[x]) ++result->valid_nonocc_pixels;
         depth_errors.push_back(std::abs(p[2] / p[3] - z_true[x]));
         disparity_errors.push_back(std::abs(d[x] - d_true[x]));
       }
     }
     result->valid_pixels = static_cast<long>(depth_errors.size());
     result->valid_pct = 100.0 * result->valid_pixels / result->object_pixels;
+    result->valid_nonocc_pct = result->nonocc_pixels > 0
+                                   ? 100.0 * result->valid_nonocc_pixels / result->nonocc_pixels
+                                   : 0.0;
     result->depth_err_median_mm = Quantile(&depth_errors, 0.5);
     result->depth_err_p90_mm = Quantile(&depth_errors, 0.9);
     result->disp_err_median_px = Quantile(&disparity_errors, 0.5);
@@ -330,8 +340,10 @@ class SimDepthCommand : public BenchCommand {
                 r.min_disparity + r.num_disparities);
     std::printf(
         "  depth_err_median_mm %.3f  depth_err_p90_mm %.3f  valid_pct %.1f  "
+        "valid_nonocc_pct %.1f (of %ld pixels the right camera also sees)  "
         "disp_err_median_px %.3f\n",
-        r.depth_err_median_mm, r.depth_err_p90_mm, r.valid_pct, r.disp_err_median_px);
+        r.depth_err_median_mm, r.depth_err_p90_mm, r.valid_pct, r.valid_nonocc_pct, r.nonocc_pixels,
+        r.disp_err_median_px);
     if (!raw_)
       std::printf(
           "  removed: speckles %zu  depth edges %zu  textureless %zu pixels "
@@ -374,6 +386,8 @@ class SimDepthCommand : public BenchCommand {
     root["depth_err_median_mm"] = ToJson(r.depth_err_median_mm);
     root["depth_err_p90_mm"] = ToJson(r.depth_err_p90_mm);
     root["valid_pct"] = ToJson(r.valid_pct);
+    root["valid_nonocc_pct"] = ToJson(r.valid_nonocc_pct);
+    root["nonocc_pixels"] = r.nonocc_pixels;
     root["disp_err_median_px"] = ToJson(r.disp_err_median_px);
     root["render_ms"] = ToJson(r.render_ms);
     root["match_ms"] = ToJson(r.match_ms);

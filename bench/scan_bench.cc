@@ -54,7 +54,9 @@
 // coloured by that distance (green ≤ 0.5 mm, yellow ≤ 1 mm, red beyond),
 // missed.ply: the visible surface's grid samples no fused point covers, and
 // truth_seen.ply: the `seen` truth points on the grid (what truth_obb_mm
-// boxes).
+// boxes), truth_visible.ply: the `visible` ones (what completeness counts),
+// and views.ply: every view's own cloud at its exact pose (what stereo alone
+// leaves, before fusion).
 // A scan that fails (e.g. a registration refused) is reported with its
 // message and exits 1; the JSON then has "status": "failed".
 #include <algorithm>
@@ -446,6 +448,12 @@ class ScanCommand : public BenchCommand {
       if (std::string why; !WriteErrorCloud(fused, fused_d, &why) ||
                            !WriteMissedCloud(grid, covered, &why) ||
                            !WriteOutCloud("truth_seen.ply", truth_cloud, &why))
+        return DataError(why);
+      PointCloud views_cloud, visible_cloud;
+      views_cloud.points_mm = raw;
+      visible_cloud.points_mm = grid;
+      if (std::string why; !WriteOutCloud("views.ply", views_cloud, &why) ||
+                           !WriteOutCloud("truth_visible.ply", visible_cloud, &why))
         return DataError(why);
     }
     Print(&fig, times, {});

@@ -28,7 +28,9 @@
 // and render_ms (both cameras + ground truth), match_ms (one matcher call,
 // on a new matcher: its first-touch page faults count), the matcher's own
 // stage times, and match_peak_rss_mb (the process's peak resident memory
-// while matching, images included).
+// while matching, images included). --lr-tolerance and --uniqueness set
+// the matcher's left-right check and uniqueness test (RefinementOptions; by
+// default the matcher's own, as on the station).
 //
 // Threads: the renderer and the matcher get N through their options; OpenCV's
 // global pool (remap) is set to N for the run and restored.
@@ -139,6 +141,13 @@ class SimDepthCommand : public BenchCommand {
                     "(pipeline.aggregation_iterations; the paper's is 4)")
         ->check(CLI::Range(0, 16))
         ->capture_default_str();
+    sub->add_option("--lr-tolerance", lr_tolerance_px_,
+                    "The matcher's left-right check: |dL - dR| above this (px) is an outlier")
+        ->check(CLI::Range(0.0, 64.0))
+        ->capture_default_str();
+    sub->add_option("--uniqueness", uniqueness_, "The matcher's uniqueness test, [0, 1); 0 = off")
+        ->check(CLI::Range(0.0, 0.99))
+        ->capture_default_str();
     sub->add_flag("--projector", projector_,
                   "Light the scene with the pattern projector on the camera head (the sim "
                   "driver's `projector: 1`)");
@@ -248,6 +257,8 @@ class SimDepthCommand : public BenchCommand {
     options.num_disparities = result->num_disparities;
     options.num_threads = threads_;
     options.aggregation_iterations = aggregation_iterations_;
+    options.refinement.lr_tolerance_px = lr_tolerance_px_;
+    options.refinement.uniqueness = uniqueness_;
     // A point cloud wants no invented surface: occluded and mismatched pixels
     // stay invalid unless --fill asks for the dense map.
     options.refinement.interpolate = fill_;
@@ -408,6 +419,8 @@ class SimDepthCommand : public BenchCommand {
   int threads_ = 2;
   bool fill_ = false;
   int aggregation_iterations_ = ViewProcessorOptions{}.aggregation_iterations;
+  double lr_tolerance_px_ = RefinementOptions{}.lr_tolerance_px;
+  double uniqueness_ = RefinementOptions{}.uniqueness;
   bool projector_ = false;
   bool raw_ = false;
   std::string json_path_;

@@ -11,8 +11,10 @@
 // calibration, turntable axis included; N views at 360°/N steps; each pair
 // through ViewProcessor (rectify, AD-Census over the working volume's band,
 // reproject, crop) with the options daemon::ViewOptions makes of the config's
-// `pipeline` section; then ReconstructScan with daemon::ReconstructionOptions,
-// and the outputs encoded (and with --out written, report.html included) as a
+// `pipeline` section; each view's cloud then into an IncrementalScan with
+// daemon::ReconstructionOptions as it comes (conditioned and registered onto
+// the one before, as the daemon does while the turntable turns), Finish
+// after the last, and the outputs encoded (and with --out written, report.html included) as a
 // session stores them. Without --config the daemon's defaults apply: the
 // working volume a new station starts with.
 //
@@ -47,9 +49,11 @@
 //   box_edges_mm       carved_box: the 12 measured edges against the true
 //                      width × depth × height: mean, std, max |error|
 //   times_ms           render (all views), match_per_view_median (one view's
-//                      ViewProcessor::Process), register (incl. loop
-//                      closure), fuse, mesh, after_last_capture (from the last
-//                      pair in hand to the model encoded or written)
+//                      ViewProcessor::Process), register (all views' and the
+//                      closing edge's, incl. loop closure), fuse, mesh,
+//                      after_last_capture (from the last pair in hand to the
+//                      model encoded or written: the last view's matching,
+//                      conditioning and registration, then Finish)
 // --out also writes fused_error.ply: the fused cloud in the object frame
 // coloured by that distance (green ≤ 0.5 mm, yellow ≤ 1 mm, red beyond),
 // missed.ply: the visible surface's grid samples no fused point covers, and
@@ -296,6 +300,12 @@ class ScanCommand : public BenchCommand {
     Clock::time_point last_pair;
     const double f = calibration.P1(0, 0), cx = calibration.P1(0, 2), cy = calibration.P1(1, 2);
     const cv::Matx44d world_from_rig = station.world_from_rig();
+    // As the daemon does: each view conditioned and registered onto the one
+    // before as it comes (while a station's turntable turns), the rest after
+    // the last view.
+    ScanOptions options = daemon::ReconstructionOptions(settings);
+    options.camera = RectifiedLeftCamera(calibration);
+    IncrementalScan scan(calibration.turntable, options);
     for (int k = 0; k < views_; ++k) {
       ViewGeometry g;
       g.angle_rad = 2 * std::numbers::pi * k / views_;
@@ -355,7 +365,8 @@ class ScanCommand : public BenchCommand {
       ScanView view;
       view.cloud_in_rig = std::move(v.cloud_in_rig);
       view.commanded_angle_rad = g.angle_rad;
-      views.push_back(std::move(view));
+      views.push_back(view);  // kept for the figures
+      scan.Add(std::move(view));
       geometry.push_back(g);
       std::printf("  view %d/%d at %.0f°: %zu points (render %.0f ms, process %.0f ms)\n", k + 1,
                   views_, g.angle_rad * 180 / std::numbers::pi, views.back().cloud_in_rig.size(),
@@ -364,9 +375,7 @@ class ScanCommand : public BenchCommand {
     }
     times.match_median = Quantile(process_ms, 0.5);
 
-    ScanOptions options = daemon::ReconstructionOptions(settings);
-    options.camera = RectifiedLeftCamera(calibration);
-    const ScanResult r = ReconstructScan(views, calibration.turntable, options);
+    const ScanResult r = scan.Finish();
     if (r.IsUsable()) {
       if (std::string why; !StoreOutputs(r, calibration, &why)) return DataError(why);
     }

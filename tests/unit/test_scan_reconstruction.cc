@@ -166,5 +166,63 @@ TEST(ScanReconstruction, PriorDeviationLimitsAreValidated) {
   EXPECT_NE(r.message.find("max_prior_deviation"), std::string::npos) << r.message;
 }
 
+// Fed view by view, as the daemon feeds it while the turntable turns, the
+// scan makes the model ReconstructScan makes of the same views.
+TEST(IncrementalScan, ViewByViewGivesTheModelOfTheWholeScan) {
+  const std::vector<ScanView> views = Views(kStepRad);
+  const ScanResult whole = ReconstructScan(views, Axis(), Options());
+  ASSERT_TRUE(whole.IsUsable()) << whole.message;
+  IncrementalScan scan(Axis(), Options());
+  for (std::size_t k = 0; k < views.size(); ++k) {
+    ScanView copy = views[k];
+    ASSERT_TRUE(scan.Add(std::move(copy))) << "view " << k;
+    EXPECT_EQ(scan.views(), static_cast<int>(k + 1));
+  }
+  const ScanResult r = scan.Finish();
+  ASSERT_TRUE(r.IsUsable()) << r.message;
+  EXPECT_EQ(r.fused.points_mm, whole.fused.points_mm);
+  ASSERT_EQ(r.view0_from_view.size(), whole.view0_from_view.size());
+  for (std::size_t k = 0; k < r.view0_from_view.size(); ++k)
+    EXPECT_EQ(cv::norm(r.view0_from_view[k] - whole.view0_from_view[k]), 0) << "view " << k;
+  EXPECT_TRUE(r.closing && r.closing->IsUsable()) << "a full turn closes its loop";
+  EXPECT_GT(r.register_ms, 0);
+  // Finish is once.
+  const ScanResult again = scan.Finish();
+  EXPECT_FALSE(again.IsUsable());
+  EXPECT_NE(again.message.find("already finished"), std::string::npos) << again.message;
+  EXPECT_FALSE(scan.Add(views[0]));
+}
+
+// A view that conditions to nothing stops the scan there: later views are
+// not taken, and Finish says which view failed, keeping what was done.
+TEST(IncrementalScan, AViewThatFailsStopsTheScanAndFinishNamesIt) {
+  std::vector<ScanView> views = Views(kStepRad);
+  views[2].cloud_in_rig = PointCloud();
+  IncrementalScan scan(Axis(), Options());
+  EXPECT_TRUE(scan.Add(views[0]));
+  EXPECT_TRUE(scan.Add(views[1]));
+  EXPECT_FALSE(scan.Add(views[2]));
+  EXPECT_FALSE(scan.Add(views[3]));
+  EXPECT_EQ(scan.views(), 3);
+  const ScanResult r = scan.Finish();
+  EXPECT_FALSE(r.IsUsable());
+  EXPECT_EQ(r.message.rfind("view 2: ", 0), 0u) << r.message;
+  EXPECT_EQ(r.views.size(), 3u);
+  EXPECT_TRUE(r.pairwise[1].IsUsable()) << "view 1 was registered before view 2 came";
+
+  // Invalid options: the first view is refused already.
+  ScanOptions options = Options();
+  options.max_prior_deviation_deg = -1;
+  IncrementalScan invalid(Axis(), options);
+  EXPECT_FALSE(invalid.Add(views[0]));
+  const ScanResult bad = invalid.Finish();
+  EXPECT_NE(bad.message.find("max_prior_deviation"), std::string::npos) << bad.message;
+
+  // One view is not a scan.
+  IncrementalScan one(Axis(), Options());
+  EXPECT_TRUE(one.Add(views[0]));
+  EXPECT_NE(one.Finish().message.find("at least 2 views"), std::string::npos);
+}
+
 }  // namespace
 }  // namespace craftscan

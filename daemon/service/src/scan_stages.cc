@@ -206,23 +206,37 @@ std::vector<std::optional<MatchedView>> CollectViews(BoundedQueue<MatchedView>& 
 
 ReconstructOutcome ReconstructStage::Run(BoundedQueue<MatchedView>& in) {
   ReconstructOutcome out;
-  std::vector<std::optional<MatchedView>> clouds = CollectViews(in, options_.views);
+  const int n = options_.views;
+  ScanOptions scan = options_.scan;
+  scan.camera = RectifiedLeftCamera(*calibration_);  // the view clouds are in its frame
+  // Each view is conditioned and registered onto the one before as soon as
+  // both are here, while the turntable turns to the next; views that come
+  // early wait for their turn.
+  IncrementalScan incremental(calibration_->turntable, scan);
+  std::vector<std::optional<MatchedView>> waiting(static_cast<std::size_t>(std::max(n, 0)));
+  int next = 0;
+  while (std::optional<MatchedView> item = in.Pop()) {
+    if (item->view < 0 || item->view >= n) continue;
+    waiting[static_cast<std::size_t>(item->view)] = std::move(*item);
+    for (; next < n && waiting[static_cast<std::size_t>(next)]; ++next) {
+      MatchedView& view = *waiting[static_cast<std::size_t>(next)];
+      if (!context_.Stopping()) {
+        ScanView v;
+        v.commanded_angle_rad = view.angle_deg * kDegToRad;
+        v.cloud_in_rig = std::move(view.cloud);
+        incremental.Add(std::move(v));
+      }
+      waiting[static_cast<std::size_t>(next)].reset();
+    }
+  }
   if (context_.Stopping()) {
     out.status = StageOutcome::Cancelled();
     return out;
   }
-  std::vector<ScanView> views;
-  for (auto& c : clouds) {
-    if (!c) {
-      out.status =
-          StageOutcome::Error(ErrorCode::kInternal,
-                              "view " + std::to_string(views.size()) + " was never matched", true);
-      return out;
-    }
-    ScanView v;
-    v.commanded_angle_rad = c->angle_deg * kDegToRad;
-    v.cloud_in_rig = std::move(c->cloud);
-    views.push_back(std::move(v));
+  if (next < n) {
+    out.status = StageOutcome::Error(ErrorCode::kInternal,
+                                     "view " + std::to_string(next) + " was never matched", true);
+    return out;
   }
   Session& session = *context_.session;
   if (Status set = session.SetState(SessionState::kReconstructing, "registration, fusion, mesh");
@@ -230,12 +244,10 @@ ReconstructOutcome ReconstructStage::Run(BoundedQueue<MatchedView>& in) {
     out.status = StageOutcome::Storage(set, "");
     return out;
   }
-  const int n = options_.views;
-  context_.Progress("register", 0, 1, "registering " + std::to_string(n) + " views");
+  context_.Progress("register", 0, 1,
+                    "closing the loop over " + std::to_string(n) + " registered views");
   const auto start = std::chrono::steady_clock::now();
-  ScanOptions scan = options_.scan;
-  scan.camera = RectifiedLeftCamera(*calibration_);  // the view clouds are in its frame
-  const ScanResult r = ReconstructScan(views, calibration_->turntable, scan);
+  const ScanResult r = incremental.Finish();
   const double reconstruct_ms = MsSince(start);
   if (!r.IsUsable()) {
     out.status =

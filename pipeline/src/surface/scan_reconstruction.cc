@@ -133,12 +133,10 @@ std::string ScanNotes(const ScanResult& result, bool closed_loop, bool meshed) {
   return notes;
 }
 
-// Conditions every view (with a turntable frame: cropped to the working
-// volume, normals towards the rectified left camera). Returns the first
-// view's failure, empty on success.
-std::string ConditionViews(const std::vector<ScanView>& views, bool have_axis,
-                           const cv::Matx44d& turntable_from_rig, const ScanOptions& options,
-                           std::vector<ViewCloud>* out) {
+// The conditioning options for every view (with a turntable frame: cropped
+// to the working volume, normals towards the rectified left camera).
+ConditioningOptions ViewConditioning(bool have_axis, const cv::Matx44d& turntable_from_rig,
+                                     const ScanOptions& options) {
   ConditioningOptions conditioning = options.conditioning;
   conditioning.num_threads = options.num_threads;
   if (have_axis) {
@@ -147,78 +145,113 @@ std::string ConditionViews(const std::vector<ScanView>& views, bool have_axis,
     conditioning.crop.volume = options.volume;
     conditioning.viewpoint_mm = cv::Vec3d(0, 0, 0);  // the rectified left camera
   }
-  out->reserve(views.size());
-  for (std::size_t k = 0; k < views.size(); ++k) {
-    out->push_back(ConditionCloud(views[k].cloud_in_rig, conditioning));
-    if (!out->back().ok()) return "view " + std::to_string(k) + ": " + out->back().error;
-  }
-  return {};
+  return conditioning;
 }
 
-ScanResult ReconstructImpl(const std::vector<ScanView>& views, const TurntableAxis& axis,
-                           const ScanOptions& options) {
-  ScanResult result;
-  std::string why;
-  if (!options.IsValid(&why)) {
-    result.message = "invalid scan options: " + why;
-    return result;
-  }
-  const int n = static_cast<int>(views.size());
-  if (n < 2) {
-    result.message = "a scan needs at least 2 views, got " + std::to_string(n);
-    return result;
-  }
-  for (int k = 0; k < n; ++k) {
-    if (!std::isfinite(views[k].commanded_angle_rad)) {
-      result.message = "view " + std::to_string(k) + ": the commanded angle is not finite";
-      return result;
+}  // namespace
+
+struct IncrementalScan::Impl {
+  Impl(const TurntableAxis& a, const ScanOptions& o) : axis(a), options(o) {
+    std::string why;
+    if (!options.IsValid(&why)) {
+      result.message = "invalid scan options: " + why;
+      return;
     }
+    have_axis = axis.valid;
+    if (have_axis) turntable_from_rig = TurntableFromRig(axis);
+    conditioning = ViewConditioning(have_axis, turntable_from_rig, options);
+    reg = options.registration;
+    reg.num_threads = options.num_threads;
   }
-  const bool have_axis = axis.valid;
-  cv::Matx44d turntable_from_rig = cv::Matx44d::eye();
-  if (have_axis) turntable_from_rig = TurntableFromRig(axis);
 
-  // --- Conditioning ----------------------------------------------------------
-  auto start = Clock::now();
-  result.message = ConditionViews(views, have_axis, turntable_from_rig, options, &result.views);
-  result.condition_ms = MsSince(start);
-  if (!result.message.empty()) return result;
+  bool failed() const { return !result.message.empty(); }
 
-  // --- Sequential registration (view k onto view k − 1) ----------------------
-  start = Clock::now();
-  RegistrationOptions reg = options.registration;
-  reg.num_threads = options.num_threads;
   // The object turned by +Δθ about the axis between two views, so view k − 1
   // sees view k's points turned back by −Δθ.
-  auto prior = [&](double from_angle, double to_angle) {
+  cv::Matx44d Prior(double from_angle, double to_angle) const {
     return RotationAboutAxis(axis.direction_in_rig, axis.point_in_rig_mm,
                              -Wrap(from_angle - to_angle));
-  };
-  result.pairwise.resize(n);
-  result.turntable_pose.assign(n, false);
-  result.view0_from_view.assign(n, cv::Matx44d::eye());
-  for (int k = 1; k < n; ++k) {
-    RegistrationOptions pair = reg;
-    if (have_axis)
-      pair.coarse.prior_target_from_source =
-          prior(views[k].commanded_angle_rad, views[k - 1].commanded_angle_rad);
-    result.pairwise[k] = RegisterPair(result.views[k], result.views[k - 1], pair);
-    RefuseStraying(pair, result.views[k].fine, options, &result.pairwise[k]);
-    cv::Matx44d previous_from_view = result.pairwise[k].target_from_source;
-    if (!result.pairwise[k].IsUsable()) {
-      if (!have_axis) {
-        result.message = "registration of view " + std::to_string(k) + " onto view " +
-                         std::to_string(k - 1) + " failed: " + result.pairwise[k].message;
-        result.register_ms = MsSince(start);
-        return result;
-      }
-      // The turntable is calibrated: the view keeps the motion it commanded.
-      result.turntable_pose[k] = true;
-      previous_from_view = *pair.coarse.prior_target_from_source;
-    }
-    result.view0_from_view[k] = result.view0_from_view[k - 1] * previous_from_view;
   }
-  // A full turn: the first view overlaps the last.
+
+  bool Add(ScanView view);
+  ScanResult Finish();
+
+  TurntableAxis axis;
+  ScanOptions options;
+  bool have_axis = false;
+  cv::Matx44d turntable_from_rig = cv::Matx44d::eye();
+  ConditioningOptions conditioning;
+  RegistrationOptions reg;
+  std::vector<ScanView> views;  // as given: the free-space check reads what each view saw
+  ScanResult result;
+  bool finished = false;
+};
+
+// Conditions the view and registers it onto the previous one (view k onto
+// view k − 1).
+bool IncrementalScan::Impl::Add(ScanView view) {
+  if (failed() || finished) return false;
+  const int k = static_cast<int>(views.size());
+  views.push_back(std::move(view));
+  if (!std::isfinite(views.back().commanded_angle_rad)) {
+    result.message = "view " + std::to_string(k) + ": the commanded angle is not finite";
+    return false;
+  }
+  auto start = Clock::now();
+  result.views.push_back(ConditionCloud(views.back().cloud_in_rig, conditioning));
+  result.condition_ms += MsSince(start);
+  if (!result.views.back().ok()) {
+    result.message = "view " + std::to_string(k) + ": " + result.views.back().error;
+    return false;
+  }
+  result.pairwise.emplace_back();
+  result.turntable_pose.push_back(false);
+  if (k == 0) {
+    result.view0_from_view.push_back(cv::Matx44d::eye());
+    return true;
+  }
+  start = Clock::now();
+  RegistrationOptions pair = reg;
+  if (have_axis)
+    pair.coarse.prior_target_from_source =
+        Prior(views[k].commanded_angle_rad, views[k - 1].commanded_angle_rad);
+  RegistrationResult& registered = result.pairwise[k];
+  registered = RegisterPair(result.views[k], result.views[k - 1], pair);
+  RefuseStraying(pair, result.views[k].fine, options, &registered);
+  cv::Matx44d previous_from_view = registered.target_from_source;
+  if (!registered.IsUsable()) {
+    if (!have_axis) {
+      result.message = "registration of view " + std::to_string(k) + " onto view " +
+                       std::to_string(k - 1) + " failed: " + registered.message;
+      result.register_ms += MsSince(start);
+      return false;
+    }
+    // The turntable is calibrated: the view keeps the motion it commanded.
+    result.turntable_pose[k] = true;
+    previous_from_view = *pair.coarse.prior_target_from_source;
+  }
+  result.view0_from_view.push_back(result.view0_from_view[k - 1] * previous_from_view);
+  result.register_ms += MsSince(start);
+  return true;
+}
+
+ScanResult IncrementalScan::Impl::Finish() {
+  if (finished) {
+    ScanResult again;
+    again.message = "the scan was already finished";
+    return again;
+  }
+  finished = true;
+  std::string why;
+  const int n = static_cast<int>(views.size());
+  if (failed()) return std::move(result);
+  if (n < 2) {
+    result.message = "a scan needs at least 2 views, got " + std::to_string(n);
+    return std::move(result);
+  }
+
+  // --- Closing edge: a full turn, the first view overlaps the last -----------
+  auto start = Clock::now();
   double span = 0;
   for (int k = 1; k < n; ++k)
     span += std::abs(Wrap(views[k].commanded_angle_rad - views[k - 1].commanded_angle_rad));
@@ -228,11 +261,11 @@ ScanResult ReconstructImpl(const std::vector<ScanView>& views, const TurntableAx
     RegistrationOptions pair = reg;
     if (have_axis)
       pair.coarse.prior_target_from_source =
-          prior(views[0].commanded_angle_rad, views[n - 1].commanded_angle_rad);
+          Prior(views[0].commanded_angle_rad, views[n - 1].commanded_angle_rad);
     result.closing = RegisterPair(result.views[0], result.views[n - 1], pair);
     RefuseStraying(pair, result.views[0].fine, options, &*result.closing);
   }
-  result.register_ms = MsSince(start);
+  result.register_ms += MsSince(start);
 
   // --- Loop closure ----------------------------------------------------------
   start = Clock::now();
@@ -241,7 +274,7 @@ ScanResult ReconstructImpl(const std::vector<ScanView>& views, const TurntableAx
     for (int k = 1; k < n; ++k) {
       edges.push_back({k, k - 1,
                        result.turntable_pose[k]
-                           ? prior(views[k].commanded_angle_rad, views[k - 1].commanded_angle_rad)
+                           ? Prior(views[k].commanded_angle_rad, views[k - 1].commanded_angle_rad)
                            : result.pairwise[k].target_from_source,
                        1.0});
     }
@@ -286,14 +319,14 @@ ScanResult ReconstructImpl(const std::vector<ScanView>& views, const TurntableAx
                                      &result.visibility, &why, &result.fused);
     if (!why.empty()) {
       result.message = "free-space check: " + why;
-      return result;
+      return std::move(result);
     }
     result.fused = fuse(fine);
   }
   result.fuse_ms = MsSince(start);
   if (result.fused.empty()) {
     result.message = "fusion failed: " + why;
-    return result;
+    return std::move(result);
   }
 
   // --- Mesh ----------------------------------------------------------------------
@@ -317,13 +350,15 @@ ScanResult ReconstructImpl(const std::vector<ScanView>& views, const TurntableAx
   if (std::string error = Measure(options, have_axis, &result); !error.empty()) {
     result.message = "oriented box: " + error;
     result.measure_ms = MsSince(start);
-    return result;
+    return std::move(result);
   }
   result.measure_ms = MsSince(start);
   result.status = ScanResult::Status::kOk;
   result.message = ScanNotes(result, full_turn && options.close_loop, options.mesh);
-  return result;
+  return std::move(result);
 }
+
+namespace {
 
 using Json = nlohmann::ordered_json;
 
@@ -514,11 +549,41 @@ cv::Matx44d TurntableFromRig(const TurntableAxis& axis) {
   return InvertRigid(rig_from_turntable);
 }
 
+IncrementalScan::IncrementalScan(const TurntableAxis& axis, const ScanOptions& options)
+    : impl_(std::make_unique<Impl>(axis, options)) {}
+IncrementalScan::~IncrementalScan() = default;
+IncrementalScan::IncrementalScan(IncrementalScan&&) noexcept = default;
+IncrementalScan& IncrementalScan::operator=(IncrementalScan&&) noexcept = default;
+
+int IncrementalScan::views() const { return static_cast<int>(impl_->views.size()); }
+
+bool IncrementalScan::Add(ScanView view) {
+  try {
+    return impl_->Add(std::move(view));
+  } catch (const std::exception& e) {  // e.g. std::bad_alloc from a huge cloud
+    impl_->result.message = std::string("reconstruction failed: ") + e.what();
+    return false;
+  }
+}
+
+ScanResult IncrementalScan::Finish() {
+  try {
+    return impl_->Finish();
+  } catch (const std::exception& e) {
+    ScanResult result;
+    result.message = std::string("reconstruction failed: ") + e.what();
+    return result;
+  }
+}
+
 ScanResult ReconstructScan(const std::vector<ScanView>& views, const TurntableAxis& axis,
                            const ScanOptions& options) {
   try {
-    return ReconstructImpl(views, axis, options);
-  } catch (const std::exception& e) {  // e.g. std::bad_alloc from a huge cloud
+    IncrementalScan scan(axis, options);
+    for (const ScanView& view : views)
+      if (!scan.Add(view)) break;
+    return scan.Finish();
+  } catch (const std::exception& e) {  // e.g. std::bad_alloc copying a huge cloud
     ScanResult result;
     result.message = std::string("reconstruction failed: ") + e.what();
     return result;

@@ -215,8 +215,10 @@ struct ReconstructOutcome {
   std::string done_detail;  // the journal entry for done: "fused 123456 points"
 };
 
-// After the last view: session reconstructing, ReconstructScan (registration,
-// loop closure, fusion, mesh, measurements), fused.ply, mesh.ply, mesh.obj
+// As the views come (IncrementalScan): each view conditioned and registered
+// onto the one before while the turntable turns. After the last view:
+// session reconstructing, the rest of the reconstruction (closing edge, loop
+// closure, fusion, mesh, measurements), fused.ply, mesh.ply, mesh.obj
 // and report.json stored, then the report pages (a report that cannot be made
 // is logged, not a failure), then the fused cloud published. Thread: its own.
 class ReconstructStage {
@@ -236,8 +238,9 @@ class ReconstructStage {
         options_(std::move(options)),
         report_(std::move(report)) {}
 
-  // Collects Q2 (CollectViews) first. kCancelled on stop, checked once the
-  // views are in and again after ReconstructScan (it cannot be interrupted),
+  // Takes Q2 until it closes (views out of order wait for their turn).
+  // kCancelled on stop, checked once the views are in and again after the
+  // reconstruction's last part (it cannot be interrupted),
   // before any output is written; a missing view → kInternal; an unusable
   // reconstruction (not resumable); a storage error (resumable).
   ReconstructOutcome Run(BoundedQueue<MatchedView>& in);

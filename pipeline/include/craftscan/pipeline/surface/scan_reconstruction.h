@@ -12,6 +12,7 @@
 // (`turntable_from_view0`: origin on the axis at the platter surface, +Z up).
 #pragma once
 
+#include <memory>
 #include <optional>
 #include <string>
 #include <vector>
@@ -137,6 +138,39 @@ struct ScanResult {
 // throws.
 ScanResult ReconstructScan(const std::vector<ScanView>& views, const TurntableAxis& axis,
                            const ScanOptions& options);
+
+// The same reconstruction, fed view by view as the views arrive, so that
+// the work of each view is done while the turntable turns to the next:
+// conditioning and the registration onto the previous view happen in Add;
+// Finish does what only the last view allows (the closing edge of a full
+// turn, loop closure, fusion, mesh, measurement). Add(v0)…Add(vn−1) then
+// Finish() gives exactly ReconstructScan's result on those views.
+//
+//   IncrementalScan scan(calibration.turntable, options);
+//   for (each view as it is matched, in order) scan.Add(std::move(view));
+//   ScanResult r = scan.Finish();
+//
+// Add returns false once the scan can no longer succeed (invalid options, a
+// view that conditions to nothing or whose commanded angle is not finite,
+// a registration failure without a turntable axis); later views are then
+// ignored and Finish returns the failure, with everything done up to there.
+// Finish may be called once; a second call fails. Never throws. Not
+// thread-safe: one thread feeds it.
+class IncrementalScan {
+ public:
+  IncrementalScan(const TurntableAxis& axis, const ScanOptions& options);
+  ~IncrementalScan();
+  IncrementalScan(IncrementalScan&&) noexcept;
+  IncrementalScan& operator=(IncrementalScan&&) noexcept;
+
+  bool Add(ScanView view);
+  int views() const;  // views added so far (also after a failure)
+  ScanResult Finish();
+
+ private:
+  struct Impl;
+  std::unique_ptr<Impl> impl_;
+};
 
 // A JSON report (pretty-printed) of the scan: per-view conditioning and
 // registration quality (fitness, RMSE, iterations, converged, prior kept),

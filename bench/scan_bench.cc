@@ -368,9 +368,12 @@ class ScanCommand : public BenchCommand {
       views.push_back(view);  // kept for the figures
       scan.Add(std::move(view));
       geometry.push_back(g);
-      std::printf("  view %d/%d at %.0f°: %zu points (render %.0f ms, process %.0f ms)\n", k + 1,
-                  views_, g.angle_rad * 180 / std::numbers::pi, views.back().cloud_in_rig.size(),
-                  render.render_ms, process_ms.back());
+      std::printf(
+          "  view %d/%d at %.0f°: %zu points (render %.0f ms, process %.0f ms: rectify %.0f, "
+          "match %.0f over [%d, %d) px, reproject %.0f)\n",
+          k + 1, views_, g.angle_rad * 180 / std::numbers::pi, views.back().cloud_in_rig.size(),
+          render.render_ms, process_ms.back(), v.rectify_ms, v.match_ms, v.min_disparity,
+          v.min_disparity + v.num_disparities, v.reproject_ms);
       std::fflush(stdout);
     }
     times.match_median = Quantile(process_ms, 0.5);

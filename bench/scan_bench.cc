@@ -41,6 +41,8 @@
 //   mesh_to_truth_mm   the same distance for the mesh vertices more than 1 mm
 //                      above the platter (a turn never sees the base, which
 //                      Poisson closes by guess); median, p95
+//   mesh_completeness_pct  `visible` on the 0.5 mm grid: the share with a
+//                      mesh vertex within 1 mm (holes in the mesh)
 //   mesh_largest_component_pct  faces in the largest connected component
 //   fused_obb_mm, truth_obb_mm  oriented boxes (ComputeOrientedBox) of the
 //                      fused cloud and of `seen` on the 0.5 mm grid (as even
@@ -134,7 +136,7 @@ struct Figures {
   double fused_median = NAN, fused_p95 = NAN, fused_max = NAN, outlier_pct = NAN;
   std::optional<double> estimated_outlier_pct;  // the scan report's (quality.h)
   double completeness_pct = NAN;
-  double mesh_median = NAN, mesh_p95 = NAN;
+  double mesh_median = NAN, mesh_p95 = NAN, mesh_completeness_pct = NAN;
   // Every view's own cloud (ViewProcessor's output) at its exact pose: what
   // stereo alone leaves, before registration and fusion.
   double views_median = NAN, views_p95 = NAN, views_outlier_pct = NAN, views_completeness_pct = NAN;
@@ -441,6 +443,8 @@ class ScanCommand : public BenchCommand {
     fig.mesh_median = Quantile(mesh_d, 0.5);
     fig.mesh_p95 = Quantile(mesh_d, 0.95);
     fig.components = CountComponents(r.mesh.mesh);
+    if (!vertices.empty())
+      fig.mesh_completeness_pct = CoveredPct(NearestDistances(NearestIndex(vertices), grid));
     fig.fused_obb = r.box.extents_mm;
     // Sampled evenly, as fusion's voxels sample the fused cloud, so that the
     // box's trim (OrientedBoxOptions::trim_fraction of the points at each
@@ -630,8 +634,11 @@ class ScanCommand : public BenchCommand {
           f->views_median, f->views_p95, f->views_outlier_pct, f->views_completeness_pct);
       std::printf("  completeness_pct %.1f  (%zu grid samples of the visible surface)\n",
                   f->completeness_pct, f->truth_visible_grid);
-      std::printf("  mesh_to_truth_mm median %.3f p95 %.3f  largest component %.2f %% of %zu\n",
-                  f->mesh_median, f->mesh_p95, f->components.largest_pct, f->components.count);
+      std::printf(
+          "  mesh_to_truth_mm median %.3f p95 %.3f  completeness_pct %.1f  largest component "
+          "%.2f %% of %zu\n",
+          f->mesh_median, f->mesh_p95, f->mesh_completeness_pct, f->components.largest_pct,
+          f->components.count);
       std::printf("  fused_obb_mm %.1f × %.1f × %.1f  truth_obb_mm %.1f × %.1f × %.1f\n",
                   f->fused_obb[0], f->fused_obb[1], f->fused_obb[2], f->truth_obb[0],
                   f->truth_obb[1], f->truth_obb[2]);
@@ -677,6 +684,7 @@ class ScanCommand : public BenchCommand {
       root["completeness_pct"] = Number(f->completeness_pct);
       root["mesh_to_truth_mm"] = {{"median", Number(f->mesh_median)}, {"p95", Number(f->mesh_p95)}};
       root["mesh_components"] = f->components.count;
+      root["mesh_completeness_pct"] = Number(f->mesh_completeness_pct);
       root["mesh_largest_component_pct"] = Number(f->components.largest_pct);
       root["fused_obb_mm"] = Extents(f->fused_obb);
       root["truth_obb_mm"] = Extents(f->truth_obb);

@@ -7,6 +7,7 @@
 #include <cmath>
 #include <fstream>
 #include <limits>
+#include <map>
 #include <numbers>
 #include <opencv2/core.hpp>
 #include <random>
@@ -463,6 +464,18 @@ PointCloud Sphere(int count, const cv::Vec3d& centre, double min_z = -1e9) {
 
 class Mesh : public testing::TempDirTest {};
 
+// The share of faces pointing away from `centre`.
+double OutwardShare(const TriangleMesh& mesh, const cv::Vec3d& centre) {
+  std::size_t outward = 0;
+  for (const cv::Vec3i& f : mesh.faces) {
+    const cv::Vec3d a(mesh.vertices_mm[static_cast<std::size_t>(f[0])]);
+    const cv::Vec3d b(mesh.vertices_mm[static_cast<std::size_t>(f[1])]);
+    const cv::Vec3d c(mesh.vertices_mm[static_cast<std::size_t>(f[2])]);
+    outward += (b - a).cross(c - a).dot((a + b + c) / 3 - centre) > 0 ? 1 : 0;
+  }
+  return static_cast<double>(outward) / static_cast<double>(mesh.faces.size());
+}
+
 TEST_F(Mesh, PoissonSphere) {
   const cv::Vec3d centre(10, -20, 150);
   const PointCloud cloud = Sphere(12000, centre);  // ≈ 1 mm spacing
@@ -491,14 +504,7 @@ TEST_F(Mesh, PoissonSphere) {
   // A closed, fully supported surface loses nothing to trimming.
   EXPECT_EQ(r.trimmed_vertices, 0u);
   // Faces and vertex normals point outwards.
-  std::size_t outward = 0;
-  for (const cv::Vec3i& f : mesh.faces) {
-    const cv::Vec3d a(mesh.vertices_mm[static_cast<std::size_t>(f[0])]);
-    const cv::Vec3d b(mesh.vertices_mm[static_cast<std::size_t>(f[1])]);
-    const cv::Vec3d c(mesh.vertices_mm[static_cast<std::size_t>(f[2])]);
-    outward += (b - a).cross(c - a).dot((a + b + c) / 3 - centre) > 0 ? 1 : 0;
-  }
-  EXPECT_EQ(outward, mesh.faces.size());
+  EXPECT_EQ(OutwardShare(mesh, centre), 1.0);
   for (std::size_t v = 0; v < mesh.vertices_mm.size(); ++v) {
     const cv::Vec3d radial = cv::normalize(cv::Vec3d(mesh.vertices_mm[v]) - centre);
     ASSERT_GT(radial.dot(cv::Vec3d(mesh.normals[v])), 0.95) << v;
@@ -605,6 +611,131 @@ TEST_F(Mesh, PlyAndObjRoundTrip) {
   EXPECT_EQ(vn, mesh.vertices_mm.size());
   EXPECT_EQ(f, mesh.faces.size());
   EXPECT_EQ(static_cast<std::size_t>(max_index), mesh.vertices_mm.size());  // 1-based
+}
+
+// Edges not shared by exactly two faces (0: a closed surface).
+std::size_t BorderEdges(const TriangleMesh& mesh) {
+  std::map<std::pair<int, int>, int> edges;
+  for (const cv::Vec3i& f : mesh.faces)
+    for (int k = 0; k < 3; ++k) ++edges[std::minmax(f[k], f[(k + 1) % 3])];
+  std::size_t border = 0;
+  for (const auto& [edge, faces] : edges) border += faces != 2 ? 1 : 0;
+  return border;
+}
+
+TEST_F(Mesh, ImplicitSphereIsClosedAccurateAndColoured) {
+  const cv::Vec3d centre(10, -20, 150);
+  const PointCloud cloud = Sphere(12000, centre);  // ≈ 1 mm spacing
+  const MeshResult r = ImplicitMesh(cloud, ImplicitMeshOptions{});
+  ASSERT_TRUE(r.IsUsable()) << r.message;
+  const TriangleMesh& mesh = r.mesh;
+  std::string why;
+  ASSERT_TRUE(mesh.IsValid(&why)) << why;
+  double max_error = 0, sum_error = 0, max_colour_error = 0;
+  for (std::size_t v = 0; v < mesh.vertices_mm.size(); ++v) {
+    const cv::Vec3d p = cv::Vec3d(mesh.vertices_mm[v]) - centre;
+    const double e = std::abs(cv::norm(p) - kRadius);
+    max_error = std::max(max_error, e);
+    sum_error += e;
+    // Sphere() colours red by height: 127 + 127 z.
+    const double red = 127 + 127 * p[2] / cv::norm(p);
+    max_colour_error = std::max(max_colour_error, std::abs(mesh.colors_rgb[v][0] - red));
+  }
+  const double mean_error = sum_error / static_cast<double>(mesh.vertices_mm.size());
+  std::printf(
+      "implicit sphere: %zu vertices, %zu faces, %.3f s; |r − 30| mean %.4f max %.4f mm; "
+      "red off by at most %.1f\n",
+      mesh.vertices_mm.size(), mesh.faces.size(), r.seconds, mean_error, max_error,
+      max_colour_error);
+  EXPECT_GT(mesh.faces.size(), 10000u);
+  EXPECT_LT(max_error, 0.3);
+  EXPECT_LT(mean_error, 0.1);
+  EXPECT_LT(max_colour_error, 12);  // a blend over the 3.5 mm radius of a 30 mm sphere
+  EXPECT_EQ(r.components, 1u);
+  EXPECT_EQ(OutwardShare(mesh, centre), 1.0);
+  EXPECT_EQ(BorderEdges(mesh), 0u);  // closed
+  for (std::size_t v = 0; v < mesh.vertices_mm.size(); ++v) {
+    const cv::Vec3d radial = cv::normalize(cv::Vec3d(mesh.vertices_mm[v]) - centre);
+    ASSERT_GT(radial.dot(cv::Vec3d(mesh.normals[v])), 0.95) << v;
+  }
+}
+
+TEST_F(Mesh, ImplicitSurfaceStopsAtTheEdgeOfTheData) {
+  // The upper half of the sphere: no surface is invented below its rim (z = 0),
+  // and the hemisphere is covered up to it.
+  const cv::Vec3d centre(0, 0, 0);
+  const PointCloud cloud = Sphere(12000, centre, /*min_z=*/0.0);
+  const MeshResult r = ImplicitMesh(cloud, ImplicitMeshOptions{});
+  ASSERT_TRUE(r.IsUsable()) << r.message;
+  double min_z = 1e9;
+  for (const cv::Vec3f& v : r.mesh.vertices_mm) min_z = std::min<double>(min_z, v[2]);
+  std::printf("implicit hemisphere: radius %.2f mm, %zu faces, min z %.2f mm\n",
+              r.support_radius_mm, r.mesh.faces.size(), min_z);
+  EXPECT_GT(min_z, -0.5);
+  EXPECT_LT(min_z, 1.5);  // the rim itself is meshed
+  EXPECT_EQ(OutwardShare(r.mesh, centre), 1.0);
+  EXPECT_EQ(r.components, 1u);
+}
+
+TEST_F(Mesh, ImplicitFillClosesHolesFromTheSurfaceAroundThem) {
+  // A sphere with a hole 10 mm across (no point within 5 mm of its pole):
+  // wider than the IMLS radius (≈ 3.7 mm), narrower than the fill radius.
+  const cv::Vec3d centre(0, 0, 0), pole(0, 0, kRadius);
+  const PointCloud sphere = Sphere(12000, centre);
+  PointCloud holed;
+  for (std::size_t i = 0; i < sphere.size(); ++i) {
+    if (cv::norm(cv::Vec3d(sphere.points_mm[i]) - pole) < 5) continue;
+    holed.points_mm.push_back(sphere.points_mm[i]);
+    holed.normals.push_back(sphere.normals[i]);
+    holed.colors_rgb.push_back(sphere.colors_rgb[i]);
+  }
+  ImplicitMeshOptions options;
+  const MeshResult filled = ImplicitMesh(holed, options);
+  ASSERT_TRUE(filled.IsUsable()) << filled.message;
+  EXPECT_EQ(BorderEdges(filled.mesh), 0u);
+  double max_error = 0;
+  for (const cv::Vec3f& v : filled.mesh.vertices_mm)
+    max_error = std::max(max_error, std::abs(cv::norm(cv::Vec3d(v) - centre) - kRadius));
+  // The cap is 0.42 mm high over the 5 mm of a 30 mm sphere; IMLS at the
+  // 7.5 mm fill radius rounds it off a little flatter.
+  EXPECT_LT(max_error, 0.7);
+  options.fill_radii = 0;
+  const MeshResult open = ImplicitMesh(holed, options);
+  ASSERT_TRUE(open.IsUsable()) << open.message;
+  std::printf("holed sphere: %zu border edges without the fill, %zu with it; max |r − 30| %.3f\n",
+              BorderEdges(open.mesh), BorderEdges(filled.mesh), max_error);
+  EXPECT_GT(BorderEdges(open.mesh), 20u);
+  double top = 0;
+  for (const cv::Vec3f& v : open.mesh.vertices_mm) top = std::max<double>(top, v[2]);
+  EXPECT_LT(top, kRadius - 0.2);  // the pole is not meshed
+}
+
+TEST_F(Mesh, ImplicitRefusesBadInputNamingIt) {
+  ImplicitMeshOptions bad;
+  bad.radius_spacings = 0.5;
+  MeshResult r = ImplicitMesh(Sphere(500, {0, 0, 0}), bad);
+  EXPECT_FALSE(r.IsUsable());
+  EXPECT_CONTAINS(r.message, "radius_spacings");
+  bad = ImplicitMeshOptions{};
+  bad.fill_radii = 0.5;
+  r = ImplicitMesh(Sphere(500, {0, 0, 0}), bad);
+  EXPECT_CONTAINS(r.message, "fill_radii");
+  bad = ImplicitMeshOptions{};
+  bad.max_tangent_radii = 0;
+  r = ImplicitMesh(Sphere(500, {0, 0, 0}), bad);
+  EXPECT_CONTAINS(r.message, "max_tangent_radii");
+  PointCloud no_normals = Sphere(500, {0, 0, 0});
+  no_normals.normals.clear();
+  r = ImplicitMesh(no_normals, ImplicitMeshOptions{});
+  EXPECT_FALSE(r.IsUsable());
+  EXPECT_CONTAINS(r.message, "no normals");
+  r = ImplicitMesh(Sphere(50, {0, 0, 0}), ImplicitMeshOptions{});
+  EXPECT_CONTAINS(r.message, "at least 100");
+  MeshMethod method{};
+  EXPECT_TRUE(MeshMethodFromString("implicit", &method));
+  EXPECT_EQ(method, MeshMethod::kImplicit);
+  EXPECT_EQ(ToString(MeshMethod::kPoisson), "poisson");
+  EXPECT_FALSE(MeshMethodFromString("marching", &method));
 }
 
 TEST_F(Mesh, DegenerateInputsFail) {

@@ -548,6 +548,7 @@ ScanOptions ReconstructionOptions(const PipelineSettings& settings) {
   options.volume = settings.volume;
   options.conditioning.crop.platter_band_mm = settings.platter_band_mm;
   options.mesh = settings.mesh;
+  options.mesh_method = settings.mesh_method;
   options.free_space_check = settings.free_space_tolerance_mm > 0;
   if (options.free_space_check) options.visibility.tolerance_mm = settings.free_space_tolerance_mm;
   options.measure_box = settings.measure_box;

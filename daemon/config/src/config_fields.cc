@@ -450,6 +450,9 @@ std::vector<Field> MakeFields() {
       "pipeline.free_space_tolerance_mm",
       [](DaemonConfig& c) -> double& { return c.pipeline.free_space_tolerance_mm; }, {0, 100}));
   f.push_back(BoolField("pipeline.mesh", [](DaemonConfig& c) -> bool& { return c.pipeline.mesh; }));
+  f.push_back(EnumField<MeshMethod>(
+      "pipeline.mesh_method", [](DaemonConfig& c) -> MeshMethod& { return c.pipeline.mesh_method; },
+      craftscan::ToString, MeshMethodFromString, {MeshMethod::kPoisson, MeshMethod::kImplicit}));
   f.push_back(BoolField("pipeline.measure_box",
                         [](DaemonConfig& c) -> bool& { return c.pipeline.measure_box; }));
   f.push_back(IntField(

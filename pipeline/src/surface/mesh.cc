@@ -3,6 +3,7 @@
 #include <pcl/kdtree/kdtree_flann.h>
 #include <pcl/point_cloud.h>
 #include <pcl/point_types.h>
+#include <pcl/surface/marching_cubes.h>
 #include <pcl/surface/poisson.h>
 
 #include <algorithm>
@@ -13,7 +14,11 @@
 #include <cstdint>
 #include <cstring>
 #include <exception>
+#include <limits>
+#include <numbers>
 #include <string_view>
+#include <unordered_map>
+#include <vector>
 
 #include "craftscan/pipeline/common/atomic_file.h"
 #include "craftscan/pipeline/common/status.h"
@@ -22,6 +27,8 @@ namespace craftscan {
 namespace {
 
 constexpr std::size_t kMinMeshPoints = 100;
+// ImplicitMesh's grid: at most this many vertices (4 bytes each).
+constexpr double kMaxGridVertices = 64e6;
 
 template <typename V>
 bool Finite3(const V& v) {
@@ -55,6 +62,44 @@ bool PoissonOptions::IsValid(std::string* why) const {
   if (!(min_component_fraction >= 0 && min_component_fraction <= 1))
     return Fail(why, "PoissonOptions.min_component_fraction must be within [0, 1]");
   if (num_threads < 1) return Fail(why, "PoissonOptions.num_threads must be >= 1");
+  return true;
+}
+
+std::string_view ToString(MeshMethod method) {
+  switch (method) {
+    case MeshMethod::kPoisson:
+      return "poisson";
+    case MeshMethod::kImplicit:
+      return "implicit";
+  }
+  return "unknown";
+}
+
+bool MeshMethodFromString(std::string_view text, MeshMethod* method) {
+  if (text == "poisson") {
+    *method = MeshMethod::kPoisson;
+  } else if (text == "implicit") {
+    *method = MeshMethod::kImplicit;
+  } else {
+    return false;
+  }
+  return true;
+}
+
+bool ImplicitMeshOptions::IsValid(std::string* why) const {
+  if (!(voxel_spacings > 0 && voxel_spacings <= 10))
+    return Fail(why, "ImplicitMeshOptions.voxel_spacings must be within (0, 10]");
+  if (!(voxel_mm >= 0 && std::isfinite(voxel_mm)))
+    return Fail(why, "ImplicitMeshOptions.voxel_mm must be finite and >= 0");
+  if (!(radius_spacings >= 1 && radius_spacings <= 20))
+    return Fail(why, "ImplicitMeshOptions.radius_spacings must be within [1, 20]");
+  if (min_support < 1) return Fail(why, "ImplicitMeshOptions.min_support must be >= 1");
+  if (!(fill_radii == 0 || (fill_radii > 1 && fill_radii <= 10)))
+    return Fail(why, "ImplicitMeshOptions.fill_radii must be 0 or within (1, 10]");
+  if (!(max_tangent_radii > 0 && max_tangent_radii <= 1))
+    return Fail(why, "ImplicitMeshOptions.max_tangent_radii must be within (0, 1]");
+  if (!(min_component_fraction >= 0 && min_component_fraction <= 1))
+    return Fail(why, "ImplicitMeshOptions.min_component_fraction must be within [0, 1]");
   return true;
 }
 
@@ -139,6 +184,12 @@ std::size_t DropUnusedVertices(TriangleMesh* mesh) {
       f[k] = u;
     }
   const std::size_t dropped = mesh->vertices_mm.size() - kept.size();
+  if (!mesh->colors_rgb.empty()) {
+    std::vector<cv::Vec3b> colors(kept.size());
+    for (std::size_t v = 0; v < used.size(); ++v)
+      if (used[v] >= 0) colors[static_cast<std::size_t>(used[v])] = mesh->colors_rgb[v];
+    mesh->colors_rgb.swap(colors);
+  }
   mesh->vertices_mm.swap(kept);
   return dropped;
 }
@@ -291,6 +342,325 @@ void ColorFromCloud(const pcl::KdTreeFLANN<pcl::PointXYZ>& tree, const PointClou
   }
 }
 
+// The cloud's usable oriented points into *in; false with r->message (and
+// r->input_points) when the cloud cannot be meshed.
+bool UsableInput(const PointCloud& cloud, std::string_view where, MeshResult* r, PoissonInput* in) {
+  std::string why;
+  if (!cloud.IsValid(&why)) {
+    *r = Failed(std::move(*r), kFailed, std::string(where) + "invalid cloud: " + why);
+    return false;
+  }
+  if (!cloud.HasNormals()) {
+    *r = Failed(std::move(*r), kFailed,
+                std::string(where) + "the cloud has no normals (meshing needs them)");
+    return false;
+  }
+  *in = OrientedPoints(cloud);
+  r->input_points = in->oriented->size();
+  if (r->input_points < kMinMeshPoints) {
+    *r = Failed(std::move(*r), kFailed,
+                std::string(where) + "need at least " + std::to_string(kMinMeshPoints) +
+                    " points with finite normals, got " + std::to_string(r->input_points) +
+                    " (of " + std::to_string(cloud.size()) + ")");
+    return false;
+  }
+  return true;
+}
+
+// What every mesh gets after its surface: small components dropped, faces
+// turned outwards, vertex normals, and colours from the nearest input point.
+void FinishMesh(const pcl::KdTreeFLANN<pcl::PointXYZ>& tree, const PoissonInput& input,
+                const PointCloud& cloud, double min_component_fraction, bool colors,
+                MeshResult* r) {
+  DropSmallComponents(min_component_fraction, r);
+  OrientAndShade(tree, *input.oriented, &r->mesh);
+  if (colors && cloud.HasColors()) ColorFromCloud(tree, cloud, input.source_index, &r->mesh);
+}
+
+// ---------------------------------------------------------------------------
+// Implicit surface (ImplicitMesh)
+
+// A grid over the cloud's bounding box (widened by two cells): the vertices
+// near the input points have a slot, and a slot a value (NaN where the
+// surface is undefined) and a colour. Index (x, y, z), x fastest.
+struct Grid {
+  cv::Vec3d origin;
+  double h = 0;
+  int nx = 0, ny = 0, nz = 0;
+  std::vector<std::int32_t> slot;  // per vertex, −1: none
+  std::vector<float> value;        // per slot
+  std::vector<cv::Vec3f> color;    // per slot, RGB 0..255
+  std::size_t Index(int x, int y, int z) const {
+    return (static_cast<std::size_t>(z) * ny + y) * nx + x;
+  }
+  cv::Vec3f Position(int x, int y, int z) const {
+    return cv::Vec3f(static_cast<float>(origin[0] + x * h), static_cast<float>(origin[1] + y * h),
+                     static_cast<float>(origin[2] + z * h));
+  }
+  float Value(int x, int y, int z) const {
+    const std::int32_t k = slot[Index(x, y, z)];
+    return k < 0 ? std::numeric_limits<float>::quiet_NaN() : value[static_cast<std::size_t>(k)];
+  }
+};
+
+// Whether the points index[0, found) surround q in the plane normal to
+// `normal`: seen from q, no empty sector of 135° or more among 16 (a hole's
+// inside is surrounded; the far side of the data's edge sees a half plane,
+// 180°, empty).
+bool Surrounded(const PoissonInput& in, const cv::Vec3f& q, const cv::Vec3f& normal,
+                const std::vector<int>& index, int found) {
+  constexpr int kSectors = 16, kMaxEmpty = 6;  // 6 × 22.5° = 135°
+  const double length = cv::norm(normal);
+  if (!(length > 0)) return false;
+  const cv::Vec3f n = normal / length;
+  const cv::Vec3f seed = std::abs(n[0]) < 0.9f ? cv::Vec3f(1, 0, 0) : cv::Vec3f(0, 1, 0);
+  const cv::Vec3f u = cv::normalize(seed - seed.dot(n) * n), v = n.cross(u);
+  bool occupied[kSectors] = {};
+  for (int j = 0; j < found; ++j) {
+    const pcl::PointXYZ& p =
+        (*in.positions)[static_cast<std::size_t>(index[static_cast<std::size_t>(j)])];
+    const cv::Vec3f t = cv::Vec3f(p.x, p.y, p.z) - q;
+    const double angle = std::atan2(t.dot(v), t.dot(u));  // (−π, π]
+    const int sector =
+        static_cast<int>((angle + std::numbers::pi) / (2 * std::numbers::pi) * kSectors);
+    occupied[std::clamp(sector, 0, kSectors - 1)] = true;
+  }
+  int run = 0, longest = 0;
+  for (int k = 0; k < 2 * kSectors; ++k) {  // twice round: runs that wrap
+    run = occupied[k % kSectors] ? 0 : run + 1;
+    longest = std::max(longest, run);
+  }
+  return longest < kMaxEmpty;
+}
+
+// Running sums of one grid vertex's IMLS value (see EvaluateImls).
+struct ImlsSum {
+  float w = 0, f = 0;
+  cv::Vec3f offset{0, 0, 0}, normal{0, 0, 0}, color{0, 0, 0};
+  int count = 0;
+  void Add(float weight, float distance, const cv::Vec3f& d, const cv::Vec3f& n,
+           const cv::Vec3f& c) {
+    w += weight;
+    f += weight * distance;
+    offset += weight * d;
+    normal += weight * n;
+    color += weight * c;
+    ++count;
+  }
+  // The value and colour, false where undefined: fewer than `min_support`
+  // points, or the weighted centroid more than `max_tangent` from x along
+  // the surface.
+  bool Value(int min_support, double max_tangent, float* value, cv::Vec3f* colour) const {
+    if (count < min_support || !(w > 0)) return false;
+    const cv::Vec3f to_x = offset / w;  // x − the weighted centroid
+    const double length = cv::norm(normal);
+    const cv::Vec3f n = length > 0 ? normal / length : cv::Vec3f(0, 0, 0);
+    if (cv::norm(to_x - to_x.dot(n) * n) > max_tangent) return false;
+    *value = f / w;
+    *colour = color / w;
+    return true;
+  }
+};
+
+// The signed distance of Kolluri's implicit moving least squares at the
+// grid vertices near the surface: f(x) = Σ w_i n_i·(x − p_i) / Σ w_i over the
+// points within the radius r, w_i = exp(−|x − p_i|² / (r/2)²), and the
+// points' colours weighted alike. A value is undefined (NaN) with fewer than
+// `min_support` points, or where the weighted centroid of the neighbours lies
+// more than `max_tangent_radii` × r from x along the surface: x is beyond the
+// edge of the data, and the surface is not extended past what the cameras
+// saw. (At the straight edge of evenly spread points the centroid lies 0.28 r
+// inside, the mean of a Gaussian of deviation r/√8 cut in half; in a hole
+// the points around x pull it back towards x.)
+//
+// First the vertices within 1.75 cells of a point, at `radius`: each point
+// adds itself to the vertices around it (a scatter). Then, with
+// `fill_radius` > radius, holes close from their edges: undefined and new
+// vertices next to defined ones within 1.5 cells of the surface are
+// evaluated at the fill radius (a search in `tree`), ring after ring, as far
+// as the fill radius reaches.
+void EvaluateImls(const PoissonInput& in, const PointCloud& cloud,
+                  const pcl::KdTreeFLANN<pcl::PointXYZ>& tree, double radius, double fill_radius,
+                  int min_support, double max_tangent_radii, Grid* g) {
+  const double h = g->h;
+  const int n[3] = {g->nx, g->ny, g->nz};
+  // The vertex range [lo, hi] within `reach` cells of p along each axis.
+  const auto range = [&](const pcl::PointXYZ& p, double reach, int* lo, int* hi) {
+    for (int a = 0; a < 3; ++a) {
+      const double c = (p.data[a] - g->origin[a]) / h;
+      lo[a] = std::max(0, static_cast<int>(std::ceil(c - reach)));
+      hi[a] = std::min(n[a] - 1, static_cast<int>(std::floor(c + reach)));
+    }
+  };
+  g->slot.assign(static_cast<std::size_t>(g->nx) * g->ny * g->nz, -1);
+  std::int32_t slots = 0;
+  int lo[3], hi[3];
+  for (const pcl::PointXYZ& p : *in.positions) {
+    range(p, 1.75, lo, hi);
+    for (int z = lo[2]; z <= hi[2]; ++z)
+      for (int y = lo[1]; y <= hi[1]; ++y)
+        for (int x = lo[0]; x <= hi[0]; ++x) {
+          std::int32_t& k = g->slot[g->Index(x, y, z)];
+          if (k < 0) k = slots++;
+        }
+  }
+  std::vector<ImlsSum> sums(static_cast<std::size_t>(slots));
+  const bool colors = cloud.HasColors();
+  const auto colour = [&](std::size_t i) {
+    return colors ? cv::Vec3f(cloud.colors_rgb[in.source_index[i]]) : cv::Vec3f();
+  };
+  const double r2 = radius * radius, inv_sigma2 = 4.0 / r2;
+  for (std::size_t i = 0; i < in.positions->size(); ++i) {
+    const pcl::PointNormal& p = (*in.oriented)[i];
+    const cv::Vec3f pn(p.normal_x, p.normal_y, p.normal_z), pc = colour(i);
+    range((*in.positions)[i], radius / h, lo, hi);
+    for (int z = lo[2]; z <= hi[2]; ++z)
+      for (int y = lo[1]; y <= hi[1]; ++y)
+        for (int x = lo[0]; x <= hi[0]; ++x) {
+          const std::int32_t k = g->slot[g->Index(x, y, z)];
+          if (k < 0) continue;
+          const cv::Vec3f d = g->Position(x, y, z) - cv::Vec3f(p.x, p.y, p.z);
+          const double d2 = d.dot(d);
+          if (d2 <= r2)
+            sums[static_cast<std::size_t>(k)].Add(static_cast<float>(std::exp(-d2 * inv_sigma2)),
+                                                  pn.dot(d), d, pn, pc);
+        }
+  }
+  g->value.assign(sums.size(), std::numeric_limits<float>::quiet_NaN());
+  g->color.assign(sums.size(), cv::Vec3f(0, 0, 0));
+  for (std::size_t k = 0; k < sums.size(); ++k)
+    sums[k].Value(min_support, max_tangent_radii * radius, &g->value[k], &g->color[k]);
+  if (!(fill_radius > radius)) return;
+
+  // The fill, ring by ring from the defined vertices near the surface.
+  const double near_surface = 1.5 * h;
+  const double fill_inv_sigma2 = 4.0 / (fill_radius * fill_radius);
+  std::vector<std::uint8_t> tried(g->slot.size(), 0);
+  std::vector<std::size_t> ring;
+  for (std::size_t v = 0; v < g->slot.size(); ++v) {
+    const std::int32_t k = g->slot[v];
+    if (k >= 0 && std::abs(g->value[static_cast<std::size_t>(k)]) < near_surface) {
+      ring.push_back(v);
+      tried[v] = 1;
+    }
+  }
+  std::vector<int> index;
+  std::vector<float> d2;
+  const std::size_t stride[3] = {1, static_cast<std::size_t>(g->nx),
+                                 static_cast<std::size_t>(g->nx) * g->ny};
+  const int rings = static_cast<int>(std::ceil(fill_radius / h));
+  for (int step = 0; step < rings && !ring.empty(); ++step) {
+    std::vector<std::size_t> next;
+    for (std::size_t v : ring) {
+      const int c[3] = {static_cast<int>(v % g->nx), static_cast<int>((v / g->nx) % g->ny),
+                        static_cast<int>(v / stride[2])};
+      for (int a = 0; a < 3; ++a)
+        for (int dir : {-1, 1}) {
+          if (c[a] + dir < 0 || c[a] + dir >= n[a]) continue;
+          const std::size_t u = dir < 0 ? v - stride[a] : v + stride[a];
+          if (tried[u]) continue;
+          tried[u] = 1;
+          std::int32_t k = g->slot[u];
+          if (k >= 0 && !std::isnan(g->value[static_cast<std::size_t>(k)])) continue;
+          const int x = static_cast<int>(u % g->nx), y = static_cast<int>((u / g->nx) % g->ny);
+          const cv::Vec3f q = g->Position(x, y, static_cast<int>(u / stride[2]));
+          const int found =
+              tree.radiusSearch(pcl::PointXYZ(q[0], q[1], q[2]), fill_radius, index, d2);
+          ImlsSum sum;
+          for (int j = 0; j < found; ++j) {
+            const std::size_t i = static_cast<std::size_t>(index[static_cast<std::size_t>(j)]);
+            const pcl::PointNormal& p = (*in.oriented)[i];
+            const cv::Vec3f pn(p.normal_x, p.normal_y, p.normal_z);
+            const cv::Vec3f d = q - cv::Vec3f(p.x, p.y, p.z);
+            sum.Add(
+                static_cast<float>(std::exp(-d2[static_cast<std::size_t>(j)] * fill_inv_sigma2)),
+                pn.dot(d), d, pn, colour(i));
+          }
+          float value;
+          cv::Vec3f color;
+          // No tangent test here (at a hole's edge the points lie on one side
+          // of x as at the data's edge): the points must surround x instead.
+          if (!sum.Value(min_support, 1e30, &value, &color) ||
+              !Surrounded(in, q, sum.normal, index, found))
+            continue;
+          if (k < 0) {
+            k = g->slot[u] = static_cast<std::int32_t>(g->value.size());
+            g->value.push_back(value);
+            g->color.push_back(color);
+          } else {
+            g->value[static_cast<std::size_t>(k)] = value;
+            g->color[static_cast<std::size_t>(k)] = color;
+          }
+          if (std::abs(value) < near_surface) next.push_back(u);
+        }
+    }
+    ring.swap(next);
+  }
+}
+
+// Marching cubes (PCL's tables and corner order) over the cells whose eight
+// corners are all defined; one vertex per grid edge, shared by the cells
+// around it, so the mesh comes out connected rather than as triangle soup
+// (pcl::MarchingCubes makes soup over a dense grid it fills itself).
+void MarchingCubesOnGrid(const Grid& g, bool colors, TriangleMesh* mesh) {
+  static constexpr int kCorner[8][3] = {{0, 0, 0}, {1, 0, 0}, {1, 0, 1}, {0, 0, 1},
+                                        {0, 1, 0}, {1, 1, 0}, {1, 1, 1}, {0, 1, 1}};
+  static constexpr int kEdge[12][2] = {{0, 1}, {1, 2}, {2, 3}, {3, 0}, {4, 5}, {5, 6},
+                                       {6, 7}, {7, 4}, {0, 4}, {1, 5}, {2, 6}, {3, 7}};
+  std::unordered_map<std::uint64_t, int> edge_vertex;
+  for (int z = 0; z + 1 < g.nz; ++z)
+    for (int y = 0; y + 1 < g.ny; ++y)
+      for (int x = 0; x + 1 < g.nx; ++x) {
+        float f[8];
+        int cube = 0;
+        bool defined = true;
+        for (int c = 0; c < 8 && defined; ++c) {
+          f[c] = g.Value(x + kCorner[c][0], y + kCorner[c][1], z + kCorner[c][2]);
+          defined = !std::isnan(f[c]);
+          if (f[c] < 0) cube |= 1 << c;
+        }
+        if (!defined || pcl::edgeTable[cube] == 0) continue;
+        int vertex[12];
+        for (int e = 0; e < 12; ++e) {
+          if (!(pcl::edgeTable[cube] & (1u << e))) continue;
+          const int* a = kCorner[kEdge[e][0]];
+          const int* b = kCorner[kEdge[e][1]];
+          int lo[3], axis = 0;
+          for (int k = 0; k < 3; ++k) {
+            lo[k] = std::min(a[k], b[k]);
+            if (a[k] != b[k]) axis = k;
+          }
+          const std::uint64_t key = g.Index(x + lo[0], y + lo[1], z + lo[2]) * 3 + axis;
+          const auto [it, added] =
+              edge_vertex.emplace(key, static_cast<int>(mesh->vertices_mm.size()));
+          if (added) {
+            const float fa = f[kEdge[e][0]], fb = f[kEdge[e][1]];
+            const float t = fa / (fa - fb);
+            const cv::Vec3f pa = g.Position(x + a[0], y + a[1], z + a[2]);
+            const cv::Vec3f pb = g.Position(x + b[0], y + b[1], z + b[2]);
+            mesh->vertices_mm.push_back(pa + t * (pb - pa));
+            if (colors) {
+              const cv::Vec3f ca =
+                  g.color[static_cast<std::size_t>(g.slot[g.Index(x + a[0], y + a[1], z + a[2])])];
+              const cv::Vec3f cb =
+                  g.color[static_cast<std::size_t>(g.slot[g.Index(x + b[0], y + b[1], z + b[2])])];
+              const cv::Vec3f c = ca + t * (cb - ca);
+              mesh->colors_rgb.emplace_back(cv::saturate_cast<std::uint8_t>(c[0]),
+                                            cv::saturate_cast<std::uint8_t>(c[1]),
+                                            cv::saturate_cast<std::uint8_t>(c[2]));
+            }
+          }
+          vertex[e] = it->second;
+        }
+        for (int k = 0; pcl::triTable[cube][k] != -1; k += 3) {
+          const cv::Vec3i face(vertex[pcl::triTable[cube][k]], vertex[pcl::triTable[cube][k + 1]],
+                               vertex[pcl::triTable[cube][k + 2]]);
+          if (face[0] != face[1] && face[1] != face[2] && face[0] != face[2])
+            mesh->faces.push_back(face);
+        }
+      }
+}
+
 }  // namespace
 
 MeshResult PoissonMesh(const PointCloud& cloud, const PoissonOptions& options) {
@@ -299,19 +669,8 @@ MeshResult PoissonMesh(const PointCloud& cloud, const PoissonOptions& options) {
     MeshResult r;
     std::string why;
     if (!options.IsValid(&why)) return Failed(r, kFailed, std::string(kWhere) + why);
-    if (!cloud.IsValid(&why))
-      return Failed(r, kFailed, std::string(kWhere) + "invalid cloud: " + why);
-    if (!cloud.HasNormals())
-      return Failed(r, kFailed,
-                    std::string(kWhere) + "the cloud has no normals (Poisson needs them)");
-
-    const PoissonInput input = OrientedPoints(cloud);
-    r.input_points = input.oriented->size();
-    if (input.oriented->size() < kMinMeshPoints)
-      return Failed(r, kFailed,
-                    std::string(kWhere) + "need at least " + std::to_string(kMinMeshPoints) +
-                        " points with finite normals, got " + std::to_string(r.input_points) +
-                        " (of " + std::to_string(cloud.size()) + ")");
+    PoissonInput input;
+    if (!UsableInput(cloud, kWhere, &r, &input)) return r;
 
     pcl::PointCloud<pcl::PointNormal> vertices;
     std::vector<pcl::Vertices> polygons;
@@ -339,10 +698,59 @@ MeshResult PoissonMesh(const PointCloud& cloud, const PoissonOptions& options) {
       r.mesh = TriangleMesh{};  // a failed result holds no mesh
       return Failed(r, kFailed, std::string(kWhere) + "density trimming removed every triangle");
     }
-    DropSmallComponents(options.min_component_fraction, &r);
-    OrientAndShade(tree, *input.oriented, &r.mesh);
-    if (options.colors && cloud.HasColors())
-      ColorFromCloud(tree, cloud, input.source_index, &r.mesh);
+    FinishMesh(tree, input, cloud, options.min_component_fraction, options.colors, &r);
+    r.status = MeshResult::Status::kOk;
+    r.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+    return r;
+  });
+}
+
+MeshResult ImplicitMesh(const PointCloud& cloud, const ImplicitMeshOptions& options) {
+  return NoThrow<MeshResult>("ImplicitMesh", MeshResult::Status::kFailed, [&]() -> MeshResult {
+    constexpr std::string_view where = "ImplicitMesh: ";
+    const auto start = std::chrono::steady_clock::now();
+    MeshResult r;
+    std::string why;
+    if (!options.IsValid(&why)) return Failed(r, kFailed, std::string(where) + why);
+    const ImplicitMeshOptions& opt = options;
+    PoissonInput input;
+    if (!UsableInput(cloud, where, &r, &input)) return r;
+    pcl::KdTreeFLANN<pcl::PointXYZ> tree;
+    tree.setInputCloud(input.positions);
+    const double spacing = EstimateSupportRadius(tree, *input.positions) / 2.5;
+    if (!(spacing > 0))
+      return Failed(r, kFailed, std::string(where) + "could not estimate the point spacing");
+    Grid g;
+    g.h = opt.voxel_mm > 0 ? opt.voxel_mm : opt.voxel_spacings * spacing;
+    const double radius = opt.radius_spacings * spacing;
+    r.support_radius_mm = radius;
+    cv::Vec3d lo(1e300, 1e300, 1e300), hi(-1e300, -1e300, -1e300);
+    for (const pcl::PointXYZ& p : *input.positions)
+      for (int a = 0; a < 3; ++a) {
+        lo[a] = std::min(lo[a], static_cast<double>(p.data[a]));
+        hi[a] = std::max(hi[a], static_cast<double>(p.data[a]));
+      }
+    // A coarser grid rather than more memory than kMaxGridVertices floats.
+    for (;;) {
+      g.origin = lo - cv::Vec3d::all(2 * g.h);
+      g.nx = static_cast<int>(std::ceil((hi[0] - lo[0]) / g.h)) + 5;
+      g.ny = static_cast<int>(std::ceil((hi[1] - lo[1]) / g.h)) + 5;
+      g.nz = static_cast<int>(std::ceil((hi[2] - lo[2]) / g.h)) + 5;
+      if (static_cast<double>(g.nx) * g.ny * g.nz <= kMaxGridVertices) break;
+      g.h *= 1.25;
+    }
+    EvaluateImls(input, cloud, tree, radius, opt.fill_radii * radius, opt.min_support,
+                 opt.max_tangent_radii, &g);
+    const bool colors = options.colors && cloud.HasColors();
+    MarchingCubesOnGrid(g, colors, &r.mesh);
+    r.raw_vertices = r.mesh.vertices_mm.size();
+    r.raw_faces = r.mesh.faces.size();
+    if (r.mesh.faces.empty()) {
+      r.mesh = TriangleMesh{};
+      return Failed(r, kFailed, std::string(where) + "no surface: the cloud is too sparse or flat");
+    }
+    // Colours came from the grid.
+    FinishMesh(tree, input, cloud, options.min_component_fraction, /*colors=*/false, &r);
     r.status = MeshResult::Status::kOk;
     r.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
     return r;

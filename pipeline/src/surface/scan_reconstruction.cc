@@ -332,9 +332,13 @@ ScanResult IncrementalScan::Impl::Finish() {
   // --- Mesh ----------------------------------------------------------------------
   start = Clock::now();
   if (options.mesh) {
-    PoissonOptions poisson = options.poisson;
-    poisson.num_threads = options.num_threads;
-    result.mesh = PoissonMesh(result.fused, poisson);
+    if (options.mesh_method == MeshMethod::kImplicit) {
+      result.mesh = ImplicitMesh(result.fused, options.implicit);
+    } else {
+      PoissonOptions poisson = options.poisson;
+      poisson.num_threads = options.num_threads;
+      result.mesh = PoissonMesh(result.fused, poisson);
+    }
     if (result.mesh.IsUsable()) {
       QualityOptions quality;
       quality.num_threads = options.num_threads;
@@ -521,7 +525,10 @@ bool ScanOptions::IsValid(std::string* why) const {
   if (!registration.IsValid(&sub)) return Fail(why, "registration: " + sub);
   if (!loop.IsValid(&sub)) return Fail(why, "loop: " + sub);
   if (!fusion.IsValid(&sub)) return Fail(why, "fusion: " + sub);
-  if (mesh && !poisson.IsValid(&sub)) return Fail(why, "poisson: " + sub);
+  if (mesh && mesh_method == MeshMethod::kPoisson && !poisson.IsValid(&sub))
+    return Fail(why, "poisson: " + sub);
+  if (mesh && mesh_method == MeshMethod::kImplicit && !implicit.IsValid(&sub))
+    return Fail(why, "implicit: " + sub);
   if (measure_box && !box.IsValid(&sub)) return Fail(why, "box: " + sub);
   if (camera && !camera->IsValid(&sub)) return Fail(why, "camera: " + sub);
   if (camera && !visibility.IsValid(&sub)) return Fail(why, "visibility: " + sub);

@@ -73,6 +73,7 @@ pipeline:
   volume_min_height_mm: 2
   volume_max_height_mm: 150
   mesh: false
+  mesh_method: implicit
 limits: {max_command_bytes: 4096, queue_capacity: 3}
 watchdog: {enabled: no}
 )";
@@ -116,6 +117,7 @@ watchdog: {enabled: no}
   EXPECT_DOUBLE_EQ(c.pipeline.volume.min_height_mm, 2);
   EXPECT_DOUBLE_EQ(c.pipeline.volume.max_height_mm, 150);
   EXPECT_FALSE(c.pipeline.mesh);
+  EXPECT_EQ(c.pipeline.mesh_method, MeshMethod::kImplicit);
   EXPECT_EQ(c.limits.max_command_bytes, 4096);
   EXPECT_EQ(c.limits.queue_capacity, 3);
   EXPECT_FALSE(c.watchdog.enabled);
@@ -287,6 +289,8 @@ INSTANTIATE_TEST_SUITE_P(
                      "pipeline.volume_max_height_mm: must be above volume_min_height_mm (1.5)"},
         BadValueCase{"pipeline: {mesh: maybe}\n",
                      "pipeline.mesh: must be true or false, got 'maybe'"},
+        BadValueCase{"pipeline: {mesh_method: marching}\n",
+                     "pipeline.mesh_method: must be one of poisson, implicit; got 'marching'"},
         BadValueCase{"limits: {max_command_bytes: 100}\n",
                      "limits.max_command_bytes: must be an integer in 1024..16777216, got '100'"},
         BadValueCase{"limits: {queue_capacity: 17}\n",

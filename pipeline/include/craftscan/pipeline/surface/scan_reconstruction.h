@@ -80,12 +80,14 @@ struct ScanOptions {
     return f;
   }();
   bool mesh = true;
+  MeshMethod mesh_method = MeshMethod::kPoisson;
   // Mesh fragments under 5 % of the largest component are removed.
   PoissonOptions poisson = [] {
     PoissonOptions p;
     p.min_component_fraction = 0.05;
     return p;
   }();
+  ImplicitMeshOptions implicit;  // mesh_method kImplicit (same 5 % fragment rule)
   // Measurement: the oriented box always; the box faces when `measure_box`.
   bool measure_box = false;
   BoxMeasureOptions box;

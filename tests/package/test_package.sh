@@ -51,8 +51,10 @@ installed_state() { dpkg-query -W -f='${db:Status-Status}' craftscan 2>/dev/null
 
 # --- A run that died before its cleanup ---------------------------------------
 if [[ -f $marker ]]; then
-  say "removing what an earlier, interrupted run left ($(cat "$marker"))"
+  say "removing what an earlier, interrupted run left ($(head -n 1 "$marker"))"
   while read -r key value; do
+    # Its folder.
+    if [[ $key == dir && $value == /tmp/craftscan-package-test-* ]]; then rm -rf "$value"; fi
     # Its daemon or console, if still running (checked by executable).
     if [[ $key == pid && -d /proc/$value ]]; then
       case $(readlink "/proc/$value/exe" 2>/dev/null) in
@@ -72,7 +74,11 @@ work=$(mktemp -d /tmp/craftscan-package-test-XXXXXX)
 pids=()
 cleanup() {
   local rc=$?
-  for pid in "${pids[@]}"; do kill -KILL "$pid" 2>/dev/null || true; done
+  for pid in "${pids[@]}"; do
+    {
+      kill -KILL "$pid" && wait "$pid"
+    } 2>/dev/null || true
+  done
   if [[ -f $marker ]]; then
     local s
     s=$(installed_state)
@@ -145,7 +151,7 @@ if grep -E 'test|/build/|\.a$|gtest|hardened' "$work/contents" | grep -v /assets
 fi
 
 # --- Install ---------------------------------------------------------------------
-echo "installed $(date -u +%FT%TZ) by $prog" >"$marker"
+printf 'installed %s by %s\ndir %s\n' "$(date -u +%FT%TZ)" "$prog" "$work" >"$marker"
 say "dpkg -i"
 if ! dpkg -i "$deb" >"$work/dpkg-i.log" 2>&1; then
   cat "$work/dpkg-i.log" >&2
@@ -163,6 +169,11 @@ groups=$(id -nG craftscan)
 for g in craftscan plugdev dialout; do
   [[ " $groups " == *" $g "* ]] || fail "user craftscan not in group $g: $groups"
 done
+# Installing over itself, as an upgrade does (postinst configure with the
+# old version): a site's edit to a conffile survives.
+echo "# edited by $prog" >>/etc/craftscan/web.yaml
+dpkg -i "$deb" >"$work/dpkg-i2.log" 2>&1 || fail "dpkg -i over the installed package: $(cat "$work/dpkg-i2.log")"
+grep -q "^# edited by $prog" /etc/craftscan/web.yaml || fail "reinstalling lost the edit to /etc/craftscan/web.yaml"
 [[ $(/usr/bin/craftscanctl --version) == *"$version"* ]] || fail "craftscanctl --version: $(/usr/bin/craftscanctl --version)"
 
 # --- systemd-analyze verify ------------------------------------------------------
@@ -287,6 +298,7 @@ for got, true in zip(dims, (80, 60, 50)):
     assert abs(got - true) < 2.0, (dims, "vs 80 x 60 x 50 mm")
 print("  box %.2f x %.2f x %.2f mm, %d fused points" % (*dims, r["fused_points"]))
 EOF
+say "scan done: session $session; fetching it"
 ctl_ok get get "$session" --out "$run/fetched"
 # The session on the station's disk: done, written by the craftscan user,
 # and the fetched outputs equal to it.

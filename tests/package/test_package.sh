@@ -16,12 +16,12 @@
 # it started and purges the package it installed; a run killed before its
 # trap could run leaves a marker, and the next run purges its leftovers.
 #
-# One deviation from the shipped set-up, for speed and isolation: the sim
+# Deviations from the shipped set-up, for speed and isolation: the sim
 # renders 640x512 instead of 1280x1024 (a copy of the installed
-# craftscand.yaml with that one value changed), and the station id, DDS
-# domain, data_dir and tokens file come from CRAFTSCAN_* overrides, the
-# installed cyclonedds.xml being read through CYCLONEDDS_URI with a
-# loopback-only addition.
+# craftscand.yaml with that one value changed); CRAFTSCAN_* overrides set the
+# station id, DDS domain, data_dir and tokens file, 10 calibration views and
+# the carved box's working volume; the installed cyclonedds.xml is read
+# through CYCLONEDDS_URI with a loopback-only addition.
 set -euo pipefail
 
 build=${1:?usage: test_package.sh BUILD_DIR VERSION}
@@ -217,8 +217,11 @@ loopback+='</Discovery></Domain></CycloneDDS>'
 export CYCLONEDDS_URI="file:///etc/craftscan/cyclonedds.xml,$loopback"
 export CRAFTSCAN_STATION=$station CRAFTSCAN_DDS_DOMAIN=$domain CRAFTSCAN_DATA_DIR=$run/data
 export CRAFTSCAN_AUTH_TOKENS_FILE=$run/tokens.yaml CRAFTSCAN_DDS_CONFIG_FILE=
-# 10 board views, the fewest a calibration accepts (15 in the example config).
-export CRAFTSCAN_CALIBRATION_VIEWS=10
+# 10 board views, the fewest a calibration accepts (15 in the example config),
+# and the carved box's working volume with a margin, as the daemon tests use:
+# the matcher searches that band of disparities only.
+export CRAFTSCAN_CALIBRATION_VIEWS=10 CRAFTSCAN_PIPELINE_VOLUME_RADIUS_MM=65
+export CRAFTSCAN_PIPELINE_VOLUME_MAX_HEIGHT_MM=70 CRAFTSCAN_PIPELINE_PLATTER_RADIUS_MM=0
 unset CRAFTSCAN_TOKEN NOTIFY_SOCKET WATCHDOG_USEC WATCHDOG_PID
 
 /usr/bin/craftscand --config "$run/craftscand.yaml" --print-config >"$run/effective.yaml"

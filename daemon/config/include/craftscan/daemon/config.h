@@ -18,7 +18,7 @@
 //   auth:
 //     tokens_file: /etc/craftscan/tokens.yaml   absolute (see auth.h)
 //   plugins:
-//     path: [<libdir>/craftscan/drivers]       absolute directories, ≥ 1, no ':'
+//     path: [<prefix>/lib/craftscan/drivers]       absolute directories, ≥ 1, no ':'
 //   devices:                      omitted entirely: the simulated station
 //     camera:    {driver: sim, config: {object: carved_box}}
 //     turntable: {driver: sim, config: {object: carved_box}}
@@ -115,7 +115,7 @@ namespace craftscan::daemon {
 inline constexpr int kConfigVersion = 1;
 
 // The driver plugin directory of this build's install prefix
-// (<libdir>/craftscan/drivers), the default plugins.path.
+// (<prefix>/lib/craftscan/drivers), the default plugins.path.
 std::string DefaultPluginDirectory();
 
 // The log level: the drivers' enum, so the daemon's logger and the drivers'

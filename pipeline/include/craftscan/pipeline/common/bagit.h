@@ -40,10 +40,14 @@ struct BagInfo {
 
 // What a finished bag holds.
 struct BagSummary {
-  std::string path;                // the bag folder
+  std::string path;                 // the bag folder
   std::uint64_t payload_bytes = 0;  // Payload-Oxum's octets
   std::uint64_t payload_files = 0;  // Payload-Oxum's count
 };
+
+// Ok if `dir` does not exist or is an empty folder; else a kAlreadyExists
+// Status saying what is there (a bag never mixes with other files).
+Status CheckBagTarget(const std::string& dir);
 
 // Not thread-safe.
 class BagWriter {
@@ -61,6 +65,11 @@ class BagWriter {
   // Where the caller puts the payload (any tree of regular files; the caller
   // fsyncs them). Under the staging folder.
   const std::string& data_dir() const { return data_dir_; }
+
+  // Copies the regular file `source` to data/<relative> (folders created)
+  // and fsyncs it. `relative` is a '/'-separated path without "." or ".."
+  // components. A failed Status naming the file on any error.
+  Status AddFile(const std::string& source, const std::string& relative);
 
   // Hashes every regular file under data_dir() as it is on disk, checks it
   // against `expected_sha256` (payload path relative to data/ → hex) where

@@ -337,7 +337,7 @@ TEST(Craftscanctl, ScanThenGetEveryOutputByteForByte) {
   r = station.Run(kObserverToken,
                   {"get", session, "--bagit", bag, "--source-organization", "Craft Museum"});
   ASSERT_EQ(r.exit_code, 0) << Describe(r);
-  std::printf("get --bagit: %s in %.2f s\n", r.out.c_str(), r.seconds);
+  std::printf("get --bagit in %.2f s: %s", r.seconds, r.out.c_str());
   ExpectVerifiableBag(bag, "Craft Museum", session);
   for (const auto& [name, record] : manifest.outputs) {
     EXPECT_TRUE(ReadFile(bag + "/data/" + name) == ReadFile(session_dir + "/" + name)) << name;

@@ -144,6 +144,9 @@ bool FileAssembler::SetExpected(std::vector<ExpectedFile> files, std::string* er
     if (!IsSafeFileName(f.name, &why)) return Fail("the station listed an unsafe " + why, error);
     if (!names.insert(f.name).second)
       return Fail("the station listed '" + f.name + "' twice", error);
+    if (!f.sha256.empty() && !IsSha256Hex(f.sha256)) {
+      return Fail("the station listed '" + f.name + "' with a malformed SHA-256", error);
+    }
   }
   if (file_count_ != 0 && file_count_ != files.size()) {
     return Fail("the station announced " + std::to_string(files.size()) +
@@ -184,6 +187,7 @@ bool FileAssembler::StartFile(const FileChunk& chunk, std::string* error) {
   offset_ = 0;
   current_finished_ = false;
   hash_ = Fnv1a64Hasher();
+  sha256_ = Sha256Hasher();
   return true;
 }
 
@@ -239,6 +243,7 @@ bool FileAssembler::Accept(const FileChunk& chunk, std::string* error) {
     return FailLocally("cannot write '" + temp_path_ + "': " + std::strerror(errno), error);
   }
   hash_.Update(chunk.data, chunk.size);
+  sha256_.Update(chunk.data, chunk.size);
   offset_ += chunk.size;
   bytes_received_ += chunk.size;
   if (chunk.last != (offset_ == total_)) {
@@ -259,8 +264,8 @@ bool FileAssembler::FinishFile(std::string* error) {
   fd_ = -1;
   if (::close(fd) != 0)
     return FailLocally("cannot close '" + temp_path_ + "': " + std::strerror(errno), error);
-  pending_.push_back(
-      {static_cast<std::uint32_t>(index_), name_, temp_path_, total_, hash_.value()});
+  pending_.push_back({static_cast<std::uint32_t>(index_), name_, temp_path_, total_, hash_.value(),
+                      sha256_.HexDigest()});
   current_finished_ = true;
   temp_path_.clear();
   return Settle(error);
@@ -278,6 +283,10 @@ bool FileAssembler::Settle(std::string* error) {
     const std::string final_path = (fs::path(out_dir_) / p.name).string();
     if (p.name != e.name || p.size_bytes != e.size_bytes) {
       problem = "'" + p.name + "' does not match the station's list";
+    } else if (!e.sha256.empty() && p.sha256 != e.sha256) {
+      problem = "'" + p.name + "': SHA-256 checksum " + p.sha256 +
+                " differs from the station's manifest (" + e.sha256 +
+                "): damaged in transit or on the station";
     } else if (p.fnv1a64 != e.fnv1a64) {
       problem = "'" + p.name + "': checksum " + Hex64(p.fnv1a64) +
                 " differs from the station's manifest (" + Hex64(e.fnv1a64) +
@@ -292,7 +301,7 @@ bool FileAssembler::Settle(std::string* error) {
       return local ? FailLocally(problem, error) : Fail(problem, error);
     }
     SyncDir(fs::path(final_path).parent_path().string());
-    done_.push_back({p.name, final_path, p.size_bytes, p.fnv1a64});
+    done_.push_back({p.name, final_path, p.size_bytes, p.fnv1a64, p.sha256});
   }
   return true;
 }

@@ -568,6 +568,7 @@ FetchResult StationClient::Fetch(const FetchRequest& request) {
             return finish(FetchStatus::kTransferFailed,
                           "the reply lists a file without a checksum");
           e.fnv1a64 = *hash;
+          e.sha256 = f.value("sha256", "");  // absent from a station's old manifests
           expected.push_back(std::move(e));
         }
         progress.bytes_total = 0;

@@ -12,8 +12,11 @@
 #include <filesystem>
 #include <fstream>
 #include <functional>
+#include <map>
 #include <mutex>
 #include <variant>
+
+#include "craftscan/pipeline/common/bagit.h"
 
 #include "progress_view.h"
 
@@ -425,8 +428,9 @@ int Ctl::Camera(const json& args) {
   });
 }
 
-int Ctl::Get(const std::string& session, const std::string& out_dir,
-             const std::vector<std::string>& files, std::size_t chunk_bytes) {
+int Ctl::Fetch(const std::string& session, const std::string& out_dir,
+               const std::vector<std::string>& files, std::size_t chunk_bytes,
+               client::FetchResult* fetched) {
   client::FetchRequest request;
   request.session = session;
   request.files = files;
@@ -478,6 +482,14 @@ int Ctl::Get(const std::string& session, const std::string& out_dir,
       Error("get " + session + ": " + result.message);
       return Interrupted() ? kExitInterrupted : kExitLocalError;
   }
+  *fetched = result;
+  return kExitOk;
+}
+
+int Ctl::Get(const std::string& session, const std::string& out_dir,
+             const std::vector<std::string>& files, std::size_t chunk_bytes) {
+  client::FetchResult result;
+  if (const int rc = Fetch(session, out_dir, files, chunk_bytes, &result)) return rc;
   if (options_.json) {
     json list = json::array();
     for (const client::FetchedFile& f : result.files) {
@@ -500,6 +512,45 @@ int Ctl::Get(const std::string& session, const std::string& out_dir,
     }
     std::printf("%zu files, %s in %.2f s, sizes and checksums verified\n", result.files.size(),
                 HumanBytes(total).c_str(), result.transfer_seconds);
+  }
+  return kExitOk;
+}
+
+int Ctl::GetBag(const std::string& session, const std::string& bag_dir,
+                const std::string& source_organization, const std::vector<std::string>& files,
+                std::size_t chunk_bytes) {
+  craftscan::Status status;  // (Ctl::Status is the status subcommand)
+  std::unique_ptr<BagWriter> bag = BagWriter::Start(bag_dir, &status);
+  if (!bag) {
+    Error("get " + session + " --bagit: " + status.message());
+    return kExitLocalError;
+  }
+  client::FetchResult result;
+  if (const int rc = Fetch(session, bag->data_dir(), files, chunk_bytes, &result)) return rc;
+  // The bag's manifest hashes the files again from disk; each must equal
+  // the SHA-256 of the bytes received, which the transfer checked against
+  // the station's manifest (end to end: station disk → DDS → bag).
+  std::map<std::string, std::string> expected;
+  for (const client::FetchedFile& f : result.files) expected[f.name] = f.sha256;
+  BagSummary summary;
+  const BagInfo info{source_organization, session, ""};
+  if (status = bag->Finish(info, expected, &summary); !status.ok()) {
+    Error("get " + session + " --bagit: " + status.message());
+    return status.code() == ErrorCode::kCorrupt ? kExitJobFailed : kExitLocalError;
+  }
+  if (options_.json) {
+    PrintJson({{"ok", true},
+               {"session", session},
+               {"bag", summary.path},
+               {"payload_files", summary.payload_files},
+               {"payload_bytes", summary.payload_bytes},
+               {"transfer_seconds", result.transfer_seconds}});
+  } else {
+    std::printf("bag '%s': %llu files, %s (Payload-Oxum %llu.%llu), SHA-256 verified\n",
+                summary.path.c_str(), static_cast<unsigned long long>(summary.payload_files),
+                HumanBytes(summary.payload_bytes).c_str(),
+                static_cast<unsigned long long>(summary.payload_bytes),
+                static_cast<unsigned long long>(summary.payload_files));
   }
   return kExitOk;
 }

@@ -61,6 +61,12 @@ class Ctl {
   int Camera(const nlohmann::json& args);
   int Get(const std::string& session, const std::string& out_dir,
           const std::vector<std::string>& files, std::size_t chunk_bytes);
+  // get into a BagIt 1.0 bag at `bag_dir` (a new or empty folder; built in a
+  // hidden staging folder beside it and renamed in once complete), with
+  // External-Identifier = the session id and Bagging-Date = today (UTC).
+  int GetBag(const std::string& session, const std::string& bag_dir,
+             const std::string& source_organization, const std::vector<std::string>& files,
+             std::size_t chunk_bytes);
   // Until Ctrl-C, `count` printed events (0 = no limit) or `duration_s`
   // seconds (0 = no limit).
   int Watch(int count, double duration_s);
@@ -72,6 +78,10 @@ class Ctl {
   int Action(const std::string& verb, const nlohmann::json& args,
              const std::function<std::string(const client::Reply&)>& text);
   int Unreachable(const std::string& message) const;
+  // The transfer of get (progress bar, error messages); kExitOk with *result.
+  int Fetch(const std::string& session, const std::string& out_dir,
+            const std::vector<std::string>& files, std::size_t chunk_bytes,
+            client::FetchResult* result);
   void PrintJson(const nlohmann::json& value) const;
   bool Interrupted() const { return interrupted_ && interrupted_->load(); }
 

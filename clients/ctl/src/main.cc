@@ -50,7 +50,8 @@ constexpr const char* kFooter = R"(Exit codes:
   130  Ctrl-C while waiting (a job goes on at the station)
 
 Environment: CRAFTSCAN_TOKEN (token), CRAFTSCAN_STATION, CRAFTSCAN_DDS_DOMAIN
-(defaults for --station and --domain), CYCLONEDDS_URI (Cyclone DDS
+(defaults for --station and --domain), CRAFTSCAN_SOURCE_ORGANIZATION (default
+for get --source-organization), CYCLONEDDS_URI (Cyclone DDS
 configuration when --dds-config is not given; without either,
 /etc/craftscan/cyclonedds.xml is used if present).)";
 
@@ -178,7 +179,18 @@ int main(int argc, char** argv) {
   CLI::App* get = app.add_subcommand(
       "get", "fetch a session's results (fused cloud, mesh, report, previews) into a folder");
   get->add_option("SESSION", session, "session id")->required();
-  get->add_option("--out", out_dir, "folder to write the files to (created)")->required();
+  std::string bag_dir, source_organization;
+  CLI::Option* out_option =
+      get->add_option("--out", out_dir, "folder to write the files to (created)");
+  CLI::Option* bagit_option = get->add_option(
+      "--bagit", bag_dir,
+      "write a BagIt 1.0 bag (RFC 8493) of the files to this new or empty folder instead: "
+      "data/, bagit.txt, bag-info.txt, manifest-sha256.txt, tagmanifest-sha256.txt");
+  out_option->excludes(bagit_option);
+  get->add_option("--source-organization", source_organization,
+                  "bag-info.txt Source-Organization of a --bagit bag (default: "
+                  "CRAFTSCAN_SOURCE_ORGANIZATION)")
+      ->needs(bagit_option);
   get->add_option("--file", files, "only this output (repeatable), e.g. fused.ply, previews/a.png");
   get->add_option("--chunk-kib", chunk_kib, "transfer chunk size, KiB")
       ->check(CLI::Range(4, 4096))
@@ -218,6 +230,19 @@ int main(int argc, char** argv) {
     std::fprintf(stderr, "craftscanctl: %s\n", why.c_str());
     return kExitUsage;
   }
+  if (*get && out_dir.empty() && bag_dir.empty()) {
+    std::fprintf(stderr, "craftscanctl: get needs --out DIR or --bagit DIR\n");
+    return kExitUsage;
+  }
+  if (!bag_dir.empty() && source_organization.empty()) {
+    if (const char* env = std::getenv("CRAFTSCAN_SOURCE_ORGANIZATION")) source_organization = env;
+    if (source_organization.empty()) {
+      std::fprintf(stderr,
+                   "craftscanctl: --bagit needs the bag's Source-Organization: "
+                   "--source-organization NAME or CRAFTSCAN_SOURCE_ORGANIZATION\n");
+      return kExitUsage;
+    }
+  }
   for (const std::string& name : files) {
     if (!craftscan::client::IsSafeFileName(name, &why)) {
       std::fprintf(stderr, "craftscanctl: --file: %s\n", why.c_str());
@@ -252,6 +277,10 @@ int main(int argc, char** argv) {
   }
   if (*resume) return ctl.Job("resume", {{"session", session}}, wait);
   if (*cancel) return ctl.Cancel();
+  if (*get && !bag_dir.empty()) {
+    return ctl.GetBag(session, bag_dir, source_organization, files,
+                      static_cast<std::size_t>(chunk_kib) * 1024);
+  }
   if (*get) return ctl.Get(session, out_dir, files, static_cast<std::size_t>(chunk_kib) * 1024);
   if (*watch) return ctl.Watch(count, duration_s);
   if (*home) return ctl.Turntable({{"action", "home"}});

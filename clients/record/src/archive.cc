@@ -148,6 +148,7 @@ struct Archive::State {
   std::unordered_map<std::string, std::list<Entry>::iterator> by_path;  // folder + "/" + name
   std::map<std::string, uint64_t> files_per_folder;
   std::map<std::string, SessionIndex> indexes;
+  std::set<std::string> folders_stored;  // "<station>/<session>" stored into by this run
   ArchiveTotals totals;
   bool full = false;
   std::string full_message;
@@ -413,6 +414,7 @@ StoreResult Archive::State::Commit(const ItemInfo& item, const std::string& sess
     entries.push_back({folder, file.job.name, file.bytes});
     by_path[folder + "/" + file.job.name] = std::prev(entries.end());
     files_per_folder[folder] += 1;
+    folders_stored.insert(folder);
     totals.files += 1;
     totals.bytes += file.bytes;
 
@@ -727,5 +729,34 @@ ArchiveTotals Archive::totals() const {
 }
 
 const ArchiveOptions& Archive::options() const { return state_->options; }
+
+Status Archive::WriteBags(const std::string& bag_root, const std::string& source_organization,
+                          std::vector<BagSummary>* bags) const {
+  std::lock_guard lock(state_->mutex);
+  if (Status free = CheckBagTarget(bag_root); !free.ok()) return free;
+  for (const std::string& folder : state_->folders_stored) {
+    const fs::path source = state_->out / folder;
+    const auto held = state_->files_per_folder.find(folder);
+    if (held == state_->files_per_folder.end() || held->second == 0) continue;  // rotated out
+    Status status;
+    std::unique_ptr<BagWriter> bag =
+        BagWriter::Start((fs::path(bag_root) / folder).string(), &status);
+    if (!bag) return status;
+    std::error_code ec;
+    for (const fs::directory_entry& entry : fs::directory_iterator(source, ec)) {
+      if (!entry.is_regular_file() || entry.path().filename().string().front() == '.') continue;
+      status = bag->AddFile(entry.path().string(), entry.path().filename().string());
+      if (!status.ok()) return status;
+    }
+    if (ec)
+      return Status(ErrorCodeFromErrno(ec.value()), "'" + source.string() + "': " + ec.message());
+    BagSummary summary;
+    const std::string session = fs::path(folder).filename().string();
+    status = bag->Finish({source_organization, session, ""}, {}, &summary);
+    if (!status.ok()) return status;
+    if (bags) bags->push_back(summary);
+  }
+  return Status::Ok();
+}
 
 }  // namespace craftscan::record

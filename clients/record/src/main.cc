@@ -13,6 +13,7 @@
 #include <algorithm>
 #include <chrono>
 #include <cstdio>
+#include <cstdlib>
 #include <memory>
 #include <string>
 #include <vector>
@@ -76,6 +77,7 @@ int main(int argc, char** argv) {
   std::string max_bytes_text, log_level = "info";
   bool rotate = false;
   double duration_s = 0;
+  std::string bag_root, source_organization;
   app.add_option("--station", recorder_options.stations,
                  "station id to record (repeat for several stations)")
       ->required();
@@ -101,6 +103,14 @@ int main(int argc, char** argv) {
   app.add_option("--count", recorder_options.max_items,
                  "stop after this many items (a capture, a cloud or a disparity map)")
       ->check(CLI::PositiveNumber);
+  CLI::Option* bagit_option = app.add_option(
+      "--bagit", bag_root,
+      "when the recording stops, also write each session recorded in this run as a BagIt 1.0 "
+      "bag (RFC 8493) at DIR/<station>/<session> (DIR: new or empty)");
+  app.add_option("--source-organization", source_organization,
+                 "bag-info.txt Source-Organization of the --bagit bags (default: "
+                 "CRAFTSCAN_SOURCE_ORGANIZATION)")
+      ->needs(bagit_option);
   app.add_option("--log-level", log_level, "debug, info, warn or error")
       ->check(CLI::IsMember({"debug", "info", "warn", "error"}))
       ->capture_default_str();
@@ -119,6 +129,14 @@ int main(int argc, char** argv) {
   if (!max_bytes_text.empty() &&
       !ParseByteSize(max_bytes_text, &archive_options.max_bytes, &error)) {
     return usage_error("--max-bytes: " + error);
+  }
+  if (!bag_root.empty() && source_organization.empty()) {
+    if (const char* env = std::getenv("CRAFTSCAN_SOURCE_ORGANIZATION")) source_organization = env;
+    if (source_organization.empty()) {
+      return usage_error(
+          "--bagit needs the bags' Source-Organization: --source-organization NAME or "
+          "CRAFTSCAN_SOURCE_ORGANIZATION");
+    }
   }
   if (rotate && archive_options.max_bytes == 0 && archive_options.max_files == 0) {
     return usage_error("--rotate needs --max-bytes or --max-files");
@@ -149,6 +167,13 @@ int main(int argc, char** argv) {
   pthread_sigmask(SIG_BLOCK, &signals, nullptr);
   signal(SIGPIPE, SIG_IGN);
 
+  // Refused now rather than after a recording that could not be bagged.
+  if (!bag_root.empty()) {
+    if (const craftscan::Status free = craftscan::CheckBagTarget(bag_root); !free.ok()) {
+      spdlog::critical("cannot start: --bagit: {}", free.message());
+      return kExitFailure;
+    }
+  }
   std::shared_ptr<Archive> archive = Archive::Open(archive_options, &error);
   if (!archive) {
     spdlog::critical("cannot start: {}", error);
@@ -192,5 +217,19 @@ int main(int argc, char** argv) {
   const RecorderSummary summary = recorder->Summary();
   recorder.reset();  // leaves the DDS domain
   PrintSummary(summary, archive_options.out_dir, elapsed_s());
+  if (!bag_root.empty()) {
+    std::vector<craftscan::BagSummary> bags;
+    const craftscan::Status bagged = archive->WriteBags(bag_root, source_organization, &bags);
+    for (const craftscan::BagSummary& bag : bags) {
+      std::printf("bag '%s': Payload-Oxum %llu.%llu\n", bag.path.c_str(),
+                  static_cast<unsigned long long>(bag.payload_bytes),
+                  static_cast<unsigned long long>(bag.payload_files));
+    }
+    std::fflush(stdout);
+    if (!bagged.ok()) {
+      spdlog::error("--bagit: {}", bagged.message());
+      return kExitFailure;
+    }
+  }
   return summary.reason == StopReason::kError ? kExitFailure : kExitOk;
 }

@@ -330,8 +330,10 @@ CommandReply CommandHandler::GetFiles(const std::string& id, const nlohmann::jso
     const FileRecord& record = manifest.outputs.at(name);
     transfer.files.push_back(
         {name, store_->sessions_dir() + "/" + id + "/" + name, record.size_bytes, record.fnv1a64});
-    list.push_back(
-        {{"name", name}, {"size", record.size_bytes}, {"fnv1a64", Hex64(record.fnv1a64)}});
+    nlohmann::json entry = {
+        {"name", name}, {"size", record.size_bytes}, {"fnv1a64", Hex64(record.fnv1a64)}};
+    if (!record.sha256.empty()) entry["sha256"] = record.sha256;  // absent: an old manifest
+    list.push_back(std::move(entry));
     total += record.size_bytes;
   }
   reply.code = ReplyCode::kOk;

@@ -11,6 +11,7 @@
 #include "craftscan/pipeline/common/atomic_file.h"
 #include "craftscan/pipeline/common/pfm.h"
 #include "craftscan/pipeline/common/ply.h"
+#include "craftscan/pipeline/common/sha256.h"
 #include "session_internal.h"
 
 namespace craftscan::daemon {
@@ -35,23 +36,34 @@ Status Prefixed(const char* prefix, const Status& status) {
 
 std::string NowUtc() { return internal::IsoUtc(std::chrono::system_clock::now()); }
 
+FileRecord RecordOfBytes(std::string_view bytes) {
+  return FileRecord{bytes.size(), Fnv1a64(bytes), Sha256Hex(bytes)};
+}
+
 // The record of a file as it is on disk now.
 Status RecordOf(const std::string& path, FileRecord* record) {
   std::string data;
   if (Status read = internal::ReadFileBytes(path, &data); !read.ok()) return read;
-  record->size_bytes = data.size();
-  record->fnv1a64 = Fnv1a64(data);
+  *record = RecordOfBytes(data);
   return Status::Ok();
 }
 
-// Empty if the bytes match the record, else what differs.
+// Empty if the bytes match the record, else what differs: SHA-256 where the
+// manifest has it, FNV-1a 64 for files listed by manifests from before.
 std::string Mismatch(const std::string& bytes, const FileRecord& record) {
   if (bytes.size() != record.size_bytes) {
     return "size " + std::to_string(bytes.size()) + " bytes, the manifest says " +
            std::to_string(record.size_bytes) + " (truncated or replaced)";
   }
-  if (Fnv1a64(bytes) != record.fnv1a64) {
-    return "checksum differs from the manifest (modified or corrupt)";
+  if (!record.sha256.empty()) {
+    const std::string sha256 = Sha256Hex(bytes);
+    if (sha256 != record.sha256) {
+      return "checksum differs from the manifest (SHA-256 " + sha256 + ", the manifest says " +
+             record.sha256 + "): modified or corrupt";
+    }
+  } else if (Fnv1a64(bytes) != record.fnv1a64) {
+    return "checksum differs from the manifest (FNV-1a 64; the manifest predates SHA-256): "
+           "modified or corrupt";
   }
   return {};
 }
@@ -285,7 +297,7 @@ Status Session::CopyCalibration(const std::string& source_path, const std::strin
   };
   step.write = [&] { return WriteFileAtomically(path, bytes); };
   step.list = [&](Manifest* m) {
-    m->calibration = FileRecord{bytes.size(), Fnv1a64(bytes)};
+    m->calibration = RecordOfBytes(bytes);
     m->calibration_id = calibration_id;
     m->journal.push_back({NowUtc(), "calibration",
                           "copied from '" + source_path + "' (id '" + calibration_id + "')"});
@@ -342,7 +354,7 @@ Status Session::StoreCapture(int view, double angle_deg, const cv::Mat& left, co
     v.index = view;
     v.angle_deg = angle_deg;
     v.captured_utc = NowUtc();
-    for (int i = 0; i < count; ++i) v.files[names[i]] = {files[i].size(), Fnv1a64(files[i])};
+    for (int i = 0; i < count; ++i) v.files[names[i]] = RecordOfBytes(files[i]);
     return Status::Ok();
   };
   return Store(step);

@@ -54,7 +54,13 @@ bool ParseHex(const std::string& text, std::uint64_t* value) {
 }
 
 OrderedJson RecordJson(const FileRecord& r) {
-  return OrderedJson{{"size", r.size_bytes}, {"fnv1a64", Hex(r.fnv1a64)}};
+  OrderedJson j{{"size", r.size_bytes}, {"fnv1a64", Hex(r.fnv1a64)}};
+  if (!r.sha256.empty()) j["sha256"] = r.sha256;
+  return j;
+}
+
+bool IsLowerHex(const std::string& text, std::size_t digits) {
+  return text.size() == digits && text.find_first_not_of("0123456789abcdef") == std::string::npos;
 }
 
 // Field readers for ManifestFromJson: each throws ParseError naming the field.
@@ -88,6 +94,12 @@ FileRecord Record(const Json& v, const std::string& where) {
   r.size_bytes = size.get<std::uint64_t>();
   if (!ParseHex(String(v, "fnv1a64", where), &r.fnv1a64)) {
     throw ParseError{where + ".fnv1a64 is not 16 lower-case hex digits"};
+  }
+  if (v.contains("sha256")) {  // absent in manifests from before SHA-256
+    r.sha256 = String(v, "sha256", where);
+    if (!IsLowerHex(r.sha256, 64)) {
+      throw ParseError{where + ".sha256 is not 64 lower-case hex digits"};
+    }
   }
   return r;
 }

@@ -8,6 +8,7 @@
 #include <filesystem>
 #include <fstream>
 #include <iterator>
+#include <map>
 #include <random>
 #include <set>
 #include <string>
@@ -17,7 +18,9 @@
 #include <nlohmann/json.hpp>
 
 #include "../../daemon/sessions/status_util.h"
+#include "bagit_check.h"
 #include "craftscan/daemon/session_store.h"
+#include "craftscan/pipeline/common/atomic_file.h"
 #include "ctl_runner.h"
 #include "daemon_fixture.h"
 #include "file_util.h"
@@ -80,6 +83,36 @@ std::string Describe(const CtlRun& r) {
 json ParseJson(const CtlRun& r) {
   json value = json::parse(r.out, nullptr, false);
   return value.is_discarded() ? json() : value;
+}
+
+// The independent checks of a bag (bagit_check.h): sha256sum -c on both
+// manifests from inside the bag, and RFC 8493's structure rules.
+void ExpectVerifiableBag(const std::string& bag, const std::string& organization,
+                         const std::string& session) {
+  std::string out;
+  EXPECT_EQ(RunSha256sumCheck(bag, "manifest-sha256.txt", &out), 0) << out;
+  EXPECT_EQ(RunSha256sumCheck(bag, "tagmanifest-sha256.txt", &out), 0) << out;
+  EXPECT_EQ(BagStructureProblems(bag, organization, session), std::vector<std::string>{});
+  // Nothing but the bag in its folder (no staging folder left beside it).
+  for (const auto& entry :
+       std::filesystem::directory_iterator(std::filesystem::path(bag).parent_path())) {
+    EXPECT_NE(entry.path().filename().string().front(), '.') << "left: " << entry.path();
+  }
+}
+
+// One payload byte flipped (size unchanged): sha256sum -c fails, naming it.
+void ExpectFlippedByteFails(const std::string& bag, const std::string& payload) {
+  std::fstream f(bag + "/" + payload, std::ios::in | std::ios::out | std::ios::binary);
+  f.seekg(0);
+  const char c = static_cast<char>(f.get());
+  f.seekp(0);
+  f.put(static_cast<char>(c ^ 0x01));
+  f.close();
+  std::string out;
+  EXPECT_EQ(RunSha256sumCheck(bag, "manifest-sha256.txt", &out), 1) << out;
+  EXPECT_NE(out.find(payload + ": FAILED"), std::string::npos) << out;
+  EXPECT_EQ(RunSha256sumCheck(bag, "tagmanifest-sha256.txt", &out), 0)
+      << "the tag files are untouched: " << out;
 }
 
 TEST(Craftscanctl, StatusDevicesCaptureTurntableCameraAndRefusals) {
@@ -296,6 +329,25 @@ TEST(Craftscanctl, ScanThenGetEveryOutputByteForByte) {
   EXPECT_EQ(r.exit_code, 3) << Describe(r);
   EXPECT_NE(r.err.find("fused.ply"), std::string::npos) << "names what there is: " << r.err;
   EXPECT_FALSE(std::filesystem::exists(one + "/nothing.ply"));
+
+  // The scan's outputs as a BagIt bag, checked independently: sha256sum -c
+  // on both manifests inside the bag, the RFC 8493 structure rules, every
+  // output byte for byte, and a flipped byte caught.
+  const std::string bag = station.dir() + "/bags/" + session;
+  r = station.Run(kObserverToken,
+                  {"get", session, "--bagit", bag, "--source-organization", "Craft Museum"});
+  ASSERT_EQ(r.exit_code, 0) << Describe(r);
+  std::printf("get --bagit in %.2f s: %s", r.seconds, r.out.c_str());
+  ExpectVerifiableBag(bag, "Craft Museum", session);
+  for (const auto& [name, record] : manifest.outputs) {
+    EXPECT_TRUE(ReadFile(bag + "/data/" + name) == ReadFile(session_dir + "/" + name)) << name;
+  }
+  std::size_t payload = 0;
+  for (const auto& entry : std::filesystem::recursive_directory_iterator(bag + "/data")) {
+    payload += entry.is_regular_file() ? 1 : 0;
+  }
+  EXPECT_EQ(payload, manifest.outputs.size());
+  ExpectFlippedByteFails(bag, "data/fused.ply");
 }
 
 TEST(Craftscanctl, CancelOfARunningScanExitsFourAndResumeCompletesIt) {
@@ -343,6 +395,93 @@ TEST(Craftscanctl, CancelOfARunningScanExitsFourAndResumeCompletesIt) {
 
 // A session made on disk before the daemon starts: a 48 MiB output streams
 // intact; a file changed behind the manifest's back is refused.
+// Every "sha256" key below `j`, removed: a manifest as craftscand wrote it
+// before SHA-256 (FNV-1a 64 only).
+void DropSha256(json* j) {
+  if (j->is_object()) {
+    j->erase("sha256");
+    for (auto& [key, value] : j->items()) DropSha256(&value);
+  } else if (j->is_array()) {
+    for (auto& value : *j) DropSha256(&value);
+  }
+}
+
+TEST(Craftscanctl, GetBagitMakesVerifiableBagsOfNewAndOldSessionsAndRefusesClearly) {
+  Station station;
+  std::string error;
+  ASSERT_TRUE(station.Prepare(&error)) << error;
+  const std::map<std::string, std::string> outputs = {
+      {"fused.ply", "ply\nformat binary_little_endian 1.0\n" + std::string(100000, '\x5a')},
+      {"report.json", "{\"ok\": true}"},
+      {"previews/top.png", std::string(5000, 'x')}};
+  std::string ids[2];  // [0]: SHA-256 manifest, [1]: an old FNV-1a-only one
+  {
+    auto store = daemon::SessionStore::Open(station.fixture().data_dir(), StatusInto(&error));
+    ASSERT_TRUE(store) << error;
+    for (std::string& id : ids) {
+      auto session = store->Create(&id == &ids[0] ? "new" : "old", "scan", {{"views", 2}},
+                                   std::chrono::system_clock::now(), StatusInto(&error));
+      ASSERT_TRUE(session) << error;
+      id = session->id();
+      ASSERT_TRUE(Ok(session->SetState(daemon::SessionState::kReconstructing, ""), &error));
+      for (const auto& [name, bytes] : outputs) {
+        ASSERT_TRUE(Ok(session->StoreOutput(name, bytes), &error)) << error;
+      }
+      ASSERT_TRUE(Ok(session->SetState(daemon::SessionState::kDone, ""), &error)) << error;
+    }
+  }
+  const std::string old_manifest =
+      station.fixture().data_dir() + "/sessions/" + ids[1] + "/manifest.json";
+  json old = json::parse(ReadFile(old_manifest));
+  DropSha256(&old);
+  ASSERT_TRUE(WriteFileAtomically(old_manifest, old.dump(2), &error)) << error;
+  ASSERT_TRUE(station.Launch(&error)) << error;
+
+  for (const std::string& id : ids) {
+    const std::string bag = station.dir() + "/bags/" + id;
+    const CtlRun r = station.Run(
+        kObserverToken, {"get", id, "--bagit", bag, "--json", "--source-organization", "Museum A"});
+    ASSERT_EQ(r.exit_code, 0) << Describe(r) << station.fixture().Log();
+    const json done = ParseJson(r);
+    EXPECT_EQ(done.value("bag", ""), bag) << r.out;
+    EXPECT_EQ(done.value("payload_files", 0), 3) << r.out;
+    ExpectVerifiableBag(bag, "Museum A", id);
+    for (const auto& [name, bytes] : outputs) {
+      EXPECT_TRUE(ReadFile(bag + "/data/" + name) == bytes) << id << " " << name;
+    }
+    ExpectFlippedByteFails(bag, "data/previews/top.png");
+  }
+
+  // A target that is not empty: refused before anything is fetched.
+  const std::string full = station.dir() + "/full";
+  std::filesystem::create_directories(full);
+  std::ofstream(full + "/mine.txt") << "keep";
+  CtlRun r = station.Run(kObserverToken,
+                         {"get", ids[0], "--bagit", full, "--source-organization", "Museum A"});
+  EXPECT_EQ(r.exit_code, 1) << Describe(r);
+  EXPECT_NE(r.err.find("exists and is not empty"), std::string::npos) << r.err;
+  EXPECT_EQ(std::distance(std::filesystem::directory_iterator(full),
+                          std::filesystem::directory_iterator()),
+            1);
+  // No Source-Organization: a usage error naming what is missing.
+  r = station.Run(kObserverToken, {"get", ids[0], "--bagit", station.dir() + "/bags/none"});
+  EXPECT_EQ(r.exit_code, 2) << Describe(r);
+  EXPECT_NE(r.err.find("Source-Organization"), std::string::npos) << r.err;
+  // A file damaged on the station (same size): the transfer's SHA-256 check
+  // refuses it and no bag appears.
+  const std::string damaged = station.fixture().data_dir() + "/sessions/" + ids[0] + "/report.json";
+  std::ofstream(damaged, std::ios::trunc) << "{\"ok\": null}";
+  const std::string refused = station.dir() + "/bags/refused";
+  r = station.Run(kObserverToken,
+                  {"get", ids[0], "--bagit", refused, "--source-organization", "Museum A"});
+  EXPECT_EQ(r.exit_code, 4) << Describe(r);
+  EXPECT_NE(r.err.find("report.json': SHA-256 checksum"), std::string::npos) << r.err;
+  EXPECT_FALSE(std::filesystem::exists(refused));
+  for (const auto& entry : std::filesystem::directory_iterator(station.dir() + "/bags")) {
+    EXPECT_NE(entry.path().filename().string().front(), '.') << "staging left: " << entry.path();
+  }
+}
+
 TEST(Craftscanctl, GetStreamsALargeOutputAndRefusesChangedFiles) {
   Station station;
   std::string error;

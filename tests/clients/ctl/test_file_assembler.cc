@@ -133,6 +133,45 @@ TEST_F(FileReassembly, AChecksumMismatchIsRefused) {
   EXPECT_TRUE(Files().empty());
 }
 
+TEST_F(FileReassembly, Sha256IsCheckedWhereListedAndReportedForEveryFile) {
+  // Listed and right: the file is in place with the SHA-256 of its bytes.
+  {
+    FileAssembler assembler(dir_ + "/ok");
+    std::string error;
+    ASSERT_TRUE(assembler.SetExpected({{"fused.ply", ply_.size(), Hash(ply_), Sha256Hex(ply_)},
+                                       {"a.png", png_.size(), Hash(png_)}},
+                                      &error))
+        << error;
+    for (const FileChunk& c : Chunks("fused.ply", ply_, 0, 2, 4096)) {
+      ASSERT_TRUE(assembler.Accept(c, &error)) << error;
+    }
+    for (const FileChunk& c : Chunks("a.png", png_, 1, 2, 4096)) {
+      ASSERT_TRUE(assembler.Accept(c, &error)) << error;
+    }
+    ASSERT_TRUE(assembler.Complete());
+    EXPECT_EQ(assembler.files()[0].sha256, Sha256Hex(ply_));
+    EXPECT_EQ(assembler.files()[1].sha256, Sha256Hex(png_)) << "computed even when not listed";
+  }
+  // Listed and wrong (the FNV-1a 64 agrees): refused naming SHA-256.
+  FileAssembler assembler(dir_ + "/bad");
+  std::string error;
+  ASSERT_TRUE(
+      assembler.SetExpected({{"fused.ply", ply_.size(), Hash(ply_), Sha256Hex("other")}}, &error));
+  bool accepted = true;
+  for (const FileChunk& c : Chunks("fused.ply", ply_, 0, 1, 4096)) {
+    accepted = assembler.Accept(c, &error);
+  }
+  EXPECT_FALSE(accepted);
+  EXPECT_NE(error.find("'fused.ply': SHA-256 checksum " + Sha256Hex(ply_) + " differs"),
+            std::string::npos)
+      << error;
+  EXPECT_FALSE(fs::exists(dir_ + "/bad/fused.ply"));
+  // A malformed SHA-256 in the list is refused up front.
+  FileAssembler malformed(dir_ + "/malformed");
+  EXPECT_FALSE(malformed.SetExpected({{"fused.ply", 1, 1, "ABC"}}, &error));
+  EXPECT_NE(error.find("malformed SHA-256"), std::string::npos) << error;
+}
+
 TEST_F(FileReassembly, StationErrorsUnsafeNamesAndContradictionsFail) {
   std::string error;
   {

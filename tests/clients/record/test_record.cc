@@ -33,6 +33,7 @@
 #include <opencv2/core.hpp>
 #include <opencv2/imgcodecs.hpp>
 
+#include "bagit_check.h"
 #include "craftscan/dds/convert.h"
 #include "craftscan/dds/endpoint.h"
 #include "craftscan/dds/participant.h"
@@ -532,6 +533,57 @@ TEST_F(RecordOneStation, StopsAfterCountAndAfterDuration) {
       << recorder.Stdout();
   // The earlier files are counted in the archive's totals.
   EXPECT_NE(recorder.Stdout().find(": 2 files,"), std::string::npos) << recorder.Stdout();
+}
+
+TEST_F(RecordOneStation, BagitWritesAVerifiableBagPerSessionAndRefusesAFullTarget) {
+  const std::string session = "20260101-093000-box";
+  const std::string bags = temp_.root() + "/bags";
+  {
+    RecorderProcess recorder(
+        temp_.root(), Args({"--count", "2", "--bagit", bags, "--source-organization", "Museum B"}));
+    ASSERT_TRUE(a_.captures->WaitForReaders(1, kTimeout)) << recorder.Stderr();
+    ASSERT_TRUE(a_.clouds->WaitForReaders(1, kTimeout)) << recorder.Stderr();
+    const cv::Mat left = RandomImage(CV_8UC3, 21), right = RandomImage(CV_8UC3, 22);
+    ASSERT_TRUE(a_.Capture(session, 0, left, right));
+    ASSERT_TRUE(a_.Cloud(session, -1, RandomCloud(50, 23, true)));
+    ASSERT_EQ(recorder.Wait(), 0) << recorder.Stderr();
+    EXPECT_NE(recorder.Stdout().find("bag '" + bags + "/" + a_.station + "/" + session + "'"),
+              std::string::npos)
+        << recorder.Stdout();
+  }
+  // Checked independently (tests/bagit_check.h): sha256sum -c inside the
+  // bag and RFC 8493's structure rules; the payload is the archive's folder.
+  const std::string bag = bags + "/" + a_.station + "/" + session;
+  std::string out;
+  EXPECT_EQ(testing::RunSha256sumCheck(bag, "manifest-sha256.txt", &out), 0) << out;
+  EXPECT_EQ(testing::RunSha256sumCheck(bag, "tagmanifest-sha256.txt", &out), 0) << out;
+  EXPECT_EQ(testing::BagStructureProblems(bag, "Museum B", session), std::vector<std::string>{});
+  const fs::path archived = fs::path(temp_.out()) / a_.station / session;
+  int files = 0;
+  for (const auto& entry : fs::directory_iterator(archived)) {
+    ++files;
+    EXPECT_TRUE(ReadFile(entry.path()) ==
+                ReadFile(bag + "/data/" + entry.path().filename().string()))
+        << entry.path();
+  }
+  EXPECT_EQ(files, 4);  // two images, fused.ply, index.jsonl
+  // A flipped payload byte: sha256sum -c fails, naming the file.
+  {
+    std::fstream f(bag + "/data/fused.ply", std::ios::in | std::ios::out | std::ios::binary);
+    f.seekp(-1, std::ios::end);
+    f.put('\x7f');
+  }
+  EXPECT_EQ(testing::RunSha256sumCheck(bag, "manifest-sha256.txt", &out), 1) << out;
+  EXPECT_NE(out.find("data/fused.ply: FAILED"), std::string::npos) << out;
+
+  // The target is now not empty: refused at start, before recording.
+  RecorderProcess again(temp_.root(), Args({"--bagit", bags, "--source-organization", "M"}),
+                        "again");
+  EXPECT_EQ(again.Wait(), 1) << again.Stderr();
+  EXPECT_NE(again.Stderr().find("exists and is not empty"), std::string::npos) << again.Stderr();
+  RecorderProcess no_org(temp_.root(), Args({"--bagit", temp_.root() + "/b2"}), "no_org");
+  EXPECT_EQ(no_org.Wait(), 2) << no_org.Stderr();
+  EXPECT_NE(no_org.Stderr().find("Source-Organization"), std::string::npos) << no_org.Stderr();
 }
 
 TEST_F(RecordOneStation, RefusesBadArgumentsAndASecondRecorderOnTheSameArchive) {

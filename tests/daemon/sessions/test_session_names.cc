@@ -178,7 +178,7 @@ Manifest SampleManifest() {
   v.files[kMetaJson] = {120, 0x0123456789abcdefULL};
   v.files[kDisparityPfm] = {4000000, 42};
   m.views[7] = v;
-  m.outputs["fused.ply"] = {123456789012ULL, 7};
+  m.outputs["fused.ply"] = {123456789012ULL, 7, std::string(64, 'a')};
   m.outputs["previews/view007.png"] = {1000, 8};
   m.journal = {{"2024-05-01T09:30:00.000Z", "created", "scan of 'egg'"},
                {"2024-05-01T09:30:01.000Z", "capturing", ""}};
@@ -213,6 +213,9 @@ TEST(ManifestJson, RoundTripsEveryField) {
   EXPECT_EQ(back.journal[1].event, "capturing");
   EXPECT_EQ(ManifestToJson(back), text);  // stable text
   EXPECT_NE(text.find("\"fnv1a64\": \"ffffffffffffffff\""), std::string::npos) << text;
+  EXPECT_EQ(back.outputs.at("fused.ply").sha256, std::string(64, 'a'));
+  // A record without SHA-256 (from an old manifest) is written without the key.
+  EXPECT_EQ(text.find("\"sha256\""), text.rfind("\"sha256\"")) << text;
 }
 
 TEST(ManifestJson, RefusesCorruptManifestsNamingTheField) {
@@ -232,6 +235,8 @@ TEST(ManifestJson, RefusesCorruptManifestsNamingTheField) {
       {broken("\"index\": 7", "\"index\": 1000"), "manifest.views[0].index"},
       {broken("\"size\": 812345", "\"size\": -1"), "views[0].files.left.png.size"},
       {broken("\"ffffffffffffffff\"", "\"FFFF\""), "left.png.fnv1a64"},
+      {broken(std::string(64, 'a'), std::string(64, 'A')), "outputs.fused.ply.sha256"},
+      {broken("\"" + std::string(64, 'a') + "\"", "7"), "outputs.fused.ply.sha256 is not a string"},
       {broken("\"disparity.pfm\"", "\"evil.sh\""), "unknown file 'evil.sh'"},
       {broken("\"previews/view007.png\"", "\"../../x\""), "manifest.outputs"},
       {broken("\"job\": \"scan\"", "\"job\": 3"), "manifest.job is not a string"},

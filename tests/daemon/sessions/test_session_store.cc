@@ -19,6 +19,7 @@
 #include "craftscan/pipeline/common/atomic_file.h"
 #include "craftscan/pipeline/common/ply.h"
 #include "craftscan/pipeline/common/point_cloud.h"
+#include "craftscan/pipeline/common/sha256.h"
 #include "session_test_util.h"
 #include "status_util.h"
 
@@ -516,6 +517,117 @@ TEST_F(SessionFiles, VerifyDetectsTruncatedModifiedAndMissingFiles) {
   EXPECT_EQ(resume.damaged.size(), 3u);
   // Without verification the manifest alone says all is there.
   EXPECT_TRUE(s->GetResumePoint(false).to_capture.empty());
+}
+
+// Every "sha256" key below `j`, removed: a manifest as craftscand wrote it
+// before SHA-256 (same format_version, FNV-1a 64 only).
+void DropSha256(nlohmann::json* j) {
+  if (j->is_object()) {
+    j->erase("sha256");
+    for (auto& [key, value] : j->items()) DropSha256(&value);
+  } else if (j->is_array()) {
+    for (auto& value : *j) DropSha256(&value);
+  }
+}
+
+// A session with a calibration copy, two captures with disparity maps and
+// two outputs; returns its id (the session is closed).
+std::string FullSession(SessionStore& store, const std::string& rig_yaml, std::string* error) {
+  auto s = store.Create("fixity", "scan", {{"views", 2}}, std::chrono::system_clock::now(),
+                        StatusInto(error));
+  if (!s || !Ok(s->SetState(SessionState::kCapturing, ""), error) ||
+      !Ok(s->CopyCalibration(rig_yaml, "rig-a"), error)) {
+    return "";
+  }
+  for (int v = 0; v < 2; ++v) {
+    if (!Capture(*s, v, error) ||
+        !Ok(s->StoreDisparity(v, NoiseImage(40, 30, CV_32FC1, 50 + v)), error)) {
+      return "";
+    }
+  }
+  if (!Ok(s->StoreOutput("fused.ply", "ply\nend_header\n"), error) ||
+      !Ok(s->StoreOutput("previews/a.png", std::string(300, 'p')), error)) {
+    return "";
+  }
+  return s->id();
+}
+
+TEST_F(SessionFiles, NewManifestsCarrySha256OfEveryFileAndVerifyIt) {
+  WriteBytes("rig.yaml", "%YAML:1.0\nbaseline_mm: 60.25\n");
+  std::string error;
+  const std::string id = FullSession(*store_, Path("rig.yaml"), &error);
+  ASSERT_FALSE(id.empty()) << error;
+  const fs::path dir = fs::path(data_dir_) / "sessions" / id;
+  // Read back as plain JSON: every record has a sha256 equal to the file's.
+  const nlohmann::json j = nlohmann::json::parse(ReadAll((dir / "manifest.json").string()));
+  std::map<std::string, std::string> listed;  // relative path → sha256
+  listed["calibration.yaml"] = j["calibration"].value("sha256", "");
+  for (const auto& view : j["views"]) {
+    char folder[16];
+    std::snprintf(folder, sizeof folder, "views/%03d/", view["index"].get<int>());
+    for (const auto& [name, record] : view["files"].items()) {
+      listed[folder + name] = record.value("sha256", "");
+    }
+  }
+  for (const auto& [name, record] : j["outputs"].items()) listed[name] = record.value("sha256", "");
+  EXPECT_EQ(listed.size(), 1u + 2 * 4 + 2);
+  for (const auto& [relative, sha256] : listed) {
+    EXPECT_EQ(sha256, Sha256Hex(ReadAll((dir / relative).string()))) << relative;
+  }
+  EXPECT_TRUE(store_->Verify(id).IsIntact());
+
+  // One flipped byte in an output and one in the calibration copy (sizes
+  // unchanged): each named, with SHA-256 as the check that caught it.
+  WriteFileAtomically((dir / "previews/a.png").string(), std::string(299, 'p') + "q", &error);
+  WriteFileAtomically((dir / "calibration.yaml").string(), "%YAML:1.0\nbaseline_mm: 60.26\n",
+                      &error);
+  const VerifyResult result = store_->Verify(id);
+  ASSERT_EQ(result.problems.size(), 2u) << ::testing::PrintToString(result.problems);
+  EXPECT_TRUE(
+      Contains(result.problems[0], "calibration.yaml") &&
+      Contains(result.problems[0], "SHA-256 " + Sha256Hex("%YAML:1.0\nbaseline_mm: 60.26\n")))
+      << result.problems[0];
+  EXPECT_TRUE(Contains(result.problems[1], "previews/a.png: checksum differs") &&
+              Contains(result.problems[1], "the manifest says " + listed["previews/a.png"]))
+      << result.problems[1];
+}
+
+TEST_F(SessionFiles, OldFnvOnlyManifestsLoadVerifyAndNameACorruptFile) {
+  WriteBytes("rig.yaml", "%YAML:1.0\nbaseline_mm: 60.25\n");
+  std::string error;
+  const std::string id = FullSession(*store_, Path("rig.yaml"), &error);
+  ASSERT_FALSE(id.empty()) << error;
+  const fs::path dir = fs::path(data_dir_) / "sessions" / id;
+  nlohmann::json j = nlohmann::json::parse(ReadAll((dir / "manifest.json").string()));
+  DropSha256(&j);
+  const std::string old_text = j.dump(2);
+  ASSERT_EQ(old_text.find("sha256"), std::string::npos);
+  ASSERT_NE(old_text.find("fnv1a64"), std::string::npos);
+  ASSERT_TRUE(WriteFileAtomically((dir / "manifest.json").string(), old_text, &error)) << error;
+
+  // Loads, verifies intact, its files load; records have no SHA-256.
+  EXPECT_TRUE(store_->Verify(id).IsIntact())
+      << ::testing::PrintToString(store_->Verify(id).problems);
+  auto s = store_->OpenSession(id, StatusInto(&error));
+  ASSERT_NE(s, nullptr) << error;
+  EXPECT_TRUE(s->manifest().outputs.at("fused.ply").sha256.empty());
+  EXPECT_EQ(s->manifest().outputs.at("fused.ply").fnv1a64, Fnv1a64("ply\nend_header\n"));
+  cv::Mat left, right;
+  EXPECT_TRUE(s->LoadCapture(1, &left, &right, nullptr, &error)) << error;
+
+  // A modified file (same size) is named, caught by FNV-1a 64.
+  WriteFileAtomically((dir / "fused.ply").string(), "ply\nend_headex\n", &error);
+  const VerifyResult result = s->Verify();
+  ASSERT_EQ(result.problems.size(), 1u) << ::testing::PrintToString(result.problems);
+  EXPECT_TRUE(Contains(result.problems[0], "fused.ply: checksum differs") &&
+              Contains(result.problems[0], "FNV-1a 64"))
+      << result.problems[0];
+
+  // A file stored into the old session gets a SHA-256; the old records
+  // keep theirs (none) and still verify.
+  ASSERT_TRUE(Ok(s->StoreOutput("report.json", "{}"), &error)) << error;
+  EXPECT_EQ(s->manifest().outputs.at("report.json").sha256, Sha256Hex("{}"));
+  EXPECT_TRUE(s->manifest().views.at(0).files.at(kLeftPng).sha256.empty());
 }
 
 TEST_F(SessionFiles, ResumePointNamesTheFirstStepNotYetDurable) {

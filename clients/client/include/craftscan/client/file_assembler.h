@@ -2,7 +2,8 @@
 // SessionFile chunks of craftscan.idl; protocol in the daemon's commands.h)
 // into a folder: each file is written to a hidden temporary beside its final
 // name as its chunks arrive (never held whole in memory), checked against
-// the size and FNV-1a 64 checksum the station's reply listed, then fsync'ed
+// the size and checksums the station's reply listed (SHA-256 where listed,
+// and FNV-1a 64), then fsync'ed
 // and renamed into place, so a file at its final name is always complete.
 //
 // No DDS here: StationClient::Fetch feeds it; tests feed it directly.
@@ -14,6 +15,8 @@
 #include <string>
 #include <string_view>
 #include <vector>
+
+#include "craftscan/pipeline/common/sha256.h"
 
 namespace craftscan::client {
 
@@ -43,6 +46,7 @@ struct ExpectedFile {
   std::string name;
   std::uint64_t size_bytes = 0;
   std::uint64_t fnv1a64 = 0;
+  std::string sha256;  // 64 lower-case hex digits; empty: not listed (a station's old manifest)
 };
 
 // One chunk as received (views into the message; valid during Accept).
@@ -64,6 +68,7 @@ struct FetchedFile {
   std::string path;  // out_dir/name
   std::uint64_t size_bytes = 0;
   std::uint64_t fnv1a64 = 0;
+  std::string sha256;  // of the bytes received (checked against the list where it had one)
 };
 
 // Not thread-safe: one thread feeds it.
@@ -79,8 +84,8 @@ class FileAssembler {
 
   // The station's list (from its reply). May come before or after the first
   // chunks. False with *error for an empty list, an unsafe or repeated name,
-  // or a list that contradicts chunks already taken; the assembler is then
-  // failed.
+  // a sha256 that is not 64 lower-case hex digits, or a list that
+  // contradicts chunks already taken; the assembler is then failed.
   bool SetExpected(std::vector<ExpectedFile> files, std::string* error);
 
   // Takes the next chunk of the transfer. Chunks must come in order: file 0
@@ -110,6 +115,7 @@ class FileAssembler {
     std::uint32_t index = 0;
     std::string name, temp_path;
     std::uint64_t size_bytes = 0, fnv1a64 = 0;
+    std::string sha256;
   };
   // Marks the assembler failed, removes temporaries, sets *error.
   bool Fail(std::string message, std::string* error);
@@ -130,6 +136,7 @@ class FileAssembler {
   std::uint64_t total_ = 0, offset_ = 0;
   bool current_finished_ = true;
   Fnv1a64Hasher hash_;
+  Sha256Hasher sha256_;
   std::vector<Pending> pending_;
   std::vector<FetchedFile> done_;
   std::uint64_t bytes_received_ = 0;

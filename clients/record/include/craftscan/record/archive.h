@@ -39,11 +39,14 @@
 #include <memory>
 #include <string>
 #include <string_view>
+#include <vector>
 
 #include <opencv2/core/mat.hpp>
 #include <opencv2/core/matx.hpp>
 
+#include "craftscan/pipeline/common/bagit.h"
 #include "craftscan/pipeline/common/point_cloud.h"
+#include "craftscan/pipeline/common/status.h"
 
 namespace craftscan::record {
 
@@ -146,6 +149,17 @@ class Archive {
 
   ArchiveTotals totals() const;
   const ArchiveOptions& options() const;
+
+  // Writes every session folder this Archive stored an item in (this run
+  // only; folders rotation emptied are skipped) as a BagIt 1.0 bag (RFC
+  // 8493, pipeline/common/bagit.h) at <bag_root>/<station>/<session>: its
+  // data files and index.jsonl copied under data/, External-Identifier =
+  // the session folder name, Source-Organization = `source_organization`.
+  // `bag_root` must be missing or an empty folder. Call once recording has
+  // stopped. Stops at the first failure (bags finished before it stay);
+  // *bags lists the finished ones.
+  Status WriteBags(const std::string& bag_root, const std::string& source_organization,
+                   std::vector<BagSummary>* bags) const;
 
   struct State;  // implementation (archive.cc)
 

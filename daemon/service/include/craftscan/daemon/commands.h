@@ -69,14 +69,19 @@
 // manifest (not_found, naming the outputs there are; "all" of a session
 // without outputs is not_found too). The ok Reply's result is
 //   {"session": id, "state": "done", "chunk_bytes": n, "total_bytes": n,
-//    "files": [{"name": "fused.ply", "size": n, "fnv1a64": "16 hex digits"}, ...]}
-// with size and checksum from the manifest; CommandReply::transfer then holds
+//    "files": [{"name": "fused.ply", "size": n, "fnv1a64": "16 hex digits",
+//               "sha256": "64 hex digits"}, ...]}
+// with size and checksums from the manifest ("sha256" is left out for a file
+// listed by a manifest from before SHA-256; receivers then check FNV-1a 64
+// only). The checksums travel in this JSON result, not in the SessionFile
+// chunks, so the IDL is unchanged and clients that know only fnv1a64 keep
+// working. CommandReply::transfer then holds
 // the plan the service streams after the Reply: each file in order, in
 // chunks of chunk_bytes at increasing offsets, last = true on its last chunk,
 // or one chunk with `error` set if the file cannot be sent (the transfer
 // stops there). Receivers check offsets (a gap means lost chunks), sizes and
-// the FNV-1a 64 checksums. At most kMaxQueuedTransfers transfers wait at a
-// time; beyond that get answers busy.
+// the checksums (SHA-256 where listed, and FNV-1a 64). At most kMaxQueuedTransfers transfers wait
+// at a time; beyond that get answers busy.
 #pragma once
 
 #include <chrono>

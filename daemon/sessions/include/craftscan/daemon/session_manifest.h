@@ -64,10 +64,13 @@ bool IsValidOutputName(std::string_view name, std::string* why);
 // truncation and modification, not tampering). Pure; thread-safe.
 std::uint64_t Fnv1a64(std::string_view bytes);
 
-// One durable file: size and FNV-1a 64 of its bytes as they were written.
+// One durable file: size, FNV-1a 64 and SHA-256 of its bytes as they were
+// written. Manifests written before SHA-256 was added have no sha256 (empty
+// here); their files are verified by size and FNV-1a 64 alone.
 struct FileRecord {
   std::uint64_t size_bytes = 0;
   std::uint64_t fnv1a64 = 0;
+  std::string sha256;  // 64 lower-case hex digits, or empty (an old manifest)
   bool operator==(const FileRecord&) const = default;
 };
 
@@ -132,19 +135,25 @@ struct Manifest {
 //    "state": "capturing", "error": "",
 //    "created": "2024-05-01T09:30:00.000Z", "updated": "2024-05-01T09:30:07.412Z",
 //    "calibration": {"id": "rig-a", "file": "calibration.yaml", "size": 2210,
-//                    "fnv1a64": "9ae16a3b2f90404f"},          (null before CopyCalibration)
+//                    "fnv1a64": "9ae16a3b2f90404f", "sha256": "64 hex digits"},
+//                                                             (null before CopyCalibration)
 //    "views": [{"index": 0, "angle_deg": 0.0, "captured": "2024-05-01T09:30:03.101Z",
-//               "files": {"left.png": {"size": 812345, "fnv1a64": "…"}, "right.png": …,
-//                         "meta.json": …, "disparity.pfm": …, "cloud.ply": …}}],
-//    "outputs": {"fused.ply": {"size": …, "fnv1a64": "…"}, "report.json": …},
+//               "files": {"left.png": {"size": 812345, "fnv1a64": "…", "sha256": "…"},
+//                         "right.png": …, "meta.json": …, "disparity.pfm": …,
+//                         "cloud.ply": …}}],
+//    "outputs": {"fused.ply": {"size": …, "fnv1a64": "…", "sha256": "…"}, "report.json": …},
 //    "journal": [{"time": "…", "event": "created", "detail": "scan of 'egg'"}, …]}
-// Checksums are 16 lower-case hex digits (a JSON number cannot hold 64 bits
-// in every reader). Pure; thread-safe.
+// fnv1a64 is 16 lower-case hex digits (a JSON number cannot hold 64 bits in
+// every reader); sha256 is 64 lower-case hex digits, written when the record
+// has one (every record made since SHA-256 was added) and optional when
+// read, so manifests from before load unchanged (same format_version: the
+// field is an addition older readers ignore). Pure; thread-safe.
 std::string ManifestToJson(const Manifest& manifest);
 
 // Parses and validates manifest.json text: format name and version, every
 // field's type, state names, view indices in range and unique, file names
-// known, output names valid (IsValidOutputName), checksums as hex. Returns
+// known, output names valid (IsValidOutputName), checksums as hex (sha256
+// optional, 64 lower-case hex digits when present). Returns
 // false with *error (may be null) naming the first field that is wrong; never
 // throws.
 bool ManifestFromJson(std::string_view text, Manifest* manifest, std::string* error);

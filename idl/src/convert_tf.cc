@@ -54,7 +54,7 @@ bool StaticStationTransforms(const StereoCalibration& calibration, const Station
   if (!calibration.IsValid(&why)) return internal::Fail(error, "calibration: " + why);
   // REP 103: an optical frame (z forward, x right, y down) seen from a body
   // frame (x forward, y left, z up).
-  const cv::Matx33d base_from_optical(0, 0, 1,  //
+  const cv::Matx33d base_from_optical(0, 0, 1,   //
                                       -1, 0, 0,  //
                                       0, -1, 0);
   // P2 = K' [I | t']: p_in_rectified_right = p_in_rig + t', so the right

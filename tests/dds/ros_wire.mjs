@@ -1,7 +1,7 @@
-// ROS 2 on the wire, checked by an independent decoder. Runs
-// craftscan_ros_wire_capture (craftscand on the sim through a scan; the raw
-// CDR of every rt/... sample plus the field values the daemon meant to
-// send), then decodes each sample with @foxglove/rosmsg2-serialization and
+// ROS 2 on the wire, checked by an independent decoder. Reads what
+// craftscan_ros_wire_capture left in --out (craftscand on the sim through a
+// scan: the raw CDR of every rt/... sample plus the field values the daemon
+// meant to send; CTest runs it first, fixture ros_capture), decodes each sample with @foxglove/rosmsg2-serialization and
 // the standard ROS 2 definitions (@foxglove/rosmsg-msgs-common, Humble) and
 // checks:
 //  - every field equals what was sent (byte arrays by length and FNV-1a);
@@ -12,23 +12,17 @@
 //    station's tree (REP 103/105 names); units are metres;
 //  - counts per topic for the scan.
 //
-//   node ros_wire.mjs --capture PATH|- --out DIR
-import { spawnSync } from 'node:child_process';
+//   node ros_wire.mjs --out DIR
 import fs from 'node:fs';
 import path from 'node:path';
 
 import { check, CheckError, firstDifference, parseArgs, standardReader, summarize } from './ros_lib.mjs';
 
 const args = parseArgs(process.argv.slice(2));
-check(args.capture && args.out, 'usage: node ros_wire.mjs --capture PATH --out DIR');
+check(args.out, 'usage: node ros_wire.mjs --out DIR');
 
 function main() {
   const start = Date.now();
-  if (args.capture !== '-') {  // "-": decode what an earlier run left in --out
-    fs.rmSync(args.out, { recursive: true, force: true });
-    const run = spawnSync(args.capture, [args.out, '--views', '3'], { stdio: 'inherit', timeout: 150000 });
-    check(run.status === 0, `${args.capture} failed (status ${run.status}, ${run.error ?? run.signal})`);
-  }
   const manifest = JSON.parse(fs.readFileSync(path.join(args.out, 'expected.json'), 'utf8'));
   const { station, views, step_deg: stepDeg, frames } = manifest;
   const readers = new Map();

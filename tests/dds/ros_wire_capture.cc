@@ -3,9 +3,10 @@
 // subscribes to every ROS 2 topic it publishes (rt/craftscan/<station>/...,
 // rt/tf, rt/tf_static) taking each sample's raw CDR as it came off the wire,
 // runs a scan, and writes into OUT_DIR:
+//   (emptied first)
 //   NNN.cdr        one sample's serialised bytes (encapsulation header + CDR)
-//   expected.json  {station, views, step_deg, samples: [{file, topic, type,
-//                  expected}]} where `expected` holds the field values the
+//   expected.json  {station, views, step_deg, frames, topic_counts, samples:
+//                  [{file, topic, type, expected}]} where `expected` holds the field values the
 //                  daemon meant to send, rebuilt on the sender side: the
 //                  converters (convert.h) applied to what the session stored
 //                  (left.png/right.png, disparity.pfm, cloud.ply, fused.ply)
@@ -13,9 +14,13 @@
 //                  the received sample (a stamp is only known once sent) and
 //                  the disparity range from it (the daemon's matcher band).
 // Big arrays appear as {length, fnv1a32} (FNV-1a, 32 bits, of the bytes).
+// With --record PATH (craftscan-record) it also runs `craftscan-record
+// --mcap OUT_DIR/recording.mcap` through the scan (started after the daemon,
+// stopped with SIGTERM after it); topic_counts are then what the taps took
+// per ROS 2 topic name, which the recording should hold too.
 // Exit 0 when done, 1 with a message on stderr otherwise, 2 on bad usage.
 //
-//   craftscan_ros_wire_capture OUT_DIR [--views N] [--image-size WxH]
+//   craftscan_ros_wire_capture OUT_DIR [--views N] [--image-size WxH] [--record PATH]
 #include <chrono>
 #include <cstdint>
 #include <cstdio>
@@ -23,6 +28,7 @@
 #include <fstream>
 #include <functional>
 #include <iostream>
+#include <map>
 #include <memory>
 #include <string>
 #include <thread>
@@ -37,6 +43,7 @@
 #include "craftscan/dds/endpoint.h"
 #include "craftscan/pipeline/common/ply.h"
 #include "daemon_fixture.h"
+#include "process_util.h"
 #include "station_client.h"
 
 namespace {
@@ -76,9 +83,12 @@ json Roi(const dds::ros::RegionOfInterest& r) {
 }
 
 json ToJson(const dds::ros::Image& m) {
-  return {{"header", Header(m.header)}, {"height", m.height},
-          {"width", m.width},           {"encoding", dds::View(m.encoding)},
-          {"is_bigendian", m.is_bigendian}, {"step", m.step},
+  return {{"header", Header(m.header)},
+          {"height", m.height},
+          {"width", m.width},
+          {"encoding", dds::View(m.encoding)},
+          {"is_bigendian", m.is_bigendian},
+          {"step", m.step},
           {"data", Bytes(m.data)}};
 }
 
@@ -105,10 +115,14 @@ json ToJson(const dds::ros::PointCloud2& m) {
                       {"datatype", f.datatype},
                       {"count", f.count}});
   }
-  return {{"header", Header(m.header)}, {"height", m.height},
-          {"width", m.width},           {"fields", fields},
-          {"is_bigendian", m.is_bigendian}, {"point_step", m.point_step},
-          {"row_step", m.row_step},     {"data", Bytes(m.data)},
+  return {{"header", Header(m.header)},
+          {"height", m.height},
+          {"width", m.width},
+          {"fields", fields},
+          {"is_bigendian", m.is_bigendian},
+          {"point_step", m.point_step},
+          {"row_step", m.row_step},
+          {"data", Bytes(m.data)},
           {"is_dense", m.is_dense}};
 }
 
@@ -129,12 +143,11 @@ json ToJson(const dds::ros::TFMessage& m) {
     const dds::ros::TransformStamped& t = m.transforms._buffer[i];
     const auto& v = t.transform.translation;
     const auto& q = t.transform.rotation;
-    transforms.push_back(
-        {{"header", Header(t.header)},
-         {"child_frame_id", dds::View(t.child_frame_id)},
-         {"transform",
-          {{"translation", {{"x", v.x}, {"y", v.y}, {"z", v.z}}},
-           {"rotation", {{"x", q.x}, {"y", q.y}, {"z", q.z}, {"w", q.w}}}}}});
+    transforms.push_back({{"header", Header(t.header)},
+                          {"child_frame_id", dds::View(t.child_frame_id)},
+                          {"transform",
+                           {{"translation", {{"x", v.x}, {"y", v.y}, {"z", v.z}}},
+                            {"rotation", {{"x", q.x}, {"y", q.y}, {"z", q.z}, {"w", q.w}}}}}});
   }
   return {{"transforms", transforms}};
 }
@@ -195,18 +208,22 @@ json Built(const std::function<bool(dds::Outgoing<Msg>*, std::string*)>& make) {
 
 int main(int argc, char** argv) {
   if (argc < 2) {
-    std::cerr << "usage: craftscan_ros_wire_capture OUT_DIR [--views N] [--image-size WxH]\n";
+    std::cerr << "usage: craftscan_ros_wire_capture OUT_DIR [--views N] [--image-size WxH] "
+                 "[--record PATH]\n";
     return 2;
   }
   const std::string out_dir = argv[1];
   int views = 3;
   std::string image_size = "640x512";
+  std::string record_path;
   for (int i = 2; i + 1 < argc; i += 2) {
     const std::string key = argv[i];
     if (key == "--views") {
       views = std::atoi(argv[i + 1]);
     } else if (key == "--image-size") {
       image_size = argv[i + 1];
+    } else if (key == "--record") {
+      record_path = argv[i + 1];
     } else {
       std::cerr << "craftscan_ros_wire_capture: unknown option " << key << "\n";
       return 2;
@@ -214,6 +231,8 @@ int main(int argc, char** argv) {
   }
   if (views < 2 || views > 12) return Fail("--views must be 2..12");
   const double step_deg = 360.0 / views;
+  std::error_code ignored;  // a previous run's files go
+  std::filesystem::remove_all(out_dir, ignored);
   std::filesystem::create_directories(out_dir);
 
   testing::DaemonFixture fixture(image_size);
@@ -319,8 +338,7 @@ int main(int argc, char** argv) {
         constexpr double kRadPerDeg = 3.14159265358979323846 / 180;
         return Built<dds::ros::TFMessage>([&](auto* out, std::string* why) {
           return dds::MakeTfMessage(
-              {dds::TurntableTransform(frames, index * step_deg * kRadPerDeg)}, stamp_ns, out,
-              why);
+              {dds::TurntableTransform(frames, index * step_deg * kRadPerDeg)}, stamp_ns, out, why);
         });
       },
       tf_stamp, &error));
@@ -335,6 +353,32 @@ int main(int argc, char** argv) {
   if (!client.Start(fixture.domain(), "", station, &error)) return Fail(error);
   if (!client.WaitForDaemon(30s)) return Fail("the daemon never answered; log:\n" + fixture.Log());
 
+  // craftscan-record --mcap, once its readers exist ("recording ..." in its
+  // log) and discovery on loopback has matched them (well under a second).
+  testing::ChildProcess recorder;
+  const std::string mcap_path = out_dir + "/recording.mcap";
+  const std::string recorder_log = out_dir + "/craftscan-record.log";
+  if (!record_path.empty()) {
+    testing::SpawnOptions spawn;
+    spawn.stdout_path = recorder_log;
+    spawn.stderr_to_stdout = true;
+    if (!testing::Spawn(
+            {record_path, "--station", station, "--domain", std::to_string(fixture.domain()),
+             "--dds-config", fixture.dds_config(), "--mcap", mcap_path},
+            spawn, &recorder)) {
+      return Fail("cannot start " + record_path);
+    }
+    const auto deadline = std::chrono::steady_clock::now() + 20s;
+    while (testing::ReadFile(recorder_log).find("recording the ROS 2 topics") ==
+           std::string::npos) {
+      if (!recorder.Running() || std::chrono::steady_clock::now() > deadline) {
+        return Fail("craftscan-record did not start:\n" + testing::ReadFile(recorder_log));
+      }
+      std::this_thread::sleep_for(20ms);
+    }
+    std::this_thread::sleep_for(1500ms);
+  }
+
   std::vector<Taken> taken;
   std::atomic<bool> done{false};
   std::string poll_error;
@@ -345,9 +389,9 @@ int main(int argc, char** argv) {
       if (!any) std::this_thread::sleep_for(5ms);
     }
   });
-  const auto reply = client.Send(
-      "scan", {{"object", "wire check"}, {"views", views}, {"step_deg", step_deg}},
-      testing::kOperatorToken);
+  const auto reply =
+      client.Send("scan", {{"object", "wire check"}, {"views", views}, {"step_deg", step_deg}},
+                  testing::kOperatorToken);
   if (!reply || reply->code_name != "ok") {
     done = true;
     poller.join();
@@ -363,6 +407,13 @@ int main(int argc, char** argv) {
   if (job.value("state", "") != "done") {
     return Fail("scan ended " + job.dump() + "; log:\n" + fixture.Log());
   }
+  if (recorder.started()) {
+    recorder.Signal(SIGTERM);
+    if (recorder.Wait(30s) != 0) {
+      return Fail("craftscan-record --mcap did not stop cleanly:\n" +
+                  testing::ReadFile(recorder_log));
+    }
+  }
 
   store = daemon::SessionStore::Open(fixture.data_dir(), testing::StatusInto(&error));
   if (!store) return Fail(error);
@@ -370,6 +421,8 @@ int main(int argc, char** argv) {
   if (!session) return Fail(error);
 
   json samples = json::array();
+  std::map<std::string, int> topic_counts;  // by ROS 2 name: "/tf" for "rt/tf"
+  for (const Taken& t : taken) topic_counts[t.topic.substr(2)] += 1;
   for (std::size_t i = 0; i < taken.size(); ++i) {
     Taken& t = taken[i];
     char name[32];
@@ -385,18 +438,20 @@ int main(int argc, char** argv) {
                        {"expected", t.expected(t.stamp_ns(), received)}});
   }
   std::ofstream manifest(out_dir + "/expected.json");
-  manifest << json{{"station", station},
-                   {"views", views},
-                   {"step_deg", step_deg},
-                   {"frames",
-                    {{"base", frames.base},
-                     {"rig", frames.rig},
-                     {"left", frames.left},
-                     {"right", frames.right},
-                     {"turntable_base", frames.turntable_base},
-                     {"turntable", frames.turntable}}},
-                   {"samples", samples}}
-                  .dump(1);
+  manifest << json{
+      {"station", station},
+      {"views", views},
+      {"step_deg", step_deg},
+      {"frames",
+       {{"base", frames.base},
+        {"rig", frames.rig},
+        {"left", frames.left},
+        {"right", frames.right},
+        {"turntable_base", frames.turntable_base},
+        {"turntable", frames.turntable}}},
+      {"topic_counts", topic_counts},
+      {"samples",
+       samples}}.dump(1);
   if (!manifest) return Fail("cannot write expected.json");
   std::printf("ros_wire_capture: %zu samples of a %d-view scan in %s\n", taken.size(), views,
               out_dir.c_str());

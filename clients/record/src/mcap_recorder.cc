@@ -129,10 +129,10 @@ std::unique_ptr<McapRecorder> McapRecorder::Create(const McapRecorderOptions& op
     const uint16_t schema =
         s->writer->AddSchema(type, "ros2msg", dds::RosMessageDefinition(type), &why);
     const uint16_t channel =
-        schema == 0 ? 0
-                    : s->writer->AddChannel(schema, ros_topic, "cdr",
-                                            {{"offered_qos_profiles", OfferedQos(topic.qos)}},
-                                            &why);
+        schema == 0
+            ? 0
+            : s->writer->AddChannel(schema, ros_topic, "cdr",
+                                    {{"offered_qos_profiles", OfferedQos(topic.qos)}}, &why);
     if (channel == 0) return SetError(error, why);
     topic.qos.history_depth = options.reader_history;
     std::shared_ptr<dds::Reader<Msg>> reader =

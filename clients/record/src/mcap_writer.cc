@@ -170,11 +170,11 @@ bool McapWriter::WriteMessage(uint16_t channel_id, uint64_t log_time_ns, uint64_
   }
   Channel& channel = channels_[channel_id - 1];
   const std::string head = Body()
-                                  .Int(channel_id)
-                                  .Int(channel.next_sequence)
-                                  .Int(log_time_ns)
-                                  .Int(publish_time_ns)
-                                  .bytes();
+                               .Int(channel_id)
+                               .Int(channel.next_sequence)
+                               .Int(log_time_ns)
+                               .Int(publish_time_ns)
+                               .bytes();
   const std::string prefix = Body()
                                  .Int(static_cast<uint8_t>(kMessage))
                                  .Int(static_cast<uint64_t>(head.size() + size))
@@ -183,7 +183,8 @@ bool McapWriter::WriteMessage(uint16_t channel_id, uint64_t log_time_ns, uint64_
       !WriteBytes(head.data(), head.size(), error) || !WriteBytes(data, size, error)) {
     return false;
   }
-  if (std::fflush(file_) != 0) return Fail(error, "writing '" + path_ + "': " + std::strerror(errno));
+  if (std::fflush(file_) != 0)
+    return Fail(error, "writing '" + path_ + "': " + std::strerror(errno));
   channel.next_sequence += 1;
   channel.messages += 1;
   if (messages_ == 0 || log_time_ns < first_time_ns_) first_time_ns_ = log_time_ns;
@@ -232,9 +233,9 @@ bool McapWriter::Close(std::string* error) {
   statistics.Int(messages_)
       .Int(static_cast<uint16_t>(schemas_.size()))
       .Int(static_cast<uint32_t>(channels_.size()))
-      .Int(uint32_t{0})   // attachments
-      .Int(uint32_t{0})   // metadata
-      .Int(uint32_t{0})   // chunks
+      .Int(uint32_t{0})  // attachments
+      .Int(uint32_t{0})  // metadata
+      .Int(uint32_t{0})  // chunks
       .Int(first_time_ns_)
       .Int(last_time_ns_);
   Body counts;
@@ -252,11 +253,11 @@ bool McapWriter::Close(std::string* error) {
   }
   // Footer: its CRC covers the summary section and the footer up to the CRC.
   const std::string footer_head = Body()
-                                         .Int(static_cast<uint8_t>(kFooter))
-                                         .Int(uint64_t{8 + 8 + 4})
-                                         .Int(summary_start)
-                                         .Int(summary_offset_start)
-                                         .bytes();
+                                      .Int(static_cast<uint8_t>(kFooter))
+                                      .Int(uint64_t{8 + 8 + 4})
+                                      .Int(summary_start)
+                                      .Int(summary_offset_start)
+                                      .bytes();
   if (!WriteBytes(footer_head.data(), footer_head.size(), error)) return finish(false);
   const std::string tail =
       Body().Int(summary_crc_).Raw({reinterpret_cast<const char*>(kMagic), sizeof(kMagic)}).bytes();

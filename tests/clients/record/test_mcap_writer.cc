@@ -60,8 +60,8 @@ TEST(McapWriter, WritesMagicHeaderRecordsSummaryAndFooter) {
   ASSERT_GT(bytes.size(), 2 * magic.size() + 29);
   EXPECT_EQ(bytes.substr(0, 8), magic);
   EXPECT_EQ(bytes.substr(bytes.size() - 8), magic);
-  EXPECT_EQ(bytes[8], 0x01);                        // Header
-  EXPECT_EQ(U64(bytes, 9), 4u + 4 + 4 + 4);         // "ros2", "test"
+  EXPECT_EQ(bytes[8], 0x01);                 // Header
+  EXPECT_EQ(U64(bytes, 9), 4u + 4 + 4 + 4);  // "ros2", "test"
   EXPECT_EQ(bytes.substr(21, 4), "ros2");
   // Footer: opcode, length 20, summary start, summary offset start, CRC.
   const std::size_t footer = bytes.size() - 8 - 29;

@@ -15,12 +15,14 @@
 //                  the disparity range from it (the daemon's matcher band).
 // Big arrays appear as {length, fnv1a32} (FNV-1a, 32 bits, of the bytes).
 // With --record PATH (craftscan-record) it also runs `craftscan-record
-// --mcap OUT_DIR/recording.mcap` through the scan (started after the daemon,
+// --mcap OUT_DIR/recording.mcap --out OUT_DIR/archive --what clouds` (both
+// recorders in one process, one DDS domain) through the scan (started after the daemon,
 // stopped with SIGTERM after it); topic_counts are then what the taps took
 // per ROS 2 topic name, which the recording should hold too.
 // Exit 0 when done, 1 with a message on stderr otherwise, 2 on bad usage.
 //
 //   craftscan_ros_wire_capture OUT_DIR [--views N] [--image-size WxH] [--record PATH]
+#include <algorithm>
 #include <chrono>
 #include <cstdint>
 #include <cstdio>
@@ -362,10 +364,10 @@ int main(int argc, char** argv) {
     testing::SpawnOptions spawn;
     spawn.stdout_path = recorder_log;
     spawn.stderr_to_stdout = true;
-    if (!testing::Spawn(
-            {record_path, "--station", station, "--domain", std::to_string(fixture.domain()),
-             "--dds-config", fixture.dds_config(), "--mcap", mcap_path},
-            spawn, &recorder)) {
+    if (!testing::Spawn({record_path, "--station", station, "--domain",
+                         std::to_string(fixture.domain()), "--dds-config", fixture.dds_config(),
+                         "--mcap", mcap_path, "--out", out_dir + "/archive", "--what", "clouds"},
+                        spawn, &recorder)) {
       return Fail("cannot start " + record_path);
     }
     const auto deadline = std::chrono::steady_clock::now() + 20s;
@@ -411,6 +413,16 @@ int main(int argc, char** argv) {
     recorder.Signal(SIGTERM);
     if (recorder.Wait(30s) != 0) {
       return Fail("craftscan-record --mcap did not stop cleanly:\n" +
+                  testing::ReadFile(recorder_log));
+    }
+    // The archive recorder beside it (same process, same domain) got the
+    // views' clouds and the fused one as well.
+    const std::string index =
+        testing::ReadFile(out_dir + "/archive/" + station + "/" + session_id + "/index.jsonl");
+    const auto lines = std::count(index.begin(), index.end(), '\n');
+    if (lines != views + 1) {
+      return Fail("the archive beside the MCAP recording holds " + std::to_string(lines) +
+                  " clouds, want " + std::to_string(views + 1) + ":\n" +
                   testing::ReadFile(recorder_log));
     }
   }

@@ -6,6 +6,7 @@
 
 #include <cstring>
 #include <string>
+#include <vector>
 
 #include "craftscan/record/mcap_writer.h"
 #include "file_util.h"
@@ -82,6 +83,34 @@ TEST(McapWriter, WritesMagicHeaderRecordsSummaryAndFooter) {
   EXPECT_EQ(bytes[summary_offset_start], 0x0E);
   EXPECT_EQ(static_cast<uint64_t>(bytes[summary_offset_start + 9]), 0x03u);
   EXPECT_EQ(U64(bytes, summary_offset_start + 10), summary_start);
+}
+
+// A recording cut short (the writer never closed, as after SIGKILL): the
+// file is the magic and whole records up to the last message, which a
+// streaming reader reads.
+TEST(McapWriter, EveryMessageIsWholeOnDiskBeforeClose) {
+  testing::TempDir dir("craftscan-mcap-test");
+  const std::string path = dir.path() + "/cut.mcap";
+  std::string error;
+  auto writer = McapWriter::Create(path, "ros2", "test", &error);
+  ASSERT_TRUE(writer) << error;
+  const uint16_t channel = writer->AddChannel(
+      writer->AddSchema("pkg/msg/T", "ros2msg", "int32 a\n", &error), "/t", "cdr", {}, &error);
+  ASSERT_NE(channel, 0) << error;
+  const uint8_t payload[] = {0, 1, 0, 0, 42, 0, 0, 0};
+  for (int i = 0; i < 3; ++i) {
+    ASSERT_TRUE(writer->WriteMessage(channel, 1, 1, payload, sizeof(payload), &error)) << error;
+  }
+  const std::string bytes = testing::ReadFile(path);  // before Close
+  std::size_t at = 8;
+  std::vector<int> opcodes;
+  while (at + 9 <= bytes.size()) {
+    opcodes.push_back(static_cast<uint8_t>(bytes[at]));
+    at += 9 + U64(bytes, at + 1);
+  }
+  EXPECT_EQ(at, bytes.size()) << "a record cut in the middle";
+  EXPECT_EQ(opcodes, (std::vector<int>{0x01, 0x03, 0x04, 0x05, 0x05, 0x05}));
+  EXPECT_EQ(bytes.substr(bytes.size() - 4), std::string("\x2a\0\0\0", 4));
 }
 
 TEST(McapWriter, AFileThatCannotBeCreatedIsNamed) {

@@ -2,6 +2,7 @@
 #include "craftscan/dds/endpoint.h"
 
 #include <dds/dds.h>
+#include <dds/ddsi/ddsi_serdata.h>
 
 #include <functional>
 #include <string>
@@ -244,19 +245,17 @@ ReaderCore::~ReaderCore() {
   if (topic_ > 0) dds_delete(topic_);
 }
 
-TakeStatus ReaderCore::Take(void* sample, std::chrono::nanoseconds timeout, std::string* error) {
+TakeStatus ReaderCore::TakeWhenReady(std::chrono::nanoseconds timeout, std::string* error,
+                                     const std::function<int32_t(bool*)>& take_one) {
   const Clock::time_point deadline = Clock::now() + timeout;
   for (;;) {
-    // A non-null buffer: Cyclone deserialises into our sample (reusing its
-    // buffers) instead of lending one of its own.
-    void* buffers[1] = {sample};
-    dds_sample_info_t info;
-    const dds_return_t n = dds_take(read_condition_, buffers, &info, 1, 1);
+    bool valid = false;
+    const dds_return_t n = take_one(&valid);
     if (n < 0) {
       SetError(error, "take on '" + topic_name_ + "' failed: " + DdsError(n));
       return TakeStatus::kError;
     }
-    if (n > 0 && info.valid_data) return TakeStatus::kOk;
+    if (n > 0 && valid) return TakeStatus::kOk;
     if (n > 0) continue;  // no data (a writer went away): look again
     const auto remaining = deadline - Clock::now();
     if (remaining <= Clock::duration::zero()) return TakeStatus::kTimeout;
@@ -268,6 +267,46 @@ TakeStatus ReaderCore::Take(void* sample, std::chrono::nanoseconds timeout, std:
       return TakeStatus::kError;
     }
   }
+}
+
+TakeStatus ReaderCore::Take(void* sample, std::chrono::nanoseconds timeout, std::string* error) {
+  return TakeWhenReady(timeout, error, [&](bool* valid) {
+    // A non-null buffer: Cyclone deserialises into our sample (reusing its
+    // buffers) instead of lending one of its own.
+    void* buffers[1] = {sample};
+    dds_sample_info_t info;
+    const dds_return_t n = dds_take(read_condition_, buffers, &info, 1, 1);
+    *valid = n > 0 && info.valid_data;
+    return n;
+  });
+}
+
+TakeStatus ReaderCore::TakeRaw(RawSample* raw, void* decoded, std::chrono::nanoseconds timeout,
+                               std::string* error) {
+  bool decode_failed = false;
+  const TakeStatus status = TakeWhenReady(timeout, error, [&](bool* valid) {
+    struct ddsi_serdata* serdata = nullptr;
+    dds_sample_info_t info;
+    const dds_return_t n = dds_takecdr(reader_, &serdata, 1, &info, DDS_ANY_STATE);
+    *valid = n > 0 && info.valid_data;
+    if (*valid) {
+      // The serialised form starts with the 4-byte encapsulation header
+      // (e.g. 00 01 00 00: CDR, little endian), as ROS tools expect it.
+      raw->cdr.resize(ddsi_serdata_size(serdata));
+      ddsi_serdata_to_ser(serdata, 0, raw->cdr.size(), raw->cdr.data());
+      raw->source_timestamp_ns = info.source_timestamp;
+      if (decoded != nullptr) {
+        decode_failed = !ddsi_serdata_to_sample(serdata, decoded, nullptr, nullptr);
+      }
+    }
+    if (n > 0) ddsi_serdata_unref(serdata);
+    return n;
+  });
+  if (status == TakeStatus::kOk && decode_failed) {
+    SetError(error, "take on '" + topic_name_ + "': the sample does not deserialise");
+    return TakeStatus::kError;
+  }
+  return status;
 }
 
 int ReaderCore::MatchedWriters() const {

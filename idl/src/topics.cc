@@ -7,6 +7,7 @@ namespace craftscan::dds {
 namespace {
 
 constexpr int32_t kControlDepth = 16;  // commands, replies, progress: a burst is not lost
+constexpr int32_t kTfDepth = 100;      // as tf2_ros's TransformListener
 
 std::string Name(std::string_view station, std::string_view leaf) {
   std::string name = "craftscan/";
@@ -107,7 +108,9 @@ TopicSpec<ros::Image> RosImageTopic(std::string_view station, Side side) {
   return {RosName(station, std::string(ToString(side)) + "/image_raw"), RosQos(false)};
 }
 TopicSpec<ros::CameraInfo> RosCameraInfoTopic(std::string_view station, Side side) {
-  // Transient-local: rviz2 or image_proc started later still get it.
+  // One with every image (same stamp), as image_proc, stereo_image_proc and
+  // rviz2 pair them; transient-local so a tool started while the station is
+  // idle still learns the intrinsics from the last one.
   return {RosName(station, std::string(ToString(side)) + "/camera_info"), RosQos(true)};
 }
 TopicSpec<ros::DisparityImage> RosDisparityTopic(std::string_view station) {
@@ -115,6 +118,19 @@ TopicSpec<ros::DisparityImage> RosDisparityTopic(std::string_view station) {
 }
 TopicSpec<ros::PointCloud2> RosCloudTopic(std::string_view station) {
   return {RosName(station, "cloud"), RosQos(false)};
+}
+
+TopicSpec<ros::TFMessage> RosTfTopic() {
+  // tf2's TransformListener subscribes with depth 100; a view's transforms
+  // are one sample, so 1 would do, but a late reader gets nothing anyway.
+  TopicQos qos = RosQos(false);
+  qos.history_depth = kTfDepth;
+  return {"rt/tf", qos};
+}
+TopicSpec<ros::TFMessage> RosTfStaticTopic() {
+  // As tf2's StaticTransformBroadcaster: reliable, transient-local,
+  // keep-last 1 holding every static transform of the writer.
+  return {"rt/tf_static", RosQos(true)};
 }
 
 }  // namespace craftscan::dds

@@ -13,7 +13,9 @@
 
 #include "craftscan/dds/convert.h"
 #include "craftscan/dds/messages.h"
+#include "craftscan/dds/ros2_definitions.h"
 #include "craftscan/dds/topics.h"
+#include "craftscan/pipeline/common/pose.h"
 
 namespace craftscan::dds {
 namespace {
@@ -504,6 +506,119 @@ TEST(DdsConvertCalibration, CameraInfoCarriesRawIntrinsicsAndRectification) {
   EXPECT_NE(error.find("calibration: P1"), std::string::npos) << error;
 }
 
+// --- Transforms ---------------------------------------------------------------
+
+cv::Vec3d Apply(const cv::Matx44d& a_from_b, const cv::Vec3d& p_in_b) {
+  const cv::Vec4d p = a_from_b * cv::Vec4d(p_in_b[0], p_in_b[1], p_in_b[2], 1);
+  return {p[0], p[1], p[2]};
+}
+
+TEST(DdsConvertTransforms, StationTreeFollowsTheCalibrationAndRep103) {
+  StereoCalibration calibration = TestCalibration(false);
+  calibration.turntable.valid = true;
+  calibration.turntable.direction_in_rig = cv::normalize(cv::Vec3d(0, -0.8, -0.6));
+  calibration.turntable.point_in_rig_mm = {10, 40, 400};
+  const StationFrames frames = FramesOf("st1");
+  EXPECT_EQ(frames.base, "st1_base_link");
+  EXPECT_EQ(frames.left, "st1_left_camera_optical_frame");
+  EXPECT_EQ(frames.rig, "st1_rig_optical_frame");
+  std::vector<FrameTransform> tree;
+  std::string error;
+  ASSERT_TRUE(StaticStationTransforms(calibration, frames, &tree, &error)) << error;
+  ASSERT_EQ(tree.size(), 4u);
+  const cv::Matx44d base_from_rig = tree[0].parent_from_child;
+  const cv::Matx44d rig_from_left = tree[1].parent_from_child;
+  const cv::Matx44d rig_from_right = tree[2].parent_from_child;
+  const cv::Matx44d rig_from_turntable = tree[3].parent_from_child;
+  EXPECT_EQ(tree[2].parent, frames.rig);
+  EXPECT_EQ(tree[2].child, frames.right);
+  // REP 103: the optical z (forward) is the body's x, optical x (right) −y,
+  // optical y (down) −z.
+  EXPECT_LT(cv::norm(Apply(base_from_rig, {0, 0, 1}) - cv::Vec3d(1, 0, 0)), 1e-12);
+  EXPECT_LT(cv::norm(Apply(base_from_rig, {1, 0, 0}) - cv::Vec3d(0, -1, 0)), 1e-12);
+  EXPECT_LT(cv::norm(Apply(base_from_rig, {0, 1, 0}) - cv::Vec3d(0, 0, -1)), 1e-12);
+  // The raw cameras: right_from_left through the rig is the calibration's
+  // R, T (mm).
+  const cv::Matx44d right_from_left = InvertRigid(rig_from_right) * rig_from_left;
+  for (const cv::Vec3d& p : {cv::Vec3d(0, 0, 0), cv::Vec3d(100, -50, 500)}) {
+    const cv::Vec3d want = calibration.R * p + calibration.T;
+    EXPECT_LT(cv::norm(Apply(right_from_left, p) - want), 1e-6) << p;
+  }
+  // The turntable: its origin is the axis point, its +Z the axis.
+  EXPECT_LT(cv::norm(Apply(rig_from_turntable, {0, 0, 0}) - calibration.turntable.point_in_rig_mm),
+            1e-9);
+  EXPECT_LT(cv::norm(Apply(rig_from_turntable, {0, 0, 1}) - calibration.turntable.point_in_rig_mm -
+                     calibration.turntable.direction_in_rig),
+            1e-9);
+  // Without an axis the turntable base is the rig frame.
+  calibration.turntable.valid = false;
+  ASSERT_TRUE(StaticStationTransforms(calibration, frames, &tree, &error)) << error;
+  EXPECT_EQ(tree[3].parent_from_child, cv::Matx44d::eye());
+
+  // The turntable turns right-handed about +Z.
+  const FrameTransform turned = TurntableTransform(frames, CV_PI / 2);
+  EXPECT_EQ(turned.parent, frames.turntable_base);
+  EXPECT_EQ(turned.child, frames.turntable);
+  EXPECT_LT(cv::norm(Apply(turned.parent_from_child, {1, 0, 0}) - cv::Vec3d(0, 1, 0)), 1e-12);
+}
+
+TEST(DdsConvertTransforms, TfMessageIsInMetresWithUnitQuaternions) {
+  for (const cv::Vec3d& rvec :
+       {cv::Vec3d(0, 0, 0), cv::Vec3d(0.3, -1.2, 2.0), cv::Vec3d(CV_PI, 0, 0),
+        cv::Vec3d(0, CV_PI, 0), cv::Vec3d(0, 0, CV_PI), cv::Vec3d(2.2, 2.2, 0)}) {
+    cv::Matx33d rotation;
+    cv::Rodrigues(rvec, rotation);
+    const cv::Vec4d q = QuaternionFromRotation(rotation);
+    EXPECT_NEAR(cv::norm(q), 1, 1e-12);
+    EXPECT_GE(q[3], 0);
+    const cv::Matx33d back = RotationFromQuaternion(q[3], q[0], q[1], q[2]);
+    EXPECT_LT(cv::norm(back - rotation, cv::NORM_INF), 1e-12) << rvec;
+  }
+  cv::Matx44d parent_from_child = cv::Matx44d::eye();
+  parent_from_child(0, 3) = 120;  // mm
+  parent_from_child(2, 3) = -5;
+  Outgoing<ros::TFMessage> out;
+  std::string error;
+  ASSERT_TRUE(MakeTfMessage({{"a", "b", parent_from_child}}, 1'500'000'000, &out, &error)) << error;
+  ASSERT_EQ(out.msg().transforms._length, 1u);
+  const ros::TransformStamped& t = out.msg().transforms._buffer[0];
+  EXPECT_EQ(View(t.header.frame_id), "a");
+  EXPECT_EQ(View(t.child_frame_id), "b");
+  EXPECT_EQ(t.header.stamp.sec, 1);
+  EXPECT_EQ(t.header.stamp.nanosec, 500'000'000u);
+  EXPECT_DOUBLE_EQ(t.transform.translation.x, 0.12);
+  EXPECT_DOUBLE_EQ(t.transform.translation.z, -0.005);
+  EXPECT_EQ(t.transform.rotation.w, 1);
+
+  cv::Matx44d scaled = cv::Matx44d::eye();
+  scaled(0, 0) = 2;
+  EXPECT_FALSE(MakeTfMessage({{"a", "b", scaled}}, 0, &out, &error));
+  EXPECT_NE(error.find("a → b is not rigid"), std::string::npos) << error;
+  EXPECT_FALSE(MakeTfMessage({{"a", "a", cv::Matx44d::eye()}}, 0, &out, &error));
+  EXPECT_NE(error.find("distinct"), std::string::npos) << error;
+}
+
+TEST(DdsRosDefinitions, ConcatenatedAsRosbag2WritesThem) {
+  const std::string info = RosMessageDefinition("sensor_msgs/msg/CameraInfo");
+  EXPECT_EQ(info.rfind("std_msgs/Header header\n", 0), 0u) << info;
+  const std::string separator = std::string(80, '=') + "\n";
+  for (const char* used :
+       {"std_msgs/Header", "builtin_interfaces/Time", "sensor_msgs/RegionOfInterest"}) {
+    const std::string block = separator + "MSG: " + used + "\n";
+    const std::size_t at = info.find(block);
+    EXPECT_NE(at, std::string::npos) << used;
+    EXPECT_EQ(info.find(block, at + 1), std::string::npos) << used << " twice";
+  }
+  const std::string tf = RosMessageDefinition("tf2_msgs/msg/TFMessage");
+  for (const char* used :
+       {"geometry_msgs/TransformStamped", "std_msgs/Header", "builtin_interfaces/Time",
+        "geometry_msgs/Transform", "geometry_msgs/Vector3", "geometry_msgs/Quaternion"}) {
+    EXPECT_NE(tf.find(std::string("MSG: ") + used + "\n"), std::string::npos) << used;
+  }
+  EXPECT_EQ(RosMessageDefinition("sensor_msgs/msg/Imu"), "");
+  EXPECT_EQ(RosMessageDefinition("Image"), "");
+}
+
 // --- Topics and limits --------------------------------------------------------
 
 TEST(DdsTopics, NamesTypesAndQosFollowTheDesign) {
@@ -524,6 +639,12 @@ TEST(DdsTopics, NamesTypesAndQosFollowTheDesign) {
   EXPECT_EQ(RosCameraInfoTopic("st1", Side::kLeft).name, "rt/craftscan/st1/left/camera_info");
   EXPECT_TRUE(RosCameraInfoTopic("st1", Side::kLeft).qos.transient_local);
   EXPECT_EQ(RosDisparityTopic("st1").name, "rt/craftscan/st1/disparity");
+  // One transform tree per domain, as ROS has it; frames carry the station.
+  EXPECT_EQ(RosTfTopic().name, "rt/tf");
+  EXPECT_FALSE(RosTfTopic().qos.transient_local);
+  EXPECT_EQ(RosTfStaticTopic().name, "rt/tf_static");
+  EXPECT_TRUE(RosTfStaticTopic().qos.transient_local);
+  EXPECT_TRUE(RosTfStaticTopic().qos.xcdr1_only);
   for (const TopicQos& qos : {StatusTopic("a").qos, CaptureTopic("a").qos, CloudTopic("a").qos}) {
     EXPECT_TRUE(qos.reliable);  // best-effort loses multi-MB samples
     EXPECT_FALSE(qos.xcdr1_only);
@@ -535,6 +656,7 @@ TEST(DdsTopics, NamesTypesAndQosFollowTheDesign) {
   EXPECT_STREQ(MessageTraits<ros::CameraInfo>::type_name(), "sensor_msgs::msg::dds_::CameraInfo_");
   EXPECT_STREQ(MessageTraits<ros::DisparityImage>::type_name(),
                "stereo_msgs::msg::dds_::DisparityImage_");
+  EXPECT_STREQ(MessageTraits<ros::TFMessage>::type_name(), "tf2_msgs::msg::dds_::TFMessage_");
   EXPECT_STREQ(MessageTraits<msg::StationStatus>::type_name(), "craftscan::msg::StationStatus");
 
   std::string why;

@@ -1,8 +1,11 @@
 // craftscan-record: archives what one or more stations publish over DDS
 // (captures as PNG, clouds as PLY, disparity maps as PFM) with an optional
-// size/count limit; see craftscan/record/archive.h for the layout. Parses
-// arguments, opens the archive, runs the recorder until SIGINT/SIGTERM,
-// --duration, --count or a full archive, then prints a summary on stdout.
+// size/count limit; see craftscan/record/archive.h for the layout. With
+// --mcap FILE it also (or, without --out, only) records their ROS 2 topics
+// into an MCAP file (craftscan/record/mcap_recorder.h). Parses arguments,
+// opens the archive and/or the MCAP file, runs the recorders until
+// SIGINT/SIGTERM, --duration, --count or a full archive, then prints a
+// summary on stdout.
 //
 // Exit codes: 0 stopped cleanly (signal, duration, count, archive full);
 // 1 could not start, or an I/O error stopped the recording; 2 bad arguments.
@@ -24,6 +27,7 @@
 #include <CLI/CLI.hpp>
 
 #include "craftscan/record/archive.h"
+#include "craftscan/record/mcap_recorder.h"
 #include "craftscan/record/recorder.h"
 
 namespace {
@@ -86,8 +90,12 @@ int main(int argc, char** argv) {
   app.add_option("--dds-config", recorder_options.dds_config,
                  "Cyclone DDS configuration: XML, a file (absolute path or file:// URI) or a "
                  "comma-separated list (default: CYCLONEDDS_URI)");
-  app.add_option("--out", archive_options.out_dir, "archive folder (created if missing)")
-      ->required();
+  app.add_option("--out", archive_options.out_dir, "archive folder (created if missing)");
+  std::string mcap_path;
+  app.add_option("--mcap", mcap_path,
+                 "record the stations' ROS 2 topics (image_raw, camera_info, disparity, cloud, "
+                 "/tf, /tf_static) into this MCAP file (profile ros2, ros2msg schemas, CDR "
+                 "messages), besides or instead of --out");
   app.add_option("--what", what, "what to record, comma-separated")
       ->delimiter(',')
       ->check(CLI::IsMember({"clouds", "captures", "disparity"}))
@@ -126,6 +134,12 @@ int main(int argc, char** argv) {
                  message.c_str());
     return kExitUsage;
   };
+  if (archive_options.out_dir.empty() && mcap_path.empty()) {
+    return usage_error("--out or --mcap is needed");
+  }
+  if (!bag_root.empty() && archive_options.out_dir.empty()) {
+    return usage_error("--bagit bags the archive's sessions: it needs --out");
+  }
   if (!max_bytes_text.empty() &&
       !ParseByteSize(max_bytes_text, &archive_options.max_bytes, &error)) {
     return usage_error("--max-bytes: " + error);
@@ -174,27 +188,45 @@ int main(int argc, char** argv) {
       return kExitFailure;
     }
   }
-  std::shared_ptr<Archive> archive = Archive::Open(archive_options, &error);
-  if (!archive) {
-    spdlog::critical("cannot start: {}", error);
-    return kExitFailure;
+  std::shared_ptr<Archive> archive;
+  std::unique_ptr<Recorder> recorder;
+  if (!archive_options.out_dir.empty()) {
+    archive = Archive::Open(archive_options, &error);
+    if (archive) recorder = Recorder::Create(recorder_options, archive, &error);
+    if (!recorder) {
+      spdlog::critical("cannot start: {}", error);
+      return kExitFailure;
+    }
+    const ArchiveTotals held = archive->totals();
+    spdlog::info("recording {} of {} on domain {} into '{}' (holds {} files, {} bytes)",
+                 fmt::join(what, ","), fmt::join(recorder_options.stations, ", "),
+                 recorder_options.domain_id, archive_options.out_dir, held.files, held.bytes);
   }
-  std::unique_ptr<Recorder> recorder = Recorder::Create(recorder_options, archive, &error);
-  if (!recorder) {
-    spdlog::critical("cannot start: {}", error);
-    return kExitFailure;
+  std::unique_ptr<McapRecorder> mcap;
+  if (!mcap_path.empty()) {
+    McapRecorderOptions mcap_options;
+    mcap_options.stations = recorder_options.stations;
+    mcap_options.domain_id = recorder_options.domain_id;
+    // A second participant of a domain this process has joined takes the
+    // first one's configuration (Cyclone: one configuration per domain).
+    mcap_options.dds_config = recorder ? "" : recorder_options.dds_config;
+    mcap_options.path = mcap_path;
+    mcap = McapRecorder::Create(mcap_options, &error);
+    if (!mcap) {
+      spdlog::critical("cannot start: {}", error);
+      return kExitFailure;
+    }
+    spdlog::info("recording the ROS 2 topics of {} on domain {} into '{}'",
+                 fmt::join(recorder_options.stations, ", "), recorder_options.domain_id, mcap_path);
   }
-  const ArchiveTotals held = archive->totals();
-  spdlog::info("recording {} of {} on domain {} into '{}' (holds {} files, {} bytes)",
-               fmt::join(what, ","), fmt::join(recorder_options.stations, ", "),
-               recorder_options.domain_id, archive_options.out_dir, held.files, held.bytes);
 
   const auto start = std::chrono::steady_clock::now();
   const auto elapsed_s = [&] {
     return std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   };
   std::string stop_message;
-  while (!recorder->WaitUntilDone(std::chrono::milliseconds(0))) {
+  while (!(recorder && recorder->WaitUntilDone(std::chrono::milliseconds(0)))) {
+    if (mcap && mcap->Failed()) break;
     double wait_s = 0.1;
     if (duration_s > 0) {
       const double left_s = duration_s - elapsed_s();
@@ -213,23 +245,39 @@ int main(int argc, char** argv) {
     }
   }
   if (!stop_message.empty()) spdlog::info("stopping: {}", stop_message);
-  recorder->Stop(stop_message.empty() ? "stop requested" : stop_message);
-  const RecorderSummary summary = recorder->Summary();
-  recorder.reset();  // leaves the DDS domain
-  PrintSummary(summary, archive_options.out_dir, elapsed_s());
-  if (!bag_root.empty()) {
-    std::vector<craftscan::BagSummary> bags;
-    const craftscan::Status bagged = archive->WriteBags(bag_root, source_organization, &bags);
-    for (const craftscan::BagSummary& bag : bags) {
-      std::printf("bag '%s': Payload-Oxum %llu.%llu\n", bag.path.c_str(),
-                  static_cast<unsigned long long>(bag.payload_bytes),
-                  static_cast<unsigned long long>(bag.payload_files));
-    }
-    std::fflush(stdout);
-    if (!bagged.ok()) {
-      spdlog::error("--bagit: {}", bagged.message());
-      return kExitFailure;
+  bool failed = false;
+  if (recorder) {
+    recorder->Stop(stop_message.empty() ? "stop requested" : stop_message);
+    const RecorderSummary summary = recorder->Summary();
+    recorder.reset();  // leaves the DDS domain
+    PrintSummary(summary, archive_options.out_dir, elapsed_s());
+    failed = summary.reason == StopReason::kError;
+    if (!bag_root.empty()) {
+      std::vector<craftscan::BagSummary> bags;
+      const craftscan::Status bagged = archive->WriteBags(bag_root, source_organization, &bags);
+      for (const craftscan::BagSummary& bag : bags) {
+        std::printf("bag '%s': Payload-Oxum %llu.%llu\n", bag.path.c_str(),
+                    static_cast<unsigned long long>(bag.payload_bytes),
+                    static_cast<unsigned long long>(bag.payload_files));
+      }
+      std::fflush(stdout);
+      if (!bagged.ok()) {
+        spdlog::error("--bagit: {}", bagged.message());
+        failed = true;
+      }
     }
   }
-  return summary.reason == StopReason::kError ? kExitFailure : kExitOk;
+  if (mcap) {
+    const bool closed = mcap->Stop(&error);
+    const McapSummary summary = mcap->Summary();
+    std::string text = fmt::format("mcap '{}': {} messages{}\n", mcap_path, summary.total,
+                                   closed ? "" : " (ERROR: " + error + ")");
+    for (const auto& [topic, count] : summary.messages) {
+      text += fmt::format("  {:<48} {:>7}\n", topic, count);
+    }
+    std::fputs(text.c_str(), stdout);
+    std::fflush(stdout);
+    failed = failed || !closed;
+  }
+  return failed ? kExitFailure : kExitOk;
 }

@@ -15,16 +15,12 @@
 #include "craftscan/dds/endpoint.h"
 #include "craftscan/dds/participant.h"
 #include "craftscan/dds/topics.h"
+#include "reader_loop.h"
 
 namespace craftscan::record {
 namespace {
 
-constexpr int32_t kMaxReaderHistory = 64;  // 64 unread 8 MB captures = 512 MB at most
-
-bool SetError(std::string* error, const std::string& message) {
-  if (error) *error = message;
-  return false;
-}
+using internal::SetError;
 
 // "capture of session 'x' view 3" for log lines (the session as received).
 std::string Describe(std::string_view what, const ItemInfo& item) {
@@ -73,27 +69,13 @@ std::string_view ToString(StopReason reason) {
 }
 
 bool RecorderOptions::IsValid(std::string* why) const {
-  if (stations.empty()) return SetError(why, "stations: at least one station is needed");
-  std::set<std::string> seen;
-  for (const std::string& station : stations) {
-    std::string reason;
-    if (!dds::IsValidStationId(station, &reason)) return SetError(why, "stations: " + reason);
-    if (!seen.insert(station).second) {
-      return SetError(why, "stations: '" + station + "' is given twice");
-    }
-  }
-  if (domain_id > dds::kMaxDomainId) {
-    return SetError(why, "domain_id " + std::to_string(domain_id) + " is above " +
-                             std::to_string(dds::kMaxDomainId));
+  if (!internal::CheckReaderOptions(stations, domain_id, reader_history, poll_ms, why)) {
+    return false;
   }
   if (what.empty()) return SetError(why, "what: nothing to record");
   if (std::set<RecordKind>(what.begin(), what.end()).size() != what.size()) {
     return SetError(why, "what: a kind is given twice");
   }
-  if (reader_history < 1 || reader_history > kMaxReaderHistory) {
-    return SetError(why, "reader_history must be 1.." + std::to_string(kMaxReaderHistory));
-  }
-  if (poll_ms < 10 || poll_ms > 1000) return SetError(why, "poll_ms must be 10..1000");
   return true;
 }
 
@@ -244,25 +226,12 @@ struct Recorder::State {
   void ReadLoop(std::shared_ptr<dds::Reader<Msg>> reader, std::function<void(const Msg&)> handle) {
     try {
       dds::Sample<Msg> sample;
-      std::string error;
-      bool error_logged = false;
-      while (!stopping) {
-        switch (reader->Take(std::chrono::milliseconds(options.poll_ms), &sample, &error)) {
-          case dds::TakeStatus::kOk:
-            handle(*sample);
-            break;
-          case dds::TakeStatus::kTimeout:
-            break;
-          case dds::TakeStatus::kError:
-            if (!error_logged) {
-              spdlog::warn("{}: {} (further errors of this topic not logged)", reader->topic_name(),
-                           error);
-              error_logged = true;
-            }
-            std::this_thread::sleep_for(std::chrono::milliseconds(options.poll_ms));
-            break;
-        }
-      }
+      internal::TakeUntilStopped(
+          reader->topic_name(), options.poll_ms, stopping,
+          [&](std::chrono::milliseconds timeout, std::string* error) {
+            return reader->Take(timeout, &sample, error);
+          },
+          [&] { handle(*sample); });
     } catch (const std::exception& e) {
       spdlog::error("{}: {}", reader->topic_name(), e.what());
       Finish(StopReason::kError, reader->topic_name() + ": " + e.what());

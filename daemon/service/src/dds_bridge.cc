@@ -126,6 +126,7 @@ void StatusWriter::Publish(const StationStatusFields& status) {
 bool DdsPublisher::Create(const std::shared_ptr<dds::Participant>& p, const std::string& station,
                           std::string* error) {
   station_ = station;
+  frames_ = dds::FramesOf(station);
   using dds::Side;
   return (progress_ =
               dds::Writer<dds::msg::JobProgress>::Create(p, dds::ProgressTopic(station), error)) &&
@@ -147,7 +148,10 @@ bool DdsPublisher::Create(const std::shared_ptr<dds::Participant>& p, const std:
          (ros_disparity_ = dds::Writer<dds::ros::DisparityImage>::Create(
               p, dds::RosDisparityTopic(station), error)) &&
          (ros_cloud_ =
-              dds::Writer<dds::ros::PointCloud2>::Create(p, dds::RosCloudTopic(station), error));
+              dds::Writer<dds::ros::PointCloud2>::Create(p, dds::RosCloudTopic(station), error)) &&
+         (ros_tf_ = dds::Writer<dds::ros::TFMessage>::Create(p, dds::RosTfTopic(), error)) &&
+         (ros_tf_static_ =
+              dds::Writer<dds::ros::TFMessage>::Create(p, dds::RosTfStaticTopic(), error));
 }
 
 DdsPublisher::Clock::time_point DdsPublisher::last_activity() const {
@@ -215,12 +219,20 @@ void DdsPublisher::Capture(const std::string& session, int view, double angle_de
   meta.gain_db = frame.settings.gain_db;
   const std::int64_t now = WallNs();
   meta.left_stamp_ns = meta.right_stamp_ns = now;
-  meta.left_frame_id = station_ + "_left_optical";
-  meta.right_frame_id = station_ + "_right_optical";
+  meta.left_frame_id = frames_.left;
+  meta.right_frame_id = frames_.right;
   MakeAndWrite(*capture_, "capture",
                [&](dds::Outgoing<dds::msg::StereoCapture>* out, std::string* why) {
                  return dds::MakeStereoCapture(frame.left.image, frame.right.image, meta, out, why);
                });
+  std::shared_ptr<const StereoCalibration> calibration;
+  {
+    std::lock_guard lock(mutex_);
+    calibration = calibration_;
+  }
+  // Each image's camera_info first, so a tool pairing them by stamp has it
+  // when the image arrives.
+  if (calibration) PublishCameraInfo(*calibration, now);
   dds::Outgoing<dds::ros::Image> left, right;
   if (dds::MakeImage(frame.left.image, now, meta.left_frame_id, &left, &error) &&
       dds::MakeImage(frame.right.image, now, meta.right_frame_id, &right, &error)) {
@@ -228,6 +240,13 @@ void DdsPublisher::Capture(const std::string& session, int view, double angle_de
     WriteOrLog(*ros_right_, right.msg(), "right image_raw");
   } else {
     spdlog::warn("image_raw topics: {}", error);
+  }
+  if (calibration) {
+    constexpr double kRadPerDeg = 3.14159265358979323846 / 180;
+    MakeAndWrite(*ros_tf_, "tf", [&](dds::Outgoing<dds::ros::TFMessage>* out, std::string* why) {
+      return dds::MakeTfMessage({dds::TurntableTransform(frames_, angle_deg * kRadPerDeg)}, now,
+                                out, why);
+    });
   }
 }
 
@@ -244,7 +263,7 @@ void DdsPublisher::Disparity(const std::string& session, int view, const cv::Mat
   meta.min_disparity = static_cast<float>(min_disparity);
   meta.max_disparity = static_cast<float>(min_disparity + num_disparities - 1);
   meta.stamp_ns = WallNs();
-  meta.frame_id = station_ + "_rig";
+  meta.frame_id = frames_.rig;
   MakeAndWrite(*disparity_, "disparity",
                [&](dds::Outgoing<dds::msg::Disparity>* out, std::string* why) {
                  return dds::MakeDisparity(disparity, meta, out, why);
@@ -264,7 +283,7 @@ void DdsPublisher::Cloud(const std::string& session, int view, const PointCloud&
   meta.kind = view < 0 ? "fused" : "view";
   meta.world_from_view = world_from_cloud;
   meta.stamp_ns = WallNs();
-  meta.frame_id = view < 0 ? station_ + "_turntable" : station_ + "_rig";
+  meta.frame_id = view < 0 ? frames_.turntable_base : frames_.rig;
   MakeAndWrite(*cloud_, "cloud", [&](dds::Outgoing<dds::msg::PointCloud>* out, std::string* why) {
     return dds::MakeCloud(cloud, meta, out, why);
   });
@@ -274,20 +293,33 @@ void DdsPublisher::Cloud(const std::string& session, int view, const PointCloud&
                });
 }
 
-void DdsPublisher::CalibrationChanged(const StereoCalibration& calibration) {
+void DdsPublisher::PublishCameraInfo(const StereoCalibration& calibration, std::int64_t stamp_ns) {
   std::string error;
-  cx_offset_px_ = static_cast<float>(calibration.P1(0, 2) - calibration.P2(0, 2));
-  const std::int64_t now = WallNs();
   dds::Outgoing<dds::ros::CameraInfo> left, right;
-  if (dds::MakeCameraInfo(calibration, dds::Side::kLeft, now, station_ + "_left_optical", &left,
-                          &error) &&
-      dds::MakeCameraInfo(calibration, dds::Side::kRight, now, station_ + "_right_optical", &right,
+  if (dds::MakeCameraInfo(calibration, dds::Side::kLeft, stamp_ns, frames_.left, &left, &error) &&
+      dds::MakeCameraInfo(calibration, dds::Side::kRight, stamp_ns, frames_.right, &right,
                           &error)) {
     WriteOrLog(*ros_info_left_, left.msg(), "left camera_info");
     WriteOrLog(*ros_info_right_, right.msg(), "right camera_info");
   } else {
     spdlog::warn("camera_info topics: {}", error);
   }
+}
+
+void DdsPublisher::CalibrationChanged(const StereoCalibration& calibration) {
+  cx_offset_px_ = static_cast<float>(calibration.P1(0, 2) - calibration.P2(0, 2));
+  {
+    std::lock_guard lock(mutex_);
+    calibration_ = std::make_shared<const StereoCalibration>(calibration);
+  }
+  const std::int64_t now = WallNs();
+  PublishCameraInfo(calibration, now);
+  MakeAndWrite(*ros_tf_static_, "tf_static",
+               [&](dds::Outgoing<dds::ros::TFMessage>* out, std::string* why) {
+                 std::vector<dds::FrameTransform> transforms;
+                 return dds::StaticStationTransforms(calibration, frames_, &transforms, why) &&
+                        dds::MakeTfMessage(transforms, now, out, why);
+               });
 }
 
 // --- FileSender -------------------------------------------------------------

@@ -30,6 +30,7 @@
 #include "craftscan/daemon/daemon.h"
 #include "craftscan/daemon/devices.h"
 #include "craftscan/daemon/jobs.h"
+#include "craftscan/dds/convert.h"
 #include "craftscan/dds/endpoint.h"
 #include "craftscan/dds/participant.h"
 #include "craftscan/dds/topics.h"
@@ -92,17 +93,26 @@ class StatusWriter {
   std::unique_ptr<dds::Writer<dds::msg::StationStatus>> writer_;
 };
 
-// Publishes what the jobs produce (JobSink) on the station's topics:
+// Publishes what the jobs produce (JobSink) on the station's topics, in the
+// frames of dds::FramesOf(station) (convert.h draws the tree):
 //   Progress            craftscan/<station>/progress (JobProgress)
-//   Capture             .../capture (StereoCapture, both images) and the
-//                       ROS 2 left and right image_raw (frames
-//                       <station>_left_optical, <station>_right_optical)
+//   Capture             .../capture (StereoCapture, both images); the ROS 2
+//                       left and right camera_info then image_raw, both
+//                       with the same stamp and frame (the raw camera's
+//                       optical frame), as image_proc, stereo_image_proc and
+//                       rviz2 pair them; /tf: the turntable at the view's
+//                       commanded angle, same stamp
 //   Disparity           .../disparity and the ROS 2 DisparityImage (frame
-//                       <station>_rig; cx offset from the last calibration)
+//                       <station>_rig_optical_frame; cx offset from the last
+//                       calibration)
 //   Cloud               .../cloud and the ROS 2 PointCloud2 (a view in
-//                       <station>_rig, the fused cloud, view −1, in
-//                       <station>_turntable)
-//   CalibrationChanged  the ROS 2 left and right camera_info
+//                       <station>_rig_optical_frame, the fused cloud, view
+//                       −1, in <station>_turntable_base)
+//   CalibrationChanged  the ROS 2 left and right camera_info (kept for late
+//                       subscribers: transient-local) and /tf_static (the
+//                       rig, cameras and turntable axis)
+// Before the first calibration no camera_info, /tf_static or /tf is
+// published (the images still are).
 // Thread-safety: every method may be called from any thread, concurrently
 // (the DDS writers are thread-safe; the rest is atomic or locked). No method
 // blocks beyond a reliable write's bounded wait.
@@ -130,8 +140,12 @@ class DdsPublisher : public JobSink {
 
  private:
   void Touch();
+  // Writes both camera_info samples of `calibration` stamped `stamp_ns`.
+  void PublishCameraInfo(const StereoCalibration& calibration, std::int64_t stamp_ns);
 
   std::string station_;
+  dds::StationFrames frames_;
+  std::shared_ptr<const StereoCalibration> calibration_;  // guarded by mutex_; null until set
   std::atomic<float> cx_offset_px_{0};
   mutable std::mutex mutex_;
   Clock::time_point last_activity_ = Clock::now();  // guarded by mutex_
@@ -144,6 +158,7 @@ class DdsPublisher : public JobSink {
   std::unique_ptr<dds::Writer<dds::ros::CameraInfo>> ros_info_left_, ros_info_right_;
   std::unique_ptr<dds::Writer<dds::ros::DisparityImage>> ros_disparity_;
   std::unique_ptr<dds::Writer<dds::ros::PointCloud2>> ros_cloud_;
+  std::unique_ptr<dds::Writer<dds::ros::TFMessage>> ros_tf_, ros_tf_static_;
 };
 
 // Streams the files of `get` transfers (commands.h) on the station's file

@@ -595,6 +595,17 @@ TEST_F(RecordOneStation, RefusesBadArgumentsAndASecondRecorderOnTheSameArchive) 
   EXPECT_EQ(bad_station.Wait(), 2);
   RecorderProcess bad_what(temp_.root(), Args({"--what", "clouds,meshes"}), "bad_what");
   EXPECT_EQ(bad_what.Wait(), 2);
+  RecorderProcess nowhere(temp_.root(), {"--station", a_.station}, "nowhere");
+  EXPECT_EQ(nowhere.Wait(), 2);
+  EXPECT_NE(nowhere.Stderr().find("--out or --mcap is needed"), std::string::npos)
+      << nowhere.Stderr();
+  RecorderProcess bad_mcap(temp_.root(),
+                           {"--station", a_.station, "--mcap", temp_.root() + "/no/such/x.mcap"},
+                           "bad_mcap");
+  EXPECT_EQ(bad_mcap.Wait(), 1);
+  EXPECT_NE(bad_mcap.Stderr().find("cannot create '" + temp_.root() + "/no/such/x.mcap'"),
+            std::string::npos)
+      << bad_mcap.Stderr();
 
   RecorderProcess first(temp_.root(), Args({}), "first");
   ASSERT_TRUE(first.WaitUntilRecording()) << first.Stderr();

@@ -523,6 +523,8 @@ std::string TryStationTopics(const std::shared_ptr<Participant>& participant,
   }
   refused += TryEndpoint(participant, out, RosDisparityTopic(station));
   refused += TryEndpoint(participant, out, RosCloudTopic(station));
+  refused += TryEndpoint(participant, out, RosTfTopic());
+  refused += TryEndpoint(participant, out, RosTfStaticTopic());
   refused += TryEndpoint(participant, !out, CommandTopic(station));
   return refused;
 }

@@ -23,6 +23,7 @@
 #include <cstdint>
 #include <string>
 #include <string_view>
+#include <vector>
 
 #include <opencv2/core/mat.hpp>
 #include <opencv2/core/matx.hpp>
@@ -174,5 +175,60 @@ bool CloudFromPointCloud2(const ros::PointCloud2& message, PointCloud* cloud, st
 // (the full image).
 bool MakeCameraInfo(const StereoCalibration& calibration, Side side, int64_t stamp_ns,
                     std::string_view frame_id, Outgoing<ros::CameraInfo>* out, std::string* error);
+
+// --- Transforms (/tf, /tf_static) ---------------------------------------------
+
+// The frames of one station, named as REP 103 and REP 105 expect and
+// prefixed with the station id (all stations of a domain share /tf):
+//
+//   <station>_base_link                       root, fixed: the rig's body. REP 103
+//   │                                         axes: x forward (the left camera's
+//   │                                         viewing direction), y left, z up;
+//   │                                         origin at the left camera
+//   └─ <station>_rig_optical_frame            the rectified left camera (z forward,
+//      │                                      x right, y down): craftscan's rig
+//      │                                      frame; disparity and view clouds
+//      ├─ <station>_left_camera_optical_frame   raw left camera (image_raw,
+//      ├─ <station>_right_camera_optical_frame  camera_info; R1/R2 and baseline)
+//      └─ <station>_turntable_base            fixed: origin where the axis meets
+//         │                                   the platter, +Z along the axis
+//         │                                   (TurntableFromRig); the fused cloud
+//         └─ <station>_turntable              the platter: turned from
+//                                             turntable_base by the angle since the
+//                                             session's first view (/tf, per view)
+//
+// Everything above the turntable is on /tf_static; a calibration without a
+// turntable axis puts turntable_base at the rig optical frame (identity),
+// as the pipeline then fuses in the first view's rig frame.
+struct StationFrames {
+  std::string base, rig, left, right, turntable_base, turntable;
+};
+StationFrames FramesOf(std::string_view station);
+
+// One transform of the tree: p_in_parent = parent_from_child · p_in_child
+// (rigid, translation in mm).
+struct FrameTransform {
+  std::string parent, child;
+  cv::Matx44d parent_from_child = cv::Matx44d::eye();
+};
+
+// The static transforms of `frames` from `calibration` (must pass IsValid):
+// base_link → rig, rig → left, rig → right, rig → turntable_base, in that
+// order. False with *error otherwise.
+bool StaticStationTransforms(const StereoCalibration& calibration, const StationFrames& frames,
+                             std::vector<FrameTransform>* transforms, std::string* error);
+
+// turntable_base → turntable: a right-handed turn about +Z by `angle_rad`.
+FrameTransform TurntableTransform(const StationFrames& frames, double angle_rad);
+
+// A tf2_msgs TFMessage of `transforms` (each rigid: an orthonormal rotation
+// with determinant +1 within 1e-6, finite), all stamped `stamp_ns`, in
+// metres with unit quaternions (w ≥ 0). False with *error naming the
+// transform that is not rigid.
+bool MakeTfMessage(const std::vector<FrameTransform>& transforms, int64_t stamp_ns,
+                   Outgoing<ros::TFMessage>* out, std::string* error);
+
+// The unit quaternion (x, y, z, w; w ≥ 0) of a rotation matrix.
+cv::Vec4d QuaternionFromRotation(const cv::Matx33d& rotation);
 
 }  // namespace craftscan::dds

@@ -17,8 +17,11 @@
 #pragma once
 
 #include <chrono>
+#include <cstdint>
+#include <functional>
 #include <memory>
 #include <string>
+#include <vector>
 
 #include "craftscan/dds/messages.h"
 #include "craftscan/dds/participant.h"
@@ -30,6 +33,13 @@ enum class TakeStatus {
   kOk,       // a sample was taken
   kTimeout,  // none arrived within the timeout
   kError,    // DDS reported an error (*error says which)
+};
+
+// A sample as it travelled: its serialised form (the 4-byte encapsulation
+// header, then the CDR body) and the writer's timestamp.
+struct RawSample {
+  std::vector<uint8_t> cdr;
+  int64_t source_timestamp_ns = 0;  // ns since the Unix epoch
 };
 
 namespace internal {
@@ -69,12 +79,19 @@ class ReaderCore {
   ReaderCore& operator=(const ReaderCore&) = delete;
 
   TakeStatus Take(void* sample, std::chrono::nanoseconds timeout, std::string* error);
+  // `decoded` (may be null): a sample of the reader's type to deserialise into.
+  TakeStatus TakeRaw(RawSample* raw, void* decoded, std::chrono::nanoseconds timeout,
+                     std::string* error);
   int MatchedWriters() const;
   bool WaitForWriters(int count, std::chrono::milliseconds timeout) const;
   const std::string& topic_name() const { return topic_name_; }
 
  private:
   ReaderCore() = default;
+  // Calls take_one (returns dds_take's count or error, sets *valid) until
+  // it takes a sample with data, waiting on the data waitset up to timeout.
+  TakeStatus TakeWhenReady(std::chrono::nanoseconds timeout, std::string* error,
+                           const std::function<int32_t(bool*)>& take_one);
   std::shared_ptr<Participant> participant_;
   std::string topic_name_;
   int32_t topic_ = 0, reader_ = 0, read_condition_ = 0, data_waitset_ = 0, match_waitset_ = 0;
@@ -142,6 +159,15 @@ class Reader {
   // a time.
   TakeStatus Take(std::chrono::nanoseconds timeout, Sample<Msg>* sample, std::string* error) {
     return core_->Take(sample->mutable_storage(), timeout, error);
+  }
+
+  // As Take, but keeps the sample as it was on the wire: *raw gets its
+  // serialised bytes (what a ROS 2 tool or a recording stores) and, when
+  // `decoded` is not null, *decoded the same sample deserialised. Same
+  // threading rules as Take.
+  TakeStatus TakeRaw(std::chrono::nanoseconds timeout, RawSample* raw, Sample<Msg>* decoded,
+                     std::string* error) {
+    return core_->TakeRaw(raw, decoded ? decoded->mutable_storage() : nullptr, timeout, error);
   }
 
   // Writers currently matched (−1 on error). Thread-safe.

@@ -25,9 +25,11 @@
 
 #include "craftscan.h"
 #include "ros2/builtin_interfaces.h"
+#include "ros2/geometry_msgs.h"
 #include "ros2/sensor_msgs.h"
 #include "ros2/std_msgs.h"
 #include "ros2/stereo_msgs.h"
+#include "ros2/tf2_msgs.h"
 
 namespace craftscan::dds {
 
@@ -54,6 +56,8 @@ using CameraInfo = sensor_msgs_msg_dds__CameraInfo_;
 using PointField = sensor_msgs_msg_dds__PointField_;
 using PointCloud2 = sensor_msgs_msg_dds__PointCloud2_;
 using DisparityImage = stereo_msgs_msg_dds__DisparityImage_;
+using TransformStamped = geometry_msgs_msg_dds__TransformStamped_;
+using TFMessage = tf2_msgs_msg_dds__TFMessage_;
 }  // namespace ros
 
 // Limits on unbounded strings (the IDL leaves them unbounded because
@@ -92,6 +96,7 @@ CRAFTSCAN_DDS_MESSAGE_TRAITS(sensor_msgs_msg_dds__Image_);
 CRAFTSCAN_DDS_MESSAGE_TRAITS(sensor_msgs_msg_dds__CameraInfo_);
 CRAFTSCAN_DDS_MESSAGE_TRAITS(sensor_msgs_msg_dds__PointCloud2_);
 CRAFTSCAN_DDS_MESSAGE_TRAITS(stereo_msgs_msg_dds__DisparityImage_);
+CRAFTSCAN_DDS_MESSAGE_TRAITS(tf2_msgs_msg_dds__TFMessage_);
 #undef CRAFTSCAN_DDS_MESSAGE_TRAITS
 
 namespace internal {

@@ -14,11 +14,16 @@
 //   rt/craftscan/<station>/left/image_raw, right/image_raw   Image_      reliable, keep-last 1
 //   rt/craftscan/<station>/left/camera_info, right/...       CameraInfo_ reliable,
 //                                                            transient-local, keep-last 1
+//                                                            (one per image, same stamp)
 //   rt/craftscan/<station>/disparity                         DisparityImage_ reliable, keep-last 1
 //   rt/craftscan/<station>/cloud                             PointCloud2_ reliable, keep-last 1
+//   rt/tf_static                    TFMessage_  reliable, transient-local, keep-last 1
+//   rt/tf                           TFMessage_  reliable, volatile, keep-last 100
 //
 // The rt/ topics are what ROS 2 (rmw_cyclonedds) calls /craftscan/<station>/...;
-// they are XCDR1 only. A reliable writer also serves best-effort readers
+// they are XCDR1 only. /tf and /tf_static are shared by every station of a
+// domain, as ROS has one transform tree: the frames are named per station
+// instead (convert.h, StationFrames). A reliable writer also serves best-effort readers
 // (ROS's sensor-data QoS), and a transient-local one serves volatile readers.
 #pragma once
 
@@ -95,5 +100,7 @@ TopicSpec<ros::Image> RosImageTopic(std::string_view station, Side side);
 TopicSpec<ros::CameraInfo> RosCameraInfoTopic(std::string_view station, Side side);
 TopicSpec<ros::DisparityImage> RosDisparityTopic(std::string_view station);
 TopicSpec<ros::PointCloud2> RosCloudTopic(std::string_view station);
+TopicSpec<ros::TFMessage> RosTfTopic();
+TopicSpec<ros::TFMessage> RosTfStaticTopic();
 
 }  // namespace craftscan::dds

@@ -11,8 +11,8 @@
 #include <sstream>
 #include <vector>
 
-#include <nlohmann/json.hpp>
 #include <tiny_gltf.h>
+#include <nlohmann/json.hpp>
 
 namespace craftscan::daemon {
 namespace {
@@ -210,16 +210,17 @@ bool EncodeGlb(const TriangleMesh& mesh, const ModelProvenance& provenance, std:
       report = Json::parse(provenance.scan_report_json, nullptr, false);
       if (!report.is_object()) report = Json::object();
     }
-    const ModelFrame frame =
-        report.value("frame", std::string()) == "view0" ? ModelFrame::kView0 : ModelFrame::kTurntable;
+    const ModelFrame frame = report.value("frame", std::string()) == "view0"
+                                 ? ModelFrame::kView0
+                                 : ModelFrame::kTurntable;
     const cv::Matx44d gltf_from_model = GltfFromModel(frame);
     const cv::Matx33d rotation = gltf_from_model.get_minor<3, 3>(0, 0) * 1000.0;
 
     std::vector<float> positions(3 * n), normals;
     for (std::size_t i = 0; i < n; ++i) {
-      const cv::Vec4d p = gltf_from_model * cv::Vec4d(mesh.vertices_mm[i][0],
-                                                      mesh.vertices_mm[i][1],
-                                                      mesh.vertices_mm[i][2], 1.0);
+      const cv::Vec4d p =
+          gltf_from_model *
+          cv::Vec4d(mesh.vertices_mm[i][0], mesh.vertices_mm[i][1], mesh.vertices_mm[i][2], 1.0);
       for (int c = 0; c < 3; ++c) positions[3 * i + c] = static_cast<float>(p[c]);
     }
     if (!mesh.normals.empty()) {
@@ -254,8 +255,7 @@ bool EncodeGlb(const TriangleMesh& mesh, const ModelProvenance& provenance, std:
     primitive.mode = TINYGLTF_MODE_TRIANGLES;
     const int position_view = AddView(model, positions.data(), positions.size() * sizeof(float),
                                       TINYGLTF_TARGET_ARRAY_BUFFER);
-    const int position =
-        AddAccessor(model, position_view, kFloat, TINYGLTF_TYPE_VEC3, n);
+    const int position = AddAccessor(model, position_view, kFloat, TINYGLTF_TYPE_VEC3, n);
     SetBounds(model.accessors[static_cast<std::size_t>(position)], positions);
     primitive.attributes["POSITION"] = position;
     if (!normals.empty()) {
@@ -268,8 +268,7 @@ bool EncodeGlb(const TriangleMesh& mesh, const ModelProvenance& provenance, std:
     if (!mesh.colors_rgb.empty()) {
       // RGB padded to 4 bytes: vertex attributes must be 4-byte aligned.
       std::vector<unsigned char> rgb(4 * n, 0);
-      for (std::size_t i = 0; i < n; ++i)
-        std::memcpy(&rgb[4 * i], mesh.colors_rgb[i].val, 3);
+      for (std::size_t i = 0; i < n; ++i) std::memcpy(&rgb[4 * i], mesh.colors_rgb[i].val, 3);
       const int view = AddView(model, rgb.data(), rgb.size(), TINYGLTF_TARGET_ARRAY_BUFFER, 4);
       primitive.attributes["COLOR_0"] =
           AddAccessor(model, view, kUnsignedByte, TINYGLTF_TYPE_VEC3, n, true);

@@ -238,7 +238,13 @@ TEST(Craftscanctl, StatusDevicesCaptureTurntableCameraAndRefusals) {
 TEST(Craftscanctl, ScanThenGetEveryOutputByteForByte) {
   Station station;
   std::string error;
-  ASSERT_TRUE(station.Start(&error)) << error;
+  // The station's rights statement (config key deliverables.rights, here
+  // through its environment override) goes into every mesh.glb.
+  const std::string rights = "© 2026 Test Museum, CC BY 4.0";
+  ::setenv("CRAFTSCAN_DELIVERABLES_RIGHTS", rights.c_str(), 1);
+  const bool started = station.Start(&error);
+  ::unsetenv("CRAFTSCAN_DELIVERABLES_RIGHTS");
+  ASSERT_TRUE(started) << error;
 
   // A full turn in 4 views closes the loop.
   CtlRun r = station.Run(
@@ -289,7 +295,14 @@ TEST(Craftscanctl, ScanThenGetEveryOutputByteForByte) {
   ASSERT_LE(20u + json_length, glb.size());
   const json gltf = json::parse(glb.substr(20, json_length), nullptr, false);
   ASSERT_TRUE(gltf.is_object());
+  EXPECT_EQ(gltf["asset"].value("copyright", ""), rights);
   const json provenance = gltf["asset"]["extras"]["craftscan"];
+  EXPECT_EQ(provenance.value("rights", ""), rights);
+  EXPECT_FALSE(provenance.value("client", "").empty()) << provenance.dump();
+  EXPECT_FALSE(provenance.value("captured_utc", "").empty()) << provenance.dump();
+  // (The sim's exact calibration has no RMS: none is recorded; test_report_glb
+  // checks the figures.)
+  EXPECT_FALSE(provenance["calibration"].contains("rms_stereo_px")) << provenance.dump();
   EXPECT_EQ(provenance.value("object_name", ""), "carved box");
   EXPECT_EQ(provenance.value("session_id", ""), session);
   EXPECT_EQ(provenance.value("station", ""), station.fixture().station());

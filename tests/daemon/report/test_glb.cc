@@ -53,9 +53,9 @@ tinygltf::Model Load(const std::string& glb) {
   tinygltf::TinyGLTF loader;
   tinygltf::Model model;
   std::string error, warning;
-  const bool ok = loader.LoadBinaryFromMemory(
-      &model, &error, &warning, reinterpret_cast<const unsigned char*>(glb.data()),
-      static_cast<unsigned>(glb.size()));
+  const bool ok = loader.LoadBinaryFromMemory(&model, &error, &warning,
+                                              reinterpret_cast<const unsigned char*>(glb.data()),
+                                              static_cast<unsigned>(glb.size()));
   EXPECT_TRUE(ok) << error;
   EXPECT_EQ(warning, "");
   return model;
@@ -84,9 +84,7 @@ const tinygltf::Value& Key(const tinygltf::Value& v, const std::string& key) {
 }
 // The float a coordinate in metres is stored as: the bounds are exactly those.
 double F(double metres) { return static_cast<double>(static_cast<float>(metres)); }
-double Number(const tinygltf::Value& v) {
-  return v.IsInt() ? v.Get<int>() : v.Get<double>();
-}
+double Number(const tinygltf::Value& v) { return v.IsInt() ? v.Get<int>() : v.Get<double>(); }
 
 TEST(Glb, TurntableMeshReadsBackInMetresWithYUp) {
   const TriangleMesh mesh = Tetrahedron();

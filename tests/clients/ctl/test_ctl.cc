@@ -23,6 +23,7 @@
 #include "file_util.h"
 #include "process_util.h"
 #include "test_paths.h"
+#include "wait_util.h"
 
 using craftscan::testing::Ok;
 using craftscan::testing::StatusInto;
@@ -245,6 +246,19 @@ TEST(Craftscanctl, ScanThenGetEveryOutputByteForByte) {
   const bool started = station.Start(&error);
   ::unsetenv("CRAFTSCAN_DELIVERABLES_RIGHTS");
   ASSERT_TRUE(started) << error;
+  // craftscan-record keeps each finished scan's model (--what models).
+  const std::string recorded = station.dir() + "/recorded";
+  ::craftscan::testing::ChildProcess recorder;
+  {
+    ::craftscan::testing::SpawnOptions options;
+    options.stdout_path = station.dir() + "/record.out";
+    options.stderr_path = station.dir() + "/record.err";
+    ASSERT_TRUE(::craftscan::testing::Spawn(
+        {::craftscan::testing::RecordPath(), "--station", station.fixture().station(), "--domain",
+         std::to_string(station.fixture().domain()), "--dds-config", station.fixture().dds_config(),
+         "--out", recorded, "--what", "models", "--token", kObserverToken},
+        options, &recorder));
+  }
 
   // A full turn in 4 views closes the loop.
   CtlRun r = station.Run(
@@ -309,6 +323,18 @@ TEST(Craftscanctl, ScanThenGetEveryOutputByteForByte) {
   EXPECT_EQ(provenance.value("source_frame", ""), "turntable");
   EXPECT_EQ(provenance.value("software", "").rfind("craftscan ", 0), 0u) << provenance.dump();
   EXPECT_EQ(provenance["calibration"].value("id", ""), manifest.calibration_id);
+  // The recorder's copy of the model is the session's, byte for byte.
+  const std::string recorded_glb =
+      recorded + "/" + station.fixture().station() + "/" + session + "/mesh.glb";
+  EXPECT_TRUE(::craftscan::testing::WaitFor([&] { return std::filesystem::exists(recorded_glb); },
+                                            30s, 100ms))
+      << ReadFile(station.dir() + "/record.err");
+  recorder.Signal(SIGTERM);
+  EXPECT_EQ(recorder.Wait(20s), 0) << ReadFile(station.dir() + "/record.err");
+  EXPECT_TRUE(ReadFile(recorded_glb) == glb) << "recorded mesh.glb differs";
+  EXPECT_NE(ReadFile(recorded + "/" + station.fixture().station() + "/" + session + "/index.jsonl")
+                .find("\"kind\":\"model\""),
+            std::string::npos);
   // The fetched outputs through independent readers (tests/deliverables):
   // the Khronos glTF-Validator (0 errors, 0 warnings) and Open3D (counts
   // and bounds as report.json says).

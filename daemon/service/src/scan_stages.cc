@@ -312,7 +312,9 @@ std::string ReconstructStage::EncodeModel(const std::string& report_json, const 
   p.station = options_.station;
   p.captured_utc =
       manifest.views.empty() ? manifest.created_utc : manifest.views.begin()->second.captured_utc;
-  p.client = manifest.params.value("client", std::string());
+  if (const auto client = manifest.params.find("client");
+      client != manifest.params.end() && client->is_string())
+    p.client = client->get<std::string>();
   p.calibration_id = manifest.calibration_id;
   p.calibration_rms_px = calibration_->report.rms_stereo_px;
   p.calibration_epipolar_mean_px = calibration_->report.epipolar_mean_px;

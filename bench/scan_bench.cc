@@ -87,6 +87,7 @@
 
 #include "command.h"
 #include "craftscan/daemon/config.h"
+#include "craftscan/daemon/glb.h"
 #include "craftscan/daemon/report.h"
 #include "craftscan/pipeline/common/atomic_file.h"
 #include "craftscan/pipeline/common/ply.h"
@@ -194,10 +195,11 @@ class ScanCommand : public BenchCommand {
                     "sets when this is not given)")
         ->delimiter(',');
     sub->add_option("--json", json_path_, "Write the figures as JSON to this file");
-    sub->add_option("--out", out_dir_,
-                    "Write fused.ply, mesh.ply, mesh.obj, report.json and report.html (with "
-                    "previews/) into this folder (created), with fused_error.ply and missed.ply "
-                    "(where outliers are and what completeness misses)");
+    sub->add_option(
+        "--out", out_dir_,
+        "Write fused.ply, mesh.ply, mesh.obj, mesh.glb, report.json and report.html (with "
+        "previews/) into this folder (created), with fused_error.ply and missed.ply "
+        "(where outliers are and what completeness misses)");
     return sub;
   }
 
@@ -580,6 +582,22 @@ class ScanCommand : public BenchCommand {
     if (mesh) files.emplace_back("mesh.ply", EncodeMeshPly(r.mesh.mesh, true));
     if (mesh) files.emplace_back("mesh.obj", EncodeMeshObj(r.mesh.mesh));
     const std::string report = ScanReportJson(r);
+    if (mesh) {
+      daemon::ModelProvenance p;
+      p.object_name = object_;
+      p.session_id = "bench";
+      p.station = "bench";
+      p.client = "craftscan-bench";
+      p.calibration_id = "simulated";
+      p.calibration_rms_px = calibration.report.rms_stereo_px;
+      p.calibration_epipolar_mean_px = calibration.report.epipolar_mean_px;
+      p.software = "craftscan-bench";
+      p.scan_report_json = report;
+      std::string glb, error;
+      if (!daemon::EncodeGlb(r.mesh.mesh, p, &glb, &error))
+        return (*why = "mesh.glb: " + error, false);
+      files.emplace_back("mesh.glb", std::move(glb));
+    }
     files.emplace_back("report.json", report);
     if (out_dir_.empty()) return true;
     daemon::ReportInputs inputs;

@@ -67,7 +67,7 @@ bool FsyncDir(const fs::path& dir, std::string* error) {
 // The data files the archive writes (and rotates), by name.
 bool IsDataFileName(const std::string& name) {
   static const std::regex pattern(
-      R"((view_[0-9]{3,}_(left|right)\.png)|(cloud_[0-9]{3,}\.ply)|(fused\.ply)|(disparity_[0-9]{3,}\.pfm))");
+      R"((view_[0-9]{3,}_(left|right)\.png)|(cloud_[0-9]{3,}\.ply)|(fused\.ply)|(disparity_[0-9]{3,}\.pfm)|(mesh\.glb))");
   return std::regex_match(name, pattern);
 }
 
@@ -718,6 +718,23 @@ StoreResult Archive::StoreDisparity(const ItemInfo& item, const cv::Mat& dispari
   jobs.push_back({"disparity_" + ViewNumber(item.view_index) + ".pfm", "disparity",
                   [&disparity](const std::string& path, std::string* error) {
                     return WritePfm(path, disparity, error);
+                  },
+                  std::move(extra)});
+  return state_->Store(item, std::move(jobs));
+}
+
+StoreResult Archive::StoreModel(const ItemInfo& item, const std::string& glb) {
+  if (glb.empty()) return Outcome(StoreStatus::kRefused, "an empty model");
+  if (item.view_index != -1) {
+    return Outcome(StoreStatus::kRefused,
+                   "model view index " + std::to_string(item.view_index) + " is not -1");
+  }
+  Json extra = Json::object();
+  extra["format"] = "glb";
+  std::vector<FileJob> jobs;
+  jobs.push_back({"mesh.glb", "model",
+                  [&glb](const std::string& path, std::string* error) {
+                    return WriteFileAtomically(path, glb, error);
                   },
                   std::move(extra)});
   return state_->Store(item, std::move(jobs));

@@ -1,5 +1,6 @@
 // craftscan-record: archives what one or more stations publish over DDS
-// (captures as PNG, clouds as PLY, disparity maps as PFM) with an optional
+// (captures as PNG, clouds as PLY, disparity maps as PFM; with --what models
+// each finished scan's mesh.glb, fetched with `get`) with an optional
 // size/count limit; see craftscan/record/archive.h for the layout. With
 // --mcap FILE it also (or, without --out, only) records their ROS 2 topics
 // into an MCAP file (craftscan/record/mcap_recorder.h). Parses arguments,
@@ -98,8 +99,11 @@ int main(int argc, char** argv) {
                  "messages), besides or instead of --out");
   app.add_option("--what", what, "what to record, comma-separated")
       ->delimiter(',')
-      ->check(CLI::IsMember({"clouds", "captures", "disparity"}))
+      ->check(CLI::IsMember({"clouds", "captures", "disparity", "models"}))
       ->capture_default_str();
+  app.add_option("--token", recorder_options.token,
+                 "token for fetching each session's mesh.glb (--what models; observer is enough)")
+      ->envname("CRAFTSCAN_TOKEN");
   app.add_option("--max-bytes", max_bytes_text,
                  "limit on the archive's data files, N[K|M|G] (binary multiples)");
   app.add_option("--max-files", archive_options.max_files, "limit on the number of data files")

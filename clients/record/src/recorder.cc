@@ -1,9 +1,16 @@
 #include "craftscan/record/recorder.h"
 
+#include <unistd.h>
+
+#include <algorithm>
 #include <atomic>
 #include <condition_variable>
+#include <deque>
 #include <exception>
+#include <filesystem>
+#include <fstream>
 #include <functional>
+#include <iterator>
 #include <mutex>
 #include <set>
 #include <thread>
@@ -11,6 +18,7 @@
 
 #include <spdlog/spdlog.h>
 
+#include "craftscan/client/station_client.h"
 #include "craftscan/dds/convert.h"
 #include "craftscan/dds/endpoint.h"
 #include "craftscan/dds/participant.h"
@@ -38,12 +46,15 @@ std::string_view ToString(RecordKind kind) {
       return "clouds";
     case RecordKind::kDisparity:
       return "disparity";
+    case RecordKind::kModels:
+      return "models";
   }
   return "unknown";
 }
 
 bool RecordKindFromString(std::string_view text, RecordKind* kind) {
-  for (RecordKind k : {RecordKind::kCaptures, RecordKind::kClouds, RecordKind::kDisparity}) {
+  for (RecordKind k :
+       {RecordKind::kCaptures, RecordKind::kClouds, RecordKind::kDisparity, RecordKind::kModels}) {
     if (text == ToString(k)) {
       *kind = k;
       return true;
@@ -76,6 +87,9 @@ bool RecorderOptions::IsValid(std::string* why) const {
   if (std::set<RecordKind>(what.begin(), what.end()).size() != what.size()) {
     return SetError(why, "what: a kind is given twice");
   }
+  if (std::find(what.begin(), what.end(), RecordKind::kModels) != what.end() && token.empty()) {
+    return SetError(why, "models: fetching a model needs a token (--token or CRAFTSCAN_TOKEN)");
+  }
   return true;
 }
 
@@ -96,6 +110,11 @@ struct Recorder::State {
   uint64_t rotated_files = 0, rotated_bytes = 0;
   StopReason reason = StopReason::kNone;
   std::string message;
+  // kModels: sessions whose fused cloud came, waiting for their mesh.glb.
+  bool record_clouds = false, record_models = false;
+  std::deque<std::pair<std::size_t, ItemInfo>> models_due;
+  std::condition_variable model_due;
+  static constexpr std::size_t kMaxModelsDue = 16;  // a model per finished scan: never near
 
   void FinishLocked(StopReason why, const std::string& text) {
     if (reason == StopReason::kNone) {
@@ -104,6 +123,7 @@ struct Recorder::State {
     }
     stopping = true;
     done.notify_all();
+    model_due.notify_all();
   }
 
   void Finish(StopReason why, const std::string& text) {
@@ -128,9 +148,10 @@ struct Recorder::State {
 
   void Stored(std::size_t station, RecordKind kind, const ItemInfo& item,
               const StoreResult& result) {
-    const std::string what = Describe(kind == RecordKind::kCaptures ? "capture"
-                                      : kind == RecordKind::kClouds ? "cloud"
-                                                                    : "disparity map",
+    const std::string what = Describe(kind == RecordKind::kCaptures    ? "capture"
+                                      : kind == RecordKind::kClouds    ? "cloud"
+                                      : kind == RecordKind::kDisparity ? "disparity map"
+                                                                       : "model",
                                       item);
     std::lock_guard lock(mutex);
     StationStats& s = stats[station];
@@ -145,9 +166,10 @@ struct Recorder::State {
       case StoreStatus::kStored:
         s.files += result.files;
         s.bytes += result.bytes;
-        (kind == RecordKind::kCaptures ? s.captures
-         : kind == RecordKind::kClouds ? s.clouds
-                                       : s.disparities) += 1;
+        (kind == RecordKind::kCaptures    ? s.captures
+         : kind == RecordKind::kClouds    ? s.clouds
+         : kind == RecordKind::kDisparity ? s.disparities
+                                          : s.models) += 1;
         items += 1;
         spdlog::info("{}: stored {}: {} file(s), {} bytes", item.station, what, result.files,
                      result.bytes);
@@ -202,10 +224,88 @@ struct Recorder::State {
       Malformed(station, "cloud", item,
                 "kind '" + PrintableForLog(meta.kind) + "' does not fit view index " +
                     std::to_string(meta.view_index) + " (fused clouds have view -1)");
-    } else if (Reserve()) {
-      Stored(station, RecordKind::kClouds, item,
-             archive->StoreCloud(item, cloud, meta.world_from_view));
+    } else {
+      if (record_clouds && Reserve()) {
+        Stored(station, RecordKind::kClouds, item,
+               archive->StoreCloud(item, cloud, meta.world_from_view));
+      }
+      // Published after the session's outputs are durable: its model is there.
+      if (record_models && meta.view_index == -1) {
+        std::lock_guard lock(mutex);
+        if (models_due.size() < kMaxModelsDue) {
+          models_due.emplace_back(station, item);
+          model_due.notify_one();
+        } else {
+          spdlog::warn("{}: model of session '{}' skipped: {} models already waiting", item.station,
+                       PrintableForLog(item.session), kMaxModelsDue);
+        }
+      }
     }
+  }
+
+  // kModels: fetches each due session's mesh.glb with `get` (one client per
+  // station, connected when first needed) and stores it.
+  void ModelLoop() {
+    std::vector<std::unique_ptr<client::StationClient>> clients(options.stations.size());
+    const std::filesystem::path scratch =
+        std::filesystem::temp_directory_path() / ("craftscan-record-" + std::to_string(::getpid()));
+    while (true) {
+      std::pair<std::size_t, ItemInfo> due;
+      {
+        std::unique_lock lock(mutex);
+        model_due.wait(lock, [&] { return stopping || !models_due.empty(); });
+        if (stopping) break;
+        due = models_due.front();
+        models_due.pop_front();
+      }
+      const auto& [station, item] = due;
+      try {
+        FetchModel(station, item, scratch, &clients[station]);
+      } catch (const std::exception& e) {
+        spdlog::warn("{}: model of session '{}': {}", item.station, PrintableForLog(item.session),
+                     e.what());
+      }
+    }
+    std::error_code ignored;
+    std::filesystem::remove_all(scratch, ignored);
+  }
+
+  void FetchModel(std::size_t station, const ItemInfo& item, const std::filesystem::path& scratch,
+                  std::unique_ptr<client::StationClient>* connected) {
+    const std::string session = PrintableForLog(item.session);
+    std::string error;
+    if (!*connected) {
+      client::ConnectOptions connect;
+      connect.station = item.station;
+      connect.domain_id = options.domain_id;
+      // The recorder's participant configured the domain in this process:
+      // Cyclone wants further participants of it without a config.
+      connect.dds_config = "";
+      connect.token = options.token;
+      connect.client_name = "craftscan-record";
+      *connected = client::StationClient::Connect(connect, &error);
+      if (!*connected) {
+        spdlog::warn("{}: model of session '{}' not fetched: {}", item.station, session, error);
+        return;
+      }
+    }
+    client::FetchRequest request;
+    request.session = item.session;
+    request.files = {"mesh.glb"};
+    request.out_dir = (scratch / item.station).string();
+    request.cancel = &stopping;
+    const client::FetchResult fetched = (*connected)->Fetch(request);
+    if (fetched.status != client::FetchStatus::kOk) {
+      spdlog::warn("{}: model of session '{}' not fetched: {}", item.station, session,
+                   fetched.message);
+      return;
+    }
+    const std::filesystem::path path = std::filesystem::path(request.out_dir) / "mesh.glb";
+    std::ifstream in(path, std::ios::binary);
+    const std::string glb((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+    std::error_code ignored;
+    std::filesystem::remove(path, ignored);
+    if (Reserve()) Stored(station, RecordKind::kModels, item, archive->StoreModel(item, glb));
   }
 
   void OnDisparity(std::size_t station, const dds::msg::Disparity& m) {
@@ -276,16 +376,24 @@ std::unique_ptr<Recorder> Recorder::Create(const RecorderOptions& options,
     });
     return true;
   };
+  const auto wanted = [&](RecordKind kind) {
+    return std::find(options.what.begin(), options.what.end(), kind) != options.what.end();
+  };
+  state->record_clouds = wanted(RecordKind::kClouds);
+  state->record_models = wanted(RecordKind::kModels);
   for (std::size_t i = 0; i < options.stations.size(); ++i) {
     const std::string& station = options.stations[i];
-    for (RecordKind kind : options.what) {
-      const bool ok =
-          kind == RecordKind::kCaptures ? add(dds::CaptureTopic(station), &State::OnCapture, i)
-          : kind == RecordKind::kClouds ? add(dds::CloudTopic(station), &State::OnCloud, i)
-                                        : add(dds::DisparityTopic(station), &State::OnDisparity, i);
-      if (!ok) return nullptr;
-    }
+    // Models follow the fused clouds: the cloud topic is read for either.
+    if ((state->record_clouds || state->record_models) &&
+        !add(dds::CloudTopic(station), &State::OnCloud, i))
+      return nullptr;
+    if (wanted(RecordKind::kCaptures) && !add(dds::CaptureTopic(station), &State::OnCapture, i))
+      return nullptr;
+    if (wanted(RecordKind::kDisparity) &&
+        !add(dds::DisparityTopic(station), &State::OnDisparity, i))
+      return nullptr;
   }
+  if (state->record_models) loops.push_back([s] { s->ModelLoop(); });
   // Stop() joins the threads before the state (participant, archive) goes.
   for (auto& loop : loops) state->threads.emplace_back(std::move(loop));
   return std::unique_ptr<Recorder>(new Recorder(std::move(state)));

@@ -196,6 +196,36 @@ bool IsStationId(std::string_view text) {
 }
 bool IsDriverName(std::string_view text) { return IsIdentifier(text, 64); }
 
+// Valid UTF-8 (shortest forms, no surrogates) without control characters,
+// at most 1024 bytes: text written into every model's metadata.
+bool IsRightsText(std::string_view text) {
+  if (text.size() > 1024) return false;
+  for (std::size_t i = 0; i < text.size();) {
+    const auto c = static_cast<unsigned char>(text[i]);
+    if (c < 0x20 || c == 0x7f) return false;
+    if (c < 0x80) {
+      ++i;
+      continue;
+    }
+    const int extra = c >= 0xc2 && c <= 0xdf   ? 1
+                      : c >= 0xe0 && c <= 0xef ? 2
+                      : c >= 0xf0 && c <= 0xf4 ? 3
+                                               : -1;
+    if (extra < 0 || i + static_cast<std::size_t>(extra) >= text.size()) return false;
+    unsigned code = c & (0x3fu >> extra);
+    for (int k = 1; k <= extra; ++k) {
+      const auto t = static_cast<unsigned char>(text[i + static_cast<std::size_t>(k)]);
+      if ((t & 0xc0) != 0x80) return false;
+      code = (code << 6) | (t & 0x3fu);
+    }
+    if ((extra == 2 && (code < 0x800 || (code >= 0xd800 && code <= 0xdfff))) ||
+        (extra == 3 && (code < 0x10000 || code > 0x10ffff)) || (code >= 0x80 && code < 0xa0))
+      return false;
+    i += static_cast<std::size_t>(extra) + 1;
+  }
+  return true;
+}
+
 Field PluginPathField() {
   auto check_items = [](const std::vector<std::string>& items, std::string* what) {
     if (items.empty()) {
@@ -463,6 +493,9 @@ std::vector<Field> MakeFields() {
       16));
   f.push_back(
       BoolField("watchdog.enabled", [](DaemonConfig& c) -> bool& { return c.watchdog.enabled; }));
+  f.push_back(StringField(
+      "deliverables.rights", [](DaemonConfig& c) -> std::string& { return c.deliverables.rights; },
+      IsRightsText, "UTF-8 text without control characters, at most 1024 bytes"));
   return f;
 }
 
@@ -493,7 +526,8 @@ const std::vector<std::string>& Sections() {
                                                     "scan",
                                                     "pipeline",
                                                     "limits",
-                                                    "watchdog"};
+                                                    "watchdog",
+                                                    "deliverables"};
   return sections;
 }
 

@@ -523,7 +523,7 @@ bool ReportHtml(const ReportInputs& in, const std::vector<ReportPicture>& pictur
     p << "<footer>Made by craftscan";
     if (!in.generated_utc.empty()) p << " on " + HtmlEscape(in.generated_utc);
     p << ". Units: millimetres and degrees. Files: fused.ply, mesh.ply, mesh.obj, "
-         "report.json.</footer>\n"
+         "report.json; mesh.glb (glTF: metres, +Y up).</footer>\n"
          "</main>\n";
     // Last: the page shows before the model's megabytes are read.
     if (!model.empty()) p << internal::ViewerScriptsHtml(model, bundle, Text(scan, "frame"));

@@ -300,6 +300,9 @@ std::unique_ptr<Daemon> Daemon::Create(const DaemonConfig& config, std::string* 
 
   JobEngineOptions jobs;
   jobs.data_dir = config.data_dir;
+  jobs.station = config.station;
+  jobs.software = std::string("craftscan ") + CRAFTSCAN_VERSION;
+  jobs.rights = config.deliverables.rights;
   jobs.default_views = config.scan.views;
   jobs.default_step_deg = config.scan.step_deg;
   jobs.settle = std::chrono::milliseconds(config.scan.settle_ms);

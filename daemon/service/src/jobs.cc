@@ -544,6 +544,9 @@ JobEngine::JobOutcome JobEngine::RunScanStages(ScanPlan& plan) {
   build.scan.num_threads = options_.threads;
   build.min_disparity = processor.min_disparity();
   build.num_disparities = processor.num_disparities();
+  build.station = options_.station;
+  build.software = options_.software;
+  build.rights = options_.rights;
   ReconstructStage reconstruct(context, &plan.calibration, std::move(build), report_);
 
   std::thread matcher(

@@ -4,6 +4,7 @@
 #include <thread>
 #include <utility>
 
+#include "craftscan/daemon/glb.h"
 #include "craftscan/daemon/jobs.h"
 #include "craftscan/daemon/report.h"
 #include "craftscan/daemon/stages.h"
@@ -269,9 +270,12 @@ ReconstructOutcome ReconstructStage::Run(BoundedQueue<MatchedView>& in) {
   const std::string fused_ply = EncodePly(r.fused, true);
   const std::string mesh_ply = mesh ? EncodeMeshPly(r.mesh.mesh, true) : std::string();
   const std::string mesh_obj = mesh ? EncodeMeshObj(r.mesh.mesh) : std::string();
+  const std::string mesh_glb = mesh ? EncodeModel(report, r) : std::string();
   Status written = session.StoreOutputWith("fused.ply", encoded(fused_ply));
   if (written.ok() && mesh) written = session.StoreOutputWith("mesh.ply", encoded(mesh_ply));
   if (written.ok() && mesh) written = session.StoreOutputWith("mesh.obj", encoded(mesh_obj));
+  if (written.ok() && !mesh_glb.empty())
+    written = session.StoreOutputWith("mesh.glb", encoded(mesh_glb));
   if (written.ok()) written = session.StoreOutput("report.json", report);
   if (!written.ok()) {
     // Storage, not the pipeline: resumable like a capture that failed.
@@ -295,6 +299,34 @@ ReconstructOutcome ReconstructStage::Run(BoundedQueue<MatchedView>& in) {
   out.summary = std::to_string(n) + " views, " + std::to_string(r.fused.size()) + " fused points";
   out.done_detail = "fused " + std::to_string(r.fused.size()) + " points";
   return out;
+}
+
+// mesh.glb with the session's provenance; "" (logged) when it cannot be
+// encoded: the PLY and OBJ still hold the model.
+std::string ReconstructStage::EncodeModel(const std::string& report_json, const ScanResult& r) {
+  Session& session = *context_.session;
+  const Manifest manifest = session.manifest();
+  ModelProvenance p;
+  p.object_name = manifest.object_name;
+  p.session_id = session.id();
+  p.station = options_.station;
+  p.captured_utc =
+      manifest.views.empty() ? manifest.created_utc : manifest.views.begin()->second.captured_utc;
+  if (const auto client = manifest.params.find("client");
+      client != manifest.params.end() && client->is_string())
+    p.client = client->get<std::string>();
+  p.calibration_id = manifest.calibration_id;
+  p.calibration_rms_px = calibration_->report.rms_stereo_px;
+  p.calibration_epipolar_mean_px = calibration_->report.epipolar_mean_px;
+  p.software = options_.software;
+  p.rights = options_.rights;
+  p.scan_report_json = report_json;
+  std::string glb, why;
+  if (!EncodeGlb(r.mesh.mesh, p, &glb, &why)) {
+    context_.Log(drivers::LogLevel::kWarning, "session " + session.id() + ": mesh.glb: " + why);
+    return {};
+  }
+  return glb;
 }
 
 // The page people look at: measurements, calibration, registration and

@@ -391,6 +391,19 @@ Json RegistrationJson(const RegistrationResult& r) {
   return j;
 }
 
+// The axis-aligned bounds of `points` (not empty) in the report's frame, mm:
+// what a reader of fused.ply or mesh.ply finds.
+Json BoundsJson(const std::vector<cv::Vec3f>& points) {
+  cv::Vec3f lo = points.front(), hi = points.front();
+  for (const cv::Vec3f& p : points) {
+    for (int c = 0; c < 3; ++c) {
+      lo[c] = std::min(lo[c], p[c]);
+      hi[c] = std::max(hi[c], p[c]);
+    }
+  }
+  return {{"min", {lo[0], lo[1], lo[2]}}, {"max", {hi[0], hi[1], hi[2]}}};
+}
+
 }  // namespace
 
 std::string ScanReportJson(const ScanResult& result) {
@@ -474,11 +487,14 @@ std::string ScanReportJson(const ScanResult& result) {
       j["quality"] = quality;
     }
     j["fused_points"] = result.fused.size();
+    if (!result.fused.empty()) j["fused_bounds_mm"] = BoundsJson(result.fused.points_mm);
     Json mesh;
     mesh["ok"] = result.mesh.IsUsable();
     mesh["message"] = result.mesh.message;
     mesh["vertices"] = result.mesh.mesh.vertices_mm.size();
     mesh["faces"] = result.mesh.mesh.faces.size();
+    if (!result.mesh.mesh.vertices_mm.empty())
+      mesh["bounds_mm"] = BoundsJson(result.mesh.mesh.vertices_mm);
     j["mesh"] = mesh;
     Json times;
     times["condition_ms"] = result.condition_ms;

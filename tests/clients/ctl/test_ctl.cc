@@ -24,6 +24,9 @@
 #include "ctl_runner.h"
 #include "daemon_fixture.h"
 #include "file_util.h"
+#include "process_util.h"
+#include "test_paths.h"
+#include "wait_util.h"
 
 using craftscan::testing::Ok;
 using craftscan::testing::StatusInto;
@@ -269,7 +272,26 @@ TEST(Craftscanctl, StatusDevicesCaptureTurntableCameraAndRefusals) {
 TEST(Craftscanctl, ScanThenGetEveryOutputByteForByte) {
   Station station;
   std::string error;
-  ASSERT_TRUE(station.Start(&error)) << error;
+  // The station's rights statement (config key deliverables.rights, here
+  // through its environment override) goes into every mesh.glb.
+  const std::string rights = "© 2026 Test Museum, CC BY 4.0";
+  ::setenv("CRAFTSCAN_DELIVERABLES_RIGHTS", rights.c_str(), 1);
+  const bool started = station.Start(&error);
+  ::unsetenv("CRAFTSCAN_DELIVERABLES_RIGHTS");
+  ASSERT_TRUE(started) << error;
+  // craftscan-record keeps each finished scan's model (--what models).
+  const std::string recorded = station.dir() + "/recorded";
+  ::craftscan::testing::ChildProcess recorder;
+  {
+    ::craftscan::testing::SpawnOptions options;
+    options.stdout_path = station.dir() + "/record.out";
+    options.stderr_path = station.dir() + "/record.err";
+    ASSERT_TRUE(::craftscan::testing::Spawn(
+        {::craftscan::testing::RecordPath(), "--station", station.fixture().station(), "--domain",
+         std::to_string(station.fixture().domain()), "--dds-config", station.fixture().dds_config(),
+         "--out", recorded, "--what", "models", "--token", kObserverToken},
+        options, &recorder));
+  }
 
   // A full turn in 4 views closes the loop.
   CtlRun r = station.Run(
@@ -290,6 +312,7 @@ TEST(Craftscanctl, ScanThenGetEveryOutputByteForByte) {
   const daemon::Manifest manifest = opened->manifest();
   opened.reset();
   ASSERT_TRUE(manifest.outputs.count("fused.ply"));
+  ASSERT_TRUE(manifest.outputs.count("mesh.glb"));  // fetched below with the rest
   const std::string out = station.dir() + "/fetched";
   r = station.Run(kObserverToken, {"get", session, "--out", out});
   ASSERT_EQ(r.exit_code, 0) << Describe(r) << station.fixture().Log();
@@ -310,6 +333,66 @@ TEST(Craftscanctl, ScanThenGetEveryOutputByteForByte) {
   EXPECT_EQ(entries, manifest.outputs.size());
   std::printf("get: %zu files, %llu bytes in %.2f s\n", manifest.outputs.size(),
               static_cast<unsigned long long>(bytes), r.seconds);
+  // The fetched mesh.glb says who made it, of what (glb.h; its JSON chunk
+  // follows the 12-byte header and the chunk's 8-byte header).
+  const std::string glb = ReadFile(out + "/mesh.glb");
+  ASSERT_GT(glb.size(), 20u);
+  std::uint32_t json_length = 0;
+  std::memcpy(&json_length, glb.data() + 12, 4);
+  ASSERT_LE(20u + json_length, glb.size());
+  const json gltf = json::parse(glb.substr(20, json_length), nullptr, false);
+  ASSERT_TRUE(gltf.is_object());
+  EXPECT_EQ(gltf["asset"].value("copyright", ""), rights);
+  const json provenance = gltf["asset"]["extras"]["craftscan"];
+  EXPECT_EQ(provenance.value("rights", ""), rights);
+  EXPECT_FALSE(provenance.value("client", "").empty()) << provenance.dump();
+  EXPECT_FALSE(provenance.value("captured_utc", "").empty()) << provenance.dump();
+  // (The sim's exact calibration has no RMS: none is recorded; test_report_glb
+  // checks the figures.)
+  EXPECT_FALSE(provenance["calibration"].contains("rms_stereo_px")) << provenance.dump();
+  EXPECT_EQ(provenance.value("object_name", ""), "carved box");
+  EXPECT_EQ(provenance.value("session_id", ""), session);
+  EXPECT_EQ(provenance.value("station", ""), station.fixture().station());
+  EXPECT_EQ(provenance.value("source_frame", ""), "turntable");
+  EXPECT_EQ(provenance.value("software", "").rfind("craftscan ", 0), 0u) << provenance.dump();
+  EXPECT_EQ(provenance["calibration"].value("id", ""), manifest.calibration_id);
+  // The recorder's copy of the model is the session's, byte for byte.
+  const std::string recorded_glb =
+      recorded + "/" + station.fixture().station() + "/" + session + "/mesh.glb";
+  EXPECT_TRUE(::craftscan::testing::WaitFor([&] { return std::filesystem::exists(recorded_glb); },
+                                            30s, 100ms))
+      << ReadFile(station.dir() + "/record.err");
+  recorder.Signal(SIGTERM);
+  EXPECT_EQ(recorder.Wait(20s), 0) << ReadFile(station.dir() + "/record.err");
+  EXPECT_TRUE(ReadFile(recorded_glb) == glb) << "recorded mesh.glb differs";
+  EXPECT_NE(ReadFile(recorded + "/" + station.fixture().station() + "/" + session + "/index.jsonl")
+                .find("\"kind\":\"model\""),
+            std::string::npos);
+  // The fetched outputs through independent readers (tests/deliverables):
+  // the Khronos glTF-Validator (0 errors, 0 warnings) and Open3D (counts
+  // and bounds as report.json says).
+  const std::string checks = std::string(::craftscan::testing::SourceDir()) + "/tests/deliverables";
+  ::setenv("NODE_PATH",
+           (std::string(::craftscan::testing::SourceDir()) + "/clients/web/node_modules").c_str(),
+           1);
+  for (const std::vector<std::string>& argv :
+       {std::vector<std::string>{"/usr/bin/node", checks + "/validate_glb.mjs", out},
+        std::vector<std::string>{"/usr/bin/python3", checks + "/third_party_readers.py", out}}) {
+    if (!std::filesystem::exists(argv[0])) {
+      std::printf("%s skipped: no %s\n", argv[1].c_str(), argv[0].c_str());
+      continue;
+    }
+    const std::string log = station.dir() + "/check.log";
+    ::craftscan::testing::ChildProcess child;
+    ::craftscan::testing::SpawnOptions options;
+    options.stdout_path = log;
+    options.stderr_to_stdout = true;
+    ASSERT_TRUE(::craftscan::testing::Spawn(argv, options, &child)) << argv[0];
+    const int code = child.Wait(60s);
+    std::printf("%s", ReadFile(log).c_str());
+    if (code == 77) continue;  // its reader is not installed: said in the log
+    EXPECT_EQ(code, 0) << argv[1] << ":\n" << ReadFile(log);
+  }
 
   // One file in small chunks (many chunks, several acknowledgement windows).
   const std::string one = station.dir() + "/one";

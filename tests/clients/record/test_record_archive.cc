@@ -240,6 +240,34 @@ TEST(RecordArchive, RefusesInconsistentItems) {
   EXPECT_FALSE(fs::exists(fs::path(dir.path()) / "st1"));
 }
 
+TEST(RecordArchive, StoresAModelByteForByteAndCountsItWhenReopened) {
+  TempDir dir("craftscan-record-test");
+  std::string glb = "glTF";
+  for (int i = 0; i < 1000; ++i) glb.push_back(static_cast<char>(i * 7));
+  {
+    auto archive = OpenArchive(dir.path());
+    ASSERT_NE(archive, nullptr);
+    EXPECT_EQ(archive->StoreModel({"st1", "s", -1, 0}, "").status, StoreStatus::kRefused);
+    EXPECT_EQ(archive->StoreModel({"st1", "s", 2, 0}, glb).status, StoreStatus::kRefused);
+    const StoreResult result = archive->StoreModel({"st1", "20240611-101500-egg", -1, 77}, glb);
+    ASSERT_EQ(result.status, StoreStatus::kStored) << result.message;
+    EXPECT_EQ(result.files, 1u);
+    EXPECT_EQ(result.bytes, glb.size());
+  }
+  const fs::path folder = fs::path(dir.path()) / "st1" / "20240611-101500-egg";
+  EXPECT_TRUE(testing::ReadFile(folder / "mesh.glb") == glb);
+  const std::vector<nlohmann::json> index = ReadIndex(folder);
+  ASSERT_EQ(index.size(), 1u);
+  EXPECT_EQ(index[0]["file"], "mesh.glb");
+  EXPECT_EQ(index[0]["kind"], "model");
+  EXPECT_EQ(index[0]["view"], -1);
+  EXPECT_EQ(index[0]["bytes"], glb.size());
+  auto reopened = OpenArchive(dir.path());  // a data file of the archive: counted
+  ASSERT_NE(reopened, nullptr);
+  EXPECT_EQ(reopened->totals().files, 1u);
+  EXPECT_EQ(reopened->totals().bytes, glb.size());
+}
+
 TEST(RecordArchive, SameItemTwiceReplacesTheFile) {
   TempDir dir("craftscan-record-test");
   auto archive = OpenArchive(dir.path(), /*max_files=*/1);

@@ -76,6 +76,7 @@ pipeline:
   mesh_method: implicit
 limits: {max_command_bytes: 4096, queue_capacity: 3}
 watchdog: {enabled: no}
+deliverables: {rights: "© 2026 Musée d'Orsay: CC BY-NC 4.0"}
 )";
   DaemonConfig c;
   std::string error;
@@ -121,6 +122,7 @@ watchdog: {enabled: no}
   EXPECT_EQ(c.limits.max_command_bytes, 4096);
   EXPECT_EQ(c.limits.queue_capacity, 3);
   EXPECT_FALSE(c.watchdog.enabled);
+  EXPECT_EQ(c.deliverables.rights, "© 2026 Musée d'Orsay: CC BY-NC 4.0");
 
   const ADCensusOptions matcher = MatcherOptions(c.pipeline);
   EXPECT_EQ(matcher.num_threads, 4);
@@ -142,6 +144,7 @@ watchdog: {enabled: no}
   EXPECT_EQ(DumpDaemonConfig(again), DumpDaemonConfig(c));
   EXPECT_EQ(again.devices.camera.config, c.devices.camera.config);
   EXPECT_EQ(again.calibration.board.aruco_dictionary, 5);
+  EXPECT_EQ(again.deliverables.rights, c.deliverables.rights);
 }
 
 // One bad value per field: the load fails and the message names the field
@@ -297,6 +300,13 @@ INSTANTIATE_TEST_SUITE_P(
                      "limits.queue_capacity: must be an integer in 1..16, got '17'"},
         BadValueCase{"watchdog: {enabled: 2}\n",
                      "watchdog.enabled: must be true or false, got '2'"},
+        BadValueCase{"deliverables: {rights: \"a\\tb\"}\n",
+                     "deliverables.rights: must be UTF-8 text without control characters, at "
+                     "most 1024 bytes"},
+        BadValueCase{"deliverables: {rights: \"\\x85\"}\n",  // C1 control NEL
+                     "deliverables.rights: must be UTF-8 text without control characters"},
+        BadValueCase{"deliverables: {rights: " + std::string(1025, 'x') + "}\n",
+                     "deliverables.rights: must be UTF-8 text without control characters"},
         BadValueCase{"scan: {views: [6]}\n", "scan.views: must be a single value, not a list"},
         BadValueCase{"scan: {views: {n: 6}}\n",
                      "scan.views: must be a single value, not a mapping"},
@@ -413,8 +423,8 @@ TEST(DaemonConfig, EnvironmentVariableNamesAreUniqueAndDocumented) {
   for (const char* name :
        {"CRAFTSCAN_STATION", "CRAFTSCAN_DATA_DIR", "CRAFTSCAN_DDS_DOMAIN", "CRAFTSCAN_LOG_LEVEL",
         "CRAFTSCAN_SCAN_VIEWS", "CRAFTSCAN_DDS_CONFIG_FILE", "CRAFTSCAN_AUTH_TOKENS_FILE",
-        "CRAFTSCAN_PLUGINS_PATH", "CRAFTSCAN_DEVICES_CAMERA_DRIVER",
-        "CRAFTSCAN_WATCHDOG_ENABLED"}) {
+        "CRAFTSCAN_PLUGINS_PATH", "CRAFTSCAN_DEVICES_CAMERA_DRIVER", "CRAFTSCAN_WATCHDOG_ENABLED",
+        "CRAFTSCAN_DELIVERABLES_RIGHTS"}) {
     EXPECT_TRUE(unique.count(name)) << name;
   }
 }

@@ -430,7 +430,8 @@ TEST_F(JobStages, ScanIsDoneWithEveryViewAndPublishesDoneOnlyAfterTheSessionIsCl
   const Manifest manifest = station.ManifestOf(started.session);
   EXPECT_EQ(manifest.state, SessionState::kDone);
   EXPECT_EQ(station.ViewsWithCloud(started.session), Range(0, kViews));
-  for (const char* output : {"fused.ply", "mesh.ply", "mesh.obj", "report.json", "report.html"}) {
+  for (const char* output :
+       {"fused.ply", "mesh.ply", "mesh.obj", "mesh.glb", "report.json", "report.html"}) {
     EXPECT_TRUE(manifest.outputs.count(output)) << output;
   }
 }

@@ -4,6 +4,7 @@
 //
 //   <out>/<station>/<session>/view_NNN_left.png, view_NNN_right.png
 //                             cloud_NNN.ply, fused.ply, disparity_NNN.pfm
+//                             mesh.glb (the station's model, --what models)
 //                             index.jsonl   one JSON object per data file
 //   <out>/.lock                             held (flock) while a recorder writes
 //   <out>/.staging/                         files being written (emptied on open)
@@ -146,6 +147,11 @@ class Archive {
   // A CV_32FC1 disparity map (NaN = invalid, kept) as disparity_NNN.pfm;
   // sides 1..32768 px, else kRefused.
   StoreResult StoreDisparity(const ItemInfo& item, const cv::Mat& disparity);
+
+  // A session's model as the station stored it (its mesh.glb, fetched with
+  // `get`), byte for byte, as mesh.glb (index kind "model"). Empty bytes or
+  // a view index other than −1: kRefused.
+  StoreResult StoreModel(const ItemInfo& item, const std::string& glb);
 
   ArchiveTotals totals() const;
   const ArchiveOptions& options() const;

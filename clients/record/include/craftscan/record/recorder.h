@@ -21,8 +21,11 @@
 namespace craftscan::record {
 
 // What to record.
-enum class RecordKind { kCaptures, kClouds, kDisparity };
-std::string_view ToString(RecordKind kind);  // "captures", "clouds", "disparity"
+// kModels: each session's mesh.glb, fetched from the station (`get`, which
+// needs `token`) when its fused cloud is published (the model is durable by
+// then); a session without one (no mesh) is logged and skipped.
+enum class RecordKind { kCaptures, kClouds, kDisparity, kModels };
+std::string_view ToString(RecordKind kind);  // "captures", "clouds", "disparity", "models"
 // Parses one of the names above; false for anything else.
 bool RecordKindFromString(std::string_view text, RecordKind* kind);
 
@@ -36,6 +39,9 @@ struct RecorderOptions {
   uint64_t max_items = 0;      // stop after this many stored items (a capture = 1); 0 = no limit
   int32_t reader_history = 8;  // unread samples kept per topic, 1..64
   int32_t poll_ms = 200;       // how often reader threads look at the stop flag, ms, 10..1000
+  // For kModels: a token the station's tokens file lists (observer is
+  // enough); required with kModels.
+  std::string token;
 
   // False with *why (may be null) naming the first field that is wrong.
   bool IsValid(std::string* why) const;
@@ -46,7 +52,7 @@ struct StationStats {
   std::string station;
   uint64_t files = 0;  // data files stored
   uint64_t bytes = 0;
-  uint64_t captures = 0, clouds = 0, disparities = 0;  // items stored
+  uint64_t captures = 0, clouds = 0, disparities = 0, models = 0;  // items stored
   uint64_t malformed = 0;  // samples skipped: inconsistent sizes or data
   uint64_t refused = 0;    // samples skipped: bad session name or view index
   uint64_t too_large = 0;  // items larger than the limit (rotate policy)

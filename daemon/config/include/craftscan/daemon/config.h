@@ -80,6 +80,12 @@
 //   watchdog:
 //     enabled: true               ping systemd's watchdog when it asks
 //                                 (WATCHDOG_USEC); false never pings
+//   deliverables:
+//     rights: ""                  rights statement and licence written into
+//                                 every model (mesh.glb's asset.copyright and
+//                                 provenance), e.g. "© 2026 Museum X, CC BY 4.0";
+//                                 UTF-8, no control characters, ≤ 1024 bytes;
+//                                 "" = none
 //
 // Booleans: true/false (also yes/no, on/off, 1/0). Numbers: plain decimal
 // (no hex, no units, no trailing text).
@@ -251,6 +257,13 @@ struct WatchdogSettings {
   bool enabled = true;  // ping when systemd sets WATCHDOG_USEC; false: never ping
 };
 
+struct DeliverableSettings {
+  // Rights statement and licence of the station's models (mesh.glb's
+  // asset.copyright and provenance): valid UTF-8 without control
+  // characters, at most 1024 bytes; "" = none recorded.
+  std::string rights;
+};
+
 struct DaemonConfig {
   std::string station = "station1";             // [A-Za-z0-9_]{1,32}
   std::string data_dir = "/var/lib/craftscan";  // absolute
@@ -264,6 +277,7 @@ struct DaemonConfig {
   PipelineSettings pipeline;
   LimitSettings limits;
   WatchdogSettings watchdog;
+  DeliverableSettings deliverables;
 
   // Checks every field's range and the cross-field rules (board validity,
   // views × step_deg ≤ 360, volume heights ordered, matcher options). On

@@ -88,6 +88,10 @@ class JobSink {
 
 struct JobEngineOptions {
   std::string data_dir;
+  // Provenance in every scan's mesh.glb (ReconstructStage::Options).
+  std::string station;
+  std::string software;  // "craftscan <version>"
+  std::string rights;    // deliverables.rights; "" = none
   int default_views = 6;
   double default_step_deg = 60;
   std::chrono::milliseconds settle{200};

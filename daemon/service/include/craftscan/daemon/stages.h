@@ -218,7 +218,8 @@ struct ReconstructOutcome {
 // As the views come (IncrementalScan): each view conditioned and registered
 // onto the one before while the turntable turns. After the last view:
 // session reconstructing, the rest of the reconstruction (closing edge, loop
-// closure, fusion, mesh, measurements), fused.ply, mesh.ply, mesh.obj
+// closure, fusion, mesh, measurements), fused.ply, mesh.ply, mesh.obj,
+// mesh.glb (glb.h; one that cannot be encoded is logged, not a failure)
 // and report.json stored, then the report pages (a report that cannot be made
 // is logged, not a failure), then the fused cloud published. Thread: its own.
 class ReconstructStage {
@@ -229,6 +230,11 @@ class ReconstructStage {
     ScanOptions scan;
     int min_disparity = 0;  // the band searched (for the report's colour scale), px
     int num_disparities = 0;
+    // Provenance written into mesh.glb (craftscan/daemon/glb.h) besides the
+    // session's own (object, client, capture time, calibration).
+    std::string station;   // the station id
+    std::string software;  // "craftscan <version>"
+    std::string rights;    // the config's deliverables.rights; "" = none
   };
   // `report` may be empty: no report pages.
   ReconstructStage(StageContext context, const StereoCalibration* calibration, Options options,
@@ -246,6 +252,7 @@ class ReconstructStage {
   ReconstructOutcome Run(BoundedQueue<MatchedView>& in);
 
  private:
+  std::string EncodeModel(const std::string& report_json, const ScanResult& r);
   void StoreReport(const std::string& report_json, const ScanResult& r, nlohmann::json* result);
 
   StageContext context_;

@@ -770,7 +770,7 @@ TEST_F(Mesh, DegenerateInputsFail) {
   // Writers refuse invalid meshes.
   TriangleMesh broken;
   broken.vertices_mm = {{0, 0, 0}, {1, 0, 0}, {0, 1, 0}};
-  broken.faces = {{0, 1, 3}};
+  broken.faces.emplace_back(0, 1, 3);
   std::string error;
   EXPECT_FALSE(WriteMeshPly(Path("broken.ply"), broken, true, &error));
   EXPECT_CONTAINS(error, "references vertex 3");

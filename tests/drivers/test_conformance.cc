@@ -731,7 +731,13 @@ TEST_F(SerialTurntablePlugin, AbortWithResetLosesThePosition) {
   EXPECT_EQ(move.code, StatusCode::kAborted) << move.ToString();
   EXPECT_EQ(table.Status().state, TurntableState::kUnhomed);
   EXPECT_FALSE(table.Status().homed);
-  EXPECT_EQ(bench.emulator->state(), "Alarm");  // GRBL: reset in motion
+  // GRBL: reset in motion. The emulator handles the reset byte on its own
+  // thread, which may not have run yet when Abort returns.
+  const auto alarm_by = Clock::now() + std::chrono::seconds(2);
+  while (bench.emulator->state() != "Alarm" && Clock::now() < alarm_by) {
+    std::this_thread::sleep_for(milliseconds(1));
+  }
+  EXPECT_EQ(bench.emulator->state(), "Alarm");
   const double stopped = bench.emulator->machine_position_deg();
   EXPECT_GT(stopped, 0.5);
   EXPECT_LT(stopped, 89.5);

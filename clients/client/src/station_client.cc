@@ -519,7 +519,9 @@ FetchResult StationClient::Fetch(const FetchRequest& request) {
                       "with a longer timeout)");
   }
   nlohmann::json args = {{"session", request.session}, {"chunk_bytes", request.chunk_bytes}};
-  if (request.files.empty()) {
+  if (request.whole_session) {
+    args["files"] = "session";
+  } else if (request.files.empty()) {
     args["files"] = "all";
   } else {
     args["files"] = request.files;

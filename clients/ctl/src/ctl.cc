@@ -429,11 +429,12 @@ int Ctl::Camera(const json& args) {
 }
 
 int Ctl::Fetch(const std::string& session, const std::string& out_dir,
-               const std::vector<std::string>& files, std::size_t chunk_bytes,
+               const std::vector<std::string>& files, bool whole_session, std::size_t chunk_bytes,
                client::FetchResult* fetched) {
   client::FetchRequest request;
   request.session = session;
   request.files = files;
+  request.whole_session = whole_session && files.empty();
   request.out_dir = out_dir;
   request.chunk_bytes = chunk_bytes;
   request.timeout = Ms(options_.timeout_s);
@@ -489,7 +490,8 @@ int Ctl::Fetch(const std::string& session, const std::string& out_dir,
 int Ctl::Get(const std::string& session, const std::string& out_dir,
              const std::vector<std::string>& files, std::size_t chunk_bytes) {
   client::FetchResult result;
-  if (const int rc = Fetch(session, out_dir, files, chunk_bytes, &result)) return rc;
+  if (const int rc = Fetch(session, out_dir, files, /*whole_session=*/false, chunk_bytes, &result))
+    return rc;
   if (options_.json) {
     json list = json::array();
     for (const client::FetchedFile& f : result.files) {
@@ -526,7 +528,12 @@ int Ctl::GetBag(const std::string& session, const std::string& bag_dir,
     return kExitLocalError;
   }
   client::FetchResult result;
-  if (const int rc = Fetch(session, bag->data_dir(), files, chunk_bytes, &result)) return rc;
+  // Without --file, the whole session: what an archive keeps (captures,
+  // calibration, manifest, outputs).
+  if (const int rc =
+          Fetch(session, bag->data_dir(), files, /*whole_session=*/true, chunk_bytes, &result)) {
+    return rc;
+  }
   // The bag's manifest hashes the files again from disk; each must equal
   // the SHA-256 of the bytes received, which the transfer checked against
   // the station's manifest (end to end: station disk → DDS → bag).

@@ -79,8 +79,10 @@ class Ctl {
              const std::function<std::string(const client::Reply&)>& text);
   int Unreachable(const std::string& message) const;
   // The transfer of get (progress bar, error messages); kExitOk with *result.
+  // files empty: every output, or with whole_session every file of the
+  // session folder (FetchRequest::whole_session).
   int Fetch(const std::string& session, const std::string& out_dir,
-            const std::vector<std::string>& files, std::size_t chunk_bytes,
+            const std::vector<std::string>& files, bool whole_session, std::size_t chunk_bytes,
             client::FetchResult* result);
   void PrintJson(const nlohmann::json& value) const;
   bool Interrupted() const { return interrupted_ && interrupted_->load(); }

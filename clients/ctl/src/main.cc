@@ -184,8 +184,9 @@ int main(int argc, char** argv) {
       get->add_option("--out", out_dir, "folder to write the files to (created)");
   CLI::Option* bagit_option = get->add_option(
       "--bagit", bag_dir,
-      "write a BagIt 1.0 bag (RFC 8493) of the files to this new or empty folder instead: "
-      "data/, bagit.txt, bag-info.txt, manifest-sha256.txt, tagmanifest-sha256.txt");
+      "write a BagIt 1.0 bag (RFC 8493) to this new or empty folder instead: the whole "
+      "session (manifest.json, calibration.yaml, views/, the outputs) or the --file outputs "
+      "under data/, bagit.txt, bag-info.txt, manifest-sha256.txt, tagmanifest-sha256.txt");
   out_option->excludes(bagit_option);
   get->add_option("--source-organization", source_organization,
                   "bag-info.txt Source-Organization of a --bagit bag (default: "

@@ -13,7 +13,8 @@
 namespace craftscan::daemon {
 namespace {
 
-// kNames: the string "all" or a list of 1..256 strings of min..max bytes.
+// kNames: the string "all" or "session", or a list of 1..256 strings of
+// min..max bytes.
 // kNumbers: a list of at most `max` numbers (values are the verb's to check).
 enum class ArgType { kString, kInt, kNumber, kNames, kNumbers };
 
@@ -96,14 +97,17 @@ bool CheckArguments(const std::map<std::string, ArgSpec>& spec, const nlohmann::
         }
         break;
       case ArgType::kNames: {
-        if (value.is_string() && value.get_ref<const std::string&>() == "all") break;
+        if (value.is_string() && (value.get_ref<const std::string&>() == "all" ||
+                                  value.get_ref<const std::string&>() == "session")) {
+          break;
+        }
         bool ok = value.is_array() && !value.empty() && value.size() <= 256;
         for (std::size_t i = 0; ok && i < value.size(); ++i) {
           ok = value[i].is_string() && value[i].get_ref<const std::string&>().size() >= s.min &&
                value[i].get_ref<const std::string&>().size() <= s.max;
         }
         if (!ok) {
-          *why = key + ": must be \"all\" or a list of 1..256 names of " +
+          *why = key + ": must be \"all\", \"session\" or a list of 1..256 names of " +
                  std::to_string(static_cast<int>(s.min)) + ".." +
                  std::to_string(static_cast<int>(s.max)) + " bytes";
           return false;

@@ -13,6 +13,7 @@
 #include "craftscan/daemon/devices.h"
 #include "craftscan/daemon/jobs.h"
 #include "craftscan/daemon/session_store.h"
+#include "craftscan/pipeline/common/sha256.h"
 
 namespace craftscan::daemon {
 namespace {
@@ -297,11 +298,23 @@ CommandReply CommandHandler::GetFiles(const std::string& id, const nlohmann::jso
     return refuse(ReplyCode::kNotFound, "unknown session " + id);
   if (!ReadManifest(*store_, id, &text, &manifest, &error))
     return refuse(ReplyCode::kNotFound, error);
-  std::vector<std::string> names;
-  const nlohmann::json& files = args["files"];  // "all" or valid names (CheckCommand)
-  if (files.is_string()) {
-    for (const auto& [name, unused] : manifest.outputs) names.push_back(name);
-    if (names.empty()) {
+  // The files to send, by name: the outputs ("all"), the named outputs, or
+  // the whole session ("session": the manifest, the calibration copy, every
+  // view's durable files and the outputs, e.g. for an archive's BagIt bag).
+  std::vector<std::pair<std::string, FileRecord>> named;
+  const nlohmann::json& files = args["files"];  // "all", "session" or valid names (CheckCommand)
+  if (files.is_string() && files.get_ref<const std::string&>() == "session") {
+    named.emplace_back(kManifestJson, FileRecord{text.size(), Fnv1a64(text), Sha256Hex(text)});
+    if (manifest.calibration) named.emplace_back(kCalibrationYaml, *manifest.calibration);
+    for (const auto& [index, view] : manifest.views) {
+      char folder[16];
+      std::snprintf(folder, sizeof folder, "views/%03d/", index);
+      for (const auto& [name, record] : view.files) named.emplace_back(folder + name, record);
+    }
+    for (const auto& [name, record] : manifest.outputs) named.emplace_back(name, record);
+  } else if (files.is_string()) {
+    for (const auto& [name, record] : manifest.outputs) named.emplace_back(name, record);
+    if (named.empty()) {
       return refuse(ReplyCode::kNotFound,
                     "session " + id + " has no outputs (it is " + ToString(manifest.state) + ")");
     }
@@ -318,7 +331,7 @@ CommandReply CommandHandler::GetFiles(const std::string& id, const nlohmann::jso
                       "session " + id + " has no durable output '" + name +
                           "' (it has: " + (available.empty() ? "none" : available) + ")");
       }
-      if (seen.insert(name).second) names.push_back(name);
+      if (seen.insert(name).second) named.emplace_back(name, manifest.outputs.at(name));
     }
   }
   FileTransfer transfer;
@@ -326,8 +339,7 @@ CommandReply CommandHandler::GetFiles(const std::string& id, const nlohmann::jso
   transfer.chunk_bytes = args.value("chunk_bytes", kDefaultTransferChunkBytes);
   nlohmann::json list = nlohmann::json::array();
   std::uint64_t total = 0;
-  for (const std::string& name : names) {
-    const FileRecord& record = manifest.outputs.at(name);
+  for (const auto& [name, record] : named) {
     transfer.files.push_back(
         {name, store_->sessions_dir() + "/" + id + "/" + name, record.size_bytes, record.fnv1a64});
     nlohmann::json entry = {
@@ -338,7 +350,7 @@ CommandReply CommandHandler::GetFiles(const std::string& id, const nlohmann::jso
   }
   reply.code = ReplyCode::kOk;
   reply.message =
-      "sending " + std::to_string(names.size()) + " files, " + std::to_string(total) + " bytes";
+      "sending " + std::to_string(named.size()) + " files, " + std::to_string(total) + " bytes";
   reply.result = {{"session", id},
                   {"state", ToString(manifest.state)},
                   {"chunk_bytes", transfer.chunk_bytes},

@@ -16,8 +16,8 @@ struct Session::Lock {
 
 namespace internal {
 
-inline constexpr const char* kManifestJson = "manifest.json";
-inline constexpr const char* kCalibrationYaml = "calibration.yaml";
+using daemon::kCalibrationYaml;
+using daemon::kManifestJson;
 
 // "views/003".
 std::string ViewFolder(int view);

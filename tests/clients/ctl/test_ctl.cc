@@ -413,24 +413,37 @@ TEST(Craftscanctl, ScanThenGetEveryOutputByteForByte) {
   EXPECT_NE(r.err.find("fused.ply"), std::string::npos) << "names what there is: " << r.err;
   EXPECT_FALSE(std::filesystem::exists(one + "/nothing.ply"));
 
-  // The scan's outputs as a BagIt bag, checked independently: sha256sum -c
-  // on both manifests inside the bag, the RFC 8493 structure rules, every
-  // output byte for byte, and a flipped byte caught.
+  // The whole session as a BagIt bag (what an archive keeps: manifest,
+  // calibration copy, every view's captures, disparity and cloud, the
+  // outputs), checked independently: sha256sum -c on both manifests inside
+  // the bag, the RFC 8493 structure rules, every file byte for byte against
+  // the session folder, and a flipped byte caught.
   const std::string bag = station.dir() + "/bags/" + session;
   r = station.Run(kObserverToken,
                   {"get", session, "--bagit", bag, "--source-organization", "Craft Museum"});
   ASSERT_EQ(r.exit_code, 0) << Describe(r);
   std::printf("get --bagit in %.2f s: %s", r.seconds, r.out.c_str());
   ExpectVerifiableBag(bag, "Craft Museum", session);
-  for (const auto& [name, record] : manifest.outputs) {
+  std::vector<std::string> expected = {"manifest.json"};
+  if (manifest.calibration) expected.push_back("calibration.yaml");
+  for (const auto& [index, view] : manifest.views) {
+    char folder[16];
+    std::snprintf(folder, sizeof folder, "views/%03d/", index);
+    for (const auto& [name, record] : view.files) expected.push_back(folder + name);
+  }
+  for (const auto& [name, record] : manifest.outputs) expected.push_back(name);
+  EXPECT_TRUE(manifest.calibration.has_value());
+  EXPECT_GE(expected.size(), manifest.outputs.size() + 2 + 4 * manifest.views.size());
+  for (const std::string& name : expected) {
     EXPECT_TRUE(ReadFile(bag + "/data/" + name) == ReadFile(session_dir + "/" + name)) << name;
   }
   std::size_t payload = 0;
   for (const auto& entry : std::filesystem::recursive_directory_iterator(bag + "/data")) {
     payload += entry.is_regular_file() ? 1 : 0;
   }
-  EXPECT_EQ(payload, manifest.outputs.size());
+  EXPECT_EQ(payload, expected.size());
   ExpectFlippedByteFails(bag, "data/fused.ply");
+  ExpectFlippedByteFails(bag, "data/views/000/left.png");
 }
 
 TEST(Craftscanctl, CancelOfARunningScanExitsFourAndResumeCompletesIt) {
@@ -527,11 +540,14 @@ TEST(Craftscanctl, GetBagitMakesVerifiableBagsOfNewAndOldSessionsAndRefusesClear
     ASSERT_EQ(r.exit_code, 0) << Describe(r) << station.fixture().Log();
     const json done = ParseJson(r);
     EXPECT_EQ(done.value("bag", ""), bag) << r.out;
-    EXPECT_EQ(done.value("payload_files", 0), 3) << r.out;
+    EXPECT_EQ(done.value("payload_files", 0), 4) << r.out;  // the manifest and 3 outputs
     ExpectVerifiableBag(bag, "Museum A", id);
     for (const auto& [name, bytes] : outputs) {
       EXPECT_TRUE(ReadFile(bag + "/data/" + name) == bytes) << id << " " << name;
     }
+    EXPECT_TRUE(ReadFile(bag + "/data/manifest.json") ==
+                ReadFile(station.fixture().data_dir() + "/sessions/" + id + "/manifest.json"))
+        << id;
     ExpectFlippedByteFails(bag, "data/previews/top.png");
   }
 

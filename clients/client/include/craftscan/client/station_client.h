@@ -172,7 +172,10 @@ struct FetchProgress {
 struct FetchRequest {
   std::string session;             // session id
   std::vector<std::string> files;  // output names; empty = all the session's outputs
-  std::string out_dir;             // created if missing; files replace same-named ones
+  // Instead of outputs: every file of the session folder (manifest.json,
+  // calibration.yaml, views/NNN/..., the outputs), as an archive keeps it.
+  bool whole_session = false;
+  std::string out_dir;  // created if missing; files replace same-named ones
   std::size_t chunk_bytes = std::size_t{1} << 20;  // 4096 .. 4 MiB
   // For the reply, and then for each chunk (the transfer may take longer as
   // long as data keeps coming).

@@ -60,10 +60,13 @@
 //   delete                               admin; {"session": str}: the session folder moved to
 //                                        <data_dir>/trash (busy while a job holds it)
 //
-// get with files: {"session": str, "files": "all" | [name, ...],
+// get with files: {"session": str, "files": "all" | "session" | [name, ...],
 //                  "chunk_bytes": int 4096..4194304 (default 1 MiB)}
 // sends durable outputs of the session (the manifest's "outputs": fused.ply,
-// mesh.ply, mesh.obj, report.json, report.html, previews/...) over the
+// mesh.ply, mesh.obj, report.json, report.html, previews/...), or with
+// "session" the whole session as it is on disk (manifest.json as read now,
+// calibration.yaml, every view's durable files views/NNN/..., the outputs:
+// what an archive keeps, e.g. `craftscanctl get --bagit`), over the
 // station's file topic (craftscan/<station>/file, SessionFile). Names are
 // checked with IsValidOutputName (bad_argument) and must be listed in the
 // manifest (not_found, naming the outputs there are; "all" of a session

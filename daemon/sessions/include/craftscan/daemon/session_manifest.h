@@ -74,6 +74,10 @@ struct FileRecord {
   bool operator==(const FileRecord&) const = default;
 };
 
+// A session folder's manifest and calibration copy.
+inline constexpr const char* kManifestJson = "manifest.json";
+inline constexpr const char* kCalibrationYaml = "calibration.yaml";
+
 // File names inside views/NNN/.
 inline constexpr const char* kLeftPng = "left.png";
 inline constexpr const char* kRightPng = "right.png";

@@ -526,110 +526,128 @@ FetchResult StationClient::Fetch(const FetchRequest& request) {
   } else {
     args["files"] = request.files;
   }
-  CallResult sent =
-      d.Send("get", args.dump(), request.token.empty() ? d.options.token : request.token, deadline,
-             request.timeout);
-  if (sent.status != CallStatus::kReplied) {
-    return finish(sent.status == CallStatus::kUnreachable ? FetchStatus::kUnreachable
-                                                          : FetchStatus::kLocalError,
-                  sent.message);
-  }
-  const std::string id = sent.request_id;
-  struct Forget {
-    Impl& d;
-    const std::string& id;
-    ~Forget() { d.Forget(id); }
-  } forget{d, id};
+  // A station's file writer can match this reader a moment after this
+  // reader matched it (discovery runs both ways independently): chunks sent
+  // before that go by unseen. A transfer whose first chunk is not the start
+  // of file 0 is therefore asked for again, a bounded number of times.
+  constexpr int kAttempts = 3;
+  for (int attempt = 1;; ++attempt) {
+    const auto reply_deadline = attempt == 1 ? deadline : Clock::now() + request.timeout;
+    CallResult sent =
+        d.Send("get", args.dump(), request.token.empty() ? d.options.token : request.token,
+               reply_deadline, request.timeout);
+    if (sent.status != CallStatus::kReplied) {
+      return finish(sent.status == CallStatus::kUnreachable ? FetchStatus::kUnreachable
+                                                            : FetchStatus::kLocalError,
+                    sent.message);
+    }
+    const std::string id = sent.request_id;
+    struct Forget {
+      Impl& d;
+      const std::string& id;
+      ~Forget() { d.Forget(id); }
+    } forget{d, id};
 
-  FileAssembler assembler(request.out_dir);
-  bool have_reply = false;
-  auto last_data = Clock::now();
-  auto replied_at = last_data;
-  dds::Sample<dds::msg::SessionFile> sample;
-  FetchProgress progress;
-  for (;;) {
-    if (request.cancel && request.cancel->load())
-      return finish(FetchStatus::kLocalError, "cancelled");
-    if (!have_reply) {
-      if (std::optional<Reply> reply = d.WaitReply(id, Clock::now())) {
-        have_reply = true;
-        last_data = replied_at = Clock::now();
-        result.reply = *reply;
-        if (!reply->ok()) {
-          return finish(FetchStatus::kRefused, reply->code_name + ": " + reply->message);
+    FileAssembler assembler(request.out_dir);
+    bool have_reply = false, seen_chunk = false, started_late = false;
+    auto last_data = Clock::now();
+    auto replied_at = last_data;
+    dds::Sample<dds::msg::SessionFile> sample;
+    FetchProgress progress;
+    for (;;) {
+      if (request.cancel && request.cancel->load())
+        return finish(FetchStatus::kLocalError, "cancelled");
+      if (!have_reply) {
+        if (std::optional<Reply> reply = d.WaitReply(id, Clock::now())) {
+          have_reply = true;
+          last_data = replied_at = Clock::now();
+          result.reply = *reply;
+          if (!reply->ok()) {
+            return finish(FetchStatus::kRefused, reply->code_name + ": " + reply->message);
+          }
+          std::vector<ExpectedFile> expected;
+          const nlohmann::json& list =
+              reply->result.contains("files") ? reply->result["files"] : nlohmann::json();
+          for (const nlohmann::json& f : list.is_array() ? list : nlohmann::json::array()) {
+            ExpectedFile e;
+            e.name = f.value("name", "");
+            e.size_bytes = f.value("size", std::uint64_t{0});
+            const std::optional<std::uint64_t> hash = ParseHex64(f.value("fnv1a64", ""));
+            if (!hash)
+              return finish(FetchStatus::kTransferFailed,
+                            "the reply lists a file without a checksum");
+            e.fnv1a64 = *hash;
+            e.sha256 = f.value("sha256", "");  // absent from a station's old manifests
+            expected.push_back(std::move(e));
+          }
+          progress.bytes_total = 0;
+          for (const ExpectedFile& e : expected) progress.bytes_total += e.size_bytes;
+          if (!assembler.SetExpected(std::move(expected), &why)) {
+            return finish(assembler.failed_locally() ? FetchStatus::kLocalError
+                                                     : FetchStatus::kTransferFailed,
+                          why);
+          }
+        } else if (Clock::now() >= reply_deadline) {
+          return finish(FetchStatus::kUnreachable, "station '" + d.options.station +
+                                                       "' sent no reply to 'get' within " +
+                                                       Seconds(request.timeout) + " s");
         }
-        std::vector<ExpectedFile> expected;
-        const nlohmann::json& list =
-            reply->result.contains("files") ? reply->result["files"] : nlohmann::json();
-        for (const nlohmann::json& f : list.is_array() ? list : nlohmann::json::array()) {
-          ExpectedFile e;
-          e.name = f.value("name", "");
-          e.size_bytes = f.value("size", std::uint64_t{0});
-          const std::optional<std::uint64_t> hash = ParseHex64(f.value("fnv1a64", ""));
-          if (!hash)
-            return finish(FetchStatus::kTransferFailed,
-                          "the reply lists a file without a checksum");
-          e.fnv1a64 = *hash;
-          e.sha256 = f.value("sha256", "");  // absent from a station's old manifests
-          expected.push_back(std::move(e));
+      }
+      if (have_reply && assembler.Complete()) break;
+      const dds::TakeStatus taken = d.files->Take(kPoll, &sample, &why);
+      if (taken == dds::TakeStatus::kError) return finish(FetchStatus::kLocalError, "DDS: " + why);
+      // Any chunk shows the station alive: one for another client means ours
+      // waits in the station's queue.
+      if (taken == dds::TakeStatus::kOk) last_data = Clock::now();
+      if (taken == dds::TakeStatus::kOk && dds::View(sample->request_id) == id) {
+        if (!seen_chunk && (sample->file_index != 0 || sample->offset != 0) &&
+            attempt < kAttempts) {
+          started_late = true;
+          break;
         }
-        progress.bytes_total = 0;
-        for (const ExpectedFile& e : expected) progress.bytes_total += e.size_bytes;
-        if (!assembler.SetExpected(std::move(expected), &why)) {
+        seen_chunk = true;
+        FileChunk chunk;
+        chunk.name = dds::View(sample->name);
+        chunk.file_index = sample->file_index;
+        chunk.file_count = sample->file_count;
+        chunk.total_size = sample->total_size;
+        chunk.offset = sample->offset;
+        chunk.data = sample->data._buffer;
+        chunk.size = sample->data._length;
+        chunk.last = sample->last;
+        chunk.error = dds::View(sample->error);
+        if (!assembler.Accept(chunk, &why)) {
+          result.files = assembler.files();
           return finish(
               assembler.failed_locally() ? FetchStatus::kLocalError : FetchStatus::kTransferFailed,
               why);
         }
-      } else if (Clock::now() >= deadline) {
-        return finish(FetchStatus::kUnreachable, "station '" + d.options.station +
-                                                     "' sent no reply to 'get' within " +
-                                                     Seconds(request.timeout) + " s");
+        if (request.on_progress) {
+          progress.name = std::string(chunk.name);
+          progress.file_index = chunk.file_index;
+          progress.file_count = chunk.file_count;
+          progress.file_bytes = chunk.offset + chunk.size;
+          progress.file_size = chunk.total_size;
+          progress.bytes_done = assembler.bytes_received();
+          request.on_progress(progress);
+        }
       }
-    }
-    if (have_reply && assembler.Complete()) break;
-    const dds::TakeStatus taken = d.files->Take(kPoll, &sample, &why);
-    if (taken == dds::TakeStatus::kError) return finish(FetchStatus::kLocalError, "DDS: " + why);
-    // Any chunk shows the station alive: one for another client means ours
-    // waits in the station's queue.
-    if (taken == dds::TakeStatus::kOk) last_data = Clock::now();
-    if (taken == dds::TakeStatus::kOk && dds::View(sample->request_id) == id) {
-      FileChunk chunk;
-      chunk.name = dds::View(sample->name);
-      chunk.file_index = sample->file_index;
-      chunk.file_count = sample->file_count;
-      chunk.total_size = sample->total_size;
-      chunk.offset = sample->offset;
-      chunk.data = sample->data._buffer;
-      chunk.size = sample->data._length;
-      chunk.last = sample->last;
-      chunk.error = dds::View(sample->error);
-      if (!assembler.Accept(chunk, &why)) {
+      if (have_reply && !assembler.Complete() && Clock::now() - last_data > request.timeout) {
         result.files = assembler.files();
-        return finish(
-            assembler.failed_locally() ? FetchStatus::kLocalError : FetchStatus::kTransferFailed,
-            why);
-      }
-      if (request.on_progress) {
-        progress.name = std::string(chunk.name);
-        progress.file_index = chunk.file_index;
-        progress.file_count = chunk.file_count;
-        progress.file_bytes = chunk.offset + chunk.size;
-        progress.file_size = chunk.total_size;
-        progress.bytes_done = assembler.bytes_received();
-        request.on_progress(progress);
+        return finish(FetchStatus::kUnreachable,
+                      "the transfer stopped: no data from station '" + d.options.station +
+                          "' for " + Seconds(request.timeout) +
+                          " s (craftscand stopped, or the network is down)");
       }
     }
-    if (have_reply && !assembler.Complete() && Clock::now() - last_data > request.timeout) {
-      result.files = assembler.files();
-      return finish(FetchStatus::kUnreachable,
-                    "the transfer stopped: no data from station '" + d.options.station + "' for " +
-                        Seconds(request.timeout) +
-                        " s (craftscand stopped, or the network is down)");
+    if (started_late) {
+      ++result.retries;
+      continue;
     }
+    result.files = assembler.files();
+    result.transfer_seconds = std::chrono::duration<double>(Clock::now() - replied_at).count();
+    return finish(FetchStatus::kOk, "fetched " + std::to_string(result.files.size()) + " files");
   }
-  result.files = assembler.files();
-  result.transfer_seconds = std::chrono::duration<double>(Clock::now() - replied_at).count();
-  return finish(FetchStatus::kOk, "fetched " + std::to_string(result.files.size()) + " files");
 }
 
 }  // namespace craftscan::client

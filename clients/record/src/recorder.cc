@@ -114,6 +114,7 @@ struct Recorder::State {
   bool record_clouds = false, record_models = false;
   std::deque<std::pair<std::size_t, ItemInfo>> models_due;
   std::condition_variable model_due;
+  static constexpr int kModelFetchAttempts = 3;
   static constexpr std::size_t kMaxModelsDue = 16;  // a model per finished scan: never near
 
   void FinishLocked(StopReason why, const std::string& text) {
@@ -294,7 +295,18 @@ struct Recorder::State {
     request.files = {"mesh.glb"};
     request.out_dir = (scratch / item.station).string();
     request.cancel = &stopping;
-    const client::FetchResult fetched = (*connected)->Fetch(request);
+    // A transfer that lost chunks on the way (a network drop, this process
+    // falling behind) is fetched again; a refusal is final.
+    client::FetchResult fetched;
+    for (int attempt = 1; attempt <= kModelFetchAttempts; ++attempt) {
+      fetched = (*connected)->Fetch(request);
+      if (fetched.status != client::FetchStatus::kTransferFailed || stopping ||
+          attempt == kModelFetchAttempts) {
+        break;
+      }
+      spdlog::info("{}: model of session '{}': {}; fetching again ({} of {})", item.station,
+                   session, fetched.message, attempt + 1, kModelFetchAttempts);
+    }
     if (fetched.status != client::FetchStatus::kOk) {
       spdlog::warn("{}: model of session '{}' not fetched: {}", item.station, session,
                    fetched.message);

@@ -201,6 +201,9 @@ struct FetchResult {
   Reply reply;                     // when the daemon replied
   std::vector<FetchedFile> files;  // in place (all of them on kOk)
   double transfer_seconds = 0;     // from the reply to the last file in place
+  // `get`s sent again because the transfer's first chunks went by before the
+  // station's file writer had matched this client's reader.
+  int retries = 0;
 };
 
 class StationClient {
@@ -249,7 +252,9 @@ class StationClient {
   // (once per client), waits for the daemon's file writer, sends `get` with
   // {"session", "files": [...] | "all", "chunk_bytes"} and reassembles the
   // chunks with a FileAssembler (atomic writes, sizes and FNV-1a 64 checked
-  // against the station's manifest). Blocks the calling thread; bounded by
+  // against the station's manifest); a transfer seen to start late (its first
+  // chunks sent before the station matched this reader) is asked for again,
+  // up to twice. Blocks the calling thread; bounded by
   // request.timeout per step (reply, each chunk). One Fetch per client at a
   // time.
   FetchResult Fetch(const FetchRequest& request);

@@ -78,9 +78,11 @@ struct SimDepthResult {
   long object_pixels = 0, valid_pixels = 0;
   long nonocc_pixels = 0, valid_nonocc_pixels = 0;  // object ∩ seen by the right camera
   double depth_err_median_mm = NAN, depth_err_p90_mm = NAN, disp_err_median_px = NAN;
+  double disp_bad2_pct = NAN;  // valid object pixels more than 2 px off the true disparity
   double valid_pct = 0, valid_nonocc_pct = 0;
-  double render_ms = 0, match_ms = 0;
+  double render_ms = 0, match_ms = 0, first_match_ms = 0;
   DisparityResult::Timings match_stages;  // the matcher's own stage times
+  int searched_disparities = 0;           // per pixel (coarse-to-fine: its lanes)
   double match_peak_rss_mb = NAN;         // process peak RSS while matching (VmHWM)
   // Pixels the station's clean-up removed (0 with --raw): in the whole image,
   // and of those on the object.
@@ -151,6 +153,19 @@ class SimDepthCommand : public BenchCommand {
     sub->add_flag("--projector", projector_,
                   "Light the scene with the pattern projector on the camera head (the sim "
                   "driver's `projector: 1`)");
+    sub->add_option("--band-margin", band_margin_px_,
+                    "Disparities searched beyond the object's true ones on either side (px); "
+                    "a station's working-volume band is hundreds wide")
+        ->check(CLI::Range(0, 1000))
+        ->capture_default_str();
+    sub->add_flag("--coarse-to-fine", coarse_to_fine_,
+                  "Per-pixel disparity ranges from a coarse pass (CoarseToFineOptions; used for "
+                  "bands over 192 disparities)");
+    sub->add_option("--repeat", repeat_,
+                    "Matcher calls on the same matcher; match_ms is then the median of all but "
+                    "the first (which allocates the volumes)")
+        ->check(CLI::Range(1, 20))
+        ->capture_default_str();
     sub->add_flag("--raw", raw_,
                   "Score the matcher's disparities as they are, without the station's clean-up "
                   "(speckles, depth edges, texture filter)");
@@ -247,9 +262,9 @@ class SimDepthCommand : public BenchCommand {
     cv::minMaxLoc(render.rectified_disparity, &result->gt_disparity_min, &result->gt_disparity_max,
                   nullptr, nullptr, mask);
     result->min_disparity =
-        static_cast<int>(std::floor(result->gt_disparity_min)) - kDisparityMarginPx;
+        static_cast<int>(std::floor(result->gt_disparity_min)) - band_margin_px_;
     const int max_disparity =
-        static_cast<int>(std::ceil(result->gt_disparity_max)) + kDisparityMarginPx;
+        static_cast<int>(std::ceil(result->gt_disparity_max)) + band_margin_px_;
     result->num_disparities = max_disparity - result->min_disparity + 1;
 
     ADCensusOptions options;
@@ -259,17 +274,30 @@ class SimDepthCommand : public BenchCommand {
     options.aggregation_iterations = aggregation_iterations_;
     options.refinement.lr_tolerance_px = lr_tolerance_px_;
     options.refinement.uniqueness = uniqueness_;
+    options.coarse_to_fine.enabled = coarse_to_fine_;
     // A point cloud wants no invented surface: occluded and mismatched pixels
     // stay invalid unless --fill asks for the dense map.
     options.refinement.interpolate = fill_;
     const bool peak_reset = ResetPeakRss();
     StereoMatcher matcher(options);
-    const auto start = std::chrono::steady_clock::now();
-    DisparityResult match = matcher.Compute(left, right);
-    result->match_ms =
-        std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start).count();
-    if (!match.IsUsable()) return DataError("matcher failed: " + match.message);
+    // The first call allocates the volumes; a station's matcher is reused
+    // view after view, so --repeat reports the later calls' median.
+    DisparityResult match;
+    std::vector<double> times;
+    for (int i = 0; i < repeat_; ++i) {
+      const auto start = std::chrono::steady_clock::now();
+      match = matcher.Compute(left, right);
+      times.push_back(
+          std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start)
+              .count());
+      if (!match.IsUsable()) return DataError("matcher failed: " + match.message);
+    }
+    result->first_match_ms = times.front();
+    if (times.size() > 1) times.erase(times.begin());
+    std::sort(times.begin(), times.end());
+    result->match_ms = times[times.size() / 2];
     result->match_stages = match.time_ms;
+    result->searched_disparities = match.searched_disparities;
     if (peak_reset) result->match_peak_rss_mb = PeakRssMb();
     cv::Mat& disparity = match.disparity;
     if (!raw_) {  // as ViewProcessor::Process and ReprojectToPoints
@@ -337,6 +365,10 @@ class SimDepthCommand : public BenchCommand {
     result->depth_err_median_mm = Quantile(&depth_errors, 0.5);
     result->depth_err_p90_mm = Quantile(&depth_errors, 0.9);
     result->disp_err_median_px = Quantile(&disparity_errors, 0.5);
+    const long bad = std::count_if(disparity_errors.begin(), disparity_errors.end(),
+                                   [](double e) { return e > 2.0; });
+    result->disp_bad2_pct =
+        disparity_errors.empty() ? NAN : 100.0 * bad / static_cast<double>(disparity_errors.size());
     return kExitOk;
   }
 
@@ -352,22 +384,24 @@ class SimDepthCommand : public BenchCommand {
     std::printf(
         "  depth_err_median_mm %.3f  depth_err_p90_mm %.3f  valid_pct %.1f  "
         "valid_nonocc_pct %.1f (of %ld pixels the right camera also sees)  "
-        "disp_err_median_px %.3f\n",
+        "disp_err_median_px %.3f  disp_bad2_pct %.2f\n",
         r.depth_err_median_mm, r.depth_err_p90_mm, r.valid_pct, r.valid_nonocc_pct, r.nonocc_pixels,
-        r.disp_err_median_px);
+        r.disp_err_median_px, r.disp_bad2_pct);
     if (!raw_)
       std::printf(
           "  removed: speckles %zu  depth edges %zu  textureless %zu pixels "
           "(on the object: %ld, %ld, %ld)\n",
           r.speckle_pixels, r.edge_pixels, r.textureless_pixels, r.speckle_object_pixels,
           r.edge_object_pixels, r.textureless_object_pixels);
-    std::printf("  render_ms %.0f  match_ms %.0f  match_peak_rss_mb %.0f\n", r.render_ms,
-                r.match_ms, r.match_peak_rss_mb);
+    std::printf("  render_ms %.0f  match_ms %.0f (first call %.0f)  match_peak_rss_mb %.0f\n",
+                r.render_ms, r.match_ms, r.first_match_ms, r.match_peak_rss_mb);
     const DisparityResult::Timings& t = r.match_stages;
     std::printf(
-        "  match stages (ms): preprocess %.0f  cost %.0f  arms %.0f  aggregation %.0f  "
-        "scanline+wta %.0f  refinement %.0f\n",
-        t.preprocess, t.cost, t.arms, t.aggregation, t.scanline, t.refinement);
+        "  match stages (ms): coarse %.0f  preprocess %.0f  cost %.0f  arms %.0f  aggregation %.0f "
+        " "
+        "scanline+wta %.0f  refinement %.0f; %d disparities searched per pixel\n",
+        t.coarse, t.preprocess, t.cost, t.arms, t.aggregation, t.scanline, t.refinement,
+        r.searched_disparities);
     std::fflush(stdout);
   }
 
@@ -400,13 +434,20 @@ class SimDepthCommand : public BenchCommand {
     root["valid_nonocc_pct"] = ToJson(r.valid_nonocc_pct);
     root["nonocc_pixels"] = r.nonocc_pixels;
     root["disp_err_median_px"] = ToJson(r.disp_err_median_px);
+    root["disp_bad2_pct"] = ToJson(r.disp_bad2_pct);
     root["render_ms"] = ToJson(r.render_ms);
     root["match_ms"] = ToJson(r.match_ms);
+    root["first_match_ms"] = ToJson(r.first_match_ms);
     root["match_peak_rss_mb"] = ToJson(r.match_peak_rss_mb);
     const DisparityResult::Timings& t = r.match_stages;
-    root["match_stages_ms"] = {
-        {"preprocess", t.preprocess},   {"cost", t.cost},         {"arms", t.arms},
-        {"aggregation", t.aggregation}, {"scanline", t.scanline}, {"refinement", t.refinement}};
+    root["searched_disparities"] = r.searched_disparities;
+    root["match_stages_ms"] = {{"coarse", t.coarse},
+                               {"preprocess", t.preprocess},
+                               {"cost", t.cost},
+                               {"arms", t.arms},
+                               {"aggregation", t.aggregation},
+                               {"scanline", t.scanline},
+                               {"refinement", t.refinement}};
     std::ofstream out(json_path_, std::ios::trunc);
     if (out) out << root.dump(2) << "\n";
     out.close();
@@ -417,12 +458,15 @@ class SimDepthCommand : public BenchCommand {
   std::string object_ = "carved_box";
   std::uint64_t seed_ = 1;
   int threads_ = 2;
+  int repeat_ = 1;
   bool fill_ = false;
   int aggregation_iterations_ = ViewProcessorOptions{}.aggregation_iterations;
   double lr_tolerance_px_ = RefinementOptions{}.lr_tolerance_px;
   double uniqueness_ = RefinementOptions{}.uniqueness;
   bool projector_ = false;
   bool raw_ = false;
+  int band_margin_px_ = kDisparityMarginPx;
+  bool coarse_to_fine_ = false;
   std::string json_path_;
 };
 

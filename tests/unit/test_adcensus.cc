@@ -407,6 +407,171 @@ TEST(Matcher, RejectsBadInputWithAClearMessage) {
   EXPECT_NE(r.message.find("num_threads"), std::string::npos) << r.message;
 }
 
+// --- per-pixel disparity ranges (coarse-to-fine) -----------------------------
+
+TEST(Cost, PerPixelOffsetsHoldTheirOwnDisparities) {
+  const cv::Mat left = RandomTexture(53, 17, 31), right = RandomTexture(53, 17, 32);
+  const Parallel parallel(2);
+  const auto cl = adcensus::CensusTransform(Grey(left), 9, 7, parallel);
+  const auto cr = adcensus::CensusTransform(Grey(right), 9, 7, parallel);
+  const int min_disparity = -5, total = 80, lanes = 32;
+  adcensus::CostVolume full(left.cols, left.rows, total), ranged(left.cols, left.rows, lanes);
+  adcensus::ComputeCost(left, right, cl, cr, min_disparity, 10, 30, 1.0f, parallel, &full);
+  std::vector<std::int32_t> offsets(left.total());
+  cv::RNG rng(5);
+  for (std::int32_t& o : offsets) o = rng.uniform(0, total - lanes + 1);
+  ranged.SetOffsets(offsets, total);
+  adcensus::ComputeCost(left, right, cl, cr, min_disparity, 10, 30, 1.0f, parallel, &ranged);
+  for (int y = 0; y < left.rows; ++y)
+    for (int x = 0; x < left.cols; ++x)
+      for (int k = 0; k < lanes; ++k)
+        ASSERT_EQ(ranged.at(y, x)[k], full.at(y, x)[ranged.offset(y, x) + k])
+            << x << "," << y << " lane " << k;
+}
+
+bool SameOrBothNaN(const cv::Mat& a, const cv::Mat& b, float shift) {
+  for (int y = 0; y < a.rows; ++y)
+    for (int x = 0; x < a.cols; ++x) {
+      const float u = a.at<float>(y, x), v = b.at<float>(y, x);
+      if (IsValidDisparity(u) != IsValidDisparity(v)) return false;
+      // Sub-pixel values: (k + shift) + f against k + f + shift in float.
+      if (IsValidDisparity(u) && std::abs(u + shift - v) > 1e-4f) return false;
+    }
+  return true;
+}
+
+// Every pixel holding the same range of a wider band is the narrower band
+// itself: the scanline paths, both views' winners and the refinement agree
+// exactly, in indices shifted by the offset.
+TEST(Scanline, UniformOffsetsEqualTheShiftedBand) {
+  const cv::Mat left = RandomTexture(150, 90, 33);
+  cv::Mat gt;
+  const cv::Mat right = RenderRightView(left, 30, 0.05, 0, &gt);
+  const Parallel parallel(2);
+  ADCensusOptions o;
+  const Preprocessed pre = Preprocess(left, o.preprocess);
+  const auto cl = adcensus::CensusTransform(Grey(left), 9, 7, parallel);
+  const auto cr = adcensus::CensusTransform(Grey(right), 9, 7, parallel);
+  const Arms arms = adcensus::BuildArms(left, pre.gradient, pre.edges, o, parallel);
+  const int offset = 16, lanes = 48, total = 96;
+  o.refinement.interpolate = false;
+
+  adcensus::CostVolume band(left.cols, left.rows, lanes);
+  const adcensus::CostComputer band_costs(left, right, cl, cr, offset, lanes, 10, 30, 1.0);
+  adcensus::ComputeCost(band_costs, parallel, &band);
+  cv::Mat band_left, band_right;
+  adcensus::ScanlineOptimize(left, right, offset, o, parallel, nullptr, &band_costs, &band,
+                             &band_left, &band_right);
+  const cv::Mat band_refined = adcensus::Refine(band_left, band_right, band, offset, left, arms,
+                                                o.refinement, parallel, nullptr);
+
+  adcensus::CostVolume ranged(left.cols, left.rows, lanes);
+  ranged.SetOffsets(std::vector<std::int32_t>(left.total(), offset), total);
+  const adcensus::CostComputer ranged_costs(left, right, cl, cr, 0, lanes, 10, 30, 1.0);
+  adcensus::ComputeCost(ranged_costs, parallel, &ranged);
+  cv::Mat ranged_left, ranged_right;
+  adcensus::ScanlineOptimize(left, right, 0, o, parallel, nullptr, &ranged_costs, &ranged,
+                             &ranged_left, &ranged_right);
+  const cv::Mat ranged_refined = adcensus::Refine(ranged_left, ranged_right, ranged, 0, left, arms,
+                                                  o.refinement, parallel, nullptr);
+
+  EXPECT_EQ(0, std::memcmp(band.at(0, 0), ranged.at(0, 0),
+                           left.total() * band.stride() * sizeof(adcensus::Cost)));
+  EXPECT_TRUE(SameOrBothNaN(band_left, ranged_left, offset));
+  EXPECT_TRUE(SameOrBothNaN(band_right, ranged_right, offset));
+  EXPECT_TRUE(SameOrBothNaN(band_refined, ranged_refined, offset));
+  EXPECT_GT(cv::countNonZero(band_refined == band_refined), static_cast<int>(left.total() / 2));
+}
+
+// A textured plane with a nearer textured box in front of it, as a station
+// sees an object before its backdrop: d = 60 + slant on the plane, 150 on
+// the box. The right view is drawn from the left with the nearer surface
+// winning; what the left view does not show gets fresh texture.
+cv::Mat RenderTwoLayerRight(const cv::Mat& left, const cv::Rect& box, cv::Mat* gt) {
+  gt->create(left.size(), CV_32F);
+  cv::Mat right = RandomTexture(left.cols, left.rows, 99);
+  cv::Mat depth(left.size(), CV_32F, cv::Scalar(-1));
+  for (int y = 0; y < left.rows; ++y) {
+    for (int x = 0; x < left.cols; ++x) {
+      const float d = box.contains({x, y}) ? 150.f : 60.f + 0.02f * x;
+      gt->at<float>(y, x) = d;
+      const int xr = static_cast<int>(std::lround(x - d));
+      if (xr < 0 || xr >= left.cols || depth.at<float>(y, xr) >= d) continue;
+      depth.at<float>(y, xr) = d;
+      right.at<cv::Vec3b>(y, xr) = left.at<cv::Vec3b>(y, x);
+    }
+  }
+  for (int y = 0; y < left.rows; ++y)
+    for (int x = 0; x < left.cols; ++x) gt->at<float>(y, x) = std::round(gt->at<float>(y, x));
+  return right;
+}
+
+TEST(Matcher, CoarseToFineMatchesAsWellAsTheWholeBand) {
+  const cv::Mat left = RandomTexture(640, 200, 34);
+  const cv::Rect box(300, 50, 160, 100);
+  cv::Mat gt;
+  const cv::Mat right = RenderTwoLayerRight(left, box, &gt);
+  ADCensusOptions o;  // the station's matcher: no aggregation, no interpolation
+  o.aggregation_iterations = 0;
+  o.refinement.interpolate = false;
+  o.min_disparity = -40;
+  o.num_disparities = 320;
+  o.num_threads = 2;
+  const DisparityResult whole = ComputeDisparity(left, right, o);
+  o.coarse_to_fine.enabled = true;
+  const DisparityResult ranged = ComputeDisparity(left, right, o);
+  ASSERT_TRUE(whole.IsUsable() && ranged.IsUsable()) << whole.message << ranged.message;
+  EXPECT_EQ(whole.searched_disparities, 320);
+  EXPECT_EQ(ranged.searched_disparities, o.coarse_to_fine.lanes);
+  EXPECT_GT(ranged.time_ms.coarse, 0);
+  // Scored where the right view shows the pixel's own surface.
+  int n = 0, whole_good = 0, ranged_good = 0, ranged_valid = 0, ranged_bad = 0;
+  for (int y = 10; y < left.rows - 10; ++y) {
+    for (int x = 10; x < left.cols - 10; ++x) {
+      const float g = gt.at<float>(y, x);
+      const bool in_box = box.contains({x, y});
+      if (x - g < 10 || (!in_box && x - g >= box.x - 150 && x - g < box.br().x - 150)) continue;
+      ++n;
+      const float a = whole.disparity.at<float>(y, x), b = ranged.disparity.at<float>(y, x);
+      whole_good += IsValidDisparity(a) && std::abs(a - g) <= 1 ? 1 : 0;
+      ranged_good += IsValidDisparity(b) && std::abs(b - g) <= 1 ? 1 : 0;
+      ranged_valid += IsValidDisparity(b) ? 1 : 0;
+      ranged_bad += IsValidDisparity(b) && std::abs(b - g) > 2 ? 1 : 0;
+    }
+  }
+  ASSERT_GT(n, 50000);
+  EXPECT_GT(whole_good, n * 9 / 10);
+  EXPECT_GE(ranged_good, whole_good - n / 100)
+      << "ranged " << ranged_good << " whole " << whole_good;
+  EXPECT_LT(ranged_bad, ranged_valid / 100) << ranged_bad << " of " << ranged_valid;
+
+  // Still the same for any number of threads.
+  o.num_threads = 1;
+  const DisparityResult one = ComputeDisparity(left, right, o);
+  o.num_threads = 3;
+  const DisparityResult three = ComputeDisparity(left, right, o);
+  const std::size_t bytes = left.total() * sizeof(float);
+  EXPECT_EQ(0, std::memcmp(one.disparity.data, ranged.disparity.data, bytes));
+  EXPECT_EQ(0, std::memcmp(three.disparity.data, ranged.disparity.data, bytes));
+  EXPECT_EQ(0, std::memcmp(three.disparity_right.data, ranged.disparity_right.data, bytes));
+}
+
+TEST(Matcher, CoarseToFineOptionsAreChecked) {
+  ADCensusOptions o;
+  std::string why;
+  o.coarse_to_fine.lanes = 40;
+  EXPECT_FALSE(o.IsValid(&why));
+  EXPECT_NE(why.find("lanes"), std::string::npos) << why;
+  o = {};
+  o.coarse_to_fine.coarse_width_px = 10;
+  EXPECT_FALSE(o.IsValid(&why));
+  EXPECT_NE(why.find("coarse_width_px"), std::string::npos) << why;
+  o = {};
+  o.coarse_to_fine.min_num_disparities = 32;
+  EXPECT_FALSE(o.IsValid(&why));
+  EXPECT_NE(why.find("min_num_disparities"), std::string::npos) << why;
+}
+
 TEST(ArmRule, StringRoundTrip) {
   for (ArmRule rule : {ArmRule::kClassic, ArmRule::kImproved}) {
     ArmRule parsed;

@@ -513,6 +513,7 @@ ADCensusOptions MatcherOptions(const PipelineSettings& settings) {
   ADCensusOptions options;
   options.num_threads = settings.threads;
   options.aggregation_iterations = settings.aggregation_iterations;
+  options.coarse_to_fine.enabled = settings.coarse_to_fine;
   if (settings.num_disparities > 0) {
     options.min_disparity = settings.min_disparity;
     options.num_disparities = settings.num_disparities;
@@ -537,6 +538,7 @@ ViewProcessorOptions ViewOptions(const PipelineSettings& settings) {
   options.depth_edge_radius_px = settings.depth_edge_radius_px;
   options.depth_edge_jump_px = settings.depth_edge_jump_px;
   options.aggregation_iterations = settings.aggregation_iterations;
+  options.coarse_to_fine = settings.coarse_to_fine;
   options.speckle_max_area_pct = settings.speckle_max_area_pct;
   options.speckle_range_px = settings.speckle_range_px;
   return options;

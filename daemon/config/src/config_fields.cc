@@ -470,6 +470,8 @@ std::vector<Field> MakeFields() {
   f.push_back(IntField(
       "pipeline.aggregation_iterations",
       [](DaemonConfig& c) -> int& { return c.pipeline.aggregation_iterations; }, 0, 16));
+  f.push_back(BoolField("pipeline.coarse_to_fine",
+                        [](DaemonConfig& c) -> bool& { return c.pipeline.coarse_to_fine; }));
   f.push_back(RealField("pipeline.speckle_max_area_pct",
                         [](DaemonConfig& c) -> double& { return c.pipeline.speckle_max_area_pct; },
                         {0, 1}));

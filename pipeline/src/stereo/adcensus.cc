@@ -3,10 +3,14 @@
 
 #include <algorithm>
 #include <chrono>
+#include <cmath>
 #include <exception>
+#include <limits>
 #include <opencv2/core.hpp>
+#include <opencv2/imgproc.hpp>
 
 #include "adcensus_internal.h"
+#include "craftscan/pipeline/stereo/view_processing.h"
 
 namespace craftscan {
 
@@ -74,6 +78,22 @@ bool ADCensusOptions::IsValid(std::string* why) const {
   if (r.median_size != 0 && r.median_size != 1 && r.median_size != 3 && r.median_size != 5)
     return Fail(why, "refinement.median_size must be 0, 3 or 5");
   if (num_threads < 1 || num_threads > 256) return Fail(why, "num_threads must be in [1, 256]");
+  const CoarseToFineOptions& c = coarse_to_fine;
+  if (c.lanes < 16 || c.lanes > 1024 || c.lanes % 16 != 0)
+    return Fail(why, "coarse_to_fine.lanes must be a multiple of 16 in [16, 1024]");
+  if (c.coarse_width_px < 64 || c.coarse_width_px > 4096)
+    return Fail(why, "coarse_to_fine.coarse_width_px must be in [64, 4096]");
+  if (c.window_coarse_px < 0 || c.window_coarse_px > 32 ||
+      c.wide_window_coarse_px < c.window_coarse_px || c.wide_window_coarse_px > 64)
+    return Fail(why,
+                "coarse_to_fine: need 0 ≤ window_coarse_px ≤ wide_window_coarse_px ≤ 64 "
+                "(window_coarse_px ≤ 32)");
+  if (!(c.speckle_area_pct >= 0 && c.speckle_area_pct <= 10))
+    return Fail(why, "coarse_to_fine.speckle_area_pct must be in [0, 10]");
+  if (c.margin_px < 0 || c.margin_px > 256)
+    return Fail(why, "coarse_to_fine.margin_px must be in [0, 256]");
+  if (c.min_num_disparities < c.lanes)
+    return Fail(why, "coarse_to_fine.min_num_disparities must be ≥ lanes");
   return true;
 }
 
@@ -93,9 +113,138 @@ DisparityResult InvalidInput(std::string message) {
 
 struct StereoMatcher::Workspace {
   explicit Workspace(int num_threads) : parallel(num_threads) {}
-  Parallel parallel;                   // the arena lives as long as the matcher
-  adcensus::CostVolume cost, scratch;  // aggregated costs; scanline sums
+  Parallel parallel;                      // the arena lives as long as the matcher
+  adcensus::CostVolume cost, scratch;     // aggregated costs; scanline sums
+  std::unique_ptr<StereoMatcher> coarse;  // coarse-to-fine's first pass
 };
+
+namespace {
+
+// cv::erode (min) or cv::dilate (max) of a disparity map over a square
+// window, NaN ignored (NaN where the window holds no value).
+cv::Mat WindowExtreme(const cv::Mat& disparity, int radius, bool max) {
+  const float none =
+      max ? -std::numeric_limits<float>::infinity() : std::numeric_limits<float>::infinity();
+  cv::Mat filled = disparity.clone();
+  filled.setTo(none, disparity != disparity);
+  cv::Mat out;
+  const cv::Mat kernel =
+      cv::getStructuringElement(cv::MORPH_RECT, cv::Size(2 * radius + 1, 2 * radius + 1));
+  if (max) {
+    cv::dilate(filled, out, kernel, cv::Point(-1, -1), 1, cv::BORDER_CONSTANT, cv::Scalar(none));
+  } else {
+    cv::erode(filled, out, kernel, cv::Point(-1, -1), 1, cv::BORDER_CONSTANT, cv::Scalar(none));
+  }
+  return out;
+}
+
+// Per-pixel offsets (indices into [min_disparity, min_disparity + ndisp))
+// from the coarse disparity map, as CoarseToFineOptions describes.
+// The coarse pass's downscale: its images about coarse_width_px wide.
+int CoarseFactor(int width, const CoarseToFineOptions& o) {
+  return std::clamp(static_cast<int>(std::lround(static_cast<double>(width) / o.coarse_width_px)),
+                    2, 8);
+}
+
+std::vector<std::int32_t> RangesFromCoarse(const cv::Mat& coarse, cv::Size size, int min_disparity,
+                                           int ndisp, int factor, const CoarseToFineOptions& o) {
+  const cv::Mat lo = WindowExtreme(coarse, o.window_coarse_px, false);
+  const cv::Mat hi = WindowExtreme(coarse, o.window_coarse_px, true);
+  const cv::Mat wide_lo = WindowExtreme(coarse, o.wide_window_coarse_px, false);
+  const cv::Mat wide_hi = WindowExtreme(coarse, o.wide_window_coarse_px, true);
+  std::vector<float> valid;
+  for (int y = 0; y < coarse.rows; ++y)
+    for (int x = 0; x < coarse.cols; ++x)
+      if (IsValidDisparity(coarse.at<float>(y, x))) valid.push_back(coarse.at<float>(y, x));
+  float median = static_cast<float>(min_disparity + ndisp / 2) / static_cast<float>(factor);
+  if (!valid.empty()) {
+    std::nth_element(valid.begin(), valid.begin() + valid.size() / 2, valid.end());
+    median = valid[valid.size() / 2];
+  }
+  // Each coarse pixel's own disparity, where the coarse pass left none the
+  // smaller of its row's nearest values either side (within the wide window):
+  // a pixel without a match is most often occluded, and occluded pixels
+  // belong to the farther surface.
+  cv::Mat own = coarse.clone();
+  for (int y = 0; y < coarse.rows; ++y) {
+    const float* c = coarse.ptr<float>(y);
+    float* out = own.ptr<float>(y);
+    std::vector<float> from_left(coarse.cols, kInvalidDisparity);
+    float last_value = kInvalidDisparity;
+    int last_x = -1000000;
+    for (int x = 0; x < coarse.cols; ++x) {
+      if (IsValidDisparity(c[x])) {
+        last_value = c[x];
+        last_x = x;
+      } else if (x - last_x <= o.wide_window_coarse_px) {
+        from_left[x] = last_value;
+      }
+    }
+    last_x = 1000000;
+    for (int x = coarse.cols - 1; x >= 0; --x) {
+      if (IsValidDisparity(c[x])) {
+        last_value = c[x];
+        last_x = x;
+        continue;
+      }
+      const float right = last_x - x <= o.wide_window_coarse_px ? last_value : kInvalidDisparity;
+      if (IsValidDisparity(from_left[x]) && IsValidDisparity(right)) {
+        out[x] = std::min(from_left[x], right);
+      } else {
+        out[x] = IsValidDisparity(right) ? right : from_left[x];
+      }
+    }
+  }
+  const double f = factor;
+  const int lanes = o.lanes, last = ndisp - lanes;
+  std::vector<std::int32_t> offsets(static_cast<std::size_t>(size.area()));
+  for (int y = 0; y < size.height; ++y) {
+    const int cy = std::min(y / factor, coarse.rows - 1);
+    for (int x = 0; x < size.width; ++x) {
+      const int cx = std::min(x / factor, coarse.cols - 1);
+      float a = lo.at<float>(cy, cx), b = hi.at<float>(cy, cx);
+      if (!std::isfinite(a)) {
+        a = wide_lo.at<float>(cy, cx);
+        b = wide_hi.at<float>(cy, cx);
+      }
+      if (!std::isfinite(a)) a = b = median;
+      // Full-size disparities, widened by the margin and the coarse pixel's
+      // own uncertainty.
+      const double d_lo = a * f - o.margin_px - f, d_hi = b * f + o.margin_px + f;
+      double start;
+      if (d_hi - d_lo + 1 <= lanes) {
+        start = (d_lo + d_hi) / 2 - lanes / 2.0;
+      } else {
+        const float mine = own.at<float>(cy, cx);
+        const double centre = IsValidDisparity(mine) ? mine * f : d_hi - o.margin_px - f;
+        start = centre - lanes / 2.0;
+      }
+      offsets[static_cast<std::size_t>(y) * size.width + x] =
+          std::clamp(static_cast<int>(std::lround(start)) - min_disparity, 0, last);
+    }
+  }
+  return offsets;
+}
+
+// A winner on the first or last disparity a pixel searched (not an end of
+// the whole band) may be the edge of a minimum that lies outside its range:
+// no estimate there.
+void DropRangeEdges(const adcensus::CostVolume& cost, int total_ndisp, cv::Mat* index) {
+  const int lanes = cost.ndisp();
+  for (int y = 0; y < index->rows; ++y) {
+    float* d = index->ptr<float>(y);
+    const std::int32_t* offsets = cost.offset_row(y);
+    for (int x = 0; x < index->cols; ++x) {
+      if (!IsValidDisparity(d[x])) continue;
+      const int o = offsets[x];
+      const float k = d[x] - static_cast<float>(o);
+      if ((o > 0 && k < 1.f) || (o + lanes < total_ndisp && k > static_cast<float>(lanes - 2)))
+        d[x] = kInvalidDisparity;
+    }
+  }
+}
+
+}  // namespace
 
 StereoMatcher::StereoMatcher(ADCensusOptions options)
     : options_(std::move(options)),
@@ -122,8 +271,14 @@ DisparityResult StereoMatcher::Compute(const cv::Mat& left, const cv::Mat& right
   if (left.type() != right.type() || (left.type() != CV_8UC1 && left.type() != CV_8UC3))
     return InvalidInput("images must both be CV_8UC1 or both CV_8UC3");
   if (left.cols < 2 || left.rows < 2) return InvalidInput("images must be at least 2x2 pixels");
-  const double voxels =
-      static_cast<double>(left.cols) * left.rows * ((options.num_disparities + 15) / 16 * 16);
+  const CoarseToFineOptions& ctf = options.coarse_to_fine;
+  const bool coarse_to_fine = ctf.enabled && options.aggregation_iterations == 0 &&
+                              options.scanline_optimization &&
+                              options.num_disparities > ctf.min_num_disparities &&
+                              left.cols >= 16 * CoarseFactor(left.cols, ctf) &&
+                              left.rows >= 16 * CoarseFactor(left.cols, ctf);
+  const int lanes = coarse_to_fine ? ctf.lanes : (options.num_disparities + 15) / 16 * 16;
+  const double voxels = static_cast<double>(left.cols) * left.rows * lanes;
   if (voxels > 1.0e9)  // up to two 16-bit volumes live at once: 4 GB at this limit
     return InvalidInput("cost volume too large: width·height·num_disparities = " +
                         std::to_string(static_cast<long long>(voxels)) +
@@ -141,6 +296,38 @@ DisparityResult StereoMatcher::Compute(const cv::Mat& left, const cv::Mat& right
     const int ndisp = options.num_disparities, dmin = options.min_disparity;
 
     auto t = Clock::now();
+    std::vector<std::int32_t> offsets;
+    if (coarse_to_fine) {
+      const int factor = CoarseFactor(left.cols, ctf);
+      ADCensusOptions coarse_options = options;
+      coarse_options.coarse_to_fine.enabled = false;
+      coarse_options.min_disparity =
+          static_cast<int>(std::floor(static_cast<double>(dmin) / factor));
+      coarse_options.num_disparities =
+          static_cast<int>(std::ceil(static_cast<double>(dmin + ndisp) / factor)) -
+          coarse_options.min_disparity + 1;
+      coarse_options.refinement.interpolate = false;
+      if (!workspace_->coarse ||
+          workspace_->coarse->options().num_disparities != coarse_options.num_disparities ||
+          workspace_->coarse->options().min_disparity != coarse_options.min_disparity) {
+        workspace_->coarse = std::make_unique<StereoMatcher>(coarse_options);
+      }
+      cv::Mat small_left, small_right;
+      const double scale = 1.0 / factor;
+      cv::resize(left, small_left, cv::Size(), scale, scale, cv::INTER_AREA);
+      cv::resize(right, small_right, cv::Size(), scale, scale, cv::INTER_AREA);
+      DisparityResult coarse = workspace_->coarse->Compute(small_left, small_right);
+      if (!coarse.IsUsable()) return InvalidInput("coarse pass: " + coarse.message);
+      // Small patches that passed the left-right check are mostly wrong, and
+      // one wrong value would set the range of every pixel around it.
+      RemoveDisparitySpeckles(
+          static_cast<int>(std::lround(ctf.speckle_area_pct / 100 * coarse.disparity.total())), 1.0,
+          &coarse.disparity);
+      offsets = RangesFromCoarse(coarse.disparity, left.size(), dmin, ndisp, factor, ctf);
+      result.time_ms.coarse = MsSince(t);
+      t = Clock::now();
+    }
+    result.searched_disparities = coarse_to_fine ? lanes : ndisp;
     const Preprocessed pl = Preprocess(left, options.preprocess);
     // The right view feeds only the census and the colour costs.
     const Preprocessed pr = Preprocess(right, options.preprocess, PreprocessParts::kEqualizedOnly);
@@ -156,8 +343,9 @@ DisparityResult StereoMatcher::Compute(const cv::Mat& left, const cv::Mat& right
     const auto census_r =
         adcensus::CensusTransform(pr.grey, options.census_width, options.census_height, parallel);
     adcensus::CostVolume& cost = workspace_->cost;
-    cost.Reshape(left.cols, left.rows, ndisp);
-    const adcensus::CostComputer cost_computer(img_l, img_r, census_l, census_r, dmin, ndisp,
+    cost.Reshape(left.cols, left.rows, coarse_to_fine ? lanes : ndisp);
+    if (coarse_to_fine) cost.SetOffsets(std::move(offsets), ndisp);
+    const adcensus::CostComputer cost_computer(img_l, img_r, census_l, census_r, dmin, cost.ndisp(),
                                                options.lambda_ad, options.lambda_census,
                                                options.out_of_image_cost);
     adcensus::ComputeCost(cost_computer, parallel, &cost);
@@ -203,6 +391,7 @@ DisparityResult StereoMatcher::Compute(const cv::Mat& left, const cv::Mat& right
     } else {
       index = left_index;
     }
+    if (coarse_to_fine) DropRangeEdges(cost, ndisp, &index);
     // Indices → disparities (NaN stays NaN).
     index.convertTo(result.disparity, CV_32F, 1.0, dmin);
     right_index.convertTo(result.disparity_right, CV_32F, 1.0, dmin);

@@ -301,11 +301,12 @@ inline int ArgMin(const Cost* __restrict c, int n) {
 // and padding lanes (never a real winner).
 class RightWinners {
  public:
-  RightWinners(int width, int min_disparity, int stride)
+  // `span`: the largest offset plus the stride (the stride without offsets).
+  RightWinners(int width, int min_disparity, int stride, int span)
       : width_(width),
         min_disparity_(min_disparity),
         stride_(stride),
-        margin_(stride + std::abs(min_disparity) + 1),
+        margin_(span + std::abs(min_disparity) + 1),
         best_(width + 2 * margin_),
         best_k_(width + 2 * margin_) {}
 
@@ -314,15 +315,16 @@ class RightWinners {
     std::fill(best_k_.begin(), best_k_.end(), Cost{-1});
   }
 
-  // Offers the costs of left pixel x. Each entry must end with its first
-  // minimum (lowest k): with pixels offered in increasing x (increasing k per
-  // entry) a strict "<" keeps it, in decreasing x a "≤" does.
-  void Offer(int x, const Cost* __restrict c, bool decreasing_x) {
+  // Offers the costs of left pixel x, whose lane k is index offset + k. Each
+  // entry must end with its first minimum (lowest index): with pixels offered
+  // in increasing x (increasing index per entry) a strict "<" keeps it, in
+  // decreasing x a "≤" does.
+  void Offer(int x, const Cost* __restrict c, bool decreasing_x, int offset) {
     const CostTag d;
     const int lanes = static_cast<int>(hn::Lanes(d));
-    Cost* __restrict best = &best_[width_ - 1 - x + min_disparity_ + margin_];
-    Cost* __restrict best_k = &best_k_[width_ - 1 - x + min_disparity_ + margin_];
-    auto k_vec = hn::Iota(d, 0);
+    Cost* __restrict best = &best_[width_ - 1 - x + min_disparity_ + offset + margin_];
+    Cost* __restrict best_k = &best_k_[width_ - 1 - x + min_disparity_ + offset + margin_];
+    auto k_vec = hn::Iota(d, offset);
     const auto step = hn::Set(d, static_cast<Cost>(lanes));
     for (int k = 0; k < stride_; k += lanes) {
       const auto v = hn::LoadU(d, c + k);
@@ -354,17 +356,20 @@ void WinnerTakeAll(const CostVolume& cost, int min_disparity, const Parallel& pa
   const int width = cost.width(), height = cost.height(), stride = cost.stride();
   left_index->create(height, width, CV_32FC1);
   right_index->create(height, width, CV_32FC1);
+  const int span = cost.total_ndisp() - cost.ndisp() + stride;
   parallel.For(0, height, [&](int y0, int y1) {
-    RightWinners right(width, min_disparity, stride);
+    RightWinners right(width, min_disparity, stride, span);
     for (int y = y0; y < y1; ++y) {
       float* l = left_index->ptr<float>(y);
+      const std::int32_t* offsets = cost.offset_row(y);
       right.Reset();
       for (int x = 0; x < width; ++x) {
         const Cost* c = cost.at(y, x);
-        l[x] = static_cast<float>(ArgMin(c, stride));
-        right.Offer(x, c, false);
+        const int o = offsets ? offsets[x] : 0;
+        l[x] = static_cast<float>(o + ArgMin(c, stride));
+        right.Offer(x, c, false, o);
       }
-      right.Write(cost.ndisp(), right_index->ptr<float>(y));
+      right.Write(cost.total_ndisp(), right_index->ptr<float>(y));
     }
   });
 }
@@ -393,7 +398,7 @@ class RightDiffs {
  public:
   RightDiffs(const cv::Mat& right, int min_disparity, int ndisp, bool vertical, int tau_so)
       : width_(right.cols), xr_hi_(right.cols + std::abs(min_disparity) + 2) {
-    const int xr_lo = -std::abs(min_disparity) - ndisp - 2;  // ndisp: the padded stride
+    const int xr_lo = -std::abs(min_disparity) - ndisp - 2;  // ndisp: the span of lanes
     len_ = xr_hi_ - xr_lo + 1;
     data_.assign(static_cast<std::size_t>(right.rows + 1) * len_, 0);
     const int ch = right.channels();
@@ -478,19 +483,32 @@ void ScanlineOptimize(const cv::Mat& left, const cv::Mat& right, int min_dispari
                       const ADCensusOptions& options, const Parallel& parallel,
                       const CostVolume* cost, const CostComputer* recompute, CostVolume* result,
                       cv::Mat* left_index, cv::Mat* right_index) {
-  if (cost) result->Reshape(cost->width(), cost->height(), cost->ndisp());
+  if (cost) {
+    result->Reshape(cost->width(), cost->height(), cost->ndisp());
+    result->CopyOffsetsFrom(*cost);
+  }
   // C: read from `cost`, or from *result before it is overwritten.
   const CostVolume& in = cost ? *cost : *result;
   const int width = in.width(), height = in.height();
-  const int ndisp = in.ndisp(), stride = in.stride();
+  const int total = in.total_ndisp(), stride = in.stride();
+  // Lanes reach up to this far past a pixel's offset 0.
+  const int span = in.total_ndisp() - in.ndisp() + stride;
   const int ch = left.channels();
   const int tau_so = static_cast<int>(std::ceil(options.tau_so));  // integer differences
   const Penalties pen{
       {ToPenalty(options.pi1), ToPenalty(options.pi1 / 4), ToPenalty(options.pi1 / 10)},
       {ToPenalty(options.pi2), ToPenalty(options.pi2 / 4), ToPenalty(options.pi2 / 10)}};
-  const RightDiffs hdiff(right, min_disparity, stride, false, tau_so);
-  const RightDiffs vdiff(right, min_disparity, stride, true, tau_so);
-  const std::size_t lane = stride + 2;  // one path's state with its two sentinels
+  const RightDiffs hdiff(right, min_disparity, span, false, tau_so);
+  const RightDiffs vdiff(right, min_disparity, span, true, tau_so);
+  // One path's state with sentinels around it: one each side without
+  // offsets; with offsets, enough that the previous pixel's lanes can be
+  // read shifted to the current pixel's offset (by at most stride + 1, which
+  // already leaves no overlap).
+  const int pad = in.has_offsets() ? stride + 2 : 1;
+  const std::size_t lane = stride + 2 * pad;
+  const auto shift = [&](int o, int o_prev) {
+    return std::clamp(o - o_prev, -stride - 1, stride + 1);
+  };
 
   // Pass 1: vertical paths over bands of columns, one row of state per
   // column. Top→bottom values go to a band buffer (height × band × stride);
@@ -501,6 +519,7 @@ void ScanlineOptimize(const cv::Mat& left, const cv::Mat& right, int min_dispari
     std::vector<Cost> prev(kScanBand * lane, kMaxCost), cur(kScanBand * lane, kMaxCost);
     std::vector<Cost> down(static_cast<std::size_t>(height) * kScanBand * stride);
     Cost prev_min[kScanBand] = {};
+    int prev_offset[kScanBand] = {};
     for (int b = b0; b < b1; ++b) {
       const int x0 = b * kScanBand, x1 = std::min(width, x0 + kScanBand);
       for (int dir = 0; dir < 2; ++dir) {
@@ -510,19 +529,23 @@ void ScanlineOptimize(const cv::Mat& left, const cv::Mat& right, int min_dispari
           if (y_ahead >= 0 && y_ahead < height) PrefetchRun(in, y_ahead, x0, x1 - x0);
           const std::uint8_t* row = left.ptr<std::uint8_t>(y);
           const std::uint8_t* prow = i == 0 ? row : left.ptr<std::uint8_t>(y - step);
+          const std::int32_t* offsets = in.offset_row(y);
           for (int x = x0; x < x1; ++x) {
             const int c = x - x0;
             const Cost* a = in.at(y, x);
-            Cost* cl = &cur[c * lane + 1];
+            const int o = offsets ? offsets[x] : 0;
+            Cost* cl = &cur[c * lane + pad];
             if (i == 0) {
               prev_min[c] = PathStart(a, stride, cl);
             } else {
               const bool d1_big = ColourDiff(row + ch * x, prow + ch * x, ch) >= tau_so;
               // Top→bottom pairs (y, y−1): vdiff row y; bottom→top: vdiff row y+1.
               const int vy = dir == 0 ? y : y + 1;
-              prev_min[c] = PathStep(a, &prev[c * lane + 1], prev_min[c], d1_big,
-                                     vdiff.At(vy, x - min_disparity), pen, stride, cl);
+              prev_min[c] =
+                  PathStep(a, &prev[c * lane + pad + shift(o, prev_offset[c])], prev_min[c], d1_big,
+                           vdiff.At(vy, x - min_disparity - o), pen, stride, cl);
             }
+            prev_offset[c] = o;
             Cost* tb = &down[(static_cast<std::size_t>(y) * kScanBand + c) * stride];
             if (dir == 0) {
               std::copy_n(cl, stride, tb);
@@ -545,42 +568,46 @@ void ScanlineOptimize(const cv::Mat& left, const cv::Mat& right, int min_dispari
     std::vector<Cost> forward(static_cast<std::size_t>(width) * stride);  // L left→right
     std::vector<Cost> costs(cost ? 0 : static_cast<std::size_t>(width) * stride);
     CostComputer::Scratch scratch;
-    RightWinners winners(width, min_disparity, stride);
+    RightWinners winners(width, min_disparity, stride, span);
     for (int y = y0; y < y1; ++y) {
       const std::uint8_t* row = left.ptr<std::uint8_t>(y);
       float* l = left_index->ptr<float>(y);
+      const std::int32_t* offsets = in.offset_row(y);
       const Cost* c_row = cost ? cost->at(y, 0) : costs.data();
-      if (!cost) recompute->Row(y, &scratch, costs.data());
+      if (!cost) recompute->Row(y, &scratch, costs.data(), offsets);
       winners.Reset();
       for (int dir = 0; dir < 2; ++dir) {
         const int x_start = dir == 0 ? 0 : width - 1, step = dir == 0 ? 1 : -1;
         Cost prev_min = 0;
+        int prev_offset = 0;
         for (int i = 0, x = x_start; i < width; ++i, x += step) {
           const Cost* a = c_row + static_cast<std::size_t>(x) * stride;
+          const int o = offsets ? offsets[x] : 0;
           if (i == 0) {
-            prev_min = PathStart(a, stride, &cur[1]);
+            prev_min = PathStart(a, stride, &cur[pad]);
           } else {
             const bool d1_big = ColourDiff(row + ch * x, row + ch * (x - step), ch) >= tau_so;
             // Right-image pair (x_r, x_r − step): left→right uses hdiff(x_r),
             // right→left uses hdiff(x_r + 1).
-            const int base_xr = x - min_disparity + (dir == 0 ? 0 : 1);
-            prev_min =
-                PathStep(a, &prev[1], prev_min, d1_big, hdiff.At(y, base_xr), pen, stride, &cur[1]);
+            const int base_xr = x - min_disparity - o + (dir == 0 ? 0 : 1);
+            prev_min = PathStep(a, &prev[pad + shift(o, prev_offset)], prev_min, d1_big,
+                                hdiff.At(y, base_xr), pen, stride, &cur[pad]);
           }
+          prev_offset = o;
           Cost* fwd = &forward[static_cast<std::size_t>(x) * stride];
           if (dir == 0) {
-            std::copy_n(&cur[1], stride, fwd);
+            std::copy_n(&cur[pad], stride, fwd);
           } else {
             Cost* out = result->at(y, x);
             AddSaturated(fwd, stride, out);
-            AddSaturated(&cur[1], stride, out);
-            l[x] = static_cast<float>(ArgMin(out, stride));
-            winners.Offer(x, out, true);
+            AddSaturated(&cur[pad], stride, out);
+            l[x] = static_cast<float>(o + ArgMin(out, stride));
+            winners.Offer(x, out, true, o);
           }
           std::swap(prev, cur);
         }
       }
-      winners.Write(ndisp, right_index->ptr<float>(y));
+      winners.Write(total, right_index->ptr<float>(y));
     }
   });
 }

@@ -14,11 +14,21 @@
 
 namespace craftscan::adcensus {
 
+void CostVolume::SetOffsets(std::vector<std::int32_t> offsets, int total_ndisp) {
+  CV_Assert(offsets.size() == static_cast<std::size_t>(width_) * height_ && ndisp_ == stride_ &&
+            total_ndisp >= ndisp_);
+  for (const std::int32_t o : offsets) CV_Assert(o >= 0 && o <= total_ndisp - ndisp_);
+  offsets_ = std::move(offsets);
+  total_ndisp_ = total_ndisp;
+}
+
 void CostVolume::Reshape(int width, int height, int ndisp) {
   width_ = width;
   height_ = height;
   ndisp_ = ndisp;
   stride_ = StrideFor(ndisp);
+  total_ndisp_ = ndisp;
+  offsets_.clear();
   const std::size_t costs = static_cast<std::size_t>(width) * height * stride_;
   if (costs <= capacity_) return;
   data_.reset();
@@ -126,7 +136,7 @@ CostComputer::CostComputer(const cv::Mat& left, const cv::Mat& right,
   }
 }
 
-void CostComputer::Row(int y, Scratch* scratch, Cost* out) const {
+void CostComputer::Row(int y, Scratch* scratch, Cost* out, const std::int32_t* offsets) const {
   const int width = left_.cols, channels = left_.channels();
   const int ndisp = ndisp_, stride = stride_, min_disparity = min_disparity_;
   // The right row reversed (j = width − 1 − x_r), so that for a left pixel
@@ -148,11 +158,12 @@ void CostComputer::Row(int y, Scratch* scratch, Cost* out) const {
       rev_colour[static_cast<std::size_t>(c) * width + j] = pr[channels * xr + c];
   }
   for (int x = 0; x < width; ++x, out += stride) {
-    // Valid k: 0 ≤ x − (min_disparity + k) < width.
-    const int k_lo = std::clamp(x - width + 1 - min_disparity, 0, ndisp);
-    const int k_hi = std::max(k_lo, std::clamp(x - min_disparity + 1, 0, ndisp));
+    const int d0 = min_disparity + (offsets ? offsets[x] : 0);  // disparity of k = 0
+    // Valid k: 0 ≤ x − (d0 + k) < width.
+    const int k_lo = std::clamp(x - width + 1 - d0, 0, ndisp);
+    const int k_hi = std::max(k_lo, std::clamp(x - d0 + 1, 0, ndisp));
     for (int k = 0; k < k_lo; ++k) out[k] = outside_;
-    const int j0 = width - 1 - x + min_disparity;  // j of k = 0
+    const int j0 = width - 1 - x + d0;  // j of k = 0
     // Hamming distances first (scalar popcount, independent iterations),
     // then the table look-ups and sums as vectors.
     const std::uint64_t anchor = cl[x];
@@ -184,7 +195,7 @@ void ComputeCost(const cv::Mat& left, const cv::Mat& right,
 void ComputeCost(const CostComputer& computer, const Parallel& parallel, CostVolume* cost) {
   parallel.For(0, cost->height(), [&](int y0, int y1) {
     CostComputer::Scratch scratch;
-    for (int y = y0; y < y1; ++y) computer.Row(y, &scratch, cost->row(y));
+    for (int y = y0; y < y1; ++y) computer.Row(y, &scratch, cost->row(y), cost->offset_row(y));
   });
 }
 

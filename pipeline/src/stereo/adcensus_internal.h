@@ -35,27 +35,52 @@ inline constexpr int kCostScale = 1000;
 // multiple of 16 costs (32 B) so that inner loops over d vectorize. Padding
 // lanes hold kPadCost: more than any real scanline value, so they never win
 // a minimum (arithmetic on them saturates).
+//
+// Per-pixel ranges: with offsets set, pixel (y, x) holds disparity indices
+// offset(y, x) … offset(y, x) + ndisp − 1 of a band of total_ndisp() (its
+// lane k is index offset + k); ndisp is then a multiple of 16 (no padding
+// lanes) and 0 ≤ offset ≤ total_ndisp − ndisp. Without offsets every pixel
+// holds the whole band (offset 0, total_ndisp = ndisp). Disparity maps are
+// always in indices of the whole band.
 class CostVolume {
  public:
   static constexpr Cost kPadCost = 16383;
   CostVolume() = default;
   CostVolume(int width, int height, int ndisp) { Reshape(width, height, ndisp); }
-  // Sets the dimensions; reallocates only when the capacity is too small.
-  // Contents are unspecified afterwards.
+  // Sets the dimensions and clears the offsets; reallocates only when the
+  // capacity is too small. Contents are unspecified afterwards.
   void Reshape(int width, int height, int ndisp);
+  // Per-pixel offsets (width × height, row-major) within a band of
+  // total_ndisp indices; see above.
+  void SetOffsets(std::vector<std::int32_t> offsets, int total_ndisp);
+  void CopyOffsetsFrom(const CostVolume& other) {
+    offsets_ = other.offsets_;
+    total_ndisp_ = other.total_ndisp_;
+  }
   void swap(CostVolume& other) noexcept {
     std::swap(width_, other.width_);
     std::swap(height_, other.height_);
     std::swap(ndisp_, other.ndisp_);
     std::swap(stride_, other.stride_);
     std::swap(capacity_, other.capacity_);
+    std::swap(total_ndisp_, other.total_ndisp_);
+    offsets_.swap(other.offsets_);
     data_.swap(other.data_);
   }
   static int StrideFor(int ndisp) { return (ndisp + 15) / 16 * 16; }
   int width() const { return width_; }
   int height() const { return height_; }
-  int ndisp() const { return ndisp_; }
+  int ndisp() const { return ndisp_; }    // disparities held per pixel
   int stride() const { return stride_; }  // costs between consecutive pixels
+  int total_ndisp() const { return total_ndisp_; }
+  bool has_offsets() const { return !offsets_.empty(); }
+  // Offsets of row y (null without offsets).
+  const std::int32_t* offset_row(int y) const {
+    return offsets_.empty() ? nullptr : offsets_.data() + static_cast<std::size_t>(y) * width_;
+  }
+  int offset(int y, int x) const {
+    return offsets_.empty() ? 0 : offsets_[static_cast<std::size_t>(y) * width_ + x];
+  }
   Cost* at(int y, int x) {
     return data_.get() + (static_cast<std::size_t>(y) * width_ + x) * stride_;
   }
@@ -68,7 +93,8 @@ class CostVolume {
   struct Free {
     void operator()(Cost* p) const { std::free(p); }
   };
-  int width_ = 0, height_ = 0, ndisp_ = 0, stride_ = 0;
+  int width_ = 0, height_ = 0, ndisp_ = 0, stride_ = 0, total_ndisp_ = 0;
+  std::vector<std::int32_t> offsets_;
   std::size_t capacity_ = 0;  // costs
   std::unique_ptr<Cost[], Free> data_;
 };
@@ -97,8 +123,10 @@ class CostComputer {
                const std::vector<std::uint64_t>& census_left,
                const std::vector<std::uint64_t>& census_right, int min_disparity, int ndisp,
                double lambda_ad, double lambda_census, double out_of_image_cost);
-  // Writes row y: width × stride costs, padding lanes kPadCost.
-  void Row(int y, Scratch* scratch, Cost* out) const;
+  // Writes row y: width × stride costs, padding lanes kPadCost. With
+  // `offsets` (row y's per-pixel offsets, may be null) pixel x's lane k is
+  // disparity min_disparity + offsets[x] + k.
+  void Row(int y, Scratch* scratch, Cost* out, const std::int32_t* offsets = nullptr) const;
 
  private:
   const cv::Mat& left_;

@@ -20,8 +20,11 @@ enum Label : std::uint8_t { kReliable = 0, kOccluded = 1, kMismatch = 2, kAmbigu
 
 constexpr float kNaN = std::numeric_limits<float>::quiet_NaN();
 
+// With per-pixel ranges (cost has offsets) the mismatch search covers the
+// disparities the pixel searched.
 void DetectOutliers(const cv::Mat& left_index, const cv::Mat& right_index, int min_disparity,
-                    int ndisp, double tolerance, const Parallel& parallel, cv::Mat* labels) {
+                    const CostVolume& cost, double tolerance, const Parallel& parallel,
+                    cv::Mat* labels) {
   const int width = left_index.cols;
   labels->create(left_index.size(), CV_8UC1);
   parallel.For(0, left_index.rows, [&](int y0, int y1) {
@@ -40,7 +43,9 @@ void DetectOutliers(const cv::Mat& left_index, const cv::Mat& right_index, int m
         // A mismatch if some disparity on the epipolar line is consistent in
         // the right view; otherwise the pixel is occluded there.
         out[x] = kOccluded;
-        for (int j = 0; j < ndisp; ++j) {
+        const int j0 = cost.offset(y, x);
+        const int j1 = cost.has_offsets() ? j0 + cost.ndisp() : cost.total_ndisp();
+        for (int j = j0; j < j1; ++j) {
           const int xj = x - min_disparity - j;
           if (xj >= 0 && xj < width && r[xj] == static_cast<float>(j)) {
             out[x] = kMismatch;
@@ -53,8 +58,9 @@ void DetectOutliers(const cv::Mat& left_index, const cv::Mat& right_index, int m
 }
 
 // Reliable pixels whose cost curve has no clear minimum become kAmbiguous:
-// c[k] > (1 − uniqueness) · min over |j − k| ≥ 2 of c[j]. The neighbours of
-// the winner are excluded: they are the same minimum, blurred.
+// c[k] > (1 − uniqueness) · min over |j − k| ≥ 2 of c[j] (over the
+// disparities the pixel holds). The neighbours of the winner are excluded:
+// they are the same minimum, blurred.
 void MarkAmbiguous(const CostVolume& cost, const cv::Mat& left_index, double uniqueness,
                    const Parallel& parallel, cv::Mat* labels) {
   const int ndisp = cost.ndisp();
@@ -66,7 +72,7 @@ void MarkAmbiguous(const CostVolume& cost, const cv::Mat& left_index, double uni
       for (int x = 0; x < left_index.cols; ++x) {
         if (lab[x] != kReliable) continue;
         const Cost* c = cost.at(y, x);
-        const int k = static_cast<int>(l[x]);
+        const int k = static_cast<int>(l[x]) - cost.offset(y, x);
         float second = std::numeric_limits<float>::infinity();
         for (int j = 0; j < k - 1; ++j) second = std::min(second, static_cast<float>(c[j]));
         for (int j = k + 2; j < ndisp; ++j) second = std::min(second, static_cast<float>(c[j]));
@@ -95,21 +101,21 @@ inline void CountBins(const std::int16_t* b, int u0, int u1, int delta, int* h, 
   for (; u <= u1; ++u) h0[b[u]] += delta;
 }
 
-// out[k] = the sum of the four interleaved histograms at bin k.
-inline void SumPartials(const int* __restrict h, int nb, int* __restrict out) {
-  for (int k = 0; k < nb; ++k) out[k] = h[k] + h[nb + k] + h[2 * nb + k] + h[3 * nb + k];
+// out[k] = the sum of the four interleaved histograms (each `nb` bins apart)
+// at bin k, for k in [0, n).
+inline void SumPartials(const int* __restrict h, int nb, int n, int* __restrict out) {
+  for (int k = 0; k < n; ++k) out[k] = h[k] + h[nb + k] + h[2 * nb + k] + h[3 * nb + k];
 }
 
-// Mei's vote on one pixel's support-region histogram (bins 0 … ndisp−1 the
-// reliable disparities, bin ndisp the unreliable pixels; `region` pixels in
-// all): the winning disparity index, or −1 when the vote is not decisive.
-inline int Vote(const int* histogram, int ndisp, int region, const RefinementOptions& options) {
-  const int votes = region - histogram[ndisp];
+// Mei's vote on bins 0 … n−1 of one pixel's support-region histogram, given
+// the region's reliable pixel count `votes`: the winning bin, or −1 when the
+// vote is not decisive.
+inline int Vote(const int* histogram, int n, int votes, const RefinementOptions& options) {
   if (votes <= options.tau_s) return -1;
   int most = 0;  // a plain max reduction vectorizes; std::max_element does not
-  for (int k = 0; k < ndisp; ++k) most = std::max(most, histogram[k]);
+  for (int k = 0; k < n; ++k) most = std::max(most, histogram[k]);
   if (most <= options.tau_h * votes) return -1;
-  return static_cast<int>(std::find(histogram, histogram + ndisp, most) - histogram);
+  return static_cast<int>(std::find(histogram, histogram + n, most) - histogram);
 }
 
 // Whether the horizontal-first support region of (y, x) holds a pixel
@@ -131,9 +137,15 @@ inline bool RegionChanged(const Arms& arms, const cv::Mat& changed_prefix, int y
 // moving from one pixel's vertical arm to the next adds the rows that enter
 // and removes those that leave (arms of neighbouring pixels overlap), instead
 // of counting each region from scratch. The counts are the same integers.
-void RegionVoting(const Arms& arms, int ndisp, const RefinementOptions& options,
+//
+// With per-pixel ranges (cost has offsets) a pixel takes its region's vote
+// only among the disparities it searched (the votes for others still count
+// in the total): one range of bins to sum and search instead of the band.
+void RegionVoting(const Arms& arms, const CostVolume& cost, const RefinementOptions& options,
                   const Parallel& parallel, cv::Mat* disparity, cv::Mat* labels) {
   const int width = disparity->cols, height = disparity->rows;
+  const int ndisp = cost.total_ndisp();
+  const int range = cost.has_offsets() ? cost.ndisp() : ndisp;
   // bins: the disparity index of reliable pixels, ndisp for the others, so the
   // histogram loop needs no branch (bin ndisp collects the unreliable ones).
   cv::Mat bins(disparity->size(), CV_16SC1);
@@ -153,7 +165,7 @@ void RegionVoting(const Arms& arms, int ndisp, const RefinementOptions& options,
     cv::Mat new_disp = disparity->clone(), new_labels = labels->clone();
     std::vector<int> changed_cols(width, 0);
     parallel.For(0, width, [&](int x0, int x1) {
-      std::vector<int> histogram(nb), partial(4 * static_cast<std::size_t>(nb));
+      std::vector<int> histogram(range), partial(4 * static_cast<std::size_t>(nb));
       for (int x = x0; x < x1; ++x) {
         // The running window holds rows [w_lo, w_hi) of column x.
         int w_lo = 0, w_hi = 0, count = 0;
@@ -177,10 +189,15 @@ void RegionVoting(const Arms& arms, int ndisp, const RefinementOptions& options,
           for (; w_lo > t_lo; --w_lo) add_row(w_lo - 1, 1);
           for (; w_hi > t_hi; --w_hi) add_row(w_hi - 1, -1);
           for (; w_lo < t_lo; ++w_lo) add_row(w_lo, -1);
-          SumPartials(partial.data(), nb, histogram.data());
-          const int k = Vote(histogram.data(), ndisp, count, options);
+          // Too few reliable votes: no need for the whole histogram.
+          const int unreliable = partial[ndisp] + partial[nb + ndisp] + partial[2 * nb + ndisp] +
+                                 partial[3 * nb + ndisp];
+          if (count - unreliable <= options.tau_s) continue;
+          const int offset = cost.offset(y, x);
+          SumPartials(partial.data() + offset, nb, range, histogram.data());
+          const int k = Vote(histogram.data(), range, count - unreliable, options);
           if (k < 0) continue;
-          new_disp.at<float>(y, x) = static_cast<float>(k);
+          new_disp.at<float>(y, x) = static_cast<float>(offset + k);
           new_labels.at<std::uint8_t>(y, x) = kReliable;
           ++changed_cols[x];
         }
@@ -264,13 +281,17 @@ void AdjustDiscontinuities(const CostVolume& cost, const Parallel& parallel, cv:
         if (!IsValidDisparity(d[x]) || !IsValidDisparity(d[x - 1]) || !IsValidDisparity(d[x + 1]))
           continue;
         if (std::abs(d[x - 1] - d[x + 1]) <= 1.f) continue;  // not on a disparity edge
+        // Lanes of this pixel; a neighbour's disparity it does not hold
+        // cannot be compared.
         const Cost* c = cost.at(y, x);
-        const int k = static_cast<int>(d[x]), k1 = static_cast<int>(d[x - 1]),
-                  k2 = static_cast<int>(d[x + 1]);
+        const int offset = cost.offset(y, x), n = cost.ndisp();
+        const int k = static_cast<int>(d[x]) - offset, k1 = static_cast<int>(d[x - 1]) - offset,
+                  k2 = static_cast<int>(d[x + 1]) - offset;
+        if (k < 0 || k >= n) continue;
         int best = k;
-        if (c[k1] < c[best]) best = k1;
-        if (c[k2] < c[best]) best = k2;
-        o[x] = static_cast<float>(best);
+        if (k1 >= 0 && k1 < n && c[k1] < c[best]) best = k1;
+        if (k2 >= 0 && k2 < n && c[k2] < c[best]) best = k2;
+        o[x] = static_cast<float>(best + offset);
       }
     }
   });
@@ -284,14 +305,14 @@ void Subpixel(const CostVolume& cost, const Parallel& parallel, cv::Mat* dispari
       float* d = disparity->ptr<float>(y);
       for (int x = 0; x < disparity->cols; ++x) {
         if (!IsValidDisparity(d[x])) continue;
-        const int k = static_cast<int>(d[x]);
+        const int offset = cost.offset(y, x);
+        const int k = static_cast<int>(d[x]) - offset;
         if (k <= 0 || k >= ndisp - 1) continue;
         const Cost* c = cost.at(y, x);
         const int denom = c[k - 1] + c[k + 1] - 2 * c[k];  // integer costs: > 0 or flat
         if (denom <= 0) continue;
-        const float offset =
-            static_cast<float>(c[k - 1] - c[k + 1]) / static_cast<float>(2 * denom);
-        d[x] = static_cast<float>(k) + std::clamp(offset, -0.5f, 0.5f);
+        const float shift = static_cast<float>(c[k - 1] - c[k + 1]) / static_cast<float>(2 * denom);
+        d[x] = static_cast<float>(k + offset) + std::clamp(shift, -0.5f, 0.5f);
       }
     }
   });
@@ -380,8 +401,8 @@ cv::Mat Refine(const cv::Mat& left_index, const cv::Mat& right_index, const Cost
                int min_disparity, const cv::Mat& left_image, const Arms& arms,
                const RefinementOptions& options, const Parallel& parallel, RefineStats* stats) {
   cv::Mat labels;
-  DetectOutliers(left_index, right_index, min_disparity, cost.ndisp(), options.lr_tolerance_px,
-                 parallel, &labels);
+  DetectOutliers(left_index, right_index, min_disparity, cost, options.lr_tolerance_px, parallel,
+                 &labels);
   if (stats) {
     const double n = static_cast<double>(labels.total());
     stats->occluded_pct = 100.0 * cv::countNonZero(labels == kOccluded) / n;
@@ -394,7 +415,7 @@ cv::Mat Refine(const cv::Mat& left_index, const cv::Mat& right_index, const Cost
           100.0 * cv::countNonZero(labels == kAmbiguous) / static_cast<double>(labels.total());
   }
   cv::Mat disparity = left_index.clone();
-  RegionVoting(arms, cost.ndisp(), options, parallel, &disparity, &labels);
+  RegionVoting(arms, cost, options, parallel, &disparity, &labels);
   if (options.interpolate) {
     Interpolate(left_image, parallel, &disparity, &labels);
   } else {

@@ -185,6 +185,7 @@ bool ViewProcessor::Init(const StereoCalibration& calibration, const ViewProcess
   matcher.num_threads = options.num_threads;
   matcher.refinement.interpolate = false;  // a point cloud wants no invented surface
   matcher.aggregation_iterations = options.aggregation_iterations;
+  matcher.coarse_to_fine.enabled = options.coarse_to_fine;
   if (!matcher.IsValid(&why)) return Fail(error, "matcher: " + why);
   matcher_ = std::make_unique<StereoMatcher>(matcher);
   return true;

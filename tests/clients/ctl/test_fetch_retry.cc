@@ -37,8 +37,8 @@ class ScriptedStation {
       : station_(std::move(station)), payload_(std::move(payload)), skip_(std::move(skip)) {
     participant_ = ::craftscan::testing::MakeTestParticipant();
     std::string error;
-    commands_ = dds::Reader<dds::msg::Command>::Create(participant_, dds::CommandTopic(station_),
-                                                       &error);
+    commands_ =
+        dds::Reader<dds::msg::Command>::Create(participant_, dds::CommandTopic(station_), &error);
     replies_ =
         dds::Writer<dds::msg::Reply>::Create(participant_, dds::ReplyTopic(station_), &error);
     files_ =
@@ -61,9 +61,8 @@ class ScriptedStation {
       if (dds::View(command->verb) != "get") continue;
       const int n = ++gets_;
       const std::string id(dds::View(command->request_id));
-      nlohmann::json file = {{"name", "mesh.glb"},
-                             {"size", payload_.size()},
-                             {"fnv1a64", Hex64(Fnv1a64(payload_))}};
+      nlohmann::json file = {
+          {"name", "mesh.glb"}, {"size", payload_.size()}, {"fnv1a64", Hex64(Fnv1a64(payload_))}};
       dds::Outgoing<dds::msg::Reply> reply;
       reply.msg().request_id = reply.Keep(id);
       reply.msg().client = reply.Keep(dds::View(command->client));
@@ -83,8 +82,7 @@ class ScriptedStation {
         m.file_count = 1;
         m.total_size = payload_.size();
         m.offset = offset;
-        dds::Borrow(&m.data, reinterpret_cast<const std::uint8_t*>(payload_.data()) + offset,
-                    size);
+        dds::Borrow(&m.data, reinterpret_cast<const std::uint8_t*>(payload_.data()) + offset, size);
         m.last = offset + size == payload_.size();
         ASSERT_TRUE(files_->Write(m, &error)) << error;
       }
@@ -155,8 +153,7 @@ TEST_F(FetchRetry, ATransferThatStartedBeforeTheReaderMatchedIsAskedForAgain) {
 
 TEST_F(FetchRetry, AStationThatNeverSendsTheStartFailsAfterThreeGets) {
   const std::string station = ::craftscan::testing::UniqueStation("fr");
-  ScriptedStation fake(station, payload_,
-                       [](int, std::uint64_t offset) { return offset == 0; });
+  ScriptedStation fake(station, payload_, [](int, std::uint64_t offset) { return offset == 0; });
   const FetchResult got = Fetch(station);
   EXPECT_EQ(got.status, FetchStatus::kTransferFailed);
   EXPECT_NE(got.message.find("chunks were lost"), std::string::npos) << got.message;

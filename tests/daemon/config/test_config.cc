@@ -67,6 +67,7 @@ pipeline:
   num_disparities: 192
   min_texture_std: 0
   aggregation_iterations: 4
+  coarse_to_fine: false
   speckle_max_area_pct: 0.01
   speckle_range_px: 1.5
   volume_radius_mm: 90
@@ -130,6 +131,9 @@ deliverables: {rights: "© 2026 Musée d'Orsay: CC BY-NC 4.0"}
   EXPECT_EQ(matcher.num_disparities, 192);
   EXPECT_EQ(matcher.aggregation_iterations, 4);
   EXPECT_EQ(ViewOptions(c.pipeline).aggregation_iterations, 4);
+  EXPECT_FALSE(ViewOptions(c.pipeline).coarse_to_fine);
+  EXPECT_FALSE(matcher.coarse_to_fine.enabled);
+  EXPECT_TRUE(ViewOptions(PipelineSettings{}).coarse_to_fine);  // the default
   EXPECT_DOUBLE_EQ(ViewOptions(c.pipeline).speckle_max_area_pct, 0.01);
   EXPECT_DOUBLE_EQ(ViewOptions(c.pipeline).speckle_range_px, 1.5);
   const ScanOptions scan = ReconstructionOptions(c.pipeline);

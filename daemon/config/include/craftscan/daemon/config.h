@@ -69,6 +69,8 @@
 //     depth_edge_jump_px: 3       (0, 1000] what a depth edge is (px of disparity)
 //     aggregation_iterations: 0   0..16 the matcher's cross-based aggregation
 //                                 (the paper's 4 flatten slanted weak texture)
+//     coarse_to_fine: true        per-pixel disparity ranges from a ~320 px wide
+//                                 pass (CoarseToFineOptions) for bands over 192
 //     speckle_max_area_pct: 0.004 [0, 1] % of the image: smaller patches go; 0 = off
 //     speckle_range_px: 2         (0, 64] a patch's neighbours differ by at most this
 //     mesh: true                  a mesh after fusion
@@ -227,6 +229,8 @@ struct PipelineSettings {
   // The matcher's cross-based aggregation iterations (0..16):
   // ViewProcessorOptions::aggregation_iterations.
   int aggregation_iterations = 0;
+  // ViewProcessorOptions::coarse_to_fine (CoarseToFineOptions::enabled).
+  bool coarse_to_fine = true;
   // Speckles (RemoveDisparitySpeckles): connected disparity patches of at
   // most speckle_max_area_pct % of the image ([0, 1]; 0 = off), neighbours
   // within speckle_range_px ((0, 64]), are dropped before reprojection:

@@ -68,6 +68,33 @@ struct RefinementOptions {
   int median_size = 3;   // 0 (off), 3 or 5
 };
 
+// Per-pixel disparity ranges from a coarse pass, for wide bands (a station's
+// working volume spans hundreds of disparities at full size while each
+// pixel's surface lies within a few). The pair is first matched about
+// coarse_width_px wide (downscaled by an integer factor 2 … 8) over the whole
+// band (left-right checked, no interpolation, patches of at most
+// speckle_area_pct % of its pixels removed); each pixel then searches only
+// `lanes` disparities around
+// what the coarse map found in its neighbourhood (window_coarse_px coarse
+// pixels either side, widened by margin_px), so the volume and the work
+// shrink by num_disparities / lanes. Where the neighbourhood spans more than
+// `lanes` (a depth edge), the pixel's own coarse disparity is centred (where
+// it has none, the smaller of its row's nearest either side: the farther
+// surface, as occlusions go; else the nearest surface's); where the coarse
+// pass found nothing within wide_window_coarse_px, the image's median. Used only without
+// cross-based aggregation (aggregation_iterations 0, scanline optimization on: the station's
+// matcher) and when num_disparities exceeds min_num_disparities; otherwise ignored.
+struct CoarseToFineOptions {
+  bool enabled = false;
+  int min_num_disparities = 192;  // narrower bands are matched whole
+  int lanes = 64;                 // disparities per pixel, a multiple of 16
+  int coarse_width_px = 320;      // the coarse pass's image width, about
+  int window_coarse_px = 2;       // neighbourhood half-size, coarse pixels
+  int wide_window_coarse_px = 8;  // second look where the first window has nothing
+  int margin_px = 8;              // full-size disparities added on either side
+  double speckle_area_pct = 0.1;  // of the coarse image, [0, 10]
+};
+
 struct ADCensusOptions {
   int min_disparity = 0;     // px, may be negative
   int num_disparities = 64;  // px, ≥ 1: the range [min, min + num)
@@ -99,6 +126,7 @@ struct ADCensusOptions {
   double tau_so = 15;  // colour difference that lowers the penalties
 
   RefinementOptions refinement;
+  CoarseToFineOptions coarse_to_fine;
 
   int num_threads = 1;  // worker threads for this call; 1 = serial. Results do not depend on it.
 
@@ -115,7 +143,11 @@ struct DisparityResult {
   double mismatch_pct = 0;   // of all pixels, outliers classified as mismatch
   double ambiguous_pct = 0;  // of all pixels, passed the left-right check, failed uniqueness
   double valid_pct = 0;      // of all pixels with a disparity in the output
-  struct Timings {           // wall-clock milliseconds per stage
+  // Disparities searched per pixel: num_disparities, or the coarse-to-fine
+  // lanes when that was used (then coarse_ms > 0).
+  int searched_disparities = 0;
+  struct Timings {      // wall-clock milliseconds per stage
+    double coarse = 0;  // the coarse pass and the per-pixel ranges (coarse-to-fine)
     double preprocess = 0, cost = 0, arms = 0, aggregation = 0;
     double scanline = 0;    // with the winner-take-all of both views, fused into it
     double refinement = 0;  // (and the winner-take-all when scanline optimization is off)

@@ -50,6 +50,9 @@ struct ViewProcessorOptions {
   // window and the scanline optimization alone do better on every object
   // measured (README 11.9), so the station runs with none.
   int aggregation_iterations = 0;
+  // Per-pixel disparity ranges from a coarse pass (CoarseToFineOptions):
+  // the working volume's band is hundreds of disparities wide at full size.
+  bool coarse_to_fine = true;
   // Speckles (RemoveDisparitySpeckles): connected patches of valid
   // disparities (neighbours within speckle_range_px, (0, 64]) of at most
   // speckle_max_area_pct percent of the image's pixels ([0, 1]; 0 = off) are

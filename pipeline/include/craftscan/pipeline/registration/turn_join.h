@@ -1,0 +1,127 @@
+// Joining two turns of one object: the object scanned standing (turn A) and
+// again laid in another pose (turn B: on its side, upside down), each turn
+// registered within itself with the turntable prior and fused. Turn B's
+// fused cloud is registered onto turn A's with no prior (FPFH + RANSAC,
+// the distinct best hypotheses each refined by ICP, registration.h), with a
+// verdict: refused when the turns overlap too little or when a clearly
+// different placement fits about as well (a symmetric object: an egg laid on
+// its side fits any turn about its long axis). Then each turn's
+// platter-contact region goes where the other turn sees the surface, and
+// the two clouds become one (MergeTurns) for one fusion, mesh and
+// measurement (scan_reconstruction.h: JoinTurnScans).
+//
+//   TurnJoinResult j = JoinTurns(turn_a.fused, turn_b.fused, TurnJoinOptions{});
+//   if (j.IsUsable()) merged = MergeTurns(turn_a.fused, turn_b.fused, j.a_from_b, options);
+//   else std::cout << j.message;  // what to tell the operator
+//
+// Frames: each turn's cloud in its own turntable frame (origin on the axis
+// at the platter surface, +Z up: the platter is z = 0); a_from_b maps turn
+// B's points into turn A's frame. Units: millimetres, degrees in *_deg.
+#pragma once
+
+#include <cstdint>
+#include <limits>
+#include <string>
+
+#include <opencv2/core/matx.hpp>
+
+#include "craftscan/pipeline/common/point_cloud.h"
+#include "craftscan/pipeline/registration/registration.h"
+
+namespace craftscan {
+
+struct TurnJoinOptions {
+  // The clouds the join works on: turn clouds (with normals, as fusion
+  // gives them) averaged in voxels of these edges, mm. coarse_voxel_mm 0:
+  // turn A's bounding-box diagonal / 40 (2.8 mm for the 80×60×50 box), so
+  // that features see the same share of any object.
+  double fine_voxel_mm = 1.0;
+  double coarse_voxel_mm = 0;
+  // FPFH support radius and RANSAC inlier gate, in coarse voxels.
+  double feature_radius_voxels = 5;
+  double inlier_distance_voxels = 1.5;
+  int ransac_iterations = 50000;
+  std::uint64_t seed = 42;
+  // ICP from each hypothesis (registration.h FineOptions).
+  FineOptions fine = [] {
+    FineOptions f;
+    f.max_iterations = 80;
+    f.max_correspondence_mm = 4;
+    f.min_correspondence_mm = 0.5;
+    f.max_source_points = 12000;
+    return f;
+  }();
+  // Distinct RANSAC hypotheses refined (≥ 1); hypotheses closer than
+  // 10° and 10 mm count as one. Besides them the best join turned by 90°,
+  // 180° and 270° about each principal axis of turn B is refined too: a
+  // symmetry RANSAC did not sample still shows.
+  int max_candidates = 6;
+  // Two joins differing by at least this rotation or translation are
+  // different placements (deg, mm; > 0).
+  double distinct_deg = 3;
+  double distinct_mm = 3;
+  // A point of turn B fits when turn A has a point within fit_distance_mm
+  // and it lies within fit_plane_mm of that point's tangent plane (the
+  // stereo noise is ~0.1–0.3 mm; a relief 2 mm deep that lands on a flat
+  // face does not fit). fit = the fraction of turn B's fine points that fit.
+  double fit_distance_mm = 1.5;
+  double fit_plane_mm = 0.4;
+  // Refused: the best join's fit below min_overlap (the turns share too
+  // little surface), or a distinct join's fit at least max_ambiguity × the
+  // best's (0..1]: the geometry does not tell the placements apart.
+  double min_overlap = 0.25;
+  double max_ambiguity = 0.9;
+  // Platter contact (MergeTurns): a turn's points lower than
+  // contact_band_mm in its own frame go where the other turn has a point
+  // within contact_cover_mm (it sees that surface, not at a grazing angle
+  // beside the platter). mm, ≥ 0.
+  double contact_band_mm = 3;
+  double contact_cover_mm = 1.5;
+  int num_threads = 1;  // ≥ 1; results are deterministic for a given count
+
+  bool IsValid(std::string* why) const;  // names the offending field
+};
+
+struct TurnJoinResult {
+  enum class Status {
+    kJoined,
+    kRefusedOverlap,    // the turns share too little surface
+    kRefusedAmbiguous,  // another placement fits about as well (symmetry)
+    kFailed,            // invalid options or input, a registration failure
+  };
+  Status status = Status::kFailed;
+  std::string message;  // the reason for a refusal, for the operator; notes otherwise
+
+  cv::Matx44d a_from_b = cv::Matx44d::eye();  // turn B's frame → turn A's
+  double overlap = 0;                         // the join's fit (fraction of B's points, 0..1)
+  double rmse_mm = std::numeric_limits<double>::quiet_NaN();  // point-to-plane over the fits
+  // The best distinct alternative placement: its fit / the join's (0..1; 0
+  // when every hypothesis converged to the join) and how far it lies.
+  double ambiguity = 0;
+  double alternative_deg = std::numeric_limits<double>::quiet_NaN();
+  double alternative_mm = std::numeric_limits<double>::quiet_NaN();
+  int hypotheses = 0;                         // refined by ICP, the join's included
+  std::size_t points_a = 0, points_b = 0;     // fine points the fit is counted on
+  double coarse_voxel_mm = 0;                 // the one used
+  double time_ms = 0;
+
+  bool IsUsable() const { return status == Status::kJoined; }
+};
+const char* ToString(TurnJoinResult::Status status);  // "joined", "refused_overlap", ...
+
+// Registers turn B onto turn A (see the top of this file). Both clouds need
+// normals (outward, as FuseClouds gives them) and at least 100 points.
+// Never throws; thread-safe (each call is independent).
+TurnJoinResult JoinTurns(const PointCloud& turn_a, const PointCloud& turn_b,
+                         const TurnJoinOptions& options);
+
+// Turn A's points and turn B's mapped by a_from_b, each without its
+// platter-contact points where the other turn sees the surface (see
+// TurnJoinOptions), in turn A's frame: the input of one fusion. Normals and
+// colours are kept when both clouds have them. *dropped_a, *dropped_b (may
+// be null) receive the counts dropped. Never throws.
+PointCloud MergeTurns(const PointCloud& turn_a, const PointCloud& turn_b,
+                      const cv::Matx44d& a_from_b, const TurnJoinOptions& options,
+                      std::size_t* dropped_a = nullptr, std::size_t* dropped_b = nullptr);
+
+}  // namespace craftscan

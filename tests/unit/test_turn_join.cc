@@ -183,22 +183,16 @@ TEST(TurnJoin, RefusesAnEggLaidOnItsSide) {
 }
 
 TEST(TurnJoin, RefusesTurnsThatShareTooLittle) {
-  // Turn B sees only the box's base region (what lay on the platter in
-  // turn A): nothing of it was seen in turn A.
-  const PointCloud object = BumpyBox();
+  // The operator swapped the object: turn B shows the egg, turn A the box.
+  // Nothing of one lies on the other.
   cv::Matx44d a_from_object, b_from_object;
-  const PointCloud a = Turn(object, {0, 0, 0}, 0, 5, &a_from_object);
-  const PointCloud b_all = Turn(object, {kPi, 0, 0}, 0, 6, &b_from_object);
-  PointCloud b;  // upside down: keep only the base's face and 2 mm of the walls
-  for (std::size_t i = 0; i < b_all.size(); ++i) {
-    if (b_all.points_mm[i][2] < 28) continue;
-    b.points_mm.push_back(b_all.points_mm[i]);
-    b.normals.push_back(b_all.normals[i]);
-  }
+  const PointCloud a = Turn(BumpyBox(), {0, 0, 0}, 0, 5, &a_from_object);
+  const PointCloud b = Turn(Egg(), {kPi / 2, 0, 0}, 0, 6, &b_from_object);
   const TurnJoinResult j = JoinTurns(a, b, FastOptions());
-  EXPECT_FALSE(j.IsUsable()) << j.message;
-  EXPECT_NE(j.status, TurnJoinResult::Status::kJoined);
-  EXPECT_FALSE(j.message.empty());
+  EXPECT_EQ(j.status, TurnJoinResult::Status::kRefusedOverlap) << j.message;
+  EXPECT_FALSE(j.IsUsable());
+  EXPECT_LT(j.overlap, FastOptions().min_overlap);
+  EXPECT_NE(j.message.find("overlap too little"), std::string::npos) << j.message;
 }
 
 TEST(TurnJoin, InvalidInputIsAFailureWithAReason) {

@@ -6,6 +6,7 @@
 #include <chrono>
 #include <cmath>
 #include <cstdio>
+#include <cstdlib>
 #include <vector>
 
 #include <Eigen/Core>
@@ -61,6 +62,9 @@ double Diagonal(const PointCloud& cloud) {
 struct Fit {
   double fraction = 0;  // of the source points
   double rmse_mm = std::numeric_limits<double>::quiet_NaN();
+  // Per source point: 1 fits, 2 lies farther than contradiction_mm from
+  // the target, 0 neither.
+  std::vector<std::uint8_t> state;
 };
 
 // How well `source` mapped by T lies on `target` (see TurnJoinOptions::fit_*).
@@ -70,31 +74,95 @@ Fit MeasureFit(const PointCloud& source, const PointCloud& target, const PointIn
   const Eigen::Matrix3f R = Te.topLeftCorner<3, 3>().cast<float>();
   const Eigen::Vector3f t = Te.topRightCorner<3, 1>().cast<float>();
   std::vector<float> plane(source.size(), -1.f);  // −1: no target point near
+  Fit fit;
+  fit.state.assign(source.size(), 0);
   const float gate2 = static_cast<float>(o.fit_distance_mm * o.fit_distance_mm);
+  const float far2 = static_cast<float>(o.contradiction_mm * o.contradiction_mm);
   parallel.For(0, static_cast<int>(source.size()), [&](int b, int e) {
     for (int i = b; i < e; ++i) {
       const cv::Vec3f& s = source.points_mm[static_cast<std::size_t>(i)];
       const Eigen::Vector3f p = R * Eigen::Vector3f(s[0], s[1], s[2]) + t;
       int j = 0;
       float d2 = 0;
-      if (!index.Nearest(p, &j, &d2) || d2 > gate2) continue;
+      if (!index.Nearest(p, &j, &d2)) continue;
+      if (d2 > far2) fit.state[static_cast<std::size_t>(i)] = 2;
+      if (d2 > gate2) continue;
       const cv::Vec3f& q = target.points_mm[static_cast<std::size_t>(j)];
       const cv::Vec3f& n = target.normals[static_cast<std::size_t>(j)];
       plane[static_cast<std::size_t>(i)] =
           std::abs(n[0] * (p[0] - q[0]) + n[1] * (p[1] - q[1]) + n[2] * (p[2] - q[2]));
     }
   });
-  Fit fit;
   std::size_t fits = 0;
   double sum2 = 0;
-  for (float d : plane) {
+  for (std::size_t i = 0; i < plane.size(); ++i) {
+    const float d = plane[i];
     if (d < 0 || d > o.fit_plane_mm) continue;
+    fit.state[i] = 1;
     ++fits;
     sum2 += static_cast<double>(d) * d;
   }
-  if (!source.empty()) fit.fraction = static_cast<double>(fits) / static_cast<double>(source.size());
+  if (!source.empty())
+    fit.fraction = static_cast<double>(fits) / static_cast<double>(source.size());
   if (fits > 0) fit.rmse_mm = std::sqrt(sum2 / static_cast<double>(fits));
   return fit;
+}
+
+// How firmly the fit holds the placement: the point-to-plane information
+// matrix of the fitting points (each pair's row: the target normal n and
+// (p − c) × n / r, p the mapped source point, c their centroid, r their RMS
+// distance from it, so that a turn by one radian at the object's size
+// weighs as a shift by r), per point. Its smallest eigenvalue over its
+// largest: ~0 when some motion moves no point off the surface (a surface of
+// revolution turning about its axis, a cylinder sliding along it).
+// *weak_rotation receives how much of that motion is a rotation (0..1).
+double Constraint(const PointCloud& source, const PointCloud& target, const PointIndex& index,
+                  const cv::Matx44d& T, const Fit& fit, double* weak_rotation) {
+  const Eigen::Matrix4d Te = ToEigen(T);
+  const Eigen::Matrix3d R = Te.topLeftCorner<3, 3>();
+  const Eigen::Vector3d t = Te.topRightCorner<3, 1>();
+  std::vector<Eigen::Vector3d> points, normals;
+  for (std::size_t i = 0; i < source.size(); ++i) {
+    if (fit.state[i] != 1) continue;
+    const cv::Vec3f& s = source.points_mm[i];
+    const Eigen::Vector3d p = R * Eigen::Vector3d(s[0], s[1], s[2]) + t;
+    int j = 0;
+    float d2 = 0;
+    if (!index.Nearest(p.cast<float>(), &j, &d2)) continue;
+    const cv::Vec3f& n = target.normals[static_cast<std::size_t>(j)];
+    points.push_back(p);
+    normals.push_back(Eigen::Vector3d(n[0], n[1], n[2]).normalized());
+  }
+  *weak_rotation = 0;
+  if (points.size() < 6) return 0;
+  Eigen::Vector3d c = Eigen::Vector3d::Zero();
+  for (const Eigen::Vector3d& p : points) c += p;
+  c /= static_cast<double>(points.size());
+  double r2 = 0;
+  for (const Eigen::Vector3d& p : points) r2 += (p - c).squaredNorm();
+  const double r = std::sqrt(r2 / static_cast<double>(points.size()));
+  if (!(r > 0)) return 0;
+  Eigen::Matrix<double, 6, 6> H = Eigen::Matrix<double, 6, 6>::Zero();
+  for (std::size_t i = 0; i < points.size(); ++i) {
+    Eigen::Matrix<double, 6, 1> row;
+    row.head<3>() = (points[i] - c).cross(normals[i]) / r;
+    row.tail<3>() = normals[i];
+    H += row * row.transpose();
+  }
+  H /= static_cast<double>(points.size());
+  const Eigen::SelfAdjointEigenSolver<Eigen::Matrix<double, 6, 6>> eig(H);
+  const double largest = eig.eigenvalues()(5);
+  *weak_rotation = eig.eigenvectors().col(0).head<3>().squaredNorm();
+  return largest > 0 ? eig.eigenvalues()(0) / largest : 0;
+}
+
+// The share of the source points that fit under `best` and lie far from
+// the target under `other`: surface the other placement contradicts.
+double Contradicted(const Fit& best, const Fit& other) {
+  std::size_t n = 0;
+  for (std::size_t i = 0; i < best.state.size(); ++i)
+    if (best.state[i] == 1 && other.state[i] == 2) ++n;
+  return best.state.empty() ? 0.0 : static_cast<double>(n) / static_cast<double>(best.state.size());
 }
 
 // Rotation by `angle_rad` about `axis` through `centre` (turn A's frame).
@@ -121,13 +189,20 @@ bool TurnJoinOptions::IsValid(std::string* why) const {
   if (!(feature_radius_voxels > 0)) return fail("feature_radius_voxels must be > 0");
   if (!(inlier_distance_voxels > 0)) return fail("inlier_distance_voxels must be > 0");
   if (ransac_iterations < 1) return fail("ransac_iterations must be >= 1");
+  if (hypothesis_source_points < 100) return fail("hypothesis_source_points must be >= 100");
   std::string sub;
   if (!fine.IsValid(&sub)) return fail("fine." + sub);
   if (max_candidates < 1) return fail("max_candidates must be >= 1");
   if (!(distinct_deg > 0) || !(distinct_mm > 0)) return fail("distinct_deg/_mm must be > 0");
-  if (!(fit_distance_mm > 0) || !(fit_plane_mm > 0)) return fail("fit_distance/plane_mm must be > 0");
+  if (!(fit_distance_mm > 0) || !(fit_plane_mm > 0))
+    return fail("fit_distance/plane_mm must be > 0");
   if (!(min_overlap >= 0 && min_overlap <= 1)) return fail("min_overlap must be in [0, 1]");
   if (!(max_ambiguity > 0 && max_ambiguity <= 1)) return fail("max_ambiguity must be in (0, 1]");
+  if (!(min_constraint >= 0 && min_constraint < 1)) return fail("min_constraint must be in [0, 1)");
+  if (!(contradiction_mm > fit_distance_mm))
+    return fail("contradiction_mm must be > fit_distance_mm");
+  if (!(max_contradicted >= 0 && max_contradicted <= 1))
+    return fail("max_contradicted must be in [0, 1]");
   if (!(contact_band_mm >= 0) || !(contact_cover_mm >= 0))
     return fail("contact_band_mm/contact_cover_mm must be >= 0");
   if (num_threads < 1) return fail("num_threads must be >= 1");
@@ -196,20 +271,34 @@ TurnJoinResult JoinTurns(const PointCloud& turn_a, const PointCloud& turn_b,
         const std::vector<RegistrationResult> hypotheses =
             RegisterCoarseCandidates(b, a, coarse, wanted, threads);
         if (hypotheses.empty() || !hypotheses.front().IsUsable()) {
-          result.message = "global registration of the turns failed: " +
-                           (hypotheses.empty() ? std::string("no hypothesis")
-                                               : hypotheses.front().message);
+          // Valid clouds and no consistent placement: nothing in common.
+          result.status = TurnJoinResult::Status::kRefusedOverlap;
+          result.message =
+              "the turns overlap too little: no placement of the second turn fits the first "
+              "(global registration: " +
+              (hypotheses.empty() ? std::string("no hypothesis") : hypotheses.front().message) +
+              "); lay the object so that more of what the first turn saw is seen again";
+          result.time_ms = MsSince(start);
           return result;
         }
 
         // Fine: ICP from each; the best fit wins.
         std::vector<Placement> placements;
-        auto refine = [&](const cv::Matx44d& initial) {
-          const RegistrationResult r = RegisterFine(b, a, initial, options.fine, threads);
+        FineOptions quick = options.fine;
+        quick.max_iterations = std::min(quick.max_iterations, 80);
+        quick.min_update_mm = std::max(quick.min_update_mm, 2e-3);
+        if (quick.max_source_points == 0 ||
+            quick.max_source_points > options.hypothesis_source_points)
+          quick.max_source_points = options.hypothesis_source_points;
+        auto measure = [&](const cv::Matx44d& T) {
           Placement p;
-          p.a_from_b = r.IsUsable() ? r.target_from_source : initial;
-          p.fit = MeasureFit(b.fine, a.fine, index_a, p.a_from_b, options, parallel);
-          placements.push_back(p);
+          p.a_from_b = T;
+          p.fit = MeasureFit(b.fine, a.fine, index_a, T, options, parallel);
+          return p;
+        };
+        auto refine = [&](const cv::Matx44d& initial) {
+          const RegistrationResult r = RegisterFine(b, a, initial, quick, threads);
+          placements.push_back(measure(r.IsUsable() ? r.target_from_source : initial));
         };
         for (const RegistrationResult& h : hypotheses)
           if (h.IsUsable()) refine(h.target_from_source);
@@ -240,27 +329,64 @@ TurnJoinResult JoinTurns(const PointCloud& turn_a, const PointCloud& turn_b,
                      seed.a_from_b);
         }
         result.hypotheses = static_cast<int>(placements.size());
-        const Placement& best = placements[static_cast<std::size_t>(best_of())];
+        // The contenders run to convergence on every point: the best and the
+        // next that fit nearly as well (the candidates for ambiguity).
+        std::vector<std::size_t> order(placements.size());
+        for (std::size_t i = 0; i < order.size(); ++i) order[i] = i;
+        std::stable_sort(order.begin(), order.end(), [&](std::size_t x, std::size_t y) {
+          return placements[x].fit.fraction > placements[y].fit.fraction;
+        });
+        const double leading = placements[order[0]].fit.fraction;
+        for (std::size_t k = 0;
+             k < order.size() && k < static_cast<std::size_t>(options.max_contenders); ++k) {
+          Placement& p = placements[order[k]];
+          if (k > 0 && p.fit.fraction < options.max_ambiguity * leading) break;
+          const RegistrationResult r = RegisterFine(b, a, p.a_from_b, options.fine, threads);
+          if (r.IsUsable()) p = measure(r.target_from_source);
+        }
+        const Placement best = placements[static_cast<std::size_t>(best_of())];
+        if (std::getenv("CRAFTSCAN_TURN_JOIN_DEBUG")) {
+          double weak = 0;
+          std::fprintf(stderr, "turn join: constraint %.5f (rotation share %.2f)\n",
+                       Constraint(b.fine, a.fine, index_a, best.a_from_b, best.fit, &weak), weak);
+        }
+        if (std::getenv("CRAFTSCAN_TURN_JOIN_DEBUG"))
+          for (const Placement& p : placements)
+            std::fprintf(stderr,
+                         "turn join: placement fit %.4f rmse %.3f contradicted %.4f, %.2f deg "
+                         "from best\n",
+                         p.fit.fraction, p.fit.rmse_mm, Contradicted(best.fit, p.fit),
+                         RotationErrorDeg(p.a_from_b, best.a_from_b));
         result.a_from_b = best.a_from_b;
         result.overlap = best.fit.fraction;
         result.rmse_mm = best.fit.rmse_mm;
+        double weak_rotation = 0;  // for the debug output only
+        result.constraint =
+            Constraint(b.fine, a.fine, index_a, best.a_from_b, best.fit, &weak_rotation);
+        (void)weak_rotation;
         for (const Placement& p : placements) {
           const double deg = RotationErrorDeg(p.a_from_b, best.a_from_b);
           // Distinct: the same points of B land elsewhere by the centroid's
           // shift or by the rotation.
           const double mm = TranslationErrorMm(p.a_from_b, best.a_from_b);
           if (deg < options.distinct_deg && mm < options.distinct_mm) continue;
+          // A placement that puts surface the join fits far from turn A's
+          // (a jug's handle beside the jug) is contradicted: no rival.
+          const double contradicted = Contradicted(best.fit, p.fit);
+          if (contradicted > options.max_contradicted) continue;
           const double ratio = best.fit.fraction > 0 ? p.fit.fraction / best.fit.fraction : 0;
           if (ratio > result.ambiguity) {
             result.ambiguity = ratio;
             result.alternative_deg = deg;
             result.alternative_mm = mm;
+            result.alternative_contradicted = contradicted;
           }
         }
         result.time_ms = MsSince(start);
         const std::string figures = "fit " + Fixed(100 * result.overlap, 1) + " % of turn B, " +
                                     "RMSE " + Fixed(result.rmse_mm, 2) + " mm, ambiguity " +
-                                    Fixed(result.ambiguity, 2);
+                                    Fixed(result.ambiguity, 2) + ", constraint " +
+                                    Fixed(result.constraint, 4);
         if (result.overlap < options.min_overlap) {
           result.status = TurnJoinResult::Status::kRefusedOverlap;
           result.message = "the turns overlap too little: " + Fixed(100 * result.overlap, 1) +
@@ -268,6 +394,17 @@ TurnJoinResult JoinTurns(const PointCloud& turn_a, const PointCloud& turn_b,
                            Fixed(100 * options.min_overlap, 0) +
                            " % needed); lay the object so that more of what the first turn saw "
                            "is seen again";
+          return result;
+        }
+        if (result.constraint < options.min_constraint) {
+          result.status = TurnJoinResult::Status::kRefusedAmbiguous;
+          result.message =
+              "the turns cannot be joined unambiguously: the fit does not hold the second turn "
+              "in place (it can turn or slide along the surface without leaving it: constraint " +
+              Fixed(result.constraint, 4) + ", refused below " + Fixed(options.min_constraint, 4) +
+              "): the object is symmetric (round or cylindrical) where both turns see it; lay it "
+              "so that a distinctive part is seen in both turns (" +
+              figures + ")";
           return result;
         }
         if (result.ambiguity >= options.max_ambiguity) {
@@ -283,8 +420,8 @@ TurnJoinResult JoinTurns(const PointCloud& turn_a, const PointCloud& turn_b,
           return result;
         }
         result.status = TurnJoinResult::Status::kJoined;
-        result.message = "joined: " + figures + ", " + std::to_string(result.hypotheses) +
-                         " hypotheses refined";
+        result.message =
+            "joined: " + figures + ", " + std::to_string(result.hypotheses) + " hypotheses refined";
         return result;
       });
 }

@@ -42,13 +42,23 @@ struct TurnJoinOptions {
   double inlier_distance_voxels = 1.5;
   int ransac_iterations = 50000;
   std::uint64_t seed = 42;
-  // ICP from each hypothesis (registration.h FineOptions).
+  // ICP from each hypothesis on at most hypothesis_source_points of turn B
+  // (an even stride, `fine`'s other settings); then the contenders (the
+  // best and up to max_contenders − 1 others fitting at least
+  // max_ambiguity × as well) again with `fine` in full, run to convergence,
+  // so that a placement only half-way down a shallow valley (a jug's
+  // rotation, held by its handle alone) is not taken for another solution
+  // (registration.h FineOptions).
+  int hypothesis_source_points = 3000;
+  int max_contenders = 4;
   FineOptions fine = [] {
     FineOptions f;
-    f.max_iterations = 80;
-    f.max_correspondence_mm = 4;
+    f.max_iterations = 200;
+    f.max_correspondence_mm = 3;
     f.min_correspondence_mm = 0.5;
-    f.max_source_points = 12000;
+    f.stop_mean_distance_mm = 0;
+    f.min_update_mm = 1e-4;
+    f.max_source_points = 20000;
     return f;
   }();
   // Distinct RANSAC hypotheses refined (≥ 1); hypotheses closer than
@@ -58,19 +68,37 @@ struct TurnJoinOptions {
   int max_candidates = 6;
   // Two joins differing by at least this rotation or translation are
   // different placements (deg, mm; > 0).
-  double distinct_deg = 3;
-  double distinct_mm = 3;
+  // Nearer placements belong to the same valley of the fit, which
+  // min_constraint judges; discrete symmetries lie farther apart (a box
+  // turned end over end: 180°).
+  double distinct_deg = 30;
+  double distinct_mm = 10;
   // A point of turn B fits when turn A has a point within fit_distance_mm
   // and it lies within fit_plane_mm of that point's tangent plane (the
   // stereo noise is ~0.1–0.3 mm; a relief 2 mm deep that lands on a flat
   // face does not fit). fit = the fraction of turn B's fine points that fit.
-  double fit_distance_mm = 1.5;
+  double fit_distance_mm = 1.0;
   double fit_plane_mm = 0.4;
   // Refused: the best join's fit below min_overlap (the turns share too
   // little surface), or a distinct join's fit at least max_ambiguity × the
   // best's (0..1]: the geometry does not tell the placements apart.
   double min_overlap = 0.25;
   double max_ambiguity = 0.9;
+  // A distinct placement is no rival when it moves more than
+  // max_contradicted of turn B's points that fit the join farther than
+  // contradiction_mm from turn A's surface: a feature (a jug's handle, 5 %
+  // of it) that lands where turn A saw nothing, or nothing but empty space,
+  // tells the placements apart however well the rest fits. Under a true
+  // symmetry (an egg turned about its axis) every fitting point lands on
+  // the surface again. mm > fit_distance_mm; fraction 0..1.
+  double contradiction_mm = 2.0;
+  double max_contradicted = 0.005;
+  // Refused too when the join's fit does not hold some motion: the smallest
+  // eigenvalue of its point-to-plane information matrix (rotations scaled
+  // by the object's size) over the largest below this (0..1). A surface of
+  // revolution (an egg on its side, a plain vase) turns about its axis
+  // without leaving itself: no rival placement need be found for that.
+  double min_constraint = 0.01;
   // Platter contact (MergeTurns): a turn's points lower than
   // contact_band_mm in its own frame go where the other turn has a point
   // within contact_cover_mm (it sees that surface, not at a grazing angle
@@ -95,14 +123,18 @@ struct TurnJoinResult {
   cv::Matx44d a_from_b = cv::Matx44d::eye();  // turn B's frame → turn A's
   double overlap = 0;                         // the join's fit (fraction of B's points, 0..1)
   double rmse_mm = std::numeric_limits<double>::quiet_NaN();  // point-to-plane over the fits
-  // The best distinct alternative placement: its fit / the join's (0..1; 0
-  // when every hypothesis converged to the join) and how far it lies.
+  // The best distinct alternative placement that nothing contradicts: its
+  // fit / the join's (0..1; 0 when every hypothesis converged to the join
+  // or was contradicted) and how far it lies.
   double ambiguity = 0;
   double alternative_deg = std::numeric_limits<double>::quiet_NaN();
   double alternative_mm = std::numeric_limits<double>::quiet_NaN();
-  int hypotheses = 0;                         // refined by ICP, the join's included
-  std::size_t points_a = 0, points_b = 0;     // fine points the fit is counted on
-  double coarse_voxel_mm = 0;                 // the one used
+  double alternative_contradicted = 0;  // its contradicted share (see TurnJoinOptions)
+  // How firmly the fit holds the join (see TurnJoinOptions::min_constraint).
+  double constraint = 0;
+  int hypotheses = 0;                      // refined by ICP, the join's included
+  std::size_t points_a = 0, points_b = 0;  // fine points the fit is counted on
+  double coarse_voxel_mm = 0;              // the one used
   double time_ms = 0;
 
   bool IsUsable() const { return status == Status::kJoined; }

@@ -3,7 +3,8 @@
 // surface.
 //
 //   craftscan-bench scan [--object carved_box|egg|embroidery|mesh:FILE]
-//                        [--views N] [--seed S] [--threads N] [--image-size WxH]
+//                        [--turns 1|2] [--turn2-rotation-deg X,Y,Z] [--views N] [--seed S]
+//                        [--threads N] [--image-size WxH]
 //                        [--config craftscand.yaml] [--json FILE] [--out DIR]
 //
 // The run: the sim driver's rig and scene (sim::SimRigOptions /
@@ -63,6 +64,20 @@
 // boxes), truth_visible.ply: the `visible` ones (what completeness counts),
 // and views.ply: every view's own cloud at its exact pose (what stereo alone
 // leaves, before fusion).
+// --turns 2: a second turn of as many views with the object laid in another
+// pose (--turn2-rotation-deg rx,ry,rz, the sim driver's object_rotation_deg;
+// default 90,0,0: on its side), each turn reconstructed up to its fused
+// cloud, then JoinTurnScans (turn_join.h: turn B onto turn A without a
+// prior, platter contact dropped, one fusion, mesh and measurement). The
+// truth is then both turns' views in the object frame, so completeness_pct
+// counts the whole surface the two turns can see, the base included, and
+// mesh_to_truth scores every vertex. Added: turn_join (the verdict, its
+// overlap, RMSE, ambiguity, constraint), turn_rot_err_deg and
+// turn_trans_err_mm (the join against the truth: the rotation's angle, and
+// the displacement of turn B's fused centroid), first_turn_completeness_pct
+// (turn A alone against the same truth). A refused join exits 1 with
+// "status": "refused", the reason in "message" and the refused placement's
+// error against the truth.
 // A scan that fails (e.g. a registration refused) is reported with its
 // message and exits 1; the JSON then has "status": "failed".
 #include <algorithm>
@@ -498,9 +513,7 @@ class ScanCommand : public BenchCommand {
     }
     if (!r.IsUsable()) {
       Print(nullptr, times, r.message);
-      if (turn_figures)
-        std::printf("  the join's best placement against the truth: %.3f° / %.3f mm\n",
-                    turn_figures->rot_err_deg, turn_figures->trans_err_mm);
+      if (turn_figures) PrintTurns(*turn_figures, r);  // the refused placement's error too
       if (!json_path_.empty()) WriteJson(nullptr, times, r, turn_figures);
       return DataError("the scan failed: " + r.message);
     }
@@ -783,10 +796,11 @@ class ScanCommand : public BenchCommand {
     if (!r.turn_join) return;
     const TurnJoinResult& j = *r.turn_join;
     std::printf(
-        "  turn join %s: overlap %.1f %% RMSE %.3f mm ambiguity %.3f (alternative %.1f° / %.1f "
-        "mm), %d hypotheses, %.0f ms; contact points dropped %zu (A) %zu (B)\n",
-        ToString(j.status), 100 * j.overlap, j.rmse_mm, j.ambiguity, j.alternative_deg,
-        j.alternative_mm, j.hypotheses, j.time_ms, r.contact_dropped_a, r.contact_dropped_b);
+        "  turn join %s: overlap %.1f %% RMSE %.3f mm constraint %.4f ambiguity %.3f (alternative "
+        "%.1f° / %.1f mm), %d hypotheses, %.0f ms; contact points dropped %zu (A) %zu (B)\n",
+        ToString(j.status), 100 * j.overlap, j.rmse_mm, j.constraint, j.ambiguity,
+        j.alternative_deg, j.alternative_mm, j.hypotheses, j.time_ms, r.contact_dropped_a,
+        r.contact_dropped_b);
     std::printf(
         "  turn_rot_err_deg %.4f turn_trans_err_mm %.4f  first turn alone: completeness_pct "
         "%.1f\n",
@@ -813,6 +827,7 @@ class ScanCommand : public BenchCommand {
                            {"overlap_pct", Number(100 * j.overlap)},
                            {"rmse_mm", Number(j.rmse_mm)},
                            {"ambiguity", Number(j.ambiguity)},
+                           {"constraint", Number(j.constraint)},
                            {"alternative_deg", Number(j.alternative_deg)},
                            {"alternative_mm", Number(j.alternative_mm)},
                            {"hypotheses", j.hypotheses},

@@ -114,10 +114,14 @@ Fit MeasureFit(const PointCloud& source, const PointCloud& target, const PointIn
 // distance from it, so that a turn by one radian at the object's size
 // weighs as a shift by r), per point. Its smallest eigenvalue over its
 // largest: ~0 when some motion moves no point off the surface (a surface of
-// revolution turning about its axis, a cylinder sliding along it).
+// revolution turning about its axis, a cylinder sliding along it). The
+// normals come from `normals_target` (turn A's coarse cloud: averaged over
+// a few millimetres, their noise no longer hides the small hold a jug's
+// handle gives).
 // *weak_rotation receives how much of that motion is a rotation (0..1).
-double Constraint(const PointCloud& source, const PointCloud& target, const PointIndex& index,
-                  const cv::Matx44d& T, const Fit& fit, double* weak_rotation) {
+double Constraint(const PointCloud& source, const PointCloud& normals_target,
+                  const PointIndex& index, const cv::Matx44d& T, const Fit& fit,
+                  double* weak_rotation) {
   const Eigen::Matrix4d Te = ToEigen(T);
   const Eigen::Matrix3d R = Te.topLeftCorner<3, 3>();
   const Eigen::Vector3d t = Te.topRightCorner<3, 1>();
@@ -129,7 +133,7 @@ double Constraint(const PointCloud& source, const PointCloud& target, const Poin
     int j = 0;
     float d2 = 0;
     if (!index.Nearest(p.cast<float>(), &j, &d2)) continue;
-    const cv::Vec3f& n = target.normals[static_cast<std::size_t>(j)];
+    const cv::Vec3f& n = normals_target.normals[static_cast<std::size_t>(j)];
     points.push_back(p);
     normals.push_back(Eigen::Vector3d(n[0], n[1], n[2]).normalized());
   }
@@ -259,6 +263,7 @@ TurnJoinResult JoinTurns(const PointCloud& turn_a, const PointCloud& turn_b,
         result.points_a = a.fine.size();
         result.points_b = b.fine.size();
         const PointIndex index_a(a.fine);
+        const PointIndex coarse_index_a(a.coarse);
 
         // Coarse: the distinct best RANSAC hypotheses, no prior.
         CoarseOptions coarse;
@@ -287,6 +292,9 @@ TurnJoinResult JoinTurns(const PointCloud& turn_a, const PointCloud& turn_b,
         FineOptions quick = options.fine;
         quick.max_iterations = std::min(quick.max_iterations, 80);
         quick.min_update_mm = std::max(quick.min_update_mm, 2e-3);
+        // From RANSAC's pose (coarse voxels) the first pairs lie up to its gate apart.
+        quick.max_correspondence_mm =
+            std::max(quick.max_correspondence_mm, coarse.inlier_distance_mm);
         if (quick.max_source_points == 0 ||
             quick.max_source_points > options.hypothesis_source_points)
           quick.max_source_points = options.hypothesis_source_points;
@@ -323,10 +331,10 @@ TurnJoinResult JoinTurns(const PointCloud& turn_a, const PointCloud& turn_b,
             cov += d * d.transpose();
           }
           const Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> eig(cov);
+          constexpr double kNudge = 10 * M_PI / 180;
           for (int axis = 0; axis < 3; ++axis)
-            for (int quarter = 1; quarter <= 3; ++quarter)
-              refine(TurnAbout(eig.eigenvectors().col(axis), centre, quarter * M_PI / 2) *
-                     seed.a_from_b);
+            for (double angle : {-kNudge, kNudge, M_PI / 2, M_PI, 3 * M_PI / 2})
+              refine(TurnAbout(eig.eigenvectors().col(axis), centre, angle) * seed.a_from_b);
         }
         result.hypotheses = static_cast<int>(placements.size());
         // The contenders run to convergence on every point: the best and the
@@ -348,7 +356,8 @@ TurnJoinResult JoinTurns(const PointCloud& turn_a, const PointCloud& turn_b,
         if (std::getenv("CRAFTSCAN_TURN_JOIN_DEBUG")) {
           double weak = 0;
           std::fprintf(stderr, "turn join: constraint %.5f (rotation share %.2f)\n",
-                       Constraint(b.fine, a.fine, index_a, best.a_from_b, best.fit, &weak), weak);
+                       Constraint(b.fine, a.coarse, coarse_index_a, best.a_from_b, best.fit, &weak),
+                       weak);
         }
         if (std::getenv("CRAFTSCAN_TURN_JOIN_DEBUG"))
           for (const Placement& p : placements)
@@ -362,7 +371,7 @@ TurnJoinResult JoinTurns(const PointCloud& turn_a, const PointCloud& turn_b,
         result.rmse_mm = best.fit.rmse_mm;
         double weak_rotation = 0;  // for the debug output only
         result.constraint =
-            Constraint(b.fine, a.fine, index_a, best.a_from_b, best.fit, &weak_rotation);
+            Constraint(b.fine, a.coarse, coarse_index_a, best.a_from_b, best.fit, &weak_rotation);
         (void)weak_rotation;
         for (const Placement& p : placements) {
           const double deg = RotationErrorDeg(p.a_from_b, best.a_from_b);

@@ -54,7 +54,7 @@ struct TurnJoinOptions {
   FineOptions fine = [] {
     FineOptions f;
     f.max_iterations = 200;
-    f.max_correspondence_mm = 3;
+    f.max_correspondence_mm = 4;
     f.min_correspondence_mm = 0.5;
     f.stop_mean_distance_mm = 0;
     f.min_update_mm = 1e-4;
@@ -62,17 +62,17 @@ struct TurnJoinOptions {
     return f;
   }();
   // Distinct RANSAC hypotheses refined (≥ 1); hypotheses closer than
-  // 10° and 10 mm count as one. Besides them the best join turned by 90°,
-  // 180° and 270° about each principal axis of turn B is refined too: a
-  // symmetry RANSAC did not sample still shows.
+  // 10° and 10 mm count as one. Besides them the best join turned by ±10°,
+  // 90°, 180° and 270° about each principal axis of turn B is refined too:
+  // a symmetry RANSAC did not sample still shows.
   int max_candidates = 6;
   // Two joins differing by at least this rotation or translation are
-  // different placements (deg, mm; > 0).
-  // Nearer placements belong to the same valley of the fit, which
-  // min_constraint judges; discrete symmetries lie farther apart (a box
-  // turned end over end: 180°).
-  double distinct_deg = 30;
-  double distinct_mm = 10;
+  // different placements (deg, mm; > 0). A continuous symmetry (an egg
+  // turning about its axis) leaves ICP wherever it starts along the valley:
+  // the best join turned by ±10° about each principal axis of turn B is
+  // refined too, so that it shows as a distinct placement fitting as well.
+  double distinct_deg = 3;
+  double distinct_mm = 3;
   // A point of turn B fits when turn A has a point within fit_distance_mm
   // and it lies within fit_plane_mm of that point's tangent plane (the
   // stereo noise is ~0.1–0.3 mm; a relief 2 mm deep that lands on a flat
@@ -98,7 +98,7 @@ struct TurnJoinOptions {
   // by the object's size) over the largest below this (0..1). A surface of
   // revolution (an egg on its side, a plain vase) turns about its axis
   // without leaving itself: no rival placement need be found for that.
-  double min_constraint = 0.01;
+  double min_constraint = 0.005;
   // Platter contact (MergeTurns): a turn's points lower than
   // contact_band_mm in its own frame go where the other turn has a point
   // within contact_cover_mm (it sees that surface, not at a grazing angle

@@ -6,7 +6,6 @@
 #include <chrono>
 #include <cmath>
 #include <cstdio>
-#include <cstdlib>
 #include <vector>
 
 #include <Eigen/Core>
@@ -273,6 +272,10 @@ TurnJoinResult JoinTurns(const PointCloud& turn_a, const PointCloud& turn_b,
         coarse.seed = options.seed;
         CoarseCandidates wanted;
         wanted.max_candidates = options.max_candidates;
+        // Distinct rotations: shifted copies of one rotation would crowd out
+        // the other rotations (at 1280×1024 the box's correct one, leaving
+        // its turn end over end as the best).
+        wanted.min_separation_mm = std::numeric_limits<double>::infinity();
         const std::vector<RegistrationResult> hypotheses =
             RegisterCoarseCandidates(b, a, coarse, wanted, threads);
         if (hypotheses.empty() || !hypotheses.front().IsUsable()) {
@@ -353,26 +356,13 @@ TurnJoinResult JoinTurns(const PointCloud& turn_a, const PointCloud& turn_b,
           if (r.IsUsable()) p = measure(r.target_from_source);
         }
         const Placement best = placements[static_cast<std::size_t>(best_of())];
-        if (std::getenv("CRAFTSCAN_TURN_JOIN_DEBUG")) {
-          double weak = 0;
-          std::fprintf(stderr, "turn join: constraint %.5f (rotation share %.2f)\n",
-                       Constraint(b.fine, a.coarse, coarse_index_a, best.a_from_b, best.fit, &weak),
-                       weak);
-        }
-        if (std::getenv("CRAFTSCAN_TURN_JOIN_DEBUG"))
-          for (const Placement& p : placements)
-            std::fprintf(stderr,
-                         "turn join: placement fit %.4f rmse %.3f contradicted %.4f, %.2f deg "
-                         "from best\n",
-                         p.fit.fraction, p.fit.rmse_mm, Contradicted(best.fit, p.fit),
-                         RotationErrorDeg(p.a_from_b, best.a_from_b));
         result.a_from_b = best.a_from_b;
         result.overlap = best.fit.fraction;
         result.rmse_mm = best.fit.rmse_mm;
-        double weak_rotation = 0;  // for the debug output only
+        double weak_rotation = 0;
         result.constraint =
             Constraint(b.fine, a.coarse, coarse_index_a, best.a_from_b, best.fit, &weak_rotation);
-        (void)weak_rotation;
+        result.weak_motion_rotation = weak_rotation;
         for (const Placement& p : placements) {
           const double deg = RotationErrorDeg(p.a_from_b, best.a_from_b);
           // Distinct: the same points of B land elsewhere by the centroid's

@@ -61,11 +61,11 @@ struct TurnJoinOptions {
     f.max_source_points = 20000;
     return f;
   }();
-  // Distinct RANSAC hypotheses refined (≥ 1); hypotheses closer than
-  // 10° and 10 mm count as one. Besides them the best join turned by ±10°,
+  // Distinct RANSAC hypotheses refined (≥ 1); hypotheses whose rotations
+  // are closer than 10° count as one. Besides them the best join turned by ±10°,
   // 90°, 180° and 270° about each principal axis of turn B is refined too:
   // a symmetry RANSAC did not sample still shows.
-  int max_candidates = 6;
+  int max_candidates = 8;
   // Two joins differing by at least this rotation or translation are
   // different placements (deg, mm; > 0). A continuous symmetry (an egg
   // turning about its axis) leaves ICP wherever it starts along the valley:
@@ -130,8 +130,10 @@ struct TurnJoinResult {
   double alternative_deg = std::numeric_limits<double>::quiet_NaN();
   double alternative_mm = std::numeric_limits<double>::quiet_NaN();
   double alternative_contradicted = 0;  // its contradicted share (see TurnJoinOptions)
-  // How firmly the fit holds the join (see TurnJoinOptions::min_constraint).
+  // How firmly the fit holds the join (see TurnJoinOptions::min_constraint)
+  // and how much of its least held motion is a rotation (0..1).
   double constraint = 0;
+  double weak_motion_rotation = 0;
   int hypotheses = 0;                      // refined by ICP, the join's included
   std::size_t points_a = 0, points_b = 0;  // fine points the fit is counted on
   double coarse_voxel_mm = 0;              // the one used

@@ -334,6 +334,18 @@ TurnJoinResult JoinTurns(const PointCloud& turn_a, const PointCloud& turn_b,
             cov += d * d.transpose();
           }
           const Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> eig(cov);
+          // Turn about the middle of the extent along each axis, not the
+          // centroid: a turn lacks the face it stood on, which pulls its
+          // centroid off the object's centre, and a half turn about the
+          // centroid would land twice that off, beyond ICP's reach.
+          Eigen::Vector3d lo = Eigen::Vector3d::Constant(1e30), hi = -lo;
+          for (const cv::Vec3f& p : moved.points_mm) {
+            const Eigen::Vector3d q =
+                eig.eigenvectors().transpose() * (Eigen::Vector3d(p[0], p[1], p[2]) - centre);
+            lo = lo.cwiseMin(q);
+            hi = hi.cwiseMax(q);
+          }
+          centre += eig.eigenvectors() * ((lo + hi) / 2);
           constexpr double kNudge = 10 * M_PI / 180;
           for (int axis = 0; axis < 3; ++axis)
             for (double angle : {-kNudge, kNudge, M_PI / 2, M_PI, 3 * M_PI / 2})

@@ -403,8 +403,8 @@ TurnJoinResult JoinTurns(const PointCloud& turn_a, const PointCloud& turn_b,
           result.message = "the turns overlap too little: " + Fixed(100 * result.overlap, 1) +
                            " % of the second turn's surface fits the first (at least " +
                            Fixed(100 * options.min_overlap, 0) +
-                           " % needed); lay the object so that more of what the first turn saw "
-                           "is seen again";
+                           " % needed), or no right placement was found; lay the object so that "
+                           "more of what the first turn saw is seen again";
           return result;
         }
         if (result.constraint < options.min_constraint) {

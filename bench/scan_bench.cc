@@ -3,7 +3,8 @@
 // surface.
 //
 //   craftscan-bench scan [--object carved_box|egg|embroidery|mesh:FILE]
-//                        [--views N] [--seed S] [--threads N] [--image-size WxH]
+//                        [--turns 1|2] [--turn2-rotation-deg X,Y,Z] [--views N] [--seed S]
+//                        [--threads N] [--image-size WxH]
 //                        [--config craftscand.yaml] [--json FILE] [--out DIR]
 //
 // The run: the sim driver's rig and scene (sim::SimRigOptions /
@@ -63,6 +64,20 @@
 // boxes), truth_visible.ply: the `visible` ones (what completeness counts),
 // and views.ply: every view's own cloud at its exact pose (what stereo alone
 // leaves, before fusion).
+// --turns 2: a second turn of as many views with the object laid in another
+// pose (--turn2-rotation-deg rx,ry,rz, the sim driver's object_rotation_deg;
+// default 90,0,0: on its side), each turn reconstructed up to its fused
+// cloud, then JoinTurnScans (turn_join.h: turn B onto turn A without a
+// prior, platter contact dropped, one fusion, mesh and measurement). The
+// truth is then both turns' views in the object frame, so completeness_pct
+// counts the whole surface the two turns can see, the base included, and
+// mesh_to_truth scores every vertex. Added: turn_join (the verdict, its
+// overlap, RMSE, ambiguity, constraint), turn_rot_err_deg and
+// turn_trans_err_mm (the join against the truth: the rotation's angle, and
+// the displacement of turn B's fused centroid), first_turn_completeness_pct
+// (turn A alone against the same truth). A refused join exits 1 with
+// "status": "refused", the reason in "message" and the refused placement's
+// error against the truth.
 // A scan that fails (e.g. a registration refused) is reported with its
 // message and exits 1; the JSON then has "status": "failed".
 #include <algorithm>
@@ -91,6 +106,7 @@
 #include "craftscan/daemon/report.h"
 #include "craftscan/pipeline/common/atomic_file.h"
 #include "craftscan/pipeline/common/ply.h"
+#include "craftscan/pipeline/common/pose.h"
 #include "craftscan/pipeline/stereo/exposure_merge.h"
 #include "craftscan/pipeline/stereo/view_processing.h"
 #include "craftscan/pipeline/surface/scan_reconstruction.h"
@@ -127,6 +143,7 @@ nlohmann::ordered_json Extents(const cv::Vec3d& e) { return {e[0], e[1], e[2]}; 
 
 // One view's pose and where its left camera is, for the ray distances.
 struct ViewGeometry {
+  sim::Scene* scene = nullptr;  // its turn's scene (the object's pose in that turn)
   double angle_rad = 0;
   cv::Matx44d world_from_object = cv::Matx44d::eye();
   cv::Matx44d object_from_rig = cv::Matx44d::eye();
@@ -149,6 +166,21 @@ struct Figures {
 
 struct Times {
   double render = 0, match_median = NAN, reg = 0, fuse = 0, mesh = 0, after_last = 0;
+};
+
+// One turn as captured: what the scan got and the truth of its views.
+struct TurnCapture {
+  std::vector<ScanView> views;
+  std::vector<ViewGeometry> geometry;
+  std::vector<cv::Vec3f> seen, visible;  // object frame
+  ScanResult result;
+  cv::Matx44d object_from_result = cv::Matx44d::eye();
+};
+
+// --turns 2: the join against the truth.
+struct TurnFigures {
+  double rot_err_deg = NAN, trans_err_mm = NAN;
+  double first_turn_completeness_pct = NAN;  // turn A alone against both turns' visible surface
 };
 
 class ScanCommand : public BenchCommand {
@@ -174,6 +206,20 @@ class ScanCommand : public BenchCommand {
                     "mesh:FILE only: scale so the largest extent is this (mm); 0 keeps the file's "
                     "millimetres")
         ->check(CLI::Range(0.0, 2000.0))
+        ->capture_default_str();
+    sub->add_option("--turns", turns_,
+                    "1, or 2: a second turn with the object laid in another pose "
+                    "(--turn2-rotation-deg), joined onto the first without a prior "
+                    "(turn_join.h); completeness then counts both turns' visible surface, the "
+                    "base included, and turn_rot_err_deg / turn_trans_err_mm score the join")
+        ->check(CLI::Range(1, 2))
+        ->capture_default_str();
+    sub->add_option("--turn2-rotation-deg", turn2_rotation_deg_,
+                    "rx,ry,rz: the second turn's pose, as the sim driver's object_rotation_deg "
+                    "(about x, then y, then z, fixed axes; then seated on the platter); the "
+                    "default lays the object on its side")
+        ->delimiter(',')
+        ->expected(3)
         ->capture_default_str();
     sub->add_option("--views", views_, "Views over one turn (360°/N apart)")
         ->check(CLI::Range(2, 72))
@@ -235,10 +281,22 @@ class ScanCommand : public BenchCommand {
     }
     std::unique_ptr<sim::Scene> scene = sim::Scene::Create(scene_options, &error);
     if (!scene) return DataError(error);
+    std::unique_ptr<sim::Scene> second;
+    if (turns_ == 2) {
+      if (turn2_rotation_deg_.size() != 3) return UsageError("--turn2-rotation-deg needs rx,ry,rz");
+      sim::SimDriverOptions laid = driver;
+      for (int i = 0; i < 3; ++i)
+        laid.object_rotation_deg[i] = turn2_rotation_deg_[static_cast<std::size_t>(i)];
+      if (!laid.IsValid(&error)) return UsageError("--turn2-rotation-deg: " + error);
+      sim::SceneOptions second_options = scene_options;
+      second_options.object.rotation_rad = sim::SimSceneOptions(laid).object.rotation_rad;
+      second = sim::Scene::Create(second_options, &error);
+      if (!second) return DataError("the second turn's scene: " + error);
+    }
 
     const int previous_threads = cv::getNumThreads();
     cv::setNumThreads(threads_);
-    const int code = Scan(*station, *scene, settings);
+    const int code = Scan(*station, *scene, second.get(), settings);
     cv::setNumThreads(previous_threads);
     return code;
   }
@@ -288,36 +346,28 @@ class ScanCommand : public BenchCommand {
     return kExitOk;
   }
 
-  int Scan(const sim::SimStation& station, sim::Scene& scene,
-           const daemon::PipelineSettings& settings) {
-    const StereoCalibration& calibration = station.calibration();
-    ViewProcessor processor;
-    std::string error;
-    if (!processor.Init(calibration, daemon::ViewOptions(settings), &error))
-      return DataError("view processing: " + error);
+  static std::string TurnName(int turn) { return turn == 0 ? "" : "turn 2: "; }
 
-    std::vector<ScanView> views;
-    std::vector<ViewGeometry> geometry;
-    std::vector<cv::Vec3f> seen, visible;
-    std::vector<double> process_ms;
-    Times times;
-    Clock::time_point last_pair;
+  // One turn: every view rendered, matched and added to an IncrementalScan
+  // as the daemon does, then Finish; the truth of its views into *out.
+  int CaptureTurn(int turn, const sim::SimStation& station, sim::Scene& scene,
+                  ViewProcessor& processor, const ScanOptions& options, Times* times,
+                  std::vector<double>* process_ms, Clock::time_point* last_pair, TurnCapture* out) {
+    const StereoCalibration& calibration = station.calibration();
+    std::string error;
     const double f = calibration.P1(0, 0), cx = calibration.P1(0, 2), cy = calibration.P1(1, 2);
     const cv::Matx44d world_from_rig = station.world_from_rig();
-    // As the daemon does: each view conditioned and registered onto the one
-    // before as it comes (while a station's turntable turns), the rest after
-    // the last view.
-    ScanOptions options = daemon::ReconstructionOptions(settings);
-    options.camera = RectifiedLeftCamera(calibration);
     IncrementalScan scan(calibration.turntable, options);
     for (int k = 0; k < views_; ++k) {
       ViewGeometry g;
+      g.scene = &scene;
       g.angle_rad = 2 * std::numbers::pi * k / views_;
       scene.SetTurntableAngle(g.angle_rad);
       const sim::StereoRender render = station.Render(scene, static_cast<std::uint64_t>(k));
       if (!render.IsUsable())
-        return DataError("view " + std::to_string(k) + ": render failed: " + render.message);
-      times.render += render.render_ms;
+        return DataError(TurnName(turn) + "view " + std::to_string(k) +
+                         ": render failed: " + render.message);
+      times->render += render.render_ms;
       g.world_from_object = render.world_from_object;
       g.object_from_rig = render.world_from_object.inv() * world_from_rig;
       const cv::Matx44d& object_from_rig = g.object_from_rig;
@@ -330,8 +380,8 @@ class ScanCommand : public BenchCommand {
           const cv::Vec3f p =
               Apply(object_from_rig, cv::Vec3f(static_cast<float>((x - cx) * z[x] / f),
                                                static_cast<float>((y - cy) * z[x] / f), z[x]));
-          seen.push_back(p);
-          if (right[x]) visible.push_back(p);
+          out->seen.push_back(p);
+          if (right[x]) out->visible.push_back(p);
         }
       }
       cv::Mat texture;  // with a projector: the left view with it off, as the sim driver does
@@ -340,8 +390,9 @@ class ScanCommand : public BenchCommand {
                                                    sim::RenderOutputs::kLeftImageOnly);
         scene.SetProjectorOn(true);
         if (!t.IsUsable())
-          return DataError("view " + std::to_string(k) + ": texture render failed: " + t.message);
-        times.render += t.render_ms;
+          return DataError(TurnName(turn) + "view " + std::to_string(k) +
+                           ": texture render failed: " + t.message);
+        times->render += t.render_ms;
         texture = t.left;
       }
       cv::Mat left = render.left, right = render.right;
@@ -352,7 +403,7 @@ class ScanCommand : public BenchCommand {
           const sim::StereoRender e =
               bracketed_[b]->Render(scene, static_cast<std::uint64_t>(k + 1000 * (b + 1)));
           if (!e.IsUsable()) return DataError("bracket render failed: " + e.message);
-          times.render += e.render_ms;
+          times->render += e.render_ms;
           ls.push_back(e.left);
           rs.push_back(e.right);
           t.push_back(bracket_[b]);
@@ -361,28 +412,65 @@ class ScanCommand : public BenchCommand {
         if (!MergeExposures(ls, t, mo, &left, &error) || !MergeExposures(rs, t, mo, &right, &error))
           return DataError(error);
       }
-      if (k == views_ - 1) last_pair = Clock::now();
+      if (k == views_ - 1) *last_pair = Clock::now();
       const auto start = Clock::now();
       ProcessedView v = processor.Process(left, right, texture);
-      process_ms.push_back(MsSince(start));
-      if (!v.ok) return DataError("view " + std::to_string(k) + ": " + v.message);
+      process_ms->push_back(MsSince(start));
+      if (!v.ok) return DataError(TurnName(turn) + "view " + std::to_string(k) + ": " + v.message);
       ScanView view;
       view.cloud_in_rig = std::move(v.cloud_in_rig);
       view.commanded_angle_rad = g.angle_rad;
-      views.push_back(view);  // kept for the figures
+      out->views.push_back(view);  // kept for the figures
       scan.Add(std::move(view));
-      geometry.push_back(g);
+      out->geometry.push_back(g);
       std::printf(
-          "  view %d/%d at %.0f°: %zu points (render %.0f ms, process %.0f ms: rectify %.0f, "
+          "  %sview %d/%d at %.0f°: %zu points (render %.0f ms, process %.0f ms: rectify %.0f, "
           "match %.0f over [%d, %d) px, reproject %.0f)\n",
-          k + 1, views_, g.angle_rad * 180 / std::numbers::pi, views.back().cloud_in_rig.size(),
-          render.render_ms, process_ms.back(), v.rectify_ms, v.match_ms, v.min_disparity,
-          v.min_disparity + v.num_disparities, v.reproject_ms);
+          turn == 0 ? "" : "turn 2 ", k + 1, views_, g.angle_rad * 180 / std::numbers::pi,
+          out->views.back().cloud_in_rig.size(), render.render_ms, process_ms->back(), v.rectify_ms,
+          v.match_ms, v.min_disparity, v.min_disparity + v.num_disparities, v.reproject_ms);
       std::fflush(stdout);
     }
-    times.match_median = Quantile(process_ms, 0.5);
+    out->result = scan.Finish();
+    // The scan's frame (view 0's turntable frame) into the object frame.
+    const cv::Matx44d view0_from_result = out->result.turntable_from_view0
+                                              ? out->result.turntable_from_view0->inv()
+                                              : cv::Matx44d::eye();
+    out->object_from_result =
+        out->geometry[0].world_from_object.inv() * world_from_rig * view0_from_result;
+    return kExitOk;
+  }
 
-    const ScanResult r = scan.Finish();
+  int Scan(const sim::SimStation& station, sim::Scene& scene, sim::Scene* second,
+           const daemon::PipelineSettings& settings) {
+    const StereoCalibration& calibration = station.calibration();
+    ViewProcessor processor;
+    std::string error;
+    if (!processor.Init(calibration, daemon::ViewOptions(settings), &error))
+      return DataError("view processing: " + error);
+
+    std::vector<double> process_ms;
+    Times times;
+    Clock::time_point last_pair;
+    // As the daemon does: each view conditioned and registered onto the one
+    // before as it comes (while a station's turntable turns), the rest after
+    // the last view. With two turns each turn stops at its fused cloud and
+    // the join meshes and measures once.
+    ScanOptions options = daemon::ReconstructionOptions(settings);
+    options.camera = RectifiedLeftCamera(calibration);
+    ScanOptions turn_options = options;
+    if (second) turn_options.mesh = false;
+    std::vector<TurnCapture> turns(second ? 2 : 1);
+    for (std::size_t t = 0; t < turns.size(); ++t) {
+      if (int code = CaptureTurn(static_cast<int>(t), station, t == 0 ? scene : *second, processor,
+                                 turn_options, &times, &process_ms, &last_pair, &turns[t]);
+          code != kExitOk)
+        return code;
+    }
+    times.match_median = Quantile(process_ms, 0.5);
+    ScanResult r = second
+                       ? JoinTurnScans(turns[0].result, turns[1].result, options, TurnJoinOptions{})
+                       : std::move(turns[0].result);
     if (r.IsUsable()) {
       if (std::string why; !StoreOutputs(r, calibration, &why)) return DataError(why);
     }
@@ -390,28 +478,59 @@ class ScanCommand : public BenchCommand {
     times.reg = r.register_ms + r.loop_ms;
     times.fuse = r.fuse_ms;
     times.mesh = r.mesh_ms;
+    // Both turns' views and truth together, in the object frame.
+    std::vector<ScanView> views;
+    std::vector<ViewGeometry> geometry;
+    std::vector<cv::Vec3f> seen, visible;
+    for (const TurnCapture& t : turns) {
+      views.insert(views.end(), t.views.begin(), t.views.end());
+      geometry.insert(geometry.end(), t.geometry.begin(), t.geometry.end());
+      seen.insert(seen.end(), t.seen.begin(), t.seen.end());
+      visible.insert(visible.end(), t.visible.begin(), t.visible.end());
+    }
+    std::optional<TurnFigures> turn_figures;
+    if (second && r.turn_join && r.turn_join->status != TurnJoinResult::Status::kFailed) {
+      // The join against the truth: turn B's frame → turn A's.
+      TurnFigures tf;
+      const cv::Matx44d truth = turns[0].object_from_result.inv() * turns[1].object_from_result;
+      const cv::Matx44d& found = r.turn_join->a_from_b;
+      tf.rot_err_deg = RotationErrorDeg(found, truth);
+      // At the object: the centre of turn B's fused cloud.
+      cv::Vec3d centre(0, 0, 0);
+      for (const cv::Vec3f& p : turns[1].result.fused.points_mm) centre += cv::Vec3d(p);
+      if (!turns[1].result.fused.empty())
+        centre /= static_cast<double>(turns[1].result.fused.size());
+      const cv::Vec4d c(centre[0], centre[1], centre[2], 1);
+      const cv::Vec4d d = found * c - truth * c;
+      tf.trans_err_mm = std::sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]);
+      std::vector<cv::Vec3f> first;
+      for (const cv::Vec3f& p : turns[0].result.fused.points_mm)
+        first.push_back(Apply(turns[0].object_from_result, p));
+      if (!first.empty())
+        tf.first_turn_completeness_pct =
+            CoveredPct(NearestDistances(NearestIndex(first), GridSample(visible, kGridMm)));
+      turn_figures = tf;
+    }
     if (!r.IsUsable()) {
       Print(nullptr, times, r.message);
-      if (!json_path_.empty()) WriteJson(nullptr, times, r);
+      if (turn_figures) PrintTurns(*turn_figures, r);  // the refused placement's error too
+      if (!json_path_.empty()) WriteJson(nullptr, times, r, turn_figures);
       return DataError("the scan failed: " + r.message);
     }
 
-    // Fused cloud and mesh into the object frame (view 0 is the rig at angle 0).
-    const cv::Matx44d view0_from_result =
-        r.turntable_from_view0 ? r.turntable_from_view0->inv() : cv::Matx44d::eye();
-    const cv::Matx44d object_from_result =
-        geometry[0].world_from_object.inv() * world_from_rig * view0_from_result;
+    // Fused cloud and mesh into the object frame (turn A's view 0 is the rig at angle 0).
+    const cv::Matx44d& object_from_result = turns[0].object_from_result;
     std::vector<cv::Vec3f> fused, vertices;
     for (const cv::Vec3f& p : r.fused.points_mm) fused.push_back(Apply(object_from_result, p));
     if (r.mesh.status == MeshResult::Status::kOk)
       for (const cv::Vec3f& p : r.mesh.mesh.vertices_mm) {
         const cv::Vec3f q = Apply(object_from_result, p);
-        if (q[2] > kBaseBandMm) vertices.push_back(q);
+        if (second || q[2] > kBaseBandMm) vertices.push_back(q);
       }
 
     Figures fig;
     const NearestIndex truth(seen);
-    const std::vector<double> fused_d = SurfaceDistances(truth, scene, station, geometry, fused);
+    const std::vector<double> fused_d = SurfaceDistances(truth, station, geometry, fused);
     fig.fused_points = fused.size();
     fig.truth_seen = seen.size();
     fig.fused_median = Quantile(fused_d, 0.5);
@@ -430,7 +549,7 @@ class ScanCommand : public BenchCommand {
     for (std::size_t k = 0; k < views.size(); ++k)
       for (const cv::Vec3f& p : views[k].cloud_in_rig.points_mm)
         raw.push_back(Apply(geometry[k].object_from_rig, p));
-    const std::vector<double> raw_d = SurfaceDistances(truth, scene, station, geometry, raw);
+    const std::vector<double> raw_d = SurfaceDistances(truth, station, geometry, raw);
     fig.views_median = Quantile(raw_d, 0.5);
     fig.views_p95 = Quantile(raw_d, 0.95);
     fig.views_outlier_pct = OutlierPct(raw_d);
@@ -440,7 +559,7 @@ class ScanCommand : public BenchCommand {
     const std::vector<double> covered = NearestDistances(fused_index, grid);
     fig.completeness_pct = CoveredPct(covered);
     fig.views_completeness_pct = CoveredPct(NearestDistances(NearestIndex(raw), grid));
-    const std::vector<double> mesh_d = SurfaceDistances(truth, scene, station, geometry, vertices);
+    const std::vector<double> mesh_d = SurfaceDistances(truth, station, geometry, vertices);
     fig.mesh_vertices = vertices.size();
     fig.mesh_median = Quantile(mesh_d, 0.5);
     fig.mesh_p95 = Quantile(mesh_d, 0.95);
@@ -475,21 +594,22 @@ class ScanCommand : public BenchCommand {
         return DataError(why);
     }
     Print(&fig, times, {});
-    if (!json_path_.empty()) return WriteJson(&fig, times, r);
+    if (turn_figures) PrintTurns(*turn_figures, r);
+    if (!json_path_.empty()) return WriteJson(&fig, times, r, turn_figures);
     return kExitOk;
   }
 
   // Per point (object frame), the smaller of the distance to the nearest
   // seen truth point and, per view, the distance to where the left camera's
   // ray through the point first meets the object.
-  std::vector<double> SurfaceDistances(const NearestIndex& truth, sim::Scene& scene,
-                                       const sim::SimStation& station,
+  std::vector<double> SurfaceDistances(const NearestIndex& truth, const sim::SimStation& station,
                                        const std::vector<ViewGeometry>& geometry,
                                        const std::vector<cv::Vec3f>& points) const {
     std::vector<double> d = NearestDistances(truth, points);
     const cv::Matx44d world_from_left = station.left_from_world().inv();
     const cv::Vec3d camera(world_from_left(0, 3), world_from_left(1, 3), world_from_left(2, 3));
     for (const ViewGeometry& g : geometry) {
+      sim::Scene& scene = *g.scene;
       scene.SetTurntableAngle(g.angle_rad);
       cv::parallel_for_(cv::Range(0, static_cast<int>(points.size())), [&](const cv::Range& range) {
         for (int i = range.start; i < range.end; ++i) {
@@ -671,11 +791,57 @@ class ScanCommand : public BenchCommand {
     std::fflush(stdout);
   }
 
-  int WriteJson(const Figures* f, const Times& t, const ScanResult& r) const {
+  // The join's verdict and figures, and its error against the truth.
+  void PrintTurns(const TurnFigures& tf, const ScanResult& r) const {
+    if (!r.turn_join) return;
+    const TurnJoinResult& j = *r.turn_join;
+    std::printf(
+        "  turn join %s: overlap %.1f %% RMSE %.3f mm constraint %.4f ambiguity %.3f (alternative "
+        "%.1f° / %.1f mm), %d hypotheses, %.0f ms; contact points dropped %zu (A) %zu (B)\n",
+        ToString(j.status), 100 * j.overlap, j.rmse_mm, j.constraint, j.ambiguity,
+        j.alternative_deg, j.alternative_mm, j.hypotheses, j.time_ms, r.contact_dropped_a,
+        r.contact_dropped_b);
+    std::printf(
+        "  turn_rot_err_deg %.4f turn_trans_err_mm %.4f  first turn alone: completeness_pct "
+        "%.1f\n",
+        tf.rot_err_deg, tf.trans_err_mm, tf.first_turn_completeness_pct);
+    std::fflush(stdout);
+  }
+
+  int WriteJson(const Figures* f, const Times& t, const ScanResult& r,
+                const std::optional<TurnFigures>& tf) const {
     nlohmann::ordered_json root;
     root["object"] = object_;
-    root["status"] = f ? "ok" : "failed";
+    const bool refused = r.turn_join && !r.turn_join->IsUsable() &&
+                         r.turn_join->status != TurnJoinResult::Status::kFailed;
+    root["status"] = f ? "ok" : (refused ? "refused" : "failed");
     if (!f) root["message"] = r.message;
+    root["turns"] = turns_;
+    if (turns_ == 2)
+      root["turn2_rotation_deg"] = {turn2_rotation_deg_[0], turn2_rotation_deg_[1],
+                                    turn2_rotation_deg_[2]};
+    if (r.turn_join) {
+      const TurnJoinResult& j = *r.turn_join;
+      root["turn_join"] = {{"status", ToString(j.status)},
+                           {"message", j.message},
+                           {"overlap_pct", Number(100 * j.overlap)},
+                           {"rmse_mm", Number(j.rmse_mm)},
+                           {"ambiguity", Number(j.ambiguity)},
+                           {"constraint", Number(j.constraint)},
+                           {"alternative_deg", Number(j.alternative_deg)},
+                           {"alternative_mm", Number(j.alternative_mm)},
+                           {"hypotheses", j.hypotheses},
+                           {"coarse_voxel_mm", Number(j.coarse_voxel_mm)},
+                           {"time_ms", Number(j.time_ms)},
+                           {"contact_dropped_a", r.contact_dropped_a},
+                           {"contact_dropped_b", r.contact_dropped_b}};
+    }
+    if (tf) {
+      // Of the join's placement, also when refused (was it wrong?).
+      root["turn_rot_err_deg"] = Number(tf->rot_err_deg);
+      root["turn_trans_err_mm"] = Number(tf->trans_err_mm);
+      root["first_turn_completeness_pct"] = Number(tf->first_turn_completeness_pct);
+    }
     root["views"] = views_;
     root["seed"] = seed_;
     root["threads"] = threads_;
@@ -723,6 +889,8 @@ class ScanCommand : public BenchCommand {
   }
 
   std::vector<std::unique_ptr<sim::SimStation>> bracketed_;
+  int turns_ = 1;
+  std::vector<double> turn2_rotation_deg_{90, 0, 0};
   std::string object_ = "carved_box";
   std::string mesh_path_;
   double mesh_size_mm_ = 0;

@@ -725,6 +725,15 @@ TEST(SimDriverOptions, ObjectPlacementAndMeshKeys) {
   EXPECT_EQ(scene.object.type, ObjectType::kEgg);
   EXPECT_EQ(scene.object.position_mm, cv::Point2d(12.5, -4));
   EXPECT_NEAR(scene.object.yaw_rad, -std::numbers::pi / 6, 1e-12);
+  EXPECT_EQ(scene.object.rotation_rad, cv::Vec3d(0, 0, 0)) << "standing, untouched";
+
+  // Laid on its side: 90° about x (object z → −y).
+  ASSERT_TRUE(
+      SimDriverOptionsFromConfig({{"object", "egg"}, {"object_rotation_deg", "90,0,0"}}, &o, &why))
+      << why;
+  cv::Matx33d laid;
+  cv::Rodrigues(SimSceneOptions(o).object.rotation_rad, laid);
+  EXPECT_LT(cv::norm(laid * cv::Vec3d(0, 0, 1) - cv::Vec3d(0, -1, 0)), 1e-12);
 
   ASSERT_TRUE(SimDriverOptionsFromConfig({{"object", "mesh"},
                                           {"mesh", "/data/owl.ply"},
@@ -758,6 +767,8 @@ TEST(SimDriverOptions, ObjectPlacementAndMeshKeys) {
            {{{"object_position_mm", "10"}}, "'object_position_mm'"},
            {{{"object_position_mm", "200,0"}}, "object_position_mm must be finite and on the"},
            {{{"object_yaw_deg", "1e9"}}, "object_yaw_deg"},
+           {{{"object_rotation_deg", "90,0"}}, "'object_rotation_deg'"},
+           {{{"object_rotation_deg", "400,0,0"}}, "object_rotation_deg: each angle must be in"},
            {{{"mesh_colour", "red"}, {"object", "mesh"}, {"mesh", "/a.ply"}},
             "unknown sim driver config key 'mesh_colour' (mesh '/a.ply')"},
        }) {

@@ -614,6 +614,86 @@ std::vector<cv::Point2d> ProjectBoardPoints(const SimStation& station, const Ste
   return image;
 }
 
+// An object laid down (ObjectOptions::rotation_rad): the object frame's
+// points land where world_from_object says, the lowest point rests on the
+// platter and the seated bounding box is centred on the axis.
+TEST(SimGroundTruth, RotatedObjectIsSeatedWhereItsTransformSays) {
+  const cv::Vec3d z_axis(0, 0, 1);
+  {  // the carved box on its side (90° about x), yawed and turned
+    SceneOptions options;
+    options.object.rotation_rad = {kPi / 2, 0, 0};
+    options.object.yaw_rad = 0.4;
+    auto scene = MakeScene(options);
+    const cv::Matx44d T = scene->world_from_object();
+    const CarvedBoxOptions& b = options.object.carved_box;
+    double lo = 1e9, hi = -1e9;
+    cv::Vec3d centre(0, 0, 0);
+    for (int i = 0; i < 8; ++i) {
+      const cv::Vec3d corner((i & 1 ? 0.5 : -0.5) * b.width_mm, (i & 2 ? 0.5 : -0.5) * b.depth_mm,
+                             (i & 4 ? 1.0 : 0.0) * b.height_mm);
+      const cv::Vec3d w = Apply(T, corner);
+      lo = std::min(lo, w[2]);
+      hi = std::max(hi, w[2]);
+      centre += w / 8;
+    }
+    EXPECT_NEAR(lo, 0, 1e-9) << "the lowest corner on the platter";
+    EXPECT_NEAR(hi, b.depth_mm, 1e-9) << "on its side the box stands its depth high";
+    EXPECT_NEAR(centre[0], 0, 1e-9);
+    EXPECT_NEAR(centre[1], 0, 1e-9);
+    // The base's centre (flat, uncarved): a ray along the base's inward
+    // normal from 20 mm outside meets the box exactly there.
+    const cv::Vec3d base = Apply(T, {0, 0, 0});
+    const cv::Vec3d inward = Apply(T, {0, 0, 1}) - base;
+    EXPECT_NEAR(inward.dot(z_axis), 0, 1e-9) << "the base faces sideways";
+    double t = 0;
+    SurfaceLabel label = SurfaceLabel::kNothing;
+    ASSERT_TRUE(scene->Intersect(base - 20 * inward, inward, &t, &label));
+    EXPECT_EQ(label, SurfaceLabel::kObject);
+    EXPECT_NEAR(t, 20, 1e-5);
+    // The transform turns with the turntable about the axis.
+    scene->SetTurntableAngle(1.0);
+    const cv::Vec3d turned = Apply(scene->world_from_object(), {0, 0, 0});
+    EXPECT_NEAR(turned[2], base[2], 1e-9);
+    EXPECT_NEAR(std::hypot(turned[0], turned[1]), std::hypot(base[0], base[1]), 1e-9);
+  }
+  {  // the egg on its side, tilted about two axes: its top and its centre
+    SceneOptions options;
+    options.object.type = ObjectType::kEgg;
+    options.object.rotation_rad = {0.3, kPi / 2, 0.2};
+    options.object.position_mm = {10, -5};
+    auto scene = MakeScene(options);
+    const EggOptions& e = options.object.egg;
+    const cv::Vec3d centre = Apply(scene->world_from_object(), {0, 0, e.height_mm / 2});
+    EXPECT_NEAR(centre[0], 10, 1e-9);
+    EXPECT_NEAR(centre[1], -5, 1e-9);
+    // The ellipsoid's lowest point (object frame: centre − A·n/√(nᵀA·n) with
+    // A = diag(a², a², c²), n world up in the object frame) lands on the
+    // platter, and a ray from below the platter's top meets it there.
+    const cv::Matx33d R = scene->world_from_object().get_minor<3, 3>(0, 0);
+    const cv::Vec3d n = R.t() * z_axis;
+    const double a = e.diameter_mm / 2, c = e.height_mm / 2;
+    const cv::Vec3d An(a * a * n[0], a * a * n[1], c * c * n[2]);
+    const cv::Vec3d lowest = cv::Vec3d(0, 0, c) - An / std::sqrt(n.dot(An));
+    const cv::Vec3d lowest_world = Apply(scene->world_from_object(), lowest);
+    EXPECT_NEAR(lowest_world[2], 0, 1e-9);
+    // and the platter's plane touches it there: just above it, a horizontal
+    // ray through the egg's lowest point meets the egg within a millimetre.
+    double t = 0;
+    SurfaceLabel label = SurfaceLabel::kNothing;
+    const cv::Vec3d start = lowest_world + cv::Vec3d(-30, 0, 0.01);
+    ASSERT_TRUE(scene->Intersect(start, {1, 0, 0}, &t, &label));
+    EXPECT_EQ(label, SurfaceLabel::kObject);
+    EXPECT_NEAR(t, 30, 1.0);
+  }
+  {  // a rotation the object cannot take is refused with the field named
+    SceneOptions options;
+    options.object.rotation_rad = {NAN, 0, 0};
+    std::string error;
+    EXPECT_EQ(Scene::Create(options, &error), nullptr);
+    EXPECT_NE(error.find("object.rotation_rad"), std::string::npos) << error;
+  }
+}
+
 TEST(SimBoard, ChessboardCornersAreWhereTheBoardFrameSays) {
   RigOptions rig = SmallRig(640, 512);
   auto station = MakeStation(rig);

@@ -222,6 +222,11 @@ bool SimDriverOptions::IsValid(std::string* why) const {
                          std::to_string(platter_radius_mm) + " mm of the axis)");
   }
   if (!(std::abs(object_yaw_deg) <= 360)) return Fail(why, "object_yaw_deg must be in [-360, 360]");
+  for (int i = 0; i < 3; ++i) {
+    if (!(std::abs(object_rotation_deg[i]) <= 360)) {
+      return Fail(why, "object_rotation_deg: each angle must be in [-360, 360] (rx,ry,rz)");
+    }
+  }
   if (object == ObjectType::kMesh && !MeshIsValid(*this, why)) return false;
   if (!(turntable_speed_deg_s >= 0 && std::isfinite(turntable_speed_deg_s))) {
     return Fail(why, "turntable_speed_deg_s must be >= 0");
@@ -273,6 +278,8 @@ bool SimDriverOptionsFromConfig(const drivers::DriverConfig& config, SimDriverOp
       o.object_position_mm = {xy[0], xy[1]};
     } else if (key == "object_yaw_deg") {
       ok = ParseNumber(value, &o.object_yaw_deg);
+    } else if (key == "object_rotation_deg") {
+      ok = ParseNumbers(value, 3, o.object_rotation_deg.val);
     } else if (key == "image_size") {
       const auto x = value.find('x');
       ok = x != std::string::npos && ParseNumber(value.substr(0, x), &o.image_size.width) &&
@@ -364,6 +371,8 @@ SceneOptions SimSceneOptions(const SimDriverOptions& options) {
       scene.object.type = options.object;
       scene.object.position_mm = options.object_position_mm;
       scene.object.yaw_rad = options.object_yaw_deg * kRadPerDeg;
+      if (options.object_rotation_deg != cv::Vec3d(0, 0, 0))
+        scene.object.rotation_rad = RodriguesFromXyzDeg(options.object_rotation_deg);
       if (options.object == ObjectType::kMesh) {
         MeshOptions& mesh = scene.object.mesh;
         mesh.path = options.mesh_path;

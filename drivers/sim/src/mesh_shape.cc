@@ -8,6 +8,7 @@
 #include <algorithm>
 #include <array>
 #include <cmath>
+#include <limits>
 #include <memory>
 #include <numeric>
 #include <optional>
@@ -126,6 +127,12 @@ class MeshShape : public Primitive {
     }
     if (found) hit->p = o + d * hit->t;
     return found;
+  }
+
+  double MinAlong(const V3& n) const override {
+    double lowest = std::numeric_limits<double>::infinity();
+    for (const V3& v : vertices_) lowest = std::min(lowest, Dot(n, v));
+    return lowest;
   }
 
   void Surface(const LocalHit& hit, V3* normal, V3* albedo) const override {

@@ -231,6 +231,10 @@ bool SceneOptions::IsValid(std::string* why) const {
   if (!Finite(o.position_mm.x) || !Finite(o.position_mm.y) || !Finite(o.yaw_rad)) {
     return Fail(why, "object.position_mm and object.yaw_rad must be finite");
   }
+  if (!Finite(o.rotation_rad[0]) || !Finite(o.rotation_rad[1]) || !Finite(o.rotation_rad[2]) ||
+      cv::norm(o.rotation_rad) > 4 * std::numbers::pi) {
+    return Fail(why, "object.rotation_rad must be finite, a rotation of at most 4π rad");
+  }
   std::string reason;
   if (!board.IsValid(&reason)) return Fail(why, "board." + reason);
   if (!Finite(turntable_angle_rad)) return Fail(why, "turntable_angle_rad must be finite");

@@ -230,7 +230,15 @@ class CarvedBox : public MarchedSolid {
                      V3(o.width_mm / 2, o.depth_mm / 2, o.height_mm), lipschitz, 0.05),
         faces_(faces),
         slope_(slope),
-        wood_(seed, V3(0, -1.3 * o.depth_mm, -0.6 * o.height_mm)) {}
+        wood_(seed, V3(0, -1.3 * o.depth_mm, -0.6 * o.height_mm)),
+        half_w_(o.width_mm / 2),
+        half_d_(o.depth_mm / 2),
+        height_(o.height_mm) {}
+
+  // The cuts lie inside the faces, away from the edges: the corners are the box's.
+  double MinAlong(const V3& n) const override {
+    return -half_w_ * std::abs(n.x) - half_d_ * std::abs(n.y) + std::min(0.0, height_ * n.z);
+  }
 
   void Surface(const LocalHit& hit, V3* normal, V3* albedo) const override {
     const V3& p = hit.p;
@@ -281,6 +289,7 @@ class CarvedBox : public MarchedSolid {
   std::array<CarvedFace, 6> faces_;
   double slope_;  // the largest CarveSlope of the faces
   WoodTexture wood_;
+  double half_w_, half_d_, height_;
 };
 
 // Rosettes for a face of half extents hu × hv inside its border groove.
@@ -350,6 +359,12 @@ class Embroidery : public MarchedSolid {
       leaf_cos_.push_back(std::cos(phase_ + (k + 0.5) * sector));
       leaf_sin_.push_back(std::sin(phase_ + (k + 0.5) * sector));
     }
+  }
+
+  // The disc's cylinder from z = 0 to the stitches' highest (a bound where
+  // the stitches do not reach the rim: within relief_mm).
+  double MinAlong(const V3& n) const override {
+    return std::min(0.0, (thickness_ + relief_) * n.z) - radius_ * std::hypot(n.x, n.y);
   }
 
   // Satin ridges are at most this steep, per mm of H (see Pattern).

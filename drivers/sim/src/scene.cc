@@ -57,6 +57,31 @@ bool PlaceMesh(const MeshOptions& o, const TriangleMesh& mesh, std::vector<cv::V
   return true;
 }
 
+// The rotation R of the object frame, then the shift that centres the
+// rotated object's axis-aligned bounding box on the z axis and puts its
+// lowest point at z = 0: *seated_from_object. The extents come from the
+// primitive's support (MinAlong) in its local frame.
+bool SeatRotated(const Primitive& object, const M3& R, const Rigid& object_from_local,
+                 Rigid* seated_from_object, std::string* why) {
+  const Rigid rotated_from_local = Rotation(R) * object_from_local;
+  // Lowest and highest coordinate of the rotated object along its axis i.
+  auto extent = [&](int i, double sign) {
+    const M3& Rl = rotated_from_local.R;
+    const V3 axis_in_local = V3(Rl.m[3 * i], Rl.m[3 * i + 1], Rl.m[3 * i + 2]) * sign;  // row i
+    return sign * (object.MinAlong(axis_in_local) + sign * rotated_from_local.t[i]);
+  };
+  const double x_lo = extent(0, 1), x_hi = extent(0, -1);
+  const double y_lo = extent(1, 1), y_hi = extent(1, -1);
+  const double z_lo = extent(2, 1);
+  if (!std::isfinite(x_lo + x_hi + y_lo + y_hi + z_lo)) {
+    *why = "this object cannot be rotated (its extent is unknown)";
+    return false;
+  }
+  *seated_from_object =
+      Translation(V3(-(x_lo + x_hi) / 2, -(y_lo + y_hi) / 2, -z_lo)) * Rotation(R);
+  return true;
+}
+
 }  // namespace
 
 void Scene::Impl::SetAngle(double angle) {
@@ -224,6 +249,20 @@ std::unique_ptr<Scene> Scene::Create(const SceneOptions& options, std::string* e
     object->on_turntable = true;
     object->parent_from_local = Translation(V3(o.position_mm.x, o.position_mm.y, 0)) *
                                 Rotation(M3::RotZ(o.yaw_rad)) * s.object_from_local;
+    if (o.rotation_rad != cv::Vec3d(0, 0, 0)) {
+      // The operator's pose: the rotated object seated on the platter, centred.
+      // (Only then: without a rotation the object stays exactly as built.)
+      Rigid seated_from_object;
+      std::string why;
+      if (!SeatRotated(*object, M3::Rodrigues(o.rotation_rad), s.object_from_local,
+                       &seated_from_object, &why)) {
+        if (error) *error = "object.rotation_rad: " + why;
+        return nullptr;
+      }
+      object->parent_from_local = Translation(V3(o.position_mm.x, o.position_mm.y, 0)) *
+                                  Rotation(M3::RotZ(o.yaw_rad)) * seated_from_object *
+                                  s.object_from_local;
+    }
     s.object = object.get();
     s.primitives.push_back(std::move(object));
   }

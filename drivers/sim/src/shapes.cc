@@ -1,6 +1,7 @@
 // Analytic primitives: table, backdrop, platter, egg, calibration board.
 #include <algorithm>
 #include <cmath>
+#include <limits>
 #include <numbers>
 #include <vector>
 
@@ -190,6 +191,11 @@ class Egg : public Primitive {
     return true;
   }
 
+  // The ellipsoid's support: centre (0, 0, c), semi-axes a, a, c.
+  double MinAlong(const V3& n) const override {
+    return c_ * n.z - std::sqrt(a_ * a_ * (n.x * n.x + n.y * n.y) + c_ * c_ * n.z * n.z);
+  }
+
   void Surface(const LocalHit& hit, V3* normal, V3* albedo) const override {
     const V3& p = hit.p;
     *normal = Normalized(V3(p.x / (a_ * a_), p.y / (a_ * a_), (p.z - c_) / (c_ * c_)));
@@ -321,6 +327,8 @@ class Board : public Primitive {
 };
 
 }  // namespace
+
+double Primitive::MinAlong(const V3&) const { return std::numeric_limits<double>::quiet_NaN(); }
 
 std::unique_ptr<Primitive> MakeTable(double z_mm, Background background, std::uint64_t seed) {
   return std::make_unique<AxisPlane>(AxisPlane::Axis::kZ, z_mm, background, seed);

@@ -32,6 +32,12 @@ class Primitive {
   // Outward unit normal (local frame) and albedo (BGR, [0, 1]) at a hit.
   virtual void Surface(const LocalHit& hit, V3* normal, V3* albedo) const = 0;
 
+  // The smallest direction·p over the primitive's surface points p (local
+  // frame; `direction` need not be unit): its support along −direction,
+  // which seats a rotated object on the platter. NaN when the primitive
+  // does not know it (only objects do).
+  virtual double MinAlong(const V3& direction) const;
+
   SurfaceLabel label() const { return label_; }
 
   // Placement: parent_from_local, where the parent is the turntable frame

@@ -13,6 +13,7 @@
 #include <limits>
 #include <random>
 #include "common/eigen_cv.h"
+#include "common/point_index.h"
 
 #include <pcl/features/fpfh_omp.h>
 #include <pcl/features/normal_3d_omp.h>
@@ -144,39 +145,6 @@ Eigen::Vector3d CovarianceEigenvalues(const PointCloud& cloud) {
   cov /= static_cast<double>(std::max<std::size_t>(1, cloud.size()));
   return Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d>(cov).eigenvalues();
 }
-
-// Nearest-neighbour index over a cloud's points (nanoflann k-d tree; queries
-// are const, allocation-free and run from many threads).
-class PointIndex {
- public:
-  explicit PointIndex(const PointCloud& cloud)
-      : points_(&cloud.points_mm), tree_(3, *this, nanoflann::KDTreeSingleIndexAdaptorParams(10)) {
-    if (!points_->empty()) tree_.buildIndex();
-  }
-  // Index of the nearest point and its squared distance; false when empty.
-  bool Nearest(const Eigen::Vector3f& q, int* index, float* dist2) const {
-    if (points_->empty()) return false;
-    std::uint32_t i = 0;
-    float d2 = 0;
-    if (tree_.knnSearch(q.data(), 1, &i, &d2) != 1) return false;
-    *index = static_cast<int>(i);
-    *dist2 = d2;
-    return true;
-  }
-  // nanoflann's dataset adaptor interface.
-  std::size_t kdtree_get_point_count() const { return points_->size(); }
-  float kdtree_get_pt(std::size_t i, std::size_t dim) const { return (*points_)[i][dim]; }
-  template <class Box>
-  bool kdtree_get_bbox(Box&) const {
-    return false;
-  }
-
- private:
-  const std::vector<cv::Vec3f>* points_;
-  nanoflann::KDTreeSingleIndexAdaptor<nanoflann::L2_Simple_Adaptor<float, PointIndex>, PointIndex,
-                                      3>
-      tree_;
-};
 
 // Fraction of `source` points (transformed) within `gate_mm` of `target`,
 // and the RMS distance over those.
@@ -597,8 +565,41 @@ std::uint64_t SplitMix(std::uint64_t x) {
 
 }  // namespace
 
-RegistrationResult RegisterCoarse(const ViewCloud& source, const ViewCloud& target,
-                                  const CoarseOptions& options, int num_threads) {
+namespace {
+
+// How many distinct hypotheses RegisterCoarseImpl keeps besides the best.
+struct CandidateKeep {
+  int max_candidates = 0;
+  double min_separation_rad = 0;
+  double min_separation_mm = 0;
+};
+
+bool SameHypothesis(const Hypothesis& a, const Hypothesis& b, const CandidateKeep& keep) {
+  const Eigen::Matrix3d dR = a.T.topLeftCorner<3, 3>().transpose() * b.T.topLeftCorner<3, 3>();
+  const double angle = Eigen::AngleAxisd(dR).angle();
+  const double shift = (a.T.topRightCorner<3, 1>() - b.T.topRightCorner<3, 1>()).norm();
+  return angle < keep.min_separation_rad && shift < keep.min_separation_mm;
+}
+
+// The best hypotheses, at most keep.max_candidates, no two the same: a
+// hypothesis close to a kept one replaces it when it scores better.
+void OfferCandidate(const Hypothesis& h, const CandidateKeep& keep, std::vector<Hypothesis>* top) {
+  for (Hypothesis& kept : *top) {
+    if (SameHypothesis(kept, h, keep)) {
+      if (Better(h, kept)) kept = h;
+      std::sort(top->begin(), top->end(), Better);
+      return;
+    }
+  }
+  top->push_back(h);
+  std::sort(top->begin(), top->end(), Better);
+  if (top->size() > static_cast<std::size_t>(keep.max_candidates)) top->pop_back();
+}
+
+RegistrationResult RegisterCoarseImpl(const ViewCloud& source, const ViewCloud& target,
+                                      const CoarseOptions& options, int num_threads,
+                                      const CandidateKeep& keep,
+                                      std::vector<RegistrationResult>* candidates) {
   return NoThrow<RegistrationResult>(
       "RegisterCoarse", RegistrationResult::Status::kFailed, [&]() -> RegistrationResult {
         const auto start = Clock::now();
@@ -647,9 +648,11 @@ RegistrationResult RegisterCoarse(const ViewCloud& source, const ViewCloud& targ
         PointIndex target_index(t);
 
         Hypothesis best;
+        std::vector<Hypothesis> top;  // with candidates: the best distinct ones
         if (options.prior_target_from_source) {
           best = Score(ToEigen(*options.prior_target_from_source), src, dst, w, cap);
           best.index = -1;
+          if (candidates) OfferCandidate(best, keep, &top);
           if (options.prior_accept_fitness > 0) {
             const Overlap o = MeasureOverlap(s, target_index, best.T, w, threads);
             if (o.fitness >= options.prior_accept_fitness) {
@@ -707,8 +710,10 @@ RegistrationResult RegisterCoarse(const ViewCloud& source, const ViewCloud& targ
               hyps[k] = h;
             }
           });
-          for (const Hypothesis& h : hyps)
+          for (const Hypothesis& h : hyps) {
             if (std::isfinite(h.score) && Better(h, best)) best = h;
+            if (candidates && std::isfinite(h.score)) OfferCandidate(h, keep, &top);
+          }
           done += batch;
           // Early termination: enough samples for an all-inlier one with the
           // confidence asked, at the best inlier ratio so far.
@@ -732,20 +737,24 @@ RegistrationResult RegisterCoarse(const ViewCloud& source, const ViewCloud& targ
         }
         result.prior_kept = best.index == -1;
         // Refit on the inliers (twice: the set may grow).
-        Eigen::Matrix4d T = best.T;
-        for (int round = 0; round < 2; ++round) {
-          std::vector<Eigen::Vector3d> a, b;
-          const Eigen::Matrix3d R = T.topLeftCorner<3, 3>();
-          const Eigen::Vector3d tt = T.topRightCorner<3, 1>();
-          for (std::size_t i = 0; i < n; ++i) {
-            if ((R * src[i] + tt - dst[i]).norm() <= w) {
-              a.push_back(src[i]);
-              b.push_back(dst[i]);
+        auto refit = [&](const Eigen::Matrix4d& initial) {
+          Eigen::Matrix4d T = initial;
+          for (int round = 0; round < 2; ++round) {
+            std::vector<Eigen::Vector3d> a, b;
+            const Eigen::Matrix3d R = T.topLeftCorner<3, 3>();
+            const Eigen::Vector3d tt = T.topRightCorner<3, 1>();
+            for (std::size_t i = 0; i < n; ++i) {
+              if ((R * src[i] + tt - dst[i]).norm() <= w) {
+                a.push_back(src[i]);
+                b.push_back(dst[i]);
+              }
             }
+            if (a.size() < 3) break;
+            T = RigidFromPairs(a, b, nullptr);
           }
-          if (a.size() < 3) break;
-          T = RigidFromPairs(a, b, nullptr);
-        }
+          return T;
+        };
+        const Eigen::Matrix4d T = refit(best.T);
         const Overlap o = MeasureOverlap(s, target_index, T, w, threads);
         result.status = RegistrationResult::Status::kOk;
         result.target_from_source = ToCv(T);
@@ -753,8 +762,45 @@ RegistrationResult RegisterCoarse(const ViewCloud& source, const ViewCloud& targ
         result.rmse_mm = o.rmse;
         result.inliers = o.inliers;
         result.time_ms = MsSince(start);
+        if (candidates) {
+          for (const Hypothesis& h : top) {
+            RegistrationResult c = result;
+            c.prior_kept = h.index == -1;
+            const Eigen::Matrix4d Tc = refit(h.T);
+            const Overlap oc = MeasureOverlap(s, target_index, Tc, w, threads);
+            c.target_from_source = ToCv(Tc);
+            c.fitness = oc.fitness;
+            c.rmse_mm = oc.rmse;
+            c.inliers = oc.inliers;
+            candidates->push_back(c);
+          }
+        }
         return result;
       });
+}
+
+}  // namespace
+
+RegistrationResult RegisterCoarse(const ViewCloud& source, const ViewCloud& target,
+                                  const CoarseOptions& options, int num_threads) {
+  return RegisterCoarseImpl(source, target, options, num_threads, CandidateKeep{}, nullptr);
+}
+
+std::vector<RegistrationResult> RegisterCoarseCandidates(const ViewCloud& source,
+                                                         const ViewCloud& target,
+                                                         const CoarseOptions& options,
+                                                         const CoarseCandidates& wanted,
+                                                         int num_threads) {
+  std::vector<RegistrationResult> candidates;
+  CandidateKeep keep;
+  keep.max_candidates = std::max(1, wanted.max_candidates);
+  keep.min_separation_rad = wanted.min_separation_deg * M_PI / 180.0;
+  keep.min_separation_mm = wanted.min_separation_mm;
+  const RegistrationResult best =
+      RegisterCoarseImpl(source, target, options, num_threads, keep, &candidates);
+  if (!best.IsUsable()) return {best};
+  if (candidates.empty()) candidates.push_back(best);
+  return candidates;
 }
 
 // --- Fine ---------------------------------------------------------------------

@@ -107,6 +107,26 @@ std::string Measure(const ScanOptions& options, bool have_axis, ScanResult* resu
   return {};
 }
 
+// The mesh of the fused cloud (when asked) and the cloud's quality against it.
+void MeshAndAssess(const ScanOptions& options, ScanResult* result) {
+  if (!options.mesh) {
+    result->mesh.message = "meshing not requested";
+    return;
+  }
+  if (options.mesh_method == MeshMethod::kImplicit) {
+    result->mesh = ImplicitMesh(result->fused, options.implicit);
+  } else {
+    PoissonOptions poisson = options.poisson;
+    poisson.num_threads = options.num_threads;
+    result->mesh = PoissonMesh(result->fused, poisson);
+  }
+  if (result->mesh.IsUsable()) {
+    QualityOptions quality;
+    quality.num_threads = options.num_threads;
+    result->quality = AssessQuality(result->fused, result->mesh.mesh, quality);
+  }
+}
+
 // What a finished scan says beside its figures: the loop closure, the views
 // that kept their turntable pose, a mesh or box measurement that failed.
 std::string ScanNotes(const ScanResult& result, bool closed_loop, bool meshed) {
@@ -331,22 +351,7 @@ ScanResult IncrementalScan::Impl::Finish() {
 
   // --- Mesh ----------------------------------------------------------------------
   start = Clock::now();
-  if (options.mesh) {
-    if (options.mesh_method == MeshMethod::kImplicit) {
-      result.mesh = ImplicitMesh(result.fused, options.implicit);
-    } else {
-      PoissonOptions poisson = options.poisson;
-      poisson.num_threads = options.num_threads;
-      result.mesh = PoissonMesh(result.fused, poisson);
-    }
-    if (result.mesh.IsUsable()) {
-      QualityOptions quality;
-      quality.num_threads = options.num_threads;
-      result.quality = AssessQuality(result.fused, result.mesh.mesh, quality);
-    }
-  } else {
-    result.mesh.message = "meshing not requested";
-  }
+  MeshAndAssess(options, &result);
   result.mesh_ms = MsSince(start);
 
   // --- Measurement -------------------------------------------------------------
@@ -597,6 +602,62 @@ ScanResult IncrementalScan::Finish() {
     result.message = std::string("reconstruction failed: ") + e.what();
     return result;
   }
+}
+
+ScanResult JoinTurnScans(const ScanResult& turn_a, const ScanResult& turn_b,
+                         const ScanOptions& options, const TurnJoinOptions& join) {
+  return NoThrow<ScanResult>("JoinTurnScans", ScanResult::Status::kFailed, [&]() -> ScanResult {
+    ScanResult result = turn_a;
+    result.status = ScanResult::Status::kFailed;
+    result.mesh = MeshResult{};
+    result.quality = CloudQuality{};
+    result.box_measurement.reset();
+    std::string why;
+    if (!options.IsValid(&why)) {
+      result.message = "invalid options: " + why;
+      return result;
+    }
+    if (!turn_a.IsUsable() || !turn_b.IsUsable()) {
+      result.message = std::string("the ") + (turn_a.IsUsable() ? "second" : "first") +
+                       " turn failed: " + (turn_a.IsUsable() ? turn_b : turn_a).message;
+      return result;
+    }
+    auto start = Clock::now();
+    TurnJoinOptions j = join;
+    j.num_threads = options.num_threads;
+    result.turn_join = JoinTurns(turn_a.fused, turn_b.fused, j);
+    result.register_ms += MsSince(start);
+    if (!result.turn_join->IsUsable()) {
+      result.message = "joining the turns: " + result.turn_join->message;
+      return result;
+    }
+    start = Clock::now();
+    const PointCloud merged = MergeTurns(turn_a.fused, turn_b.fused, result.turn_join->a_from_b, j,
+                                         &result.contact_dropped_a, &result.contact_dropped_b);
+    FusionOptions fusion;
+    fusion.voxel_mm = options.fusion.voxel_mm;
+    fusion.refine_along_normal = options.fusion.refine_along_normal;
+    result.fused = FuseClouds({merged}, fusion, &why, &result.fusion);
+    result.fuse_ms = MsSince(start);
+    if (result.fused.empty()) {
+      result.message = "fusion of the turns failed: " + why;
+      return result;
+    }
+    start = Clock::now();
+    MeshAndAssess(options, &result);
+    result.mesh_ms = MsSince(start);
+    start = Clock::now();
+    const bool have_axis = turn_a.turntable_from_view0.has_value();
+    if (std::string error = Measure(options, have_axis, &result); !error.empty()) {
+      result.message = "oriented box: " + error;
+      result.measure_ms = MsSince(start);
+      return result;
+    }
+    result.measure_ms = MsSince(start);
+    result.status = ScanResult::Status::kOk;
+    result.message = "two turns " + result.turn_join->message;
+    return result;
+  });
 }
 
 ScanResult ReconstructScan(const std::vector<ScanView>& views, const TurntableAxis& axis,

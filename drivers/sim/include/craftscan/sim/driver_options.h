@@ -20,6 +20,11 @@
 //   object_position_mm      x,y: where the object stands on the platter at turntable
 //                           angle 0, world mm; within the platter's 150 mm radius (0,0)
 //   object_yaw_deg          its turn about the axis there, degrees, |·| ≤ 360 (0)
+//   object_rotation_deg     rx,ry,rz: the pose it is laid in (on its side: 90,0,0;
+//                           upside down: 180,0,0): the object turned about x, then
+//                           y, then z (fixed axes), degrees, each |·| ≤ 360, then
+//                           seated on the platter, centred (ObjectOptions::
+//                           rotation_rad, station.h), before object_yaw_deg (0,0,0)
 // object mesh: a PLY triangle mesh (ply.h; e.g. ../shared/data/meshes/owl.ply),
 // read when the driver instance is created:
 //   mesh                    the PLY file's absolute path (required for object mesh)
@@ -126,6 +131,7 @@ struct SimDriverOptions {
   ObjectType object = ObjectType::kCarvedBox;  // scene kObject only
   cv::Point2d object_position_mm{0, 0};        // on the platter at angle 0, world mm
   double object_yaw_deg = 0;                   // about the turntable axis
+  cv::Vec3d object_rotation_deg{0, 0, 0};      // laid down: about x, then y, then z (fixed)
   // object kMesh only:
   std::string mesh_path;                 // absolute
   double mesh_size_mm = 0;               // > 0: largest extent; 0: mesh_scale applies

@@ -154,8 +154,18 @@ struct ObjectOptions {
   EggOptions egg;
   EmbroideryOptions embroidery;
   MeshOptions mesh;
+  // The pose an operator lays the object in (on its side, upside down, any
+  // tilt): a rotation of the object frame (Rodrigues, rad) applied first;
+  // the rotated object is then moved so its axis-aligned bounding box is
+  // centred on the turntable axis and its lowest point rests on the platter
+  // (the carved box's corners, the egg's ellipsoid, the mesh's vertices
+  // exactly; the embroidery by its disc's bounds). Zero (the default) leaves
+  // the object standing on its base as built, untouched.
+  // Scene::world_from_object includes the rotation and the seating exactly.
+  cv::Vec3d rotation_rad{0, 0, 0};
   // Placement on the platter at turntable angle 0 (world x, y of the object
-  // frame origin, mm) and rotation about the axis (rad).
+  // frame origin, or with a rotation of the seated bounding box's centre, mm)
+  // and rotation about the axis (rad), both after `rotation_rad`.
   cv::Point2d position_mm{0, 0};
   double yaw_rad = 0;
 };

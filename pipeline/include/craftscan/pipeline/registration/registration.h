@@ -205,6 +205,27 @@ struct RegistrationResult {
 RegistrationResult RegisterCoarse(const ViewCloud& source, const ViewCloud& target,
                                   const CoarseOptions& options, int num_threads);
 
+// The coarse stage's best distinct hypotheses, best (lowest Huber score)
+// first, each refit on its inliers like RegisterCoarse's winner, with its
+// fitness and RMSE on the coarse clouds. Two hypotheses are the same when
+// they differ by less than min_separation_deg in rotation and less than
+// min_separation_mm in translation (a better one replaces a kept one close
+// to it). For the ambiguity of a registration without a prior: a second
+// distinct hypothesis that fits about as well as the first (a symmetric
+// object) means the first may be wrong.
+struct CoarseCandidates {
+  int max_candidates = 5;          // ≥ 1
+  double min_separation_deg = 10;  // ≥ 0
+  double min_separation_mm = 10;   // ≥ 0
+};
+// The first entry is RegisterCoarse's result (the same transform); on a
+// failure the one entry says why. Never throws. Thread-safe.
+std::vector<RegistrationResult> RegisterCoarseCandidates(const ViewCloud& source,
+                                                         const ViewCloud& target,
+                                                         const CoarseOptions& options,
+                                                         const CoarseCandidates& wanted,
+                                                         int num_threads);
+
 // Fine stage only (method §8) on the fine clouds, from `initial_target_from_source`.
 RegistrationResult RegisterFine(const ViewCloud& source, const ViewCloud& target,
                                 const cv::Matx44d& initial_target_from_source,

@@ -23,6 +23,7 @@
 #include "craftscan/pipeline/common/point_cloud.h"
 #include "craftscan/pipeline/registration/loop_closure.h"
 #include "craftscan/pipeline/registration/registration.h"
+#include "craftscan/pipeline/registration/turn_join.h"
 #include "craftscan/pipeline/surface/fusion.h"
 #include "craftscan/pipeline/surface/measure.h"
 #include "craftscan/pipeline/surface/mesh.h"
@@ -125,6 +126,11 @@ struct ScanResult {
   OrientedBox box;  // oriented bounding box of the fused cloud
   std::optional<BoxMeasurement> box_measurement;
 
+  // Two turns (JoinTurnScans): how turn B was joined onto this turn (A),
+  // and the platter-contact points each turn lost to the other.
+  std::optional<TurnJoinResult> turn_join;
+  std::size_t contact_dropped_a = 0, contact_dropped_b = 0;
+
   // Stage wall-clock times (ms).
   double condition_ms = 0, register_ms = 0, loop_ms = 0, fuse_ms = 0, mesh_ms = 0, measure_ms = 0;
 
@@ -173,6 +179,22 @@ class IncrementalScan {
   struct Impl;
   std::unique_ptr<Impl> impl_;
 };
+
+// Two turns of one object (turn_join.h): `turn_a` and `turn_b` each a
+// finished scan (ReconstructScan or IncrementalScan; their meshes are not
+// needed: ScanOptions::mesh false saves the time) in its own turntable
+// frame. Joins B onto A without a prior (JoinTurns), drops each turn's
+// platter-contact points the other turn sees (MergeTurns), then one fusion
+// (voxels of options.fusion.voxel_mm; each turn's cloud already carries its
+// views' support), one mesh, one quality assessment and one measurement as
+// ReconstructScan does, in turn A's frame. The result is turn A's (views,
+// registrations, loop closure, turntable_from_view0) with `turn_join` set
+// and the joined fused cloud, mesh and measurement; register_ms includes the
+// join. Fails (status kFailed, `turn_join` set, the refusal's reason in
+// `message`) when either turn is unusable or the join is refused: nothing is
+// merged wrongly. Never throws.
+ScanResult JoinTurnScans(const ScanResult& turn_a, const ScanResult& turn_b,
+                         const ScanOptions& options, const TurnJoinOptions& join);
 
 // A JSON report (pretty-printed) of the scan: per-view conditioning and
 // registration quality (fitness, RMSE, iterations, converged, prior kept),

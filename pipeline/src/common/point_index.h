@@ -1,0 +1,49 @@
+// Nearest-neighbour queries over a point cloud's points, shared by the
+// registration stages (implementation header, not part of the public API).
+#pragma once
+
+#include <cstdint>
+#include <vector>
+
+#include <Eigen/Core>
+#include <nanoflann.hpp>
+#include <opencv2/core/matx.hpp>
+
+#include "craftscan/pipeline/common/point_cloud.h"
+
+namespace craftscan {
+
+// Nearest-neighbour index over a cloud's points (nanoflann k-d tree; queries
+// are const, allocation-free and run from many threads).
+class PointIndex {
+ public:
+  explicit PointIndex(const PointCloud& cloud)
+      : points_(&cloud.points_mm), tree_(3, *this, nanoflann::KDTreeSingleIndexAdaptorParams(10)) {
+    if (!points_->empty()) tree_.buildIndex();
+  }
+  // Index of the nearest point and its squared distance; false when empty.
+  bool Nearest(const Eigen::Vector3f& q, int* index, float* dist2) const {
+    if (points_->empty()) return false;
+    std::uint32_t i = 0;
+    float d2 = 0;
+    if (tree_.knnSearch(q.data(), 1, &i, &d2) != 1) return false;
+    *index = static_cast<int>(i);
+    *dist2 = d2;
+    return true;
+  }
+  // nanoflann's dataset adaptor interface.
+  std::size_t kdtree_get_point_count() const { return points_->size(); }
+  float kdtree_get_pt(std::size_t i, std::size_t dim) const { return (*points_)[i][dim]; }
+  template <class Box>
+  bool kdtree_get_bbox(Box&) const {
+    return false;
+  }
+
+ private:
+  const std::vector<cv::Vec3f>* points_;
+  nanoflann::KDTreeSingleIndexAdaptor<nanoflann::L2_Simple_Adaptor<float, PointIndex>, PointIndex,
+                                      3>
+      tree_;
+};
+
+}  // namespace craftscan

@@ -37,5 +37,6 @@ std::unique_ptr<BenchCommand> MakeSimDepthCommand();
 std::unique_ptr<BenchCommand> MakeRegistrationCommand();
 std::unique_ptr<BenchCommand> MakeDdsCommand();
 std::unique_ptr<BenchCommand> MakeScanCommand();
+std::unique_ptr<BenchCommand> MakeTurnJoinCommand();
 
 }  // namespace craftscan::bench

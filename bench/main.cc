@@ -22,6 +22,7 @@ int main(int argc, char** argv) {
   commands.push_back(MakeRegistrationCommand());
   commands.push_back(MakeDdsCommand());
   commands.push_back(MakeScanCommand());
+  commands.push_back(MakeTurnJoinCommand());
 
   std::vector<std::pair<CLI::App*, BenchCommand*>> registered;
   for (auto& command : commands) registered.emplace_back(command->Register(&app), command.get());

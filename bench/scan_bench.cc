@@ -113,6 +113,7 @@
 #include "craftscan/sim/driver_options.h"
 #include "craftscan/sim/station.h"
 #include "scan_eval.h"
+#include "turn_files.h"
 
 namespace craftscan::bench {
 namespace {
@@ -241,6 +242,10 @@ class ScanCommand : public BenchCommand {
                     "sets when this is not given)")
         ->delimiter(',');
     sub->add_option("--json", json_path_, "Write the figures as JSON to this file");
+    sub->add_option("--save-turns", save_turns_dir_,
+                    "--turns 2: write both turns' fused clouds (turn_a.ply, turn_b.ply, each in "
+                    "its own turntable frame) and the true join (truth_a_from_b.txt) into this "
+                    "folder (created), for `craftscan-bench turn-join`");
     sub->add_option(
         "--out", out_dir_,
         "Write fused.ply, mesh.ply, mesh.obj, mesh.glb, report.json and report.html (with "
@@ -468,6 +473,12 @@ class ScanCommand : public BenchCommand {
         return code;
     }
     times.match_median = Quantile(process_ms, 0.5);
+    if (second && !save_turns_dir_.empty()) {
+      const cv::Matx44d truth = turns[0].object_from_result.inv() * turns[1].object_from_result;
+      if (std::string why;
+          !SaveTurns(save_turns_dir_, turns[0].result.fused, turns[1].result.fused, truth, &why))
+        return DataError("--save-turns: " + why);
+    }
     ScanResult r = second
                        ? JoinTurnScans(turns[0].result, turns[1].result, options, TurnJoinOptions{})
                        : std::move(turns[0].result);
@@ -900,7 +911,7 @@ class ScanCommand : public BenchCommand {
   std::string image_size_ = "1280x1024";
   bool projector_ = false;
   std::vector<double> bracket_;
-  std::string config_path_, json_path_, out_dir_;
+  std::string config_path_, json_path_, out_dir_, save_turns_dir_;
 };
 
 }  // namespace

@@ -51,6 +51,13 @@ struct TurnJoinOptions {
   // (registration.h FineOptions).
   int hypothesis_source_points = 3000;
   int max_contenders = 4;
+  // Each contender is then polished by linearised point-to-plane ICP
+  // (`fine`'s gates and stops, FineMethod::kPointToPlane), kept when it
+  // still fits at least polish_min_fit × as well: weighted ICP creeps along
+  // a shallow valley (a round body turning about itself), point-to-plane
+  // reaches its bottom (README 11.11). polish_min_fit in (0, 1].
+  bool polish = true;
+  double polish_min_fit = 0.99;
   FineOptions fine = [] {
     FineOptions f;
     f.max_iterations = 200;

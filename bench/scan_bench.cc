@@ -478,6 +478,25 @@ class ScanCommand : public BenchCommand {
       if (std::string why;
           !SaveTurns(save_turns_dir_, turns[0].result.fused, turns[1].result.fused, truth, &why))
         return DataError("--save-turns: " + why);
+      for (std::size_t t = 0; t < 2; ++t) {
+        const std::string path =
+            (fs::path(save_turns_dir_) / (t == 0 ? "turn_a.json" : "turn_b.json")).string();
+        if (Status s = WriteFileAtomically(path, ScanReportJson(turns[t].result)); !s.ok())
+          return DataError("--save-turns: " + s.message());
+        // Each view's conditioned cloud (what fusion starts from), in the turn's frame.
+        const ScanResult& tr = turns[t].result;
+        const cv::Matx44d out_from_view0 = tr.turntable_from_view0.value_or(cv::Matx44d::eye());
+        for (std::size_t k = 0; k < tr.views.size() && k < tr.view0_from_view.size(); ++k) {
+          const std::string name =
+              std::string(t == 0 ? "turn_a" : "turn_b") + "_view" + std::to_string(k) + ".ply";
+          const PointCloud c =
+              TransformCloud(out_from_view0 * tr.view0_from_view[k], tr.views[k].fine);
+          if (Status s = WriteFileAtomically((fs::path(save_turns_dir_) / name).string(),
+                                             EncodePly(c, true));
+              !s.ok())
+            return DataError("--save-turns: " + s.message());
+        }
+      }
     }
     ScanResult r = second
                        ? JoinTurnScans(turns[0].result, turns[1].result, options, TurnJoinOptions{})

@@ -6,6 +6,10 @@
 //                                     normals and colours) in its own
 //                                     turntable frame, mm
 //   DIR/truth_a_from_b.txt           the true join: 16 numbers, row-major
+//   DIR/turn_a.json, DIR/turn_b.json each turn's own report (ScanReportJson:
+//                                     conditioning, registration, fusion)
+//   DIR/turn_a_viewK.ply, …          each view's conditioned cloud (what
+//                                     fusion starts from), in its turn's frame
 #pragma once
 
 #include <string>

@@ -115,10 +115,10 @@ class TurnJoinCommand : public BenchCommand {
       auto report = [&](const char* what, const cv::Matx44d& from, const FineOptions& fo) {
         const RegistrationResult r = RegisterFine(vb, va, from, fo, threads_);
         const cv::Vec4d e = r.target_from_source * c - truth * c;
-        std::cout << "  from " << what << ": " << (r.IsUsable() ? "converged" : r.message)
-                  << " at " << RotationErrorDeg(r.target_from_source, truth) << "° / "
-                  << std::sqrt(e[0] * e[0] + e[1] * e[1] + e[2] * e[2]) << " mm, "
-                  << r.iterations << " iterations\n";
+        std::cout << "  from " << what << ": " << (r.IsUsable() ? "converged" : r.message) << " at "
+                  << RotationErrorDeg(r.target_from_source, truth) << "° / "
+                  << std::sqrt(e[0] * e[0] + e[1] * e[1] + e[2] * e[2]) << " mm, " << r.iterations
+                  << " iterations\n";
         return r.target_from_source;
       };
       report("the truth", truth, options.fine);
@@ -144,15 +144,10 @@ class TurnJoinCommand : public BenchCommand {
       report("the join, point-to-plane 2000", j.a_from_b, plane);
     }
     if (!json_path_.empty()) {
-      nlohmann::json root = {{"status", ToString(j.status)},
-                             {"overlap", j.overlap},
-                             {"rmse_mm", j.rmse_mm},
-                             {"ambiguity", j.ambiguity},
-                             {"constraint", j.constraint},
-                             {"time_ms", j.time_ms},
-                             {"turn_rot_err_deg", rot},
-                             {"turn_trans_err_mm", trans},
-                             {"message", j.message}};
+      nlohmann::json root = {
+          {"status", ToString(j.status)}, {"overlap", j.overlap},       {"rmse_mm", j.rmse_mm},
+          {"ambiguity", j.ambiguity},     {"constraint", j.constraint}, {"time_ms", j.time_ms},
+          {"turn_rot_err_deg", rot},      {"turn_trans_err_mm", trans}, {"message", j.message}};
       std::ofstream out(json_path_);
       out << root.dump(2) << "\n";
       if (!out.flush()) {

@@ -175,6 +175,30 @@ cv::Matx44d TurnAbout(const Eigen::Vector3d& axis, const Eigen::Vector3d& centre
                            cv::Vec3d(centre.x(), centre.y(), centre.z()), angle_rad);
 }
 
+// The principal axes of the points (columns, ascending variance).
+Eigen::Matrix3d PrincipalAxes(const std::vector<cv::Vec3f>& points) {
+  Eigen::Vector3d mean = Eigen::Vector3d::Zero();
+  for (const cv::Vec3f& p : points) mean += Eigen::Vector3d(p[0], p[1], p[2]);
+  mean /= static_cast<double>(std::max<std::size_t>(1, points.size()));
+  Eigen::Matrix3d cov = Eigen::Matrix3d::Zero();
+  for (const cv::Vec3f& p : points) {
+    const Eigen::Vector3d d = Eigen::Vector3d(p[0], p[1], p[2]) - mean;
+    cov += d * d.transpose();
+  }
+  return Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d>(cov).eigenvectors();
+}
+
+// The middle of the points' extent along `axes` (columns), in their frame.
+Eigen::Vector3d ExtentMiddle(const std::vector<cv::Vec3f>& points, const Eigen::Matrix3d& axes) {
+  Eigen::Vector3d lo = Eigen::Vector3d::Constant(1e30), hi = -lo;
+  for (const cv::Vec3f& p : points) {
+    const Eigen::Vector3d q = axes.transpose() * Eigen::Vector3d(p[0], p[1], p[2]);
+    lo = lo.cwiseMin(q);
+    hi = hi.cwiseMax(q);
+  }
+  return axes * ((lo + hi) / 2);
+}
+
 struct Placement {
   cv::Matx44d a_from_b = cv::Matx44d::eye();
   Fit fit;
@@ -326,31 +350,32 @@ TurnJoinResult JoinTurns(const PointCloud& turn_a, const PointCloud& turn_b,
         {
           const Placement seed = placements[static_cast<std::size_t>(best_of())];
           const PointCloud moved = TransformCloud(seed.a_from_b, b.fine);
-          Eigen::Vector3d centre = Eigen::Vector3d::Zero();
-          for (const cv::Vec3f& p : moved.points_mm) centre += Eigen::Vector3d(p[0], p[1], p[2]);
-          centre /= static_cast<double>(moved.size());
-          Eigen::Matrix3d cov = Eigen::Matrix3d::Zero();
-          for (const cv::Vec3f& p : moved.points_mm) {
-            const Eigen::Vector3d d = Eigen::Vector3d(p[0], p[1], p[2]) - centre;
-            cov += d * d.transpose();
-          }
-          const Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> eig(cov);
           // Turn about the middle of the extent along each axis, not the
           // centroid: a turn lacks the face it stood on, which pulls its
           // centroid off the object's centre, and a half turn about the
           // centroid would land twice that off, beyond ICP's reach.
-          Eigen::Vector3d lo = Eigen::Vector3d::Constant(1e30), hi = -lo;
-          for (const cv::Vec3f& p : moved.points_mm) {
-            const Eigen::Vector3d q =
-                eig.eigenvectors().transpose() * (Eigen::Vector3d(p[0], p[1], p[2]) - centre);
-            lo = lo.cwiseMin(q);
-            hi = hi.cwiseMax(q);
-          }
-          centre += eig.eigenvectors() * ((lo + hi) / 2);
+          const Eigen::Matrix3d axes_b = PrincipalAxes(moved.points_mm);
+          const Eigen::Vector3d centre = ExtentMiddle(moved.points_mm, axes_b);
           constexpr double kNudge = 10 * M_PI / 180;
+          // A quarter or half turn of a wrong best also needs a new
+          // translation: the turned B is moved too so that the middle of its
+          // extent along turn A's principal axes meets turn A's (each turn
+          // lacks the face it stood on, but its extent is nearly the whole
+          // object's): at 1280×1024 the box's best was 90° off and 18 mm
+          // aside, and the turn about B's middle alone left ICP beyond reach.
+          const Eigen::Matrix3d axes_a = PrincipalAxes(a.fine.points_mm);
+          const Eigen::Vector3d middle_a = ExtentMiddle(a.fine.points_mm, axes_a);
           for (int axis = 0; axis < 3; ++axis)
-            for (double angle : {-kNudge, kNudge, M_PI / 2, M_PI, 3 * M_PI / 2})
-              refine(TurnAbout(eig.eigenvectors().col(axis), centre, angle) * seed.a_from_b);
+            for (double angle : {-kNudge, kNudge, M_PI / 2, M_PI, 3 * M_PI / 2}) {
+              const cv::Matx44d turned = TurnAbout(axes_b.col(axis), centre, angle) * seed.a_from_b;
+              refine(turned);
+              if (std::abs(angle) < M_PI / 4 || !options.recentre_turned) continue;
+              const Eigen::Vector3d shift =
+                  middle_a - ExtentMiddle(TransformCloud(turned, b.fine).points_mm, axes_a);
+              cv::Matx44d moved_too = turned;
+              for (int i = 0; i < 3; ++i) moved_too(i, 3) += shift[i];
+              refine(moved_too);
+            }
         }
         result.hypotheses = static_cast<int>(placements.size());
         // The contenders run to convergence on every point: the best and the

@@ -73,6 +73,10 @@ struct TurnJoinOptions {
   // 90°, 180° and 270° about each principal axis of turn B is refined too:
   // a symmetry RANSAC did not sample still shows.
   int max_candidates = 8;
+  // The quarter and half turns are also refined moved so that the middle of
+  // turn B's extent along turn A's principal axes meets turn A's (a wrong
+  // best is often off in translation too).
+  bool recentre_turned = true;
   // Two joins differing by at least this rotation or translation are
   // different placements (deg, mm; > 0). A continuous symmetry (an egg
   // turning about its axis) leaves ICP wherever it starts along the valley:

@@ -225,6 +225,62 @@ TEST(Fusion, SupportAlongTheNormalDropsOffsetSheetsWhileLoneViewPartsStay) {
   EXPECT_CONTAINS(error, "lone_view_radius_mm");
 }
 
+TEST(Fusion, SparseViewsOnTheSamePlaneSupportAFaceOneViewSawSquarely) {
+  // View a saw the plane squarely (every 0.5 mm), view b obliquely: a
+  // sample every 3 mm, on the plane. View c saw a sheet 1 mm above the
+  // plane over x, y in 10..20 (a patch matched at a slightly wrong
+  // disparity), densely.
+  std::mt19937 rng(7);
+  std::normal_distribution<double> noise(0, 0.1);
+  std::vector<PointCloud> clouds(3);
+  for (double x = 0; x < 40; x += 0.5)
+    for (double y = 0; y < 40; y += 0.5)
+      AddPoint(cv::Vec3d(x, y, 0.2 * x + 0.1 * y + 5) + kPlaneNormal * noise(rng), kPlaneNormal,
+               &clouds[0]);
+  for (double x = 0.25; x < 40; x += 3)
+    for (double y = 0.25; y < 40; y += 3)
+      AddPoint(cv::Vec3d(x, y, 0.2 * x + 0.1 * y + 5) + kPlaneNormal * noise(rng), kPlaneNormal,
+               &clouds[1]);
+  AddOffsetSheet(&rng, &clouds[2]);
+  const auto count = [](const PointCloud& cloud, auto&& pred) {
+    return std::count_if(cloud.points_mm.begin(), cloud.points_mm.end(), pred);
+  };
+  const auto sheet = [](const cv::Vec3f& p) { return std::abs(PlaneDistance(p)) > 0.7; };
+  const auto plane = [](const cv::Vec3f& p) { return std::abs(PlaneDistance(p)) < 0.5; };
+
+  FusionOptions options;
+  options.voxel_mm = 0.5;
+  options.min_views = 2;
+  options.view_support_normal_mm = 0.5;
+  options.lone_view_radius_mm = 2.5;
+  std::string error;
+  FusionStats stats;
+  // Every voxel of the face, without any support rule.
+  FusionOptions all = options;
+  all.min_views = 1;
+  const auto face = count(FuseClouds(clouds, all, &error), plane);
+  ASSERT_GT(face, 5000) << error;
+  // Support only within view_support_mm (1 mm): the face keeps only the
+  // part near b's samples.
+  PointCloud fused = FuseClouds(clouds, options, &error, &stats);
+  ASSERT_FALSE(fused.empty()) << error;
+  const auto without = count(fused, plane);
+  EXPECT_LT(without, 0.75 * face);
+  EXPECT_EQ(stats.plane_supported_voxels, 0u);
+
+  options.plane_support_mm = 2.5;
+  fused = FuseClouds(clouds, options, &error, &stats);
+  ASSERT_FALSE(fused.empty()) << error;
+  EXPECT_GT(count(fused, plane), 0.98 * face) << "without: " << without << " of " << face;
+  EXPECT_GE(stats.plane_supported_voxels, static_cast<std::size_t>(0.9 * (face - without)));
+  // The sheet is on no other view's plane: it goes as before.
+  EXPECT_LT(count(fused, sheet), 5);
+
+  options.plane_support_mm = -1;
+  EXPECT_FALSE(options.IsValid(&error));
+  EXPECT_CONTAINS(error, "plane_support_mm");
+}
+
 TEST(Fusion, PartsOnlyTheirOwnCameraFacedStayWithoutSupport) {
   // Views a and b see the plane from cameras above it. View c, a camera off
   // to the side at +x, sees a wall at x = 60 facing it (normal +x), which a's

@@ -285,6 +285,8 @@ void KeepMultiViewVoxels(const FusionOptions& options, const std::vector<cv::Vec
   const std::int64_t r = std::max<std::int64_t>(
       1, std::llround(std::ceil(options.view_support_mm / options.voxel_mm)));
   const bool along_normal = options.view_support_normal_mm > 0 && cloud.HasNormals();
+  const std::int64_t r_plane = std::llround(std::ceil(options.plane_support_mm / options.voxel_mm));
+  const float kPlaneCos = static_cast<float>(std::cos(25.0 * M_PI / 180));
   const auto tol = static_cast<float>(options.view_support_normal_mm);
   // Supports v: w lies near v's tangent plane or v near w's.
   const auto on_plane = [&](std::size_t v, std::size_t w) {
@@ -315,6 +317,30 @@ void KeepMultiViewVoxels(const FusionOptions& options, const std::vector<cv::Vec
           const std::uint64_t more = voxels->views[it->second] & ~views;
           if (more && (!along_normal || on_plane(v, it->second))) views |= more;
         }
+    // Sparse but consistent: another view's points farther along the
+    // surface, each on the other's tangent plane with normals alike (a
+    // face one view saw squarely and the others obliquely, their samples a
+    // few millimetres apart).
+    if (std::popcount(views) < options.min_views && along_normal && r_plane > r) {
+      for (std::int64_t dx = -r_plane; dx <= r_plane && std::popcount(views) < options.min_views;
+           ++dx)
+        for (std::int64_t dy = -r_plane; dy <= r_plane; ++dy)
+          for (std::int64_t dz = -r_plane; dz <= r_plane; ++dz) {
+            std::uint64_t neighbour = 0;
+            if (!NeighbourKey(keys[v], dx, dy, dz, &neighbour)) continue;
+            const auto it = index.find(neighbour);
+            if (it == index.end()) continue;
+            const std::size_t w = it->second;
+            const std::uint64_t more = voxels->views[w] & ~views;
+            if (!more) continue;
+            const cv::Vec3f d = cloud.points_mm[w] - cloud.points_mm[v];
+            if (std::abs(d.dot(cloud.normals[v])) <= tol &&
+                std::abs(d.dot(cloud.normals[w])) <= tol &&
+                cloud.normals[v].dot(cloud.normals[w]) >= kPlaneCos)
+              views |= more;
+          }
+      if (std::popcount(views) >= options.min_views) ++s->plane_supported_voxels;
+    }
     keep[v] = std::popcount(views) >= options.min_views;
     if (!keep[v] && lone > 0) {
       const std::uint64_t around = ViewsAroundCell(cells, CellKey(keys[v], options.voxel_mm, lone));
@@ -435,6 +461,8 @@ bool FusionOptions::IsValid(std::string* why) const {
     return Fail(why, "FusionOptions.view_support_mm must be > 0");
   if (!(view_support_normal_mm >= 0) || !std::isfinite(view_support_normal_mm))
     return Fail(why, "FusionOptions.view_support_normal_mm must be finite and >= 0");
+  if (!(plane_support_mm >= 0) || !std::isfinite(plane_support_mm) || plane_support_mm > 20)
+    return Fail(why, "FusionOptions.plane_support_mm must be in [0, 20]");
   if (!(lone_view_radius_mm >= 0) || !std::isfinite(lone_view_radius_mm))
     return Fail(why, "FusionOptions.lone_view_radius_mm must be finite and >= 0");
   if (!(sole_view_incidence_deg >= 0 && sole_view_incidence_deg < 90))

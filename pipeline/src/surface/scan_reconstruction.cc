@@ -473,6 +473,7 @@ std::string ScanReportJson(const ScanResult& result) {
     if (const FusionStats& f = result.fusion; f.output_points > 0)
       j["fusion"] = {{"input_points", f.input_points},
                      {"unsupported_voxels_dropped", f.single_view_voxels},
+                     {"plane_supported_voxels", f.plane_supported_voxels},
                      {"lone_view_voxels_kept", f.lone_view_voxels},
                      {"sole_view_voxels_kept", f.sole_view_voxels},
                      {"hidden_view_voxels_kept", f.hidden_view_voxels},

@@ -51,6 +51,16 @@ struct FusionOptions {
   // matched at a slightly wrong disparity): they lie inside the cube of
   // view_support_mm around the surface, but not on its plane.
   double view_support_normal_mm = 0;
+  // Support from farther along the surface (mm, ≥ 0; 0 = off; needs
+  // view_support_normal_mm): a voxel without support within
+  // view_support_mm is also supported by another cloud's voxel within this
+  // distance when each lies within view_support_normal_mm of the other's
+  // tangent plane and their normals differ by less than 25°. A face one view
+  // saw squarely and the others only obliquely is sampled densely by the
+  // one and sparsely by the others: their points are millimetres apart but
+  // on one plane; a floater or a sheet off the surface is on no other
+  // view's plane.
+  double plane_support_mm = 0;
   // A voxel without support is still kept when no other cloud has a point
   // near it (mm, ≥ 0; 0 = off: unsupported voxels always go): a part of the
   // surface only one view saw (a recess, the inside of a handle) is no
@@ -94,18 +104,19 @@ struct FusionOptions {
 
 // Figures of one fusion (optional output of FuseClouds).
 struct FusionStats {
-  std::size_t input_points = 0;          // over all clouds
-  std::size_t nonfinite_points = 0;      // dropped: NaN/inf coordinates
-  std::size_t out_of_range_points = 0;   // dropped: beyond ±2^20 voxels from the origin
-  std::size_t sparse_voxel_points = 0;   // dropped: in voxels below min_points_per_voxel
-  std::size_t single_view_voxels = 0;    // dropped: supported by fewer than min_views clouds
-  std::size_t lone_view_voxels = 0;      // kept unsupported: no other cloud near them
-  std::size_t sole_view_voxels = 0;      // kept unsupported: only their own camera faced them
-  std::size_t hidden_view_voxels = 0;    // kept unsupported: every other camera behind them
-  std::size_t small_cluster_voxels = 0;  // dropped: in clusters below min_cluster_fraction
-  std::size_t clusters = 0;              // clusters before that (0: not computed)
-  std::size_t output_points = 0;         // = occupied voxels kept
-  double mean_points_per_voxel = 0;      // over the kept voxels
+  std::size_t input_points = 0;            // over all clouds
+  std::size_t nonfinite_points = 0;        // dropped: NaN/inf coordinates
+  std::size_t out_of_range_points = 0;     // dropped: beyond ±2^20 voxels from the origin
+  std::size_t sparse_voxel_points = 0;     // dropped: in voxels below min_points_per_voxel
+  std::size_t single_view_voxels = 0;      // dropped: supported by fewer than min_views clouds
+  std::size_t plane_supported_voxels = 0;  // supported only from farther along their plane
+  std::size_t lone_view_voxels = 0;        // kept unsupported: no other cloud near them
+  std::size_t sole_view_voxels = 0;        // kept unsupported: only their own camera faced them
+  std::size_t hidden_view_voxels = 0;      // kept unsupported: every other camera behind them
+  std::size_t small_cluster_voxels = 0;    // dropped: in clusters below min_cluster_fraction
+  std::size_t clusters = 0;                // clusters before that (0: not computed)
+  std::size_t output_points = 0;           // = occupied voxels kept
+  double mean_points_per_voxel = 0;        // over the kept voxels
 };
 
 // Merges clouds that are already in one common frame. Each occupied voxel

@@ -67,13 +67,17 @@ struct ScanOptions {
   // its tangent plane (0.5 mm: sheets a millimetre off the surface go),
   // unless no other view saw anything within 2.5 mm or only its own camera
   // faced it within 70° or it faced no other camera at all and its own within
-  // 85° (a part only one view sees stays). Clusters under 5 % of the object's size
+  // 85° (a part only one view sees stays); the support may also come from
+  // 2.5 mm along the surface, on the same plane (a face one view saw squarely
+  // and the others obliquely and sparsely: the base of a box laid on its
+  // side kept 82 % of its surface without it). Clusters under 5 % of the object's size
   // are dropped as floaters (FusionOptions::min_cluster_fraction). README 11.9 has what each
   // bought.
   FusionOptions fusion = [] {
     FusionOptions f;
     f.min_views = 2;
     f.view_support_normal_mm = 0.5;
+    f.plane_support_mm = 2.5;
     f.lone_view_radius_mm = 2.5;
     f.sole_view_incidence_deg = 70;
     f.hidden_view_incidence_deg = 85;

@@ -318,12 +318,17 @@ void KeepMultiViewVoxels(const FusionOptions& options, const std::vector<cv::Vec
           if (more && (!along_normal || on_plane(v, it->second))) views |= more;
         }
     // Sparse but consistent: another view's points farther along the
-    // surface, each on the other's tangent plane with normals alike (a
-    // face one view saw squarely and the others obliquely, their samples a
-    // few millimetres apart).
+    // surface, each on the other's tangent plane with normals alike, and
+    // around the voxel, not only to one side of it (a face one view saw
+    // squarely and the others obliquely, their samples a few millimetres
+    // apart; a surface that stops at an edge or a silhouette is not carried
+    // past it).
     if (std::popcount(views) < options.min_views && along_normal && r_plane > r) {
-      for (std::int64_t dx = -r_plane; dx <= r_plane && std::popcount(views) < options.min_views;
-           ++dx)
+      std::uint64_t plane_views = 0;
+      cv::Vec3f around(0, 0, 0);
+      int n_around = 0;
+      const cv::Vec3f& nv = cloud.normals[v];
+      for (std::int64_t dx = -r_plane; dx <= r_plane; ++dx)
         for (std::int64_t dy = -r_plane; dy <= r_plane; ++dy)
           for (std::int64_t dz = -r_plane; dz <= r_plane; ++dz) {
             std::uint64_t neighbour = 0;
@@ -331,15 +336,24 @@ void KeepMultiViewVoxels(const FusionOptions& options, const std::vector<cv::Vec
             const auto it = index.find(neighbour);
             if (it == index.end()) continue;
             const std::size_t w = it->second;
-            const std::uint64_t more = voxels->views[w] & ~views;
+            const std::uint64_t more = voxels->views[w] & ~voxels->views[v];
             if (!more) continue;
             const cv::Vec3f d = cloud.points_mm[w] - cloud.points_mm[v];
-            if (std::abs(d.dot(cloud.normals[v])) <= tol &&
-                std::abs(d.dot(cloud.normals[w])) <= tol &&
-                cloud.normals[v].dot(cloud.normals[w]) >= kPlaneCos)
-              views |= more;
+            if (std::abs(d.dot(nv)) > tol || std::abs(d.dot(cloud.normals[w])) > tol ||
+                nv.dot(cloud.normals[w]) < kPlaneCos)
+              continue;
+            const cv::Vec3f along = d - d.dot(nv) * nv;
+            const float length = static_cast<float>(cv::norm(along));
+            if (length <= 0) continue;
+            around += along / length;
+            ++n_around;
+            plane_views |= more;
           }
-      if (std::popcount(views) >= options.min_views) ++s->plane_supported_voxels;
+      if (n_around >= 2 && cv::norm(around) < 0.5 * n_around &&
+          std::popcount(views | plane_views) >= options.min_views) {
+        views |= plane_views;
+        ++s->plane_supported_voxels;
+      }
     }
     keep[v] = std::popcount(views) >= options.min_views;
     if (!keep[v] && lone > 0) {

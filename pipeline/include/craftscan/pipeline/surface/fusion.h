@@ -55,11 +55,14 @@ struct FusionOptions {
   // view_support_normal_mm): a voxel without support within
   // view_support_mm is also supported by another cloud's voxel within this
   // distance when each lies within view_support_normal_mm of the other's
-  // tangent plane and their normals differ by less than 25°. A face one view
-  // saw squarely and the others only obliquely is sampled densely by the
-  // one and sparsely by the others: their points are millimetres apart but
-  // on one plane; a floater or a sheet off the surface is on no other
-  // view's plane.
+  // tangent plane and their normals differ by less than 25°, and such
+  // voxels lie around it (their mean direction along the plane under half
+  // their number), not only to one side. A face one view saw squarely and
+  // the others only obliquely is sampled densely by the one and sparsely by
+  // the others: their points are millimetres apart but on one plane; a
+  // floater or a sheet off the surface is on no other view's plane, and a
+  // surface fattened past its silhouette has the others' points on one
+  // side only.
   double plane_support_mm = 0;
   // A voxel without support is still kept when no other cloud has a point
   // near it (mm, ≥ 0; 0 = off: unsupported voxels always go): a part of the

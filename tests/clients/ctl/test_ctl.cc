@@ -855,6 +855,24 @@ TEST(Craftscanctl, RefusedSecondTurnKeepsTheFirstTurnsModelAndSaysWhatToDo) {
   EXPECT_EQ(r.exit_code, 3) << Describe(r);
   EXPECT_NE(r.err.find("only a scan's session takes another turn"), std::string::npos) << r.err;
 
+  // ... and so is one whose first turn did not finish.
+  std::string unfinished;
+  {
+    auto store = daemon::SessionStore::Open(station.fixture().data_dir(), StatusInto(&error));
+    ASSERT_TRUE(store) << error;
+    auto half = store->Create("half", "scan", {{"views", 4}, {"step_deg", 90}},
+                              std::chrono::system_clock::now(), StatusInto(&error));
+    ASSERT_TRUE(half) << error;
+    ASSERT_TRUE(half->SetState(daemon::SessionState::kCapturing, "").ok());
+    ASSERT_TRUE(half->SetState(daemon::SessionState::kInterrupted, "stopped").ok());
+    unfinished = half->id();
+  }
+  r = station.Run(kOperatorToken, {"scan", "--add-to", unfinished});
+  EXPECT_EQ(r.exit_code, 3) << Describe(r);
+  EXPECT_NE(r.err.find("is interrupted: its first turn is not finished (resume it first)"),
+            std::string::npos)
+      << r.err;
+
   r = station.Run(kOperatorToken, {"scan", "--add-to", session}, 300s);
   std::printf("turn 2 of the egg: %.1f s\n", r.seconds);
   EXPECT_EQ(r.exit_code, 4) << Describe(r);
@@ -869,6 +887,7 @@ TEST(Craftscanctl, RefusedSecondTurnKeepsTheFirstTurnsModelAndSaysWhatToDo) {
   EXPECT_TRUE(store->Verify(session).IsIntact());
   const daemon::Manifest after = ReadManifestOf(station, session);
   EXPECT_EQ(after.state, daemon::SessionState::kDone);
+  EXPECT_FALSE(after.outputs.count("turn1/fused.ply") == 0) << "kept under turn1/ as well";
   for (const auto& [name, record] : first.outputs) {
     ASSERT_TRUE(after.outputs.count(name)) << name;
     EXPECT_EQ(after.outputs.at(name).sha256, record.sha256) << name << " changed";

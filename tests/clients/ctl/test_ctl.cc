@@ -784,6 +784,12 @@ TEST(Craftscanctl, SecondTurnJoinsTheBaseCrashInItKeepsTheFirstAndResumeFinishes
   // The base is in the model: the first turn saw (almost) nothing of its
   // middle, the joined model covers it; the box measures 80 × 60 × 50 mm.
   const std::size_t joined_base = BasePoints(dir + "/fused.ply", 20, 3);
+  std::printf(
+      "joined: fit %.1f %%, RMSE %.3f mm, ambiguity %.2f, constraint %.3f, contact "
+      "points dropped %d / %d, %zu points in the base's middle\n",
+      join.value("overlap_pct", 0.0), join.value("rmse_mm", 0.0), join.value("ambiguity", 0.0),
+      join.value("constraint", 0.0), join.value("contact_dropped_a", 0),
+      join.value("contact_dropped_b", 0), joined_base);
   EXPECT_GT(joined_base, 200u);
   EXPECT_GT(joined_base, 10 * first_base + 100) << "turn 1 had " << first_base;
   std::vector<double> box;
@@ -897,6 +903,7 @@ TEST(Craftscanctl, RefusedSecondTurnKeepsTheFirstTurnsModelAndSaysWhatToDo) {
   EXPECT_EQ(turn.value("state", ""), "refused") << turn.dump();
   EXPECT_EQ(turn.value("first_view", 0), 4);
   EXPECT_TRUE(turn["join"].value("status", "").rfind("refused_", 0) == 0) << turn.dump();
+  std::printf("egg turn 2: %s\n", turn["join"].value("message", "").c_str());
   EXPECT_EQ(after.CapturedViews().size(), 8u) << "the refused turn's views stay";
   r = station.Run(kObserverToken, {"sessions"});
   EXPECT_NE(r.out.find("turn 2: views 4-7, refused; refused_"), std::string::npos) << r.out;

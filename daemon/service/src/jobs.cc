@@ -717,7 +717,8 @@ JobEngine::JobOutcome JobEngine::RunScanStages(ScanPlan& plan) {
 
   const StageOutcome outcome = combined.Result();
   if (!outcome.ok() && plan.turn > 1 && !outcome.resumable)
-    return EndTurnNotJoined(plan, outcome, built.result.value("turn_join", nlohmann::json()));
+    return EndTurnNotJoined(plan, outcome, built.join_status,
+                            built.result.value("turn_join", nlohmann::json()));
   if (!outcome.ok()) return EndSession(session, outcome);
   nlohmann::json result = {{"session", sid},
                            {"views", plan.views},
@@ -759,12 +760,13 @@ StageOutcome JobEngine::KeepFirstTurnOutputs(Session& session) {
 }
 
 JobEngine::JobOutcome JobEngine::EndTurnNotJoined(ScanPlan& plan, const StageOutcome& outcome,
+                                                  std::optional<TurnJoinResult::Status> join_status,
                                                   const nlohmann::json& join) {
   Session& session = *plan.session;
   const std::string sid = session.id();
   TurnRecord& turn = plan.turns.back();
-  const bool refused = join.is_object() && join.value("status", std::string()) != "joined" &&
-                       join.value("status", std::string()) != "failed";
+  const bool refused = join_status == TurnJoinResult::Status::kRefusedOverlap ||
+                       join_status == TurnJoinResult::Status::kRefusedAmbiguous;
   turn.state = refused ? "refused" : "failed";
   turn.extra["message"] = outcome.message;
   if (join.is_object()) turn.extra["join"] = join;

@@ -278,6 +278,7 @@ ReconstructOutcome ReconstructStage::Run(BoundedQueue<MatchedView>& in) {
     context_.Progress("join", 1, 2, "joining " + turn + " onto turn 1");
     r = JoinTurnScans(first_turn, r, scan, options_.join);
     out.result["turn_join"] = TurnJoinJson(r);
+    if (r.turn_join) out.join_status = r.turn_join->status;
     context_.Progress("join", 2, 2, turn + ": " + TurnJoinSummary(out.result["turn_join"]));
     if (!r.IsUsable() && r.turn_join && r.turn_join->status != TurnJoinResult::Status::kFailed) {
       out.status = StageOutcome::Error(

@@ -738,8 +738,8 @@ TEST(Craftscanctl, SecondTurnJoinsTheBaseCrashInItKeepsTheFirstAndResumeFinishes
                 (stage == "match" || (stage == "capture" && job.value("progress", 0.0) > 0));
     if (!capturing) {
       // (--no-wait returned once turn 2's job started: it is the current job.)
-      ASSERT_EQ(job.value("state", ""), "running") << "turn 2 ended before it could be killed: "
-                                                   << st.dump();
+      ASSERT_EQ(job.value("state", ""), "running")
+          << "turn 2 ended before it could be killed: " << st.dump();
       std::this_thread::sleep_for(50ms);
     }
   }

@@ -229,7 +229,9 @@ class JobEngine {
   // turn ("refused" or "failed", with the message and the join's figures),
   // the session done again with turn 1's model; the job fails with `outcome`'s
   // message and what the operator does next.
+  // `join_status`: the join's verdict when it was reached; `join` its figures.
   JobOutcome EndTurnNotJoined(ScanPlan& plan, const StageOutcome& outcome,
+                              std::optional<TurnJoinResult::Status> join_status,
                               const nlohmann::json& join);
   // Runs the stages, records the session's end, closes the session.
   JobOutcome RunScan(const std::shared_ptr<ScanPlan>& plan);

@@ -228,6 +228,8 @@ struct ReconstructOutcome {
   // fused_points, mesh_vertices, stage times, box, measurement; a turn
   // joined or refused: turn_join (TurnJoinJson), also when status failed
   nlohmann::json result;
+  // A later turn (Options::turn > 1) that reached the join: its verdict.
+  std::optional<TurnJoinResult::Status> join_status;
   std::string summary;      // "6 views, 123456 fused points" when ok
   std::string done_detail;  // the journal entry for done: "fused 123456 points"
 };

@@ -841,9 +841,9 @@ TEST(Craftscanctl, SecondTurnJoinsTheBaseCrashInItKeepsTheFirstAndResumeFinishes
 // The egg laid on its side turns about its own axis without telling where:
 // the join is refused with what to do, the session keeps turn 1's model and
 // outputs intact (done again, turn 2 kept on disk marked refused), and
-// another turn may be added. 320x256, 4 views a turn.
+// another turn may be added, laid otherwise. 320x256, 4 views a turn.
 TEST(Craftscanctl, RefusedSecondTurnKeepsTheFirstTurnsModelAndSaysWhatToDo) {
-  Station station("", ", object: egg", "320x256");
+  Station station("", ", object: egg, turn_rotations_deg: \"90,0,0;0,90,0\"", "320x256");
   std::string error;
   ASSERT_TRUE(station.Start(&error)) << error;
   CtlRun r = station.Run(kOperatorToken, {"scan", "--object", "egg", "--views", "4"}, 300s);
@@ -909,6 +909,23 @@ TEST(Craftscanctl, RefusedSecondTurnKeepsTheFirstTurnsModelAndSaysWhatToDo) {
   EXPECT_EQ(after.CapturedViews().size(), 8u) << "the refused turn's views stay";
   r = station.Run(kObserverToken, {"sessions"});
   EXPECT_NE(r.out.find("turn 2: views 4-7, refused; refused_"), std::string::npos) << r.out;
+
+  // The operator lays it again and adds another turn (the sim's
+  // turn_rotations_deg: "90,0,0;0,90,0"): turn 3, after the refused turn's
+  // views; the egg on its end is no better, and the session keeps turn 1's
+  // model again.
+  r = station.Run(kOperatorToken, {"scan", "--add-to", session}, 300s);
+  EXPECT_EQ(r.exit_code, 4) << Describe(r);
+  EXPECT_NE(r.out.find("turn 3 not joined"), std::string::npos) << r.out;
+  const daemon::Manifest retried = ReadManifestOf(station, session);
+  EXPECT_EQ(retried.state, daemon::SessionState::kDone);
+  ASSERT_EQ(retried.params["turns"].size(), 3u) << retried.params.dump();
+  EXPECT_EQ(retried.params["turns"][1].value("state", ""), "refused");
+  EXPECT_EQ(retried.params["turns"][2].value("first_view", 0), 8);
+  EXPECT_EQ(retried.CapturedViews().size(), 12u);
+  for (const auto& [name, record] : first.outputs)
+    EXPECT_EQ(retried.outputs.at(name).sha256, record.sha256) << name << " changed";
+  EXPECT_TRUE(store->Verify(session).IsIntact());
 }
 
 }  // namespace

@@ -178,6 +178,11 @@ runBrowserTest('console', async (t) => {
       return s && s.state === 'done';
     }, 180000);
     t.log(`session ${session} resumed to done`);
+    // A finished scan offers another turn (the object laid in another pose:
+    // the daemon's scan with add_to).
+    await page.click(sel('sessions-refresh'));
+    await page.waitForSelector(`${sel('sessions-table')} [data-session="${session}"] ${sel('session-add-turn')}`,
+                               { timeout: 20000 });
 
     // Its model in the viewer.
     await page.goto(`${info.url}#/sessions/${session}`, { waitUntil: 'load' });

@@ -735,6 +735,25 @@ TEST(SimDriverOptions, ObjectPlacementAndMeshKeys) {
   cv::Rodrigues(SimSceneOptions(o).object.rotation_rad, laid);
   EXPECT_LT(cv::norm(laid * cv::Vec3d(0, 0, 1) - cv::Vec3d(0, -1, 0)), 1e-12);
 
+  // Turns (the daemon sets `turn` when a scan adds a turn to a session):
+  // turn 1 stands as object_rotation_deg, turn t ≥ 2 lies in the (t−1)-th
+  // pose of turn_rotations_deg, later turns in its last; by default on its side.
+  const auto pose_of = [&](const DriverConfig& config) {
+    SimDriverOptions options;
+    std::string error;
+    EXPECT_TRUE(SimDriverOptionsFromConfig(config, &options, &error)) << error;
+    return options.ObjectRotationDeg();
+  };
+  EXPECT_EQ(pose_of({{"object_rotation_deg", "0,0,30"}}), cv::Vec3d(0, 0, 30));
+  EXPECT_EQ(pose_of({{"object_rotation_deg", "0,0,30"}, {"turn", "2"}}), cv::Vec3d(90, 0, 0));
+  const std::string poses = "0,90,0; 180,0,0";
+  EXPECT_EQ(pose_of({{"turn", "2"}, {"turn_rotations_deg", poses}}), cv::Vec3d(0, 90, 0));
+  EXPECT_EQ(pose_of({{"turn", "3"}, {"turn_rotations_deg", poses}}), cv::Vec3d(180, 0, 0));
+  EXPECT_EQ(pose_of({{"turn", "7"}, {"turn_rotations_deg", poses}}), cv::Vec3d(180, 0, 0));
+  ASSERT_TRUE(SimDriverOptionsFromConfig({{"object", "egg"}, {"turn", "2"}}, &o, &why)) << why;
+  cv::Rodrigues(SimSceneOptions(o).object.rotation_rad, laid);
+  EXPECT_LT(cv::norm(laid * cv::Vec3d(0, 0, 1) - cv::Vec3d(0, -1, 0)), 1e-12) << "on its side";
+
   ASSERT_TRUE(SimDriverOptionsFromConfig({{"object", "mesh"},
                                           {"mesh", "/data/owl.ply"},
                                           {"mesh_scale", "1000"},
@@ -769,6 +788,11 @@ TEST(SimDriverOptions, ObjectPlacementAndMeshKeys) {
            {{{"object_yaw_deg", "1e9"}}, "object_yaw_deg"},
            {{{"object_rotation_deg", "90,0"}}, "'object_rotation_deg'"},
            {{{"object_rotation_deg", "400,0,0"}}, "object_rotation_deg: each angle must be in"},
+           {{{"turn", "0"}}, "turn must be in [1, 999]"},
+           {{{"turn", "two"}}, "bad value 'two' for sim driver config key 'turn'"},
+           {{{"turn_rotations_deg", "90,0,0;"}}, "'turn_rotations_deg'"},
+           {{{"turn_rotations_deg", "90,0"}}, "'turn_rotations_deg'"},
+           {{{"turn_rotations_deg", "0,0,0;400,0,0"}}, "turn_rotations_deg: each angle must be in"},
            {{{"mesh_colour", "red"}, {"object", "mesh"}, {"mesh", "/a.ply"}},
             "unknown sim driver config key 'mesh_colour' (mesh '/a.ply')"},
        }) {

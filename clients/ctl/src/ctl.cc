@@ -223,6 +223,7 @@ int Ctl::Status() {
                 Str(job, "state").c_str(), Percent(job.value("progress", 0.0)).c_str(),
                 Str(job, "stage").empty() ? "" : (" (" + Str(job, "stage") + ")").c_str(),
                 Str(job, "session").empty() ? "" : ("  session " + Str(job, "session")).c_str());
+    if (job.value("turn", 0) > 1) std::printf("turn         %d\n", job.value("turn", 0));
     if (!Str(job, "message").empty()) std::printf("             %s\n", Str(job, "message").c_str());
   } else {
     std::printf("job          none yet\n");
@@ -263,6 +264,11 @@ int Ctl::Sessions() {
     std::printf("%-40s %-14s %-9s %5d  %s%s\n", Str(s, "id").c_str(), Str(s, "state").c_str(),
                 Str(s, "job").c_str(), s.value("views_captured", 0), Str(s, "object").c_str(),
                 Str(s, "problem").empty() ? "" : ("  (" + Str(s, "problem") + ")").c_str());
+    for (const json& t : s.value("turns", json::array())) {
+      std::printf("  turn %d: views %d-%d, %s%s\n", t.value("turn", 0), t.value("first_view", 0),
+                  t.value("first_view", 0) + t.value("views", 0) - 1, Str(t, "state").c_str(),
+                  Str(t, "join").empty() ? "" : ("; " + Str(t, "join")).c_str());
+    }
   }
   return kExitOk;
 }

@@ -150,7 +150,14 @@ int main(int argc, char** argv) {
   CLI::App* scan = app.add_subcommand("scan",
                                       "scan an object: views around the turntable, "
                                       "registration, fusion, mesh, measurements");
-  scan->add_option("--object", object, "object name (names the session)")->required();
+  std::string add_to;
+  CLI::Option* object_option = scan->add_option(
+      "--object", object, "object name (names the session; required without --add-to)");
+  scan->add_option("--add-to", add_to,
+                   "another turn of this finished scan's session, the object laid in another pose "
+                   "(on its side): captured into the same session and joined onto its first "
+                   "turn, so the model has the base (views and step default to the first turn's)")
+      ->excludes(object_option);
   scan->add_option("--views", views, "number of views (default: the station's)")
       ->check(CLI::Range(2, 360));
   scan->add_option("--step", step_deg, "turntable step between views, degrees (default 360/views)")
@@ -231,6 +238,12 @@ int main(int argc, char** argv) {
     std::fprintf(stderr, "craftscanctl: %s\n", why.c_str());
     return kExitUsage;
   }
+  if (*scan && object.empty() && add_to.empty()) {
+    std::fprintf(stderr,
+                 "craftscanctl: scan needs --object NAME (a new session) or --add-to "
+                 "SESSION (another turn of a finished scan)\n");
+    return kExitUsage;
+  }
   if (*get && out_dir.empty() && bag_dir.empty()) {
     std::fprintf(stderr, "craftscanctl: get needs --out DIR or --bagit DIR\n");
     return kExitUsage;
@@ -270,7 +283,7 @@ int main(int argc, char** argv) {
     return ctl.Job("capture", object.empty() ? json::object() : json{{"object", object}}, wait);
   }
   if (*scan) {
-    json args = {{"object", object}};
+    json args = add_to.empty() ? json{{"object", object}} : json{{"add_to", add_to}};
     if (views > 0) args["views"] = views;
     if (step_deg != 0) args["step_deg"] = step_deg;
     if (!bracket.empty() || no_bracket) args["exposure_bracket"] = bracket;

@@ -124,6 +124,7 @@ const STAGES = {
   capture: 'Capturing views',
   match: 'Matching the camera pairs',
   register: 'Aligning the views',
+  join: 'Joining the turns',
   write: 'Building the model',
   report: 'Writing the report',
   calibrate: 'Computing the calibration',

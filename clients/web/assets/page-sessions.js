@@ -99,6 +99,38 @@ export function mountSessions(root, ctx, param) {
     return b;
   }
 
+  // Operators: another turn of a finished scan, the object laid in another
+  // pose (on its side), joined onto its first turn so the model has the
+  // base (the daemon's scan with add_to). Not once a turn is joined.
+  function addTurnButton(s) {
+    const turns = Array.isArray(s.turns) ? s.turns : [];
+    if (!operator || s.job !== 'scan' || s.state !== 'done' ||
+        turns.some((t) => t.state === 'joined')) return null;
+    const b = h('button', {
+      type: 'button', class: 'btn btn-small btn-secondary', testid: 'session-add-turn',
+      title: 'Lay the object in another pose (on its side) on the platter first',
+      'aria-label': `Add a turn to session ${s.id}`, disabled: jobs.tracks.scan.running,
+    }, 'Add turn');
+    b.addEventListener('click', async () => {
+      b.disabled = true;
+      const reply = await ctx.command('scan', { add_to: s.id });
+      if (reply && reply.result && typeof reply.result === 'object' && reply.result.id) {
+        jobs.trackJob('scan', { session: s.id, ...reply.result });
+      }
+      if (!reply || reply.code !== 0) b.disabled = false;
+      refresh();
+    });
+    return b;
+  }
+
+  // "turn 1: done · turn 2: joined (fit 72.6 %, …)" under the state.
+  function turnsLine(s) {
+    if (!Array.isArray(s.turns) || s.turns.length < 2) return null;
+    return h('div', { class: 'row-turns muted', testid: 'session-turns' },
+      s.turns.map((t) => `turn ${t.turn}: ${t.state}${t.join && t.state !== 'done' ? ` — ${t.join}` : ''}`)
+        .join(' · '));
+  }
+
   function row(s) {
     const open = h('a', {
       class: 'btn btn-small btn-secondary', testid: 'session-open',
@@ -112,11 +144,11 @@ export function mountSessions(root, ctx, param) {
     },
     h('td', { class: 'mono' }, s.id),
     h('td', null, s.object || '—', s.job && s.job !== 'scan' ? h('span', { class: 'muted' }, ` (${s.job})`) : null),
-    h('td', null, h('span', { class: `badge state-${s.state}` }, s.state || 'unknown'), problem),
+    h('td', null, h('span', { class: `badge state-${s.state}` }, s.state || 'unknown'), problem, turnsLine(s)),
     h('td', { class: 'num' }, views),
     h('td', { title: s.created ?? '' }, fmtDate(s.created)),
     h('td', { class: 'col-updated', title: s.updated ?? '' }, fmtDate(s.updated)),
-    h('td', { class: 'actions' }, open, ' ', resumeButton(s), ' ', deleteButton(s)));
+    h('td', { class: 'actions' }, open, ' ', resumeButton(s), ' ', addTurnButton(s), ' ', deleteButton(s)));
   }
 
   function renderTable() {

@@ -4,7 +4,7 @@
 import { h, replace, show } from './dom.js';
 import { fmtTime, stageLabel } from './format.js';
 
-const STAGE_ORDER = ['starting', 'capture', 'match', 'register', 'write', 'report', 'calibrate'];
+const STAGE_ORDER = ['starting', 'capture', 'match', 'register', 'join', 'write', 'report', 'calibrate'];
 
 // ids: {stage, bar, message} data-testid values for the headline parts.
 export function createProgress({ stage: stageId, bar: barId, message: messageId, title = 'Progress' }) {

@@ -401,6 +401,50 @@ void Reconstruction(Page& p, const Json& scan) {
   p << "</section>\n";
 }
 
+// Two turns (report.json "turns" and "turn_join"): the views of each, how
+// the second was joined onto the first and how well. Nothing for one turn.
+void Turns(Page& p, const Json& scan) {
+  const Json* turns = Find(scan, "turns");
+  if (!turns || !turns->is_array()) return;
+  p << "<section id=\"turns\"><h2>Turns</h2>\n<p class=\"muted\">The object scanned standing "
+       "(turn 1) and laid in another pose; each turn registered within itself, the later one "
+       "joined onto turn 1 without a prior, then fused, meshed and measured as one, in turn 1's "
+       "frame. A turn's points against the platter are dropped where the other turn sees that "
+       "surface.</p>\n";
+  p << "<table><thead><tr><th>Turn</th><th>Views</th><th>View numbers</th><th>Step "
+       "(&deg;)</th><th>State</th><th>Platter-contact points dropped</th></tr></thead><tbody>\n";
+  for (const Json& t : *turns) {
+    const double first = Get(t, "first_view", 0), views = Get(t, "views", 0);
+    p << "<tr><td>" + Count(t, "turn") + "</td><td class=\"n\">" + Count(t, "views") + "</td><td>" +
+             Fixed(first, 0) + "&ndash;" + Fixed(first + views - 1, 0) + "</td><td class=\"n\">" +
+             Number(t, "step_deg", 1) + "</td><td>" + Text(t, "state") + "</td><td class=\"n\">" +
+             Count(t, "contact_dropped") + "</td></tr>\n";
+  }
+  p << "</tbody></table>\n";
+  if (const Json* j = Find(scan, "turn_join")) {
+    const bool ok = Text(*j, "status") == "joined";
+    p << "<h3>Join " + Badge(ok, "joined", Text(*j, "status")) + "</h3><table class=\"kv\">\n";
+    if (!Text(*j, "message").empty()) p.Row(ok ? "Notes" : "Reason", Text(*j, "message"));
+    p.Row("Fit (overlap)", Number(*j, "overlap_pct", 1) +
+                               " % of the later turn's surface lies on turn 1's (65 % needed)");
+    p.Row("RMSE", Number(*j, "rmse_mm", 3) + " mm (point to plane, over the fitting points)");
+    const double ambiguity = Get(*j, "ambiguity", 0);
+    p.Row("Ambiguity", ambiguity > 0
+                           ? "the best other placement (" + Number(*j, "alternative_deg", 1) +
+                                 "&deg;, " + Number(*j, "alternative_mm", 1) + " mm away) fits " +
+                                 Fixed(100 * ambiguity, 0) + " % as well (refused from 90 %)"
+                           : std::string("no other placement fits nearly as well"));
+    p.Row("Constraint", Number(*j, "constraint", 3) +
+                            " (the least held motion over the best held; refused below 0.005)");
+    p.Row("Hypotheses refined", Count(*j, "hypotheses"));
+    p.Row("Points compared",
+          Count(*j, "points_a") + " of turn 1, " + Count(*j, "points_b") + " of the later turn");
+    p.Row("Time", Fixed(Get(*j, "time_ms", NAN) / 1000, 2) + " s");
+    p << "</table>\n";
+  }
+  p << "</section>\n";
+}
+
 void Pictures(Page& p, const std::vector<ReportPicture>& pictures, const char* section,
               const char* id, const char* title, const char* empty_text) {
   p << "<section id=\"" + std::string(id) + "\"><h2>" + title + "</h2>\n";
@@ -501,7 +545,9 @@ bool ReportHtml(const ReportInputs& in, const std::vector<ReportPicture>& pictur
     if (!model.empty()) p << "<a href=\"#model\">3D view</a>";
     p << "<a href=\"#cloud\">Cloud</a><a "
          "href=\"#mesh\">Mesh</a>"
-         "<a href=\"#calibration\">Calibration</a><a href=\"#registration\">Registration</a>"
+         "<a href=\"#calibration\">Calibration</a>";
+    if (Find(scan, "turns")) p << "<a href=\"#turns\">Turns</a>";
+    p << "<a href=\"#registration\">Registration</a>"
          "<a href=\"#reconstruction\">Reconstruction</a><a href=\"#disparity\">Disparity "
          "maps</a></nav>\n"
          "</header>\n";
@@ -516,6 +562,7 @@ bool ReportHtml(const ReportInputs& in, const std::vector<ReportPicture>& pictur
     Pictures(p, pictures, "cloud", "cloud", "Fused point cloud", "No cloud previews.");
     Pictures(p, pictures, "mesh", "mesh", "Mesh", "No mesh previews.");
     Calibration(p, in);
+    Turns(p, scan);
     Registration(p, in, scan);
     Reconstruction(p, scan);
     Pictures(p, pictures, "disparity", "disparity", "Disparity maps", "No disparity maps.");

@@ -41,7 +41,8 @@ const std::map<std::string, std::map<std::string, ArgSpec>>& VerbArguments() {
        {{"object", {ArgType::kString, false, 1, 128}},
         {"views", {ArgType::kInt, false, 2, 360}},
         {"step_deg", {ArgType::kNumber, false, -360, 360}},
-        {"exposure_bracket", {ArgType::kNumbers, false, 0, 4}}}},
+        {"exposure_bracket", {ArgType::kNumbers, false, 0, 4}},
+        {"add_to", {ArgType::kString, false, 1, 128}}}},
       {"cancel", {}},
       {"resume", {{"session", {ArgType::kString, true, 1, 128}}}},
       {"turntable",
@@ -153,6 +154,16 @@ bool CheckValues(const std::string& verb, const nlohmann::json& args, std::strin
       !IsValidSessionId(args["session"].get_ref<const std::string&>())) {
     *why = "session: not a session id";
     return false;
+  }
+  if (verb == "scan" && args.contains("add_to")) {
+    if (!IsValidSessionId(args["add_to"].get_ref<const std::string&>())) {
+      *why = "add_to: not a session id";
+      return false;
+    }
+    if (args.contains("object")) {
+      *why = "object: not with add_to (the session names the object)";
+      return false;
+    }
   }
   if (verb == "get" && args.contains("files") && args["files"].is_array()) {
     for (const nlohmann::json& name : args["files"]) {

@@ -12,6 +12,7 @@
 
 #include "craftscan/daemon/devices.h"
 #include "craftscan/daemon/jobs.h"
+#include "craftscan/daemon/scan_turns.h"
 #include "craftscan/daemon/session_store.h"
 #include "craftscan/pipeline/common/sha256.h"
 
@@ -54,12 +55,34 @@ bool SessionFolderExists(const SessionStore& store, const std::string& id) {
   return std::filesystem::is_directory(store.sessions_dir() + "/" + id, ec);
 }
 
+// A session's turns for `sessions`: turn, views, first_view, state (a turn
+// still capturing shows the session's state), and a refused or joined
+// turn's join summary.
+nlohmann::json TurnsSummaryJson(const nlohmann::json& turns, const std::string& session_state) {
+  nlohmann::json out = nlohmann::json::array();
+  for (const nlohmann::json& t : turns) {
+    if (!t.is_object()) continue;
+    std::string state = t.value("state", std::string());
+    if (state == "capturing" && session_state != "done") state = session_state;
+    nlohmann::json entry = {{"turn", t.value("turn", 0)},
+                            {"views", t.value("views", 0)},
+                            {"first_view", t.value("first_view", 0)},
+                            {"state", state}};
+    if (t.contains("join")) entry["join"] = TurnJoinSummary(t["join"]);
+    out.push_back(std::move(entry));
+  }
+  return out;
+}
+
 }  // namespace
 
 nlohmann::json JobJson(const JobInfo& job) {
-  return {{"id", job.id},           {"verb", job.verb},    {"state", ToString(job.state)},
-          {"session", job.session}, {"stage", job.stage},  {"progress", job.progress},
-          {"message", job.message}, {"result", job.result}};
+  nlohmann::json out = {
+      {"id", job.id},           {"verb", job.verb},    {"state", ToString(job.state)},
+      {"session", job.session}, {"stage", job.stage},  {"progress", job.progress},
+      {"message", job.message}, {"result", job.result}};
+  if (job.turn > 1) out["turn"] = job.turn;
+  return out;
 }
 
 nlohmann::json DevicesJson(const std::vector<DeviceReport>& devices) {
@@ -169,14 +192,16 @@ CommandReply CommandHandler::Dispatch(const std::string& verb, const nlohmann::j
   if (verb == "sessions") {
     nlohmann::json list = nlohmann::json::array();
     for (const SessionSummary& s : store_->List()) {
-      list.push_back({{"id", s.id},
-                      {"object", s.object_name},
-                      {"job", s.job},
-                      {"state", s.state},
-                      {"problem", s.problem},
-                      {"views_captured", s.views_captured},
-                      {"created", s.created_utc},
-                      {"updated", s.updated_utc}});
+      nlohmann::json entry = {{"id", s.id},
+                              {"object", s.object_name},
+                              {"job", s.job},
+                              {"state", s.state},
+                              {"problem", s.problem},
+                              {"views_captured", s.views_captured},
+                              {"created", s.created_utc},
+                              {"updated", s.updated_utc}};
+      if (s.turns.is_array()) entry["turns"] = TurnsSummaryJson(s.turns, s.state);
+      list.push_back(std::move(entry));
     }
     return done(ReplyCode::kOk, std::to_string(list.size()) + " sessions", {{"sessions", list}});
   }
@@ -228,7 +253,11 @@ CommandReply CommandHandler::Dispatch(const std::string& verb, const nlohmann::j
     if (args.contains("exposure_bracket"))  // a list of numbers (CheckCommand)
       request.exposure_bracket = args["exposure_bracket"].get<std::vector<double>>();
     request.client = who.name;
-    return started(jobs_->StartScan(request, &job, &error));
+    request.add_to = args.value("add_to", std::string());
+    const bool ok = jobs_->StartScan(request, &job, &error);
+    if (!ok && !request.add_to.empty() && !SessionFolderExists(*store_, request.add_to))
+      return done(ReplyCode::kNotFound, error);
+    return started(ok);
   }
   if (verb == "resume") {
     const std::string id = args["session"];  // IsValidSessionId (CheckCommand)

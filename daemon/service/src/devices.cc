@@ -153,32 +153,53 @@ drivers::DriverStatus DeviceManager::ShowCalibrationTarget(CalibrationTarget tar
 
 drivers::DriverStatus DeviceManager::ShowObject() { return SwitchScene("object", nullptr); }
 
+drivers::DriverStatus DeviceManager::ShowTurn(int turn) {
+  if (!IsSim() || (scene_ == "object" && turn == turn_)) return drivers::DriverStatus::Ok();
+  drivers::DriverConfig config = setup_.camera.config;
+  if (turn > 1) config["turn"] = std::to_string(turn);
+  if (drivers::DriverStatus s = ReopenSim(config); !s.ok())
+    return Error(s.code, "turn " + std::to_string(turn) + ": " + s.message);
+  scene_ = "object";
+  turn_ = turn;
+  return drivers::DriverStatus::Ok();
+}
+
 drivers::DriverStatus DeviceManager::SwitchScene(const std::string& scene, const BoardSpec* board) {
-  if (!IsSim() || (scene == scene_ && scene == "object")) return drivers::DriverStatus::Ok();
-  DeviceSpec camera = setup_.camera, turntable = setup_.turntable;
-  const bool shared = camera.driver == turntable.driver && camera.config == turntable.config;
+  if (!IsSim() || (scene == scene_ && scene == "object" && turn_ == 1))
+    return drivers::DriverStatus::Ok();
+  drivers::DriverConfig config = setup_.camera.config;
   if (scene != "object") {
-    camera.config["scene"] = scene;
+    config["scene"] = scene;
     if (board) {
-      camera.config["board_type"] = std::string(ToString(board->type));
-      camera.config["board_cols"] = std::to_string(board->cols);
-      camera.config["board_rows"] = std::to_string(board->rows);
-      camera.config["board_square_mm"] = std::to_string(board->square_mm);
+      config["board_type"] = std::string(ToString(board->type));
+      config["board_cols"] = std::to_string(board->cols);
+      config["board_rows"] = std::to_string(board->rows);
+      config["board_square_mm"] = std::to_string(board->square_mm);
       if (board->type == BoardSpec::Type::kCharuco) {
-        camera.config["board_marker_mm"] = std::to_string(board->marker_mm);
-        camera.config["board_dictionary"] = std::to_string(board->aruco_dictionary);
+        config["board_marker_mm"] = std::to_string(board->marker_mm);
+        config["board_dictionary"] = std::to_string(board->aruco_dictionary);
       }
     }
   }
+  if (drivers::DriverStatus s = ReopenSim(config); !s.ok()) return s;
+  scene_ = scene;
+  turn_ = 1;
+  return drivers::DriverStatus::Ok();
+}
+
+drivers::DriverStatus DeviceManager::ReopenSim(const drivers::DriverConfig& camera_config) {
+  DeviceSpec camera = setup_.camera, turntable = setup_.turntable;
+  const bool shared = camera.driver == turntable.driver && camera.config == turntable.config;
+  camera.config = camera_config;
   if (shared) turntable = camera;
   std::string error;
   if (!OpenLocked(camera, turntable, &error)) {
     std::string ignored;
-    OpenLocked(setup_.camera, setup_.turntable, &ignored);  // back to the object scene
+    OpenLocked(setup_.camera, setup_.turntable, &ignored);  // back to the object, turn 1
     scene_ = "object";
+    turn_ = 1;
     return Error(drivers::StatusCode::kIoError, error);
   }
-  scene_ = scene;
   return drivers::DriverStatus::Ok();
 }
 

@@ -16,6 +16,7 @@
 #include <utility>
 
 #include "craftscan/daemon/bounded_queue.h"
+#include "craftscan/daemon/scan_turns.h"
 #include "craftscan/pipeline/common/atomic_file.h"
 #include "craftscan/pipeline/stereo/exposure_merge.h"
 
@@ -101,7 +102,42 @@ struct JobEngine::ScanPlan {
   double step_deg = 0;
   std::vector<double> exposure_bracket;  // CaptureStage::Options::exposure_bracket
   bool reconstruct = true;               // false for a one-view capture
+  // The turn captured (scan_turns.h): 1, or a later one joined onto turn 1;
+  // its views from first_view on. `turns`: all of the session's, this one
+  // last (empty for a one-turn scan).
+  int turn = 1;
+  int first_view = 0;
+  std::vector<TurnRecord> turns;
 };
+
+namespace {
+
+// A scan's views, step and bracket from `request` (StartScan's rules), the
+// defaults where it gives none; false with *error.
+bool ScanShape(const ScanRequest& request, int default_views, double default_step_deg,
+               const std::vector<double>& default_bracket, int* views, double* step,
+               std::vector<double>* bracket, std::string* error) {
+  *views = request.views > 0 ? request.views : default_views;
+  if (*views < 2 || *views > 360) return Fail(error, "views must be in 2..360");
+  // A step given wins; views without a step make one full turn; neither:
+  // the defaults.
+  *step = request.step_deg != 0 ? request.step_deg
+          : request.views > 0   ? 360.0 / *views
+                                : default_step_deg;
+  if (!std::isfinite(*step) || std::abs(*step) < 0.1 || std::abs(*step) * (*views - 1) > 720) {
+    return Fail(error, "step_deg must be finite, |step| >= 0.1 and span at most 720 degrees");
+  }
+  *bracket = request.exposure_bracket.value_or(default_bracket);
+  if (std::string why; !IsValidExposureBracket(*bracket, &why)) {
+    return Fail(error, "exposure_bracket: " + why);
+  }
+  return true;
+}
+
+// "turn 2: " for a later turn's messages; "" for turn 1.
+std::string TurnLabel(int turn) { return turn > 1 ? "turn " + std::to_string(turn) + ": " : ""; }
+
+}  // namespace
 
 JobEngine::JobEngine(JobEngineOptions options, DeviceManager* devices, SessionStore* store,
                      JobSink* sink, std::function<void(drivers::LogLevel, std::string_view)> log,
@@ -317,20 +353,14 @@ void JobEngine::Shutdown() {
 // --- scan, capture, resume -------------------------------------------------
 
 bool JobEngine::StartScan(const ScanRequest& request, JobInfo* info, std::string* error) {
-  const int views = request.views > 0 ? request.views : options_.default_views;
-  if (views < 2 || views > 360) return Fail(error, "views must be in 2..360");
-  // A step given wins; views without a step make one full turn; neither:
-  // the configured scan.views and scan.step_deg.
-  const double step = request.step_deg != 0 ? request.step_deg
-                      : request.views > 0   ? 360.0 / views
-                                            : options_.default_step_deg;
-  if (!std::isfinite(step) || std::abs(step) < 0.1 || std::abs(step) * (views - 1) > 720) {
-    return Fail(error, "step_deg must be finite, |step| >= 0.1 and span at most 720 degrees");
-  }
-  const std::vector<double> bracket = request.exposure_bracket.value_or(options_.exposure_bracket);
-  if (std::string why; !IsValidExposureBracket(bracket, &why)) {
-    return Fail(error, "exposure_bracket: " + why);
-  }
+  if (!request.add_to.empty()) return StartAddTurn(request, info, error);
+  // Neither views nor step: the configured scan.views and scan.step_deg.
+  int views = 0;
+  double step = 0;
+  std::vector<double> bracket;
+  if (!ScanShape(request, options_.default_views, options_.default_step_deg,
+                 options_.exposure_bracket, &views, &step, &bracket, error))
+    return false;
   const std::optional<StereoCalibration> calibration = this->calibration();
   if (!calibration)
     return Fail(error, "no calibration: run calibrate and calibrate-turntable first");
@@ -387,6 +417,91 @@ bool JobEngine::StartSessionJob(const std::string& verb, const std::string& obje
       verb, session, [this, plan] { return RunScan(plan); }, info, error);
 }
 
+bool JobEngine::StartAddTurn(const ScanRequest& request, JobInfo* info, std::string* error) {
+  if (Busy()) return Fail(error, "busy: " + Current().id + " (" + Current().verb + ") is running");
+  SessionStore* store = Store(error);
+  if (!store) return false;
+  JoinFinishedWorker();  // the last job's session lock goes with its thread
+  const std::string& id = request.add_to;
+  auto plan = std::make_shared<ScanPlan>();
+  Status opened;
+  plan->session = store->OpenSession(id, &opened);
+  if (!plan->session) return Fail(error, "add_to: " + opened.message());
+  const Manifest manifest = plan->session->manifest();
+  if (manifest.job != "scan") {
+    return Fail(error, "add_to: session " + id + " is a " + manifest.job +
+                           " session; only a scan's session takes another turn");
+  }
+  std::string why;
+  if (!SessionTurns(manifest, &plan->turns, &why)) return Fail(error, "add_to: " + why);
+  if (manifest.state != SessionState::kDone) {
+    const bool first = plan->turns.size() == 1;
+    return Fail(error, "add_to: session " + id + " is " + ToString(manifest.state) + ": its " +
+                           (first ? std::string("first turn")
+                                  : "turn " + std::to_string(plan->turns.size())) +
+                           " is not finished (resume it first)");
+  }
+  for (const TurnRecord& t : plan->turns) {
+    if (t.state == "joined") {
+      return Fail(error, "add_to: session " + id + " already has turn " + std::to_string(t.turn) +
+                             " joined onto turn 1 (a session joins two turns); scan the object "
+                             "anew for another");
+    }
+  }
+  // Neither views nor step: the first turn's.
+  int views = 0;
+  double step = 0;
+  std::vector<double> bracket;
+  if (!ScanShape(request, plan->turns.front().views, plan->turns.front().step_deg,
+                 options_.exposure_bracket, &views, &step, &bracket, error))
+    return false;
+  const TurnRecord& last = plan->turns.back();
+  TurnRecord turn;
+  turn.turn = last.turn + 1;
+  turn.first_view = last.first_view + last.views;
+  turn.views = views;
+  turn.step_deg = step;
+  turn.state = "capturing";
+  turn.extra = {{"exposure_bracket", BracketJson(bracket)}, {"client", request.client}};
+  if (turn.first_view + views - 1 > kMaxViewIndex) {
+    return Fail(error, "add_to: session " + id + " has no room for " + std::to_string(views) +
+                           " more views (view numbers end at " + std::to_string(kMaxViewIndex) +
+                           ")");
+  }
+  if (!LoadCalibration(plan->session->dir() + "/calibration.yaml", &plan->calibration, error))
+    return false;
+  if (!plan->calibration.turntable.valid)
+    return Fail(error, "add_to: session " + id + "'s calibration has no turntable axis");
+  plan->turns.push_back(turn);
+  nlohmann::json params = manifest.params;
+  params["turns"] = TurnsJson(plan->turns);
+  EnsureReserve();
+  const Status reopened = plan->session->ReopenForTurn(
+      params, "turn " + std::to_string(turn.turn) + ": " + std::to_string(views) +
+                  " views from view " + std::to_string(turn.first_view) +
+                  ", the object laid in another pose");
+  if (!reopened.ok()) {
+    return Fail(error,
+                reopened.message() + StorageAdvice(reopened, options_.data_dir, "try again"));
+  }
+  plan->views = views;
+  plan->step_deg = step;
+  plan->exposure_bracket = bracket;
+  plan->turn = turn.turn;
+  plan->first_view = turn.first_view;
+  if (!Launch(
+          "scan", id, [this, plan] { return RunScan(plan); }, info, error))
+    return false;
+  NoteTurn(plan->turn, info);
+  return true;
+}
+
+void JobEngine::NoteTurn(int turn, JobInfo* info) {
+  std::lock_guard lock(mutex_);
+  current_.turn = turn > 1 ? turn : 0;
+  if (info) info->turn = current_.turn;
+}
+
 bool JobEngine::StartResume(const std::string& session_id, JobInfo* info, std::string* error) {
   if (Busy()) return Fail(error, "busy: " + Current().id + " (" + Current().verb + ") is running");
   SessionStore* store = Store(error);
@@ -426,12 +541,28 @@ bool JobEngine::StartResume(const std::string& session_id, JobInfo* info, std::s
                            (why.empty() ? "" : ": " + why));
   }
   plan->reconstruct = plan->session->manifest().job == "scan";
+  if (plan->session->manifest().params.contains("turns")) {
+    // A later turn: the last one, where it stopped (turn 1 was done before it began).
+    if (!SessionTurns(plan->session->manifest(), &plan->turns, &why)) return Fail(error, why);
+    TurnRecord& last = plan->turns.back();
+    last.state = "capturing";
+    plan->turn = last.turn;
+    plan->first_view = last.first_view;
+    plan->views = last.views;
+    plan->step_deg = last.step_deg;
+    plan->exposure_bracket.clear();
+    for (const nlohmann::json& m : last.extra.value("exposure_bracket", nlohmann::json::array()))
+      if (m.is_number()) plan->exposure_bracket.push_back(m.get<double>());
+  }
   if (plan->views < 1) return Fail(error, "session " + session_id + ": manifest has no view count");
   if (!LoadCalibration(plan->session->dir() + "/calibration.yaml", &plan->calibration, error)) {
     return false;
   }
-  return Launch(
-      "resume", session_id, [this, plan] { return RunScan(plan); }, info, error);
+  if (!Launch(
+          "resume", session_id, [this, plan] { return RunScan(plan); }, info, error))
+    return false;
+  NoteTurn(plan->turn, info);
+  return true;
 }
 
 JobEngine::JobOutcome JobEngine::RunScan(const std::shared_ptr<ScanPlan>& plan) {
@@ -513,10 +644,23 @@ JobEngine::JobOutcome JobEngine::RunScanStages(ScanPlan& plan) {
   if (!processor.Init(plan.calibration, view_options, &error)) {
     return EndSession(session, StageOutcome::Error(ErrorCode::kInvalidArgument, error, false));
   }
-  if (Status set = session.SetState(SessionState::kCapturing, "job " + Current().id); !set.ok()) {
-    return {JobState::kFailed,
-            set.message() + StorageAdvice(set, options_.data_dir, "resume " + sid),
-            {{"session", sid}}};
+  if (session.state() != SessionState::kCapturing) {  // a turn added is capturing already
+    if (Status set = session.SetState(SessionState::kCapturing, "job " + Current().id); !set.ok()) {
+      return {JobState::kFailed,
+              set.message() + StorageAdvice(set, options_.data_dir, "resume " + sid),
+              {{"session", sid}}};
+    }
+  }
+  const std::string label = TurnLabel(plan.turn);
+  if (plan.turn > 1) {
+    if (StageOutcome kept = KeepFirstTurnOutputs(session); !kept.ok())
+      return EndSession(session, kept);
+  }
+  // The sim lays the object as the operator did for this turn.
+  if (plan.turn > 1) SetStage("capture", 0, plan.views, label + "the object in its new pose");
+  if (const drivers::DriverStatus shown = devices_->ShowTurn(plan.turn); !shown.ok()) {
+    return EndSession(session,
+                      StageOutcome::Error(ToErrorCode(shown.code), label + shown.message, true));
   }
 
   BoundedQueue<CapturedView> q1(static_cast<std::size_t>(options_.queue_capacity));
@@ -534,9 +678,10 @@ JobEngine::JobOutcome JobEngine::RunScanStages(ScanPlan& plan) {
   };
   const StageContext context = Context(&session);
   CaptureStage capture(context, devices_,
-                       {plan.views, plan.step_deg, options_.settle, plan.exposure_bracket},
+                       {plan.views, plan.step_deg, options_.settle, plan.exposure_bracket,
+                        plan.first_view, plan.turn, label},
                        &moving_);
-  MatchStage match(context, &processor, &plan.calibration, plan.views);
+  MatchStage match(context, &processor, &plan.calibration, plan.views, plan.first_view, label);
   ReconstructStage::Options build;
   build.views = plan.views;
   build.step_deg = plan.step_deg;
@@ -547,6 +692,11 @@ JobEngine::JobOutcome JobEngine::RunScanStages(ScanPlan& plan) {
   build.station = options_.station;
   build.software = options_.software;
   build.rights = options_.rights;
+  build.first_view = plan.first_view;
+  build.turn = plan.turn;
+  build.label = label;
+  build.turns = plan.turns;
+  build.join.num_threads = std::max(1, options_.threads);
   ReconstructStage reconstruct(context, &plan.calibration, std::move(build), report_);
 
   std::thread matcher(
@@ -566,11 +716,24 @@ JobEngine::JobOutcome JobEngine::RunScanStages(ScanPlan& plan) {
   builder.join();
 
   const StageOutcome outcome = combined.Result();
+  if (!outcome.ok() && plan.turn > 1 && !outcome.resumable)
+    return EndTurnNotJoined(plan, outcome, built.join_status,
+                            built.result.value("turn_join", nlohmann::json()));
   if (!outcome.ok()) return EndSession(session, outcome);
   nlohmann::json result = {{"session", sid},
                            {"views", plan.views},
                            {"capture_ms", capture.capture_ms()},
                            {"match_ms", match.match_ms()}};
+  if (plan.turn > 1) {
+    plan.turns.back().state = "joined";
+    plan.turns.back().extra["join"] = built.result.value("turn_join", nlohmann::json());
+    plan.turns.back().extra.erase("message");
+    nlohmann::json params = session.params();
+    params["turns"] = TurnsJson(plan.turns);
+    if (Status set = session.SetParams(params, label + "joined onto turn 1"); !set.ok())
+      return EndSession(session, StageOutcome::Storage(set, label));
+    result["turns"] = params["turns"];
+  }
   if (!plan.reconstruct) {
     return EndSessionDone(session, "capture stored", "the view is stored",
                           {JobState::kDone, "session " + sid + ": 1 view captured", result});
@@ -578,6 +741,55 @@ JobEngine::JobOutcome JobEngine::RunScanStages(ScanPlan& plan) {
   result.update(built.result);
   return EndSessionDone(session, built.done_detail, "the outputs are stored",
                         {JobState::kDone, "session " + sid + ": " + built.summary, result});
+}
+
+StageOutcome JobEngine::KeepFirstTurnOutputs(Session& session) {
+  const Manifest manifest = session.manifest();
+  for (const auto& [name, record] : manifest.outputs) {
+    if (name.rfind("turn", 0) == 0 && name.find('/') != std::string::npos) continue;  // a turn's
+    const std::string kept = "turn1/" + name;
+    if (manifest.outputs.count(kept)) continue;
+    std::string bytes, why;
+    if (!session.LoadOutput(name, &bytes, &why)) {
+      return StageOutcome::Error(ErrorCode::kCorrupt, "turn 1's " + name + ": " + why, false);
+    }
+    if (Status stored = session.StoreOutput(kept, bytes); !stored.ok())
+      return StageOutcome::Storage(stored, "keeping turn 1's outputs: ");
+  }
+  return StageOutcome::Ok();
+}
+
+JobEngine::JobOutcome JobEngine::EndTurnNotJoined(ScanPlan& plan, const StageOutcome& outcome,
+                                                  std::optional<TurnJoinResult::Status> join_status,
+                                                  const nlohmann::json& join) {
+  Session& session = *plan.session;
+  const std::string sid = session.id();
+  TurnRecord& turn = plan.turns.back();
+  const bool refused = join_status == TurnJoinResult::Status::kRefusedOverlap ||
+                       join_status == TurnJoinResult::Status::kRefusedAmbiguous;
+  turn.state = refused ? "refused" : "failed";
+  turn.extra["message"] = outcome.message;
+  if (join.is_object()) turn.extra["join"] = join;
+  nlohmann::json params = session.params();
+  params["turns"] = TurnsJson(plan.turns);
+  const std::string label = TurnLabel(turn.turn);
+  Status recorded = session.SetParams(params, label + turn.state + ": " + outcome.message);
+  if (recorded.ok()) {
+    recorded = RecordState(session, SessionState::kDone,
+                           label + turn.state + "; the model is turn 1's (turn1/ and the outputs)");
+  }
+  std::string message =
+      "session " + sid + ": " + outcome.message + "; the session keeps turn 1's model";
+  if (refused) {
+    message +=
+        ": lay the object differently (so that more of what turn 1 saw is seen again, "
+        "and a distinctive part) and add another turn: craftscanctl scan --add-to " +
+        sid;
+  }
+  if (!recorded.ok()) message += "; it could not be recorded: " + recorded.message();
+  nlohmann::json result = {{"session", sid}, {"turn", turn.turn}, {"turn_state", turn.state}};
+  if (join.is_object()) result["turn_join"] = join;
+  return {JobState::kFailed, message, result};
 }
 
 JobEngine::JobOutcome JobEngine::EndSession(Session& session, const StageOutcome& outcome) {

@@ -79,20 +79,21 @@ StageOutcome CaptureStage::Run(BoundedQueue<CapturedView>& out) {
   for (int k = 0; k < options_.views; ++k) {
     if (context_.Stopping()) return StageOutcome::Cancelled();
     const double angle = k * options_.step_deg;
+    const int index = options_.first_view + k;
     const Manifest manifest = session.manifest();
-    const auto record = manifest.views.find(k);
+    const auto record = manifest.views.find(index);
     const bool has_capture = record != manifest.views.end() && record->second.HasCapture();
-    CapturedView item{k, angle, {}, {}, {}};
+    CapturedView item{index, angle, {}, {}, {}};
     if (has_capture && record->second.HasCloud()) {
       // Durable up to its cloud: the match stage loads it.
     } else if (has_capture) {
       std::string why;
       nlohmann::json meta;
-      if (!session.LoadCapture(k, &item.left, &item.right, &meta, &why, &item.texture)) {
+      if (!session.LoadCapture(index, &item.left, &item.right, &meta, &why, &item.texture)) {
         return StageOutcome::Error(ErrorCode::kCorrupt,
-                                   ViewPrefix(k) + "stored capture unreadable: " + why, false);
+                                   ViewPrefix(index) + "stored capture unreadable: " + why, false);
       }
-    } else if (StageOutcome captured = CaptureView(k, angle, &item); !captured.ok()) {
+    } else if (StageOutcome captured = CaptureView(index, angle, &item); !captured.ok()) {
       return captured;
     }
     if (!out.Push(std::move(item))) return StageOutcome::Cancelled();
@@ -100,18 +101,20 @@ StageOutcome CaptureStage::Run(BoundedQueue<CapturedView>& out) {
   return StageOutcome::Ok();
 }
 
-StageOutcome CaptureStage::CaptureView(int k, double angle, CapturedView* item) {
+StageOutcome CaptureStage::CaptureView(int index, double angle, CapturedView* item) {
   const int n = options_.views;
+  const int k = index - options_.first_view;  // within the turn
+  const std::string& label = options_.label;
   // A device error while stopping is the stop (an aborted move, a capture
   // given up), not a fault of the device.
   const auto device_error = [&](const drivers::DriverStatus& s) {
     if (context_.Stopping() || s.code == drivers::StatusCode::kAborted) {
       return StageOutcome::Cancelled();
     }
-    return StageOutcome::Error(ToErrorCode(s.code), ViewPrefix(k) + s.message, true);
+    return StageOutcome::Error(ToErrorCode(s.code), label + ViewPrefix(index) + s.message, true);
   };
   const auto start = std::chrono::steady_clock::now();
-  context_.Progress("capture", k, n, "moving to " + std::to_string(angle) + " deg");
+  context_.Progress("capture", k, n, label + "moving to " + std::to_string(angle) + " deg");
   if (n > 1 || options_.step_deg != 0) {
     if (!turntable_prepared_) {
       // Homed first if an earlier job left it faulted.
@@ -132,14 +135,16 @@ StageOutcome CaptureStage::CaptureView(int k, double angle, CapturedView* item) 
   nlohmann::json meta = FrameMeta(frame, angle);
   // The stored pair is the merge; the multiples say of what.
   if (!options_.exposure_bracket.empty()) meta["exposure_bracket"] = options_.exposure_bracket;
-  if (Status stored = context_.session->StoreCapture(k, angle, frame.left.image, frame.right.image,
-                                                     meta, frame.texture_left);
+  if (options_.turn > 1) meta["turn"] = options_.turn;
+  if (Status stored = context_.session->StoreCapture(index, angle, frame.left.image,
+                                                     frame.right.image, meta, frame.texture_left);
       !stored.ok()) {
-    return StorageError(k, stored);
+    return StorageError(index, stored);
   }
   capture_ms_ += MsSince(start);
-  if (context_.sink) context_.sink->Capture(context_.session->id(), k, angle, frame);  // durable
-  context_.Progress("capture", k + 1, n, "view " + std::to_string(k) + " stored");
+  if (context_.sink)
+    context_.sink->Capture(context_.session->id(), index, angle, frame);  // durable
+  context_.Progress("capture", k + 1, n, label + "view " + std::to_string(index) + " stored");
   item->left = frame.left.image;
   item->right = frame.right.image;
   item->texture = frame.texture_left;
@@ -158,8 +163,8 @@ StageOutcome MatchStage::Run(BoundedQueue<CapturedView>& in, BoundedQueue<Matche
       context_.sink->Cloud(sid, matched.view, matched.cloud,
                            WorldFromView(*calibration_, matched.angle_deg));
     }
-    context_.Progress("match", matched.view + 1, views_,
-                      "view " + std::to_string(matched.view) + ": " +
+    context_.Progress("match", matched.view - first_view_ + 1, views_,
+                      label_ + "view " + std::to_string(matched.view) + ": " +
                           std::to_string(matched.cloud.size()) + " points");
     if (!out.Push(std::move(matched))) return StageOutcome::Cancelled();
   }
@@ -208,17 +213,23 @@ std::vector<std::optional<MatchedView>> CollectViews(BoundedQueue<MatchedView>& 
 ReconstructOutcome ReconstructStage::Run(BoundedQueue<MatchedView>& in) {
   ReconstructOutcome out;
   const int n = options_.views;
+  const int first = options_.first_view;
+  const bool joining = options_.turn > 1;
+  const std::string& label = options_.label;
   ScanOptions scan = options_.scan;
   scan.camera = RectifiedLeftCamera(*calibration_);  // the view clouds are in its frame
+  ScanOptions turn_scan = scan;
+  if (joining) turn_scan.mesh = false;  // the joined model is meshed once
   // Each view is conditioned and registered onto the one before as soon as
   // both are here, while the turntable turns to the next; views that come
   // early wait for their turn.
-  IncrementalScan incremental(calibration_->turntable, scan);
+  IncrementalScan incremental(calibration_->turntable, turn_scan);
   std::vector<std::optional<MatchedView>> waiting(static_cast<std::size_t>(std::max(n, 0)));
   int next = 0;
   while (std::optional<MatchedView> item = in.Pop()) {
-    if (item->view < 0 || item->view >= n) continue;
-    waiting[static_cast<std::size_t>(item->view)] = std::move(*item);
+    const int k = item->view - first;
+    if (k < 0 || k >= n) continue;
+    waiting[static_cast<std::size_t>(k)] = std::move(*item);
     for (; next < n && waiting[static_cast<std::size_t>(next)]; ++next) {
       MatchedView& view = *waiting[static_cast<std::size_t>(next)];
       if (!context_.Stopping()) {
@@ -235,24 +246,52 @@ ReconstructOutcome ReconstructStage::Run(BoundedQueue<MatchedView>& in) {
     return out;
   }
   if (next < n) {
-    out.status = StageOutcome::Error(ErrorCode::kInternal,
-                                     "view " + std::to_string(next) + " was never matched", true);
+    out.status = StageOutcome::Error(
+        ErrorCode::kInternal, "view " + std::to_string(first + next) + " was never matched", true);
     return out;
   }
   Session& session = *context_.session;
-  if (Status set = session.SetState(SessionState::kReconstructing, "registration, fusion, mesh");
+  if (Status set =
+          session.SetState(SessionState::kReconstructing, label + "registration, fusion, mesh");
       !set.ok()) {
     out.status = StageOutcome::Storage(set, "");
     return out;
   }
   context_.Progress("register", 0, 1,
-                    "closing the loop over " + std::to_string(n) + " registered views");
+                    label + "closing the loop over " + std::to_string(n) + " registered views");
   const auto start = std::chrono::steady_clock::now();
-  const ScanResult r = incremental.Finish();
+  ScanResult r = incremental.Finish();
+  if (joining && r.IsUsable()) {
+    const std::string turn = "turn " + std::to_string(options_.turn);
+    ScanResult first_turn;
+    context_.Progress("join", 0, 2,
+                      "turn 1: rebuilding from its " +
+                          std::to_string(options_.turns.front().views) + " stored views");
+    if (StageOutcome rebuilt = RebuildFirstTurn(&first_turn); !rebuilt.ok()) {
+      out.status = rebuilt;
+      return out;
+    }
+    if (context_.Stopping()) {
+      out.status = StageOutcome::Cancelled();
+      return out;
+    }
+    context_.Progress("join", 1, 2, "joining " + turn + " onto turn 1");
+    r = JoinTurnScans(first_turn, r, scan, options_.join);
+    out.result["turn_join"] = TurnJoinJson(r);
+    if (r.turn_join) out.join_status = r.turn_join->status;
+    context_.Progress("join", 2, 2, turn + ": " + TurnJoinSummary(out.result["turn_join"]));
+    if (!r.IsUsable() && r.turn_join && r.turn_join->status != TurnJoinResult::Status::kFailed) {
+      out.status = StageOutcome::Error(
+          ErrorCode::kFailedPrecondition,
+          turn + " not joined (" + ToString(r.turn_join->status) + "): " + r.turn_join->message,
+          false);
+      return out;
+    }
+  }
   const double reconstruct_ms = MsSince(start);
   if (!r.IsUsable()) {
-    out.status =
-        StageOutcome::Error(ErrorCode::kInvalidArgument, "reconstruction: " + r.message, false);
+    out.status = StageOutcome::Error(ErrorCode::kInvalidArgument,
+                                     label + "reconstruction: " + r.message, false);
     return out;
   }
   if (context_.Stopping()) {  // the last safe point: nothing is written yet
@@ -261,7 +300,7 @@ ReconstructOutcome ReconstructStage::Run(BoundedQueue<MatchedView>& in) {
   }
   context_.Progress("write", 0, 1, "writing fused cloud, mesh and report");
   const bool mesh = r.mesh.status == MeshResult::Status::kOk;
-  const std::string report = ScanReportJson(r);
+  const std::string report = WithTurns(ScanReportJson(r), out.result);
   // Encoded here and written with the Status-returning WriteFileAtomically,
   // so a full or read-only disk reaches the job as its code.
   const auto encoded = [&](const std::string& bytes) {
@@ -298,7 +337,80 @@ ReconstructOutcome ReconstructStage::Run(BoundedQueue<MatchedView>& in) {
   }
   out.summary = std::to_string(n) + " views, " + std::to_string(r.fused.size()) + " fused points";
   out.done_detail = "fused " + std::to_string(r.fused.size()) + " points";
+  if (joining) {
+    out.result["turn"] = options_.turn;
+    out.summary = "turn " + std::to_string(options_.turn) + " " +
+                  TurnJoinSummary(out.result["turn_join"]) +
+                  " onto turn 1: " + std::to_string(options_.turns.front().views) + " + " +
+                  std::to_string(n) + " views, " + std::to_string(r.fused.size()) + " fused points";
+    out.done_detail = "turn " + std::to_string(options_.turn) + " joined, fused " +
+                      std::to_string(r.fused.size()) + " points";
+  }
   return out;
+}
+
+StageOutcome ReconstructStage::RebuildFirstTurn(ScanResult* first) {
+  const TurnRecord& t = options_.turns.front();
+  Session& session = *context_.session;
+  const Manifest manifest = session.manifest();
+  std::vector<ScanView> views;
+  for (int v = t.first_view; v < t.first_view + t.views; ++v) {
+    const auto record = manifest.views.find(v);
+    ScanView view;
+    std::string why = "view " + std::to_string(v) + " is not in the manifest";
+    if (record == manifest.views.end() || !session.LoadCloud(v, &view.cloud_in_rig, &why))
+      return StageOutcome::Error(ErrorCode::kCorrupt, "turn 1: " + why, false);
+    view.commanded_angle_rad = record->second.angle_deg * kDegToRad;
+    views.push_back(std::move(view));
+  }
+  ScanOptions scan = options_.scan;
+  scan.camera = RectifiedLeftCamera(*calibration_);
+  scan.mesh = false;
+  *first = ReconstructScan(views, calibration_->turntable, scan);
+  if (!first->IsUsable()) {
+    return StageOutcome::Error(ErrorCode::kInvalidArgument,
+                               "turn 1: reconstruction: " + first->message, false);
+  }
+  return StageOutcome::Ok();
+}
+
+// report.json of a joined turn: ScanReportJson's, with "turns" (each turn:
+// its views, state, platter-contact points dropped) and "turn_join".
+std::string ReconstructStage::WithTurns(const std::string& report, const nlohmann::json& result) {
+  if (options_.turn <= 1) return report;
+  nlohmann::json json = nlohmann::json::parse(report, nullptr, false);
+  if (!json.is_object()) return report;
+  const nlohmann::json join = result.value("turn_join", nlohmann::json());
+  std::vector<TurnRecord> turns = options_.turns;
+  nlohmann::json list = nlohmann::json::array();
+  for (TurnRecord& t : turns) {
+    if (t.turn == options_.turn) t.state = "joined";
+    nlohmann::json entry = {{"turn", t.turn},
+                            {"first_view", t.first_view},
+                            {"views", t.views},
+                            {"step_deg", t.step_deg},
+                            {"state", t.state}};
+    if (join.is_object() && t.turn == 1) entry["contact_dropped"] = join["contact_dropped_a"];
+    if (join.is_object() && t.turn == options_.turn)
+      entry["contact_dropped"] = join["contact_dropped_b"];
+    list.push_back(std::move(entry));
+  }
+  json["turns"] = std::move(list);
+  json["turn_join"] = join;
+  json["joined_turns"] = {1, options_.turn};
+  return json.dump(2);
+}
+
+std::vector<std::pair<int, double>> ReconstructStage::ReportViews() const {
+  std::vector<std::pair<int, double>> views;
+  const auto add = [&](int first_view, int n, double step) {
+    for (int k = 0; k < n; ++k) views.emplace_back(first_view + k, k * step);
+  };
+  if (options_.turn > 1 && !options_.turns.empty())
+    add(options_.turns.front().first_view, options_.turns.front().views,
+        options_.turns.front().step_deg);
+  add(options_.first_view, options_.views, options_.step_deg);
+  return views;
 }
 
 // mesh.glb with the session's provenance; "" (logged) when it cannot be
@@ -346,10 +458,10 @@ void ReconstructStage::StoreReport(const std::string& report_json, const ScanRes
   inputs.calibration = calibration_;
   inputs.fused = &r.fused;
   if (r.mesh.status == MeshResult::Status::kOk) inputs.mesh = &r.mesh.mesh;
-  for (int k = 0; k < options_.views; ++k) {
+  for (const auto& [k, angle] : ReportViews()) {
     DisparityView view;
     view.index = k;
-    view.angle_deg = k * options_.step_deg;
+    view.angle_deg = angle;
     view.min_disparity_px = options_.min_disparity;
     view.max_disparity_px = options_.min_disparity + options_.num_disparities - 1;
     if (session.LoadDisparity(k, &view.disparity_px, nullptr)) {

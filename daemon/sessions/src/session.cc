@@ -217,6 +217,33 @@ Status Session::SetState(SessionState state, const std::string& detail) {
   });
 }
 
+Status Session::SetParams(const nlohmann::json& params, const std::string& detail) {
+  if (!params.is_object())
+    return Error(ErrorCode::kInvalidArgument, Prefix() + "params must be a JSON object");
+  return Commit([&](Manifest* m) {
+    m->params = params;
+    m->journal.push_back({NowUtc(), "params", detail});
+    return Status::Ok();
+  });
+}
+
+Status Session::ReopenForTurn(const nlohmann::json& params, const std::string& detail) {
+  if (!params.is_object())
+    return Error(ErrorCode::kInvalidArgument, Prefix() + "params must be a JSON object");
+  return Commit([&](Manifest* m) {
+    if (m->state != SessionState::kDone) {
+      return Error(ErrorCode::kFailedPrecondition, Prefix() +
+                                                       "a turn can be added only to a done " +
+                                                       "session, not one " + ToString(m->state));
+    }
+    m->params = params;
+    m->state = SessionState::kCapturing;
+    m->error.clear();
+    m->journal.push_back({NowUtc(), ToString(m->state), detail});
+    return Status::Ok();
+  });
+}
+
 Status Session::Unlist(const std::function<bool(Manifest*)>& remove) {
   std::lock_guard lock(mutex_);
   Manifest next = manifest_;

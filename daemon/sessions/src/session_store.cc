@@ -291,6 +291,7 @@ std::vector<SessionSummary> SessionStore::List() const {
       s.job = m.job;
       s.state = ToString(m.state);
       s.views_captured = static_cast<int>(m.CapturedViews().size());
+      if (const auto turns = m.params.find("turns"); turns != m.params.end()) s.turns = *turns;
       s.created_utc = m.created_utc;
       s.updated_utc = m.updated_utc;
     }

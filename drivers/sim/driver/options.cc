@@ -51,6 +51,20 @@ bool ParseNumbers(const std::string& text, int count, double* values) {
   return true;
 }
 
+// `turn_rotations_deg`: one or more "rx,ry,rz" separated by ';'.
+bool ParseRotationList(const std::string& text, std::vector<cv::Vec3d>* rotations) {
+  rotations->clear();
+  std::size_t begin = 0;
+  while (true) {
+    const std::size_t end = text.find(';', begin);
+    cv::Vec3d r;
+    if (!ParseNumbers(text.substr(begin, end - begin), 3, r.val)) return false;
+    rotations->push_back(r);
+    if (end == std::string::npos) return rotations->size() <= 64;
+    begin = end + 1;
+  }
+}
+
 using KeyValues = std::vector<std::pair<std::string, std::string>>;
 
 // " (mesh '<path>')" for messages about the mesh keys, once the file is known.
@@ -227,6 +241,16 @@ bool SimDriverOptions::IsValid(std::string* why) const {
       return Fail(why, "object_rotation_deg: each angle must be in [-360, 360] (rx,ry,rz)");
     }
   }
+  if (turn < 1 || turn > 999) return Fail(why, "turn must be in [1, 999]");
+  if (turn_rotations_deg.empty()) return Fail(why, "turn_rotations_deg: needs at least one pose");
+  for (const cv::Vec3d& r : turn_rotations_deg) {
+    for (int i = 0; i < 3; ++i) {
+      if (!(std::abs(r[i]) <= 360)) {
+        return Fail(why,
+                    "turn_rotations_deg: each angle must be in [-360, 360] (rx,ry,rz;rx,ry,rz...)");
+      }
+    }
+  }
   if (object == ObjectType::kMesh && !MeshIsValid(*this, why)) return false;
   if (!(turntable_speed_deg_s >= 0 && std::isfinite(turntable_speed_deg_s))) {
     return Fail(why, "turntable_speed_deg_s must be >= 0");
@@ -280,6 +304,10 @@ bool SimDriverOptionsFromConfig(const drivers::DriverConfig& config, SimDriverOp
       ok = ParseNumber(value, &o.object_yaw_deg);
     } else if (key == "object_rotation_deg") {
       ok = ParseNumbers(value, 3, o.object_rotation_deg.val);
+    } else if (key == "turn") {
+      ok = ParseNumber(value, &o.turn);
+    } else if (key == "turn_rotations_deg") {
+      ok = ParseRotationList(value, &o.turn_rotations_deg);
     } else if (key == "image_size") {
       const auto x = value.find('x');
       ok = x != std::string::npos && ParseNumber(value.substr(0, x), &o.image_size.width) &&
@@ -371,8 +399,8 @@ SceneOptions SimSceneOptions(const SimDriverOptions& options) {
       scene.object.type = options.object;
       scene.object.position_mm = options.object_position_mm;
       scene.object.yaw_rad = options.object_yaw_deg * kRadPerDeg;
-      if (options.object_rotation_deg != cv::Vec3d(0, 0, 0))
-        scene.object.rotation_rad = RodriguesFromXyzDeg(options.object_rotation_deg);
+      if (const cv::Vec3d pose = options.ObjectRotationDeg(); pose != cv::Vec3d(0, 0, 0))
+        scene.object.rotation_rad = RodriguesFromXyzDeg(pose);
       if (options.object == ObjectType::kMesh) {
         MeshOptions& mesh = scene.object.mesh;
         mesh.path = options.mesh_path;

@@ -3,7 +3,9 @@
 // domain. Each test reuses one daemon for several subcommands.
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <chrono>
+#include <cmath>
 #include <cstring>
 #include <filesystem>
 #include <fstream>
@@ -21,6 +23,7 @@
 #include "bagit_check.h"
 #include "craftscan/daemon/session_store.h"
 #include "craftscan/pipeline/common/atomic_file.h"
+#include "craftscan/pipeline/common/ply.h"
 #include "ctl_runner.h"
 #include "daemon_fixture.h"
 #include "file_util.h"
@@ -40,8 +43,11 @@ using nlohmann::json;
 // A daemon on the sim station and the arguments that reach it.
 class Station {
  public:
-  // `pipeline_extra`: see DaemonFixture::pipeline_extra.
-  explicit Station(std::string pipeline_extra = "") {
+  // `pipeline_extra`: see DaemonFixture::pipeline_extra; `extra_sim`: more
+  // sim driver keys (", object: egg").
+  explicit Station(std::string pipeline_extra = "", std::string extra_sim = "",
+                   std::string image_size = "640x512")
+      : fixture_(std::move(image_size), std::move(extra_sim)) {
     fixture_.pipeline_extra = std::move(pipeline_extra);
   }
   // Writes the configuration; Start may follow later.
@@ -75,7 +81,7 @@ class Station {
   }
 
  private:
-  DaemonFixture fixture_{"640x512"};
+  DaemonFixture fixture_;
   int runs_ = 0;
 };
 
@@ -658,6 +664,268 @@ TEST(Craftscanctl, WithoutADaemonExitsFiveWithinTheTimeoutAndSaysWhatToCheck) {
     EXPECT_NE(r.err.find("domain " + domain), std::string::npos) << r.err;
     EXPECT_NE(r.err.find("CYCLONEDDS_URI"), std::string::npos) << r.err;
   }
+}
+
+}  // namespace
+}  // namespace craftscan::testing
+
+namespace craftscan::testing {
+namespace {
+
+// --- two turns (README 4.2 "The base": scan --add-to) ------------------------
+
+// The session's manifest, read without taking its lock.
+daemon::Manifest ReadManifestOf(Station& station, const std::string& session) {
+  daemon::Manifest manifest;
+  std::string error;
+  EXPECT_TRUE(daemon::ManifestFromJson(
+      ReadFile(station.fixture().data_dir() + "/sessions/" + session + "/manifest.json"), &manifest,
+      &error))
+      << error;
+  return manifest;
+}
+
+// The only session's id (sessions --json).
+std::string OnlySession(Station& station) {
+  const CtlRun r = station.Run(kObserverToken, {"sessions", "--json"});
+  const json list = ParseJson(r).value("sessions", json::array());
+  EXPECT_EQ(list.size(), 1u) << r.out;
+  return list.empty() ? std::string() : list[0].value("id", "");
+}
+
+// Fused points of `ply` within `radius_mm` of the turntable axis and below
+// `height_mm`: the middle of the base a turn standing on it never sees.
+std::size_t BasePoints(const std::string& ply, double radius_mm, double height_mm) {
+  PointCloud cloud;
+  std::string error;
+  EXPECT_TRUE(ReadPly(ply, &cloud, &error)) << error;
+  std::size_t n = 0;
+  for (const cv::Vec3f& p : cloud.points_mm)
+    n += std::hypot(p[0], p[1]) < radius_mm && p[2] < height_mm;
+  return n;
+}
+
+// The carved box (80 × 60 × 50 mm), 6 views a turn (4 fit only 64 % of the
+// second turn, refused): turn 2 (laid on its
+// side, the sim's default second pose) joined onto turn 1 with the base in
+// the model; a crash (SIGKILL) in turn 2 loses nothing of turn 1 and
+// resume finishes the turn; a third turn and bad --add-to values are refused.
+TEST(Craftscanctl, SecondTurnJoinsTheBaseCrashInItKeepsTheFirstAndResumeFinishesIt) {
+  Station station;
+  std::string error;
+  ASSERT_TRUE(station.Start(&error)) << error;
+  CtlRun r = station.Run(kOperatorToken, {"scan", "--object", "carved box", "--views", "6"}, 300s);
+  ASSERT_EQ(r.exit_code, 0) << Describe(r) << station.fixture().Log();
+  const std::string session = OnlySession(station);
+  ASSERT_FALSE(session.empty());
+  const std::string dir = station.fixture().data_dir() + "/sessions/" + session;
+  const daemon::Manifest first = ReadManifestOf(station, session);
+  ASSERT_TRUE(first.outputs.count("fused.ply") && first.outputs.count("report.html"));
+  const std::size_t first_base = BasePoints(dir + "/fused.ply", 20, 3);
+  std::printf("turn 1: %.1f s, %zu fused points in the base's middle\n", r.seconds, first_base);
+
+  // Turn 2, killed while it captures.
+  CtlProcess second(station.dir(), "turn2",
+                    station.Args(kOperatorToken, {"scan", "--add-to", session, "--no-wait"}));
+  ASSERT_EQ(second.Wait(60s).exit_code, 0) << station.fixture().Log();
+  bool capturing = false;
+  for (int i = 0; i < 600 && !capturing; ++i) {
+    const json st = ParseJson(station.Run(kObserverToken, {"status", "--json"}));
+    const json job = st.value("job", json::object());
+    // A view of turn 2 on disk, its outputs not begun.
+    const std::string stage = job.value("stage", "");
+    capturing = job.value("turn", 0) == 2 && job.value("state", "") == "running" &&
+                (stage == "match" || (stage == "capture" && job.value("progress", 0.0) > 0));
+    if (!capturing) {
+      // (--no-wait returned once turn 2's job started: it is the current job.)
+      ASSERT_EQ(job.value("state", ""), "running")
+          << "turn 2 ended before it could be killed: " << st.dump();
+      std::this_thread::sleep_for(50ms);
+    }
+  }
+  ASSERT_TRUE(capturing) << station.fixture().Log();
+  ASSERT_GE(station.fixture().Stop(SIGKILL), 0);
+
+  // Turn 1's captures and outputs verify by their checksums; its outputs
+  // are kept under turn1/ too.
+  {
+    auto store = daemon::SessionStore::Open(station.fixture().data_dir(), StatusInto(&error));
+    ASSERT_TRUE(store) << error;
+    const daemon::VerifyResult verify = store->Verify(session);
+    EXPECT_TRUE(verify.IsIntact()) << ::testing::PrintToString(verify.problems);
+    const daemon::Manifest now = ReadManifestOf(station, session);
+    for (const auto& [name, record] : first.outputs) {
+      ASSERT_TRUE(now.outputs.count(name)) << name;
+      EXPECT_EQ(now.outputs.at(name).sha256, record.sha256) << name;
+      ASSERT_TRUE(now.outputs.count("turn1/" + name)) << name;
+      EXPECT_EQ(now.outputs.at("turn1/" + name).sha256, record.sha256) << name;
+    }
+    for (const auto& [index, view] : first.views) EXPECT_EQ(now.views.at(index).files, view.files);
+    EXPECT_EQ(now.params["turns"][1].value("state", ""), "capturing") << now.params.dump();
+  }
+  ASSERT_TRUE(station.Launch(&error)) << error;
+  r = station.Run(kObserverToken, {"sessions"});
+  EXPECT_NE(r.out.find("interrupted"), std::string::npos) << r.out;
+  EXPECT_NE(r.out.find("turn 2: views 6-11, interrupted"), std::string::npos) << r.out;
+
+  // Resume finishes turn 2 and joins it.
+  r = station.Run(kOperatorToken, {"resume", session, "--json"}, 300s);
+  ASSERT_EQ(r.exit_code, 0) << Describe(r) << station.fixture().Log();
+  std::printf("turn 2 resumed and joined: %.1f s\n", r.seconds);
+  const json report = json::parse(ReadFile(dir + "/report.json"), nullptr, false);
+  ASSERT_TRUE(report.is_object());
+  const json join = report.value("turn_join", json());
+  ASSERT_TRUE(join.is_object()) << report.dump(1).substr(0, 2000);
+  EXPECT_EQ(join.value("status", ""), "joined") << join.dump();
+  EXPECT_GE(join.value("overlap_pct", 0.0), 65.0) << join.dump();
+  EXPECT_LT(join.value("rmse_mm", 99.0), 1.0) << join.dump();
+  ASSERT_EQ(report["turns"].size(), 2u) << report["turns"].dump();
+  EXPECT_EQ(report["turns"][0].value("views", 0), 6);
+  EXPECT_EQ(report["turns"][1].value("first_view", 0), 6);
+  EXPECT_EQ(report["turns"][1].value("state", ""), "joined");
+  // The base is in the model: the first turn saw (almost) nothing of its
+  // middle, the joined model covers it; the box measures 80 × 60 × 50 mm.
+  const std::size_t joined_base = BasePoints(dir + "/fused.ply", 20, 3);
+  std::printf(
+      "joined: fit %.1f %%, RMSE %.3f mm, ambiguity %.2f, constraint %.3f, contact "
+      "points dropped %d / %d, %zu points in the base's middle\n",
+      join.value("overlap_pct", 0.0), join.value("rmse_mm", 0.0), join.value("ambiguity", 0.0),
+      join.value("constraint", 0.0), join.value("contact_dropped_a", 0),
+      join.value("contact_dropped_b", 0), joined_base);
+  EXPECT_GT(joined_base, 200u);
+  EXPECT_GT(joined_base, 10 * first_base + 100) << "turn 1 had " << first_base;
+  std::vector<double> box;
+  for (const json& e : report["measurement"]["oriented_box"].value("extents_mm", json::array()))
+    box.push_back(e.get<double>());
+  ASSERT_EQ(box.size(), 3u) << report["measurement"].dump();
+  std::sort(box.rbegin(), box.rend());
+  EXPECT_NEAR(box[0], 80, 4);
+  EXPECT_NEAR(box[1], 60, 4);
+  EXPECT_NEAR(box[2], 50, 4);
+  const std::string html = ReadFile(dir + "/report.html");
+  EXPECT_NE(html.find("id=\"turns\""), std::string::npos);
+  EXPECT_NE(html.find("joined"), std::string::npos);
+  // Everything verifies, turn 1's outputs kept under turn1/.
+  {
+    auto store = daemon::SessionStore::Open(station.fixture().data_dir(), StatusInto(&error));
+    ASSERT_TRUE(store) << error;
+    EXPECT_TRUE(store->Verify(session).IsIntact());
+    const daemon::Manifest done = ReadManifestOf(station, session);
+    EXPECT_EQ(done.state, daemon::SessionState::kDone);
+    EXPECT_EQ(done.CapturedViews().size(), 12u);
+    EXPECT_EQ(done.outputs.at("turn1/fused.ply").sha256, first.outputs.at("fused.ply").sha256);
+    EXPECT_NE(done.outputs.at("fused.ply").sha256, first.outputs.at("fused.ply").sha256);
+  }
+  r = station.Run(kObserverToken, {"sessions"});
+  EXPECT_NE(r.out.find("turn 2: views 6-11, joined; joined (fit"), std::string::npos) << r.out;
+
+  // Refused: a third turn, an unknown session, a bad id, --object with --add-to.
+  r = station.Run(kOperatorToken, {"scan", "--add-to", session});
+  EXPECT_EQ(r.exit_code, 3) << Describe(r);
+  EXPECT_NE(r.err.find("already has turn 2 joined"), std::string::npos) << r.err;
+  r = station.Run(kOperatorToken, {"scan", "--add-to", "20200101-000000-nothing"});
+  EXPECT_EQ(r.exit_code, 3) << Describe(r);
+  EXPECT_NE(r.err.find("not_found"), std::string::npos) << r.err;
+  r = station.Run(kOperatorToken, {"scan", "--add-to", "../etc"});
+  EXPECT_EQ(r.exit_code, 3) << Describe(r);
+  EXPECT_NE(r.err.find("add_to: not a session id"), std::string::npos) << r.err;
+  r = station.Run(kOperatorToken, {"scan", "--add-to", session, "--object", "x"});
+  EXPECT_EQ(r.exit_code, 2) << Describe(r);
+  r = station.Run(kOperatorToken, {"scan"});
+  EXPECT_EQ(r.exit_code, 2) << Describe(r);
+  EXPECT_NE(r.err.find("--add-to SESSION"), std::string::npos) << r.err;
+  r = station.Run(kObserverToken, {"status"});
+  EXPECT_EQ(r.exit_code, 0) << Describe(r) << "the daemon serves on";
+}
+
+// The egg laid on its side turns about its own axis without telling where:
+// the join is refused with what to do, the session keeps turn 1's model and
+// outputs intact (done again, turn 2 kept on disk marked refused), and
+// another turn may be added, laid otherwise. 320x256, 4 views a turn.
+TEST(Craftscanctl, RefusedSecondTurnKeepsTheFirstTurnsModelAndSaysWhatToDo) {
+  Station station("", ", object: egg, turn_rotations_deg: \"90,0,0;0,90,0\"", "320x256");
+  std::string error;
+  ASSERT_TRUE(station.Start(&error)) << error;
+  CtlRun r = station.Run(kOperatorToken, {"scan", "--object", "egg", "--views", "4"}, 300s);
+  ASSERT_EQ(r.exit_code, 0) << Describe(r) << station.fixture().Log();
+  const std::string session = OnlySession(station);
+  ASSERT_FALSE(session.empty());
+  const daemon::Manifest first = ReadManifestOf(station, session);
+
+  // A turn of a session that is not a finished scan is refused.
+  r = station.Run(kOperatorToken, {"capture", "--object", "probe"}, 120s);
+  ASSERT_EQ(r.exit_code, 0) << Describe(r);
+  std::string capture;
+  for (const json& s : ParseJson(station.Run(kObserverToken, {"sessions", "--json"}))
+                           .value("sessions", json::array()))
+    if (s.value("job", "") == "capture") capture = s.value("id", "");
+  r = station.Run(kOperatorToken, {"scan", "--add-to", capture});
+  EXPECT_EQ(r.exit_code, 3) << Describe(r);
+  EXPECT_NE(r.err.find("only a scan's session takes another turn"), std::string::npos) << r.err;
+
+  // ... and so is one whose first turn did not finish.
+  std::string unfinished;
+  {
+    auto store = daemon::SessionStore::Open(station.fixture().data_dir(), StatusInto(&error));
+    ASSERT_TRUE(store) << error;
+    auto half = store->Create("half", "scan", {{"views", 4}, {"step_deg", 90}},
+                              std::chrono::system_clock::now(), StatusInto(&error));
+    ASSERT_TRUE(half) << error;
+    ASSERT_TRUE(half->SetState(daemon::SessionState::kCapturing, "").ok());
+    ASSERT_TRUE(half->SetState(daemon::SessionState::kInterrupted, "stopped").ok());
+    unfinished = half->id();
+  }
+  r = station.Run(kOperatorToken, {"scan", "--add-to", unfinished});
+  EXPECT_EQ(r.exit_code, 3) << Describe(r);
+  EXPECT_NE(r.err.find("is interrupted: its first turn is not finished (resume it first)"),
+            std::string::npos)
+      << r.err;
+
+  r = station.Run(kOperatorToken, {"scan", "--add-to", session}, 300s);
+  std::printf("turn 2 of the egg: %.1f s\n", r.seconds);
+  EXPECT_EQ(r.exit_code, 4) << Describe(r);
+  EXPECT_NE(r.out.find("turn 2 not joined (refused_"), std::string::npos) << r.out;
+  EXPECT_NE(r.out.find("the session keeps turn 1's model: lay the object differently"),
+            std::string::npos)
+      << r.out;
+  EXPECT_NE(r.out.find("craftscanctl scan --add-to " + session), std::string::npos) << r.out;
+
+  auto store = daemon::SessionStore::Open(station.fixture().data_dir(), StatusInto(&error));
+  ASSERT_TRUE(store) << error;
+  EXPECT_TRUE(store->Verify(session).IsIntact());
+  const daemon::Manifest after = ReadManifestOf(station, session);
+  EXPECT_EQ(after.state, daemon::SessionState::kDone);
+  EXPECT_FALSE(after.outputs.count("turn1/fused.ply") == 0) << "kept under turn1/ as well";
+  for (const auto& [name, record] : first.outputs) {
+    ASSERT_TRUE(after.outputs.count(name)) << name;
+    EXPECT_EQ(after.outputs.at(name).sha256, record.sha256) << name << " changed";
+  }
+  ASSERT_EQ(after.params["turns"].size(), 2u) << after.params.dump();
+  const json turn = after.params["turns"][1];
+  EXPECT_EQ(turn.value("state", ""), "refused") << turn.dump();
+  EXPECT_EQ(turn.value("first_view", 0), 4);
+  EXPECT_TRUE(turn["join"].value("status", "").rfind("refused_", 0) == 0) << turn.dump();
+  std::printf("egg turn 2: %s\n", turn["join"].value("message", "").c_str());
+  EXPECT_EQ(after.CapturedViews().size(), 8u) << "the refused turn's views stay";
+  r = station.Run(kObserverToken, {"sessions"});
+  EXPECT_NE(r.out.find("turn 2: views 4-7, refused; refused_"), std::string::npos) << r.out;
+
+  // The operator lays it again and adds another turn (the sim's
+  // turn_rotations_deg: "90,0,0;0,90,0"): turn 3, after the refused turn's
+  // views; the egg on its end is no better, and the session keeps turn 1's
+  // model again.
+  r = station.Run(kOperatorToken, {"scan", "--add-to", session}, 300s);
+  EXPECT_EQ(r.exit_code, 4) << Describe(r);
+  EXPECT_NE(r.out.find("turn 3 not joined"), std::string::npos) << r.out;
+  const daemon::Manifest retried = ReadManifestOf(station, session);
+  EXPECT_EQ(retried.state, daemon::SessionState::kDone);
+  ASSERT_EQ(retried.params["turns"].size(), 3u) << retried.params.dump();
+  EXPECT_EQ(retried.params["turns"][1].value("state", ""), "refused");
+  EXPECT_EQ(retried.params["turns"][2].value("first_view", 0), 8);
+  EXPECT_EQ(retried.CapturedViews().size(), 12u);
+  for (const auto& [name, record] : first.outputs)
+    EXPECT_EQ(retried.outputs.at(name).sha256, record.sha256) << name << " changed";
+  EXPECT_TRUE(store->Verify(session).IsIntact());
 }
 
 }  // namespace

@@ -188,6 +188,50 @@ TEST(ReportHtml, ShowsTheMeasurementsCalibrationAndRegistration) {
   EXPECT_TRUE(Contains(html, "fitness &lt; 0.5 on one pair"));
 }
 
+// Two turns (report.json "turns" and "turn_join", as the daemon writes
+// them for scan --add-to): each turn's views and state, the join's figures.
+TEST(ReportHtml, ShowsBothTurnsAndHowTheyWereJoined) {
+  nlohmann::json report = nlohmann::json::parse(ScanReportJson(MakeScan()));
+  report["turns"] = {{{"turn", 1},
+                      {"first_view", 0},
+                      {"views", 6},
+                      {"step_deg", 60},
+                      {"state", "done"},
+                      {"contact_dropped", 312}},
+                     {{"turn", 2},
+                      {"first_view", 6},
+                      {"views", 6},
+                      {"step_deg", 60},
+                      {"state", "joined"},
+                      {"contact_dropped", 1045}}};
+  report["turn_join"] = {{"status", "joined"}, {"message", "<fine>"}, {"overlap_pct", 72.64},
+                         {"rmse_mm", 0.1834},  {"ambiguity", 0.0},    {"constraint", 0.2077},
+                         {"hypotheses", 23},   {"points_a", 19893},   {"points_b", 20468},
+                         {"time_ms", 8123.0}};
+  ReportInputs in;
+  in.scan_report_json = report.dump();
+  std::string html, error;
+  ASSERT_TRUE(ReportHtml(in, {}, {}, &html, &error)) << error;
+  for (const char* figure :
+       {"id=\"turns\"", "href=\"#turns\"", "6&ndash;11", "312", "1045", ">joined<",
+        "72.6 % of the later turn", "0.183 mm", "no other placement fits", "0.208", ">23<",
+        "19893 of turn 1", "8.12 s", "&lt;fine&gt;"})
+    EXPECT_TRUE(Contains(html, figure)) << figure;
+  // Refused: its status as the verdict, the rival's figures.
+  report["turn_join"]["status"] = "refused_ambiguous";
+  report["turn_join"]["ambiguity"] = 0.95;
+  report["turn_join"]["alternative_deg"] = 23.0;
+  report["turn_join"]["alternative_mm"] = 8.9;
+  in.scan_report_json = report.dump();
+  ASSERT_TRUE(ReportHtml(in, {}, {}, &html, &error)) << error;
+  for (const char* figure : {"badge bad\">refused_ambiguous", "23.0&deg;, 8.9 mm away) fits 95 %"})
+    EXPECT_TRUE(Contains(html, figure)) << figure;
+  // One turn: no section.
+  in.scan_report_json = ScanReportJson(MakeScan());
+  ASSERT_TRUE(ReportHtml(in, {}, {}, &html, &error)) << error;
+  EXPECT_FALSE(Contains(html, "id=\"turns\""));
+}
+
 TEST(ReportHtml, EscapesHostileNames) {
   ReportInputs in;
   in.object_name = "<script>alert('x')</script> & \"egg\"";

@@ -309,6 +309,27 @@ TEST_F(SessionFiles, ManifestJournalFollowsTheJobAndDoneIsFinal) {
   EXPECT_EQ(ReadAll(s->dir() + "/manifest.json"), before);
   EXPECT_EQ(s->state(), SessionState::kDone);
 
+  // A turn added (the object laid in another pose): the one way out of
+  // done, with the new params in the same write; what was listed stays.
+  nlohmann::json params = s->params();
+  params["turns"] = nlohmann::json::array({{{"turn", 1}}, {{"turn", 2}}});
+  EXPECT_FALSE(Ok(s->ReopenForTurn(nlohmann::json::array(), "x"), &error));
+  EXPECT_TRUE(Contains(error, "params must be a JSON object")) << error;
+  ASSERT_TRUE(Ok(s->ReopenForTurn(params, "turn 2"), &error)) << error;
+  EXPECT_EQ(s->state(), SessionState::kCapturing);
+  EXPECT_EQ(s->params()["turns"].size(), 2u);
+  EXPECT_EQ(s->manifest().outputs.count("fused.ply"), 1u);
+  EXPECT_EQ(s->manifest().journal.back().detail, "turn 2");
+  EXPECT_FALSE(Ok(s->ReopenForTurn(params, "again"), &error)) << "only from done";
+  EXPECT_TRUE(Contains(error, "only to a done session, not one capturing")) << error;
+  ASSERT_TRUE(Capture(*s, 1, &error)) << error;
+  params["turns"][1]["state"] = "refused";
+  ASSERT_TRUE(Ok(s->SetParams(params, "turn 2 refused"), &error)) << error;
+  EXPECT_EQ(s->manifest().journal.back().event, "params");
+  ASSERT_TRUE(Ok(s->SetState(SessionState::kDone, "turn 1's model"), &error)) << error;
+  EXPECT_TRUE(s->GetResumePoint(true).damaged.empty());
+  EXPECT_EQ(s->DurableViews(), (std::vector<int>{0, 1}));
+
   // Failure keeps its reason; resume clears it.
   auto f = NewCapturing("fails", 1);
   ASSERT_NE(f, nullptr);

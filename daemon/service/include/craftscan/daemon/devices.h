@@ -83,6 +83,13 @@ class DeviceManager {
   // After a calibration job (also after a failed one): back to the object on
   // the turntable.
   drivers::DriverStatus ShowObject();
+  // Before capturing turn `turn` (≥ 1) of a scan: the object as the
+  // operator laid it for that turn. On the simulated station the sim driver
+  // is reopened with its `turn` key set (its turn_rotations_deg say the
+  // pose; nothing happens when it already shows that turn); on a real
+  // station the operator has moved the object and this returns ok. An
+  // error names the device; the devices are then back at turn 1.
+  drivers::DriverStatus ShowTurn(int turn);
 
   // One stereo pair. Loss → Reconnect() (the driver's back-off) and retry;
   // timeouts and transport errors (kIoError: e.g. a GigE frame with missing
@@ -128,6 +135,9 @@ class DeviceManager {
   // "platter_board") showing `board` (null for "object"); true without a
   // change on a real station.
   drivers::DriverStatus SwitchScene(const std::string& scene, const BoardSpec* board);
+  // Reopens the sim driver with `camera_config` (the turntable too when it
+  // shares the camera's instance); on failure back to the configured devices.
+  drivers::DriverStatus ReopenSim(const drivers::DriverConfig& camera_config);
 
   DeviceSetup setup_;
   std::function<void(drivers::LogLevel, std::string_view)> log_;
@@ -138,6 +148,7 @@ class DeviceManager {
   std::unique_ptr<drivers::Turntable> turntable_;
   std::atomic<bool> open_{false};
   std::string scene_ = "object";
+  int turn_ = 1;  // the sim's `turn` (ShowTurn)
   // Two locks, so a driver's event callback (Note, from inside a device
   // call) never waits behind Reports() asking the same driver for its state.
   mutable std::mutex devices_mutex_;  // guards the device pointers' swap against Reports()

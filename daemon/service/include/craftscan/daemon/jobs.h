@@ -125,6 +125,7 @@ struct JobInfo {
   double progress = 0;    // 0…1
   std::string message;    // result summary or error
   nlohmann::json result;  // verb-specific result (measurements, calibration figures)
+  int turn = 0;           // a scan's turn after the first (scan_turns.h); 0 otherwise
 };
 
 // The live preview (verb preview): frames at `fps` until `seconds` after
@@ -145,6 +146,10 @@ struct ScanRequest {
   // params, so a resume captures its missing views the same way.
   std::optional<std::vector<double>> exposure_bracket;
   std::string client;
+  // Non-empty: no new session; another turn of this finished scan's session
+  // with the object laid in another pose (scan_turns.h), views and step
+  // defaulting to its first turn's, joined onto its first turn.
+  std::string add_to;
 };
 
 class JobEngine {
@@ -213,6 +218,21 @@ class JobEngine {
   // copied in and launches it.
   bool StartSessionJob(const std::string& verb, const std::string& object, nlohmann::json params,
                        std::shared_ptr<ScanPlan> plan, JobInfo* info, std::string* error);
+  // ScanRequest::add_to: reopens the session for its next turn and launches it.
+  bool StartAddTurn(const ScanRequest& request, JobInfo* info, std::string* error);
+  // Records the launched job's turn (JobInfo::turn).
+  void NoteTurn(int turn, JobInfo* info);
+  // Before a later turn's capture: turn 1's outputs copied under turn1/
+  // (those not there yet), so they stay whatever the join does.
+  StageOutcome KeepFirstTurnOutputs(Session& session);
+  // A later turn that cannot be joined or reconstructed: recorded in the
+  // turn ("refused" or "failed", with the message and the join's figures),
+  // the session done again with turn 1's model; the job fails with `outcome`'s
+  // message and what the operator does next.
+  // `join_status`: the join's verdict when it was reached; `join` its figures.
+  JobOutcome EndTurnNotJoined(ScanPlan& plan, const StageOutcome& outcome,
+                              std::optional<TurnJoinResult::Status> join_status,
+                              const nlohmann::json& join);
   // Runs the stages, records the session's end, closes the session.
   JobOutcome RunScan(const std::shared_ptr<ScanPlan>& plan);
   JobOutcome RunScanStages(ScanPlan& plan);

@@ -24,6 +24,7 @@
 #include <optional>
 #include <string>
 #include <string_view>
+#include <utility>
 #include <vector>
 
 #include <nlohmann/json.hpp>
@@ -31,6 +32,7 @@
 
 #include "craftscan/daemon/bounded_queue.h"
 #include "craftscan/daemon/devices.h"
+#include "craftscan/daemon/scan_turns.h"
 #include "craftscan/daemon/session_store.h"
 #include "craftscan/drivers/camera.h"
 #include "craftscan/drivers/host.h"
@@ -136,7 +138,7 @@ struct MatchedView {
 // turntable axis).
 cv::Matx44d WorldFromView(const StereoCalibration& calibration, double angle_deg);
 
-// Views 0..views-1 in order (view k at k·step_deg): a view whose cloud is
+// Views first_view … first_view+views−1 in order (the k-th at k·step_deg): a view whose cloud is
 // durable is handed on as it is, a durable capture is loaded, the others
 // are captured (turntable prepared once, moved unless it is a one-view
 // capture with step 0, settle, trigger), stored durably, then published
@@ -150,6 +152,13 @@ class CaptureStage {
     // Exposure bracketing (DeviceManager::CaptureBracketed): multiples of
     // the exposure captured besides it and merged; empty = one exposure.
     std::vector<double> exposure_bracket;
+    // A scan's turn (scan_turns.h): its views are stored from first_view
+    // on, meta.json records the turn, and progress messages start with
+    // `label` ("turn 2: "; "" for a one-turn scan); current/total count the
+    // turn's views.
+    int first_view = 0;
+    int turn = 1;
+    std::string label;
   };
   // `moving` (may be null) is true while a move is in progress, so a cancel
   // can abort it (DeviceManager::AbortMove).
@@ -181,12 +190,16 @@ class CaptureStage {
 class MatchStage {
  public:
   // `processor` is initialised; `views` is the job's view count (progress).
+  // A turn's views (CaptureStage::Options): progress counts from first_view,
+  // messages start with `label`.
   MatchStage(StageContext context, ViewProcessor* processor, const StereoCalibration* calibration,
-             int views)
+             int views, int first_view = 0, std::string label = {})
       : context_(std::move(context)),
         processor_(processor),
         calibration_(calibration),
-        views_(views) {}
+        views_(views),
+        first_view_(first_view),
+        label_(std::move(label)) {}
 
   // Ends ok when Q1 is closed and drained (Q2 is left open); kCancelled on
   // stop or a closed Q2; a pipeline error or an unreadable cloud (not
@@ -201,6 +214,8 @@ class MatchStage {
   ViewProcessor* processor_;
   const StereoCalibration* calibration_;
   int views_;
+  int first_view_;
+  std::string label_;
   double match_ms_ = 0;
 };
 
@@ -210,7 +225,11 @@ std::vector<std::optional<MatchedView>> CollectViews(BoundedQueue<MatchedView>& 
 
 struct ReconstructOutcome {
   StageOutcome status;
-  nlohmann::json result;    // fused_points, mesh_vertices, stage times, box, measurement
+  // fused_points, mesh_vertices, stage times, box, measurement; a turn
+  // joined or refused: turn_join (TurnJoinJson), also when status failed
+  nlohmann::json result;
+  // A later turn (Options::turn > 1) that reached the join: its verdict.
+  std::optional<TurnJoinResult::Status> join_status;
   std::string summary;      // "6 views, 123456 fused points" when ok
   std::string done_detail;  // the journal entry for done: "fused 123456 points"
 };
@@ -235,6 +254,18 @@ class ReconstructStage {
     std::string station;   // the station id
     std::string software;  // "craftscan <version>"
     std::string rights;    // the config's deliverables.rights; "" = none
+    // A turn after the first (scan_turns.h): its views from first_view on;
+    // after its own reconstruction (without a mesh) turn 1 is rebuilt from
+    // its stored view clouds (ReconstructScan), the turn joined onto it
+    // (JoinTurnScans with `join`), and the joined model is the output;
+    // report.json gets "turns" (every turn of `turns`, this one's state
+    // "joined") and "turn_join". A refused join fails with the join's
+    // message (not resumable), nothing written.
+    int first_view = 0;
+    int turn = 1;
+    std::string label;              // "turn 2: " for progress messages
+    std::vector<TurnRecord> turns;  // all the session's turns, this one last
+    TurnJoinOptions join;
   };
   // `report` may be empty: no report pages.
   ReconstructStage(StageContext context, const StereoCalibration* calibration, Options options,
@@ -252,6 +283,11 @@ class ReconstructStage {
   ReconstructOutcome Run(BoundedQueue<MatchedView>& in);
 
  private:
+  // Turn 1 rebuilt from its stored view clouds (no mesh), or the failure.
+  StageOutcome RebuildFirstTurn(ScanResult* first);
+  std::string WithTurns(const std::string& report, const nlohmann::json& result);
+  // The views the report shows: (index, commanded angle), every joined turn's.
+  std::vector<std::pair<int, double>> ReportViews() const;
   std::string EncodeModel(const std::string& report_json, const ScanResult& r);
   void StoreReport(const std::string& report_json, const ScanResult& r, nlohmann::json* result);
 

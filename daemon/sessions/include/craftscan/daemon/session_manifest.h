@@ -11,7 +11,9 @@
 //   interrupted | failed ─► capturing | reconstructing   (resume)
 //   interrupted ─► failed
 //
-// `done` is final. "Active" states (created, capturing, reconstructing) are
+// `done` is final for SetState; Session::ReopenForTurn alone takes a done
+// scan back to capturing for another turn (the object laid in another pose).
+// "Active" states (created, capturing, reconstructing) are
 // the ones in which files may be stored; the daemon marks sessions left active
 // by a crash or restart `interrupted` when it starts.
 #pragma once

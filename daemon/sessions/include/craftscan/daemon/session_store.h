@@ -93,6 +93,9 @@ struct SessionSummary {
   int views_captured = 0;   // views with a durable capture
   std::string created_utc;  // ISO 8601 UTC ("" when corrupt)
   std::string updated_utc;
+  // A scan with turns added (scan_turns.h in the service): params.turns as
+  // recorded; null otherwise.
+  nlohmann::json turns;
 };
 
 // Writes one output file at `path` (a path inside the session folder chosen
@@ -127,6 +130,16 @@ class Session {
   // failure (the errno's code), in which case the state on disk and in
   // memory is unchanged.
   Status SetState(SessionState state, const std::string& detail);
+
+  // Replaces the job parameters (a JSON object; e.g. a scan's `turns`) and
+  // appends a journal entry {now, "params", detail}. Any state. Errors as
+  // SetState's (kInvalidArgument for a non-object).
+  Status SetParams(const nlohmann::json& params, const std::string& detail);
+  // Another turn of a finished scan (the object laid in another pose): the
+  // only way out of `done`, to capturing, with the new `params` in the same
+  // manifest write and a journal entry {now, "capturing", detail}. Files
+  // already listed stay listed. kFailedPrecondition unless the session is done.
+  Status ReopenForTurn(const nlohmann::json& params, const std::string& detail);
 
   // Copies the calibration file at `source_path` into calibration.yaml and
   // records `calibration_id` (free text, e.g. the calibration's name or date).

@@ -25,6 +25,15 @@
 //                           y, then z (fixed axes), degrees, each |·| ≤ 360, then
 //                           seated on the platter, centred (ObjectOptions::
 //                           rotation_rad, station.h), before object_yaw_deg (0,0,0)
+//   turn                    which turn of a scan the cameras see, 1…999 (1): the
+//                           daemon sets it when a scan adds a turn to a session
+//                           (craftscanctl scan --add-to): the operator has laid
+//                           the object in another pose. Turn 1: object_rotation_deg;
+//                           turn t ≥ 2: the (t−1)-th pose of turn_rotations_deg
+//                           (its last pose for later turns)
+//   turn_rotations_deg      rx,ry,rz[;rx,ry,rz…]: the poses of turns 2, 3, … as
+//                           object_rotation_deg (each angle |·| ≤ 360), at most 64
+//                           (90,0,0: laid on its side)
 // object mesh: a PLY triangle mesh (ply.h; e.g. ../shared/data/meshes/owl.ply),
 // read when the driver instance is created:
 //   mesh                    the PLY file's absolute path (required for object mesh)
@@ -104,9 +113,11 @@
 // (10 ms at 0 dB = the renderer's default exposure 1.0); it must be ≤ 100.
 #pragma once
 
+#include <algorithm>
 #include <cstdint>
 #include <string>
 #include <string_view>
+#include <vector>
 
 #include <opencv2/core.hpp>
 
@@ -132,6 +143,8 @@ struct SimDriverOptions {
   cv::Point2d object_position_mm{0, 0};        // on the platter at angle 0, world mm
   double object_yaw_deg = 0;                   // about the turntable axis
   cv::Vec3d object_rotation_deg{0, 0, 0};      // laid down: about x, then y, then z (fixed)
+  int turn = 1;                                // the scan's turn being captured, ≥ 1
+  std::vector<cv::Vec3d> turn_rotations_deg{{90, 0, 0}};  // the poses of turns 2, 3, …
   // object kMesh only:
   std::string mesh_path;                 // absolute
   double mesh_size_mm = 0;               // > 0: largest extent; 0: mesh_scale applies
@@ -156,6 +169,14 @@ struct SimDriverOptions {
   bool turntable_alarm = false;
   bool turntable_stall = false;
   drivers::ReconnectPolicy reconnect;
+
+  // The pose the object lies in for `turn` (see the keys above).
+  cv::Vec3d ObjectRotationDeg() const {
+    if (turn <= 1 || turn_rotations_deg.empty()) return object_rotation_deg;
+    const std::size_t i =
+        std::min<std::size_t>(static_cast<std::size_t>(turn - 2), turn_rotations_deg.size() - 1);
+    return turn_rotations_deg[i];
+  }
 
   // Names the offending key (board problems name the board_* keys, mesh
   // problems the mesh_* key and the file). Does not open the file.

@@ -529,8 +529,10 @@ FetchResult StationClient::Fetch(const FetchRequest& request) {
   // A station's file writer can match this reader a moment after this
   // reader matched it (discovery runs both ways independently): chunks sent
   // before that go by unseen. A transfer whose first chunk is not the start
-  // of file 0 is therefore asked for again, a bounded number of times.
+  // of file 0, or of which no chunk comes at all, is therefore asked for
+  // again, a bounded number of times.
   constexpr int kAttempts = 3;
+  constexpr auto kFirstChunkWait = std::chrono::seconds(3);
   for (int attempt = 1;; ++attempt) {
     const auto reply_deadline = attempt == 1 ? deadline : Clock::now() + request.timeout;
     CallResult sent =
@@ -631,6 +633,14 @@ FetchResult StationClient::Fetch(const FetchRequest& request) {
           progress.bytes_done = assembler.bytes_received();
           request.on_progress(progress);
         }
+      }
+      // Not one chunk of ours since the reply, and the station quiet: they
+      // all went by before its writer matched this reader (a small file is
+      // one or two chunks). Asked for again, sooner than the stall timeout.
+      if (have_reply && !seen_chunk && !assembler.Complete() && attempt < kAttempts &&
+          Clock::now() - last_data > std::min<Clock::duration>(request.timeout, kFirstChunkWait)) {
+        started_late = true;
+        break;
       }
       if (have_reply && !assembler.Complete() && Clock::now() - last_data > request.timeout) {
         result.files = assembler.files();

@@ -151,6 +151,18 @@ TEST_F(FetchRetry, ATransferThatStartedBeforeTheReaderMatchedIsAskedForAgain) {
   EXPECT_TRUE(ReadOut() == payload_) << "the fetched file differs from the station's";
 }
 
+TEST_F(FetchRetry, ATransferOfWhichNoChunkCameIsAskedForAgain) {
+  const std::string station = ::craftscan::testing::UniqueStation("fr");
+  // Every chunk of the first get goes by unseen (a small model is sent whole
+  // before the writer matches the reader).
+  ScriptedStation fake(station, payload_, [](int n, std::uint64_t) { return n == 1; });
+  const FetchResult got = Fetch(station);
+  ASSERT_EQ(got.status, FetchStatus::kOk) << got.message;
+  EXPECT_EQ(got.retries, 1);
+  EXPECT_EQ(fake.gets(), 2);
+  EXPECT_TRUE(ReadOut() == payload_) << "the fetched file differs from the station's";
+}
+
 TEST_F(FetchRetry, AStationThatNeverSendsTheStartFailsAfterThreeGets) {
   const std::string station = ::craftscan::testing::UniqueStation("fr");
   ScriptedStation fake(station, payload_, [](int, std::uint64_t offset) { return offset == 0; });

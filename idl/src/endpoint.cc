@@ -52,6 +52,12 @@ QosPtr MakeQos(const TopicQos& topic_qos) {
   dds_qset_durability(qos.get(), topic_qos.transient_local ? DDS_DURABILITY_TRANSIENT_LOCAL
                                                            : DDS_DURABILITY_VOLATILE);
   dds_qset_history(qos.get(), DDS_HISTORY_KEEP_LAST, topic_qos.history_depth);
+  if (!topic_qos.partition.empty()) dds_qset_partition1(qos.get(), topic_qos.partition.c_str());
+  if (!topic_qos.autodispose) dds_qset_writer_data_lifecycle(qos.get(), false);
+  if (topic_qos.liveliness_lease_ms > 0) {
+    dds_qset_liveliness(qos.get(), DDS_LIVELINESS_MANUAL_BY_TOPIC,
+                        DDS_MSECS(topic_qos.liveliness_lease_ms));
+  }
   if (topic_qos.xcdr1_only) {
     dds_data_representation_id_t xcdr1 = DDS_DATA_REPRESENTATION_XCDR1;
     dds_qset_data_representation(qos.get(), 1, &xcdr1);
@@ -188,6 +194,13 @@ bool WriterCore::Write(const void* sample, std::string* error) {
   return false;
 }
 
+bool WriterCore::Dispose(const void* sample, std::string* error) {
+  const dds_return_t rc = dds_dispose(writer_, sample);
+  if (rc == DDS_RETCODE_OK) return true;
+  SetError(error, "dispose on '" + topic_name_ + "' failed: " + DdsError(rc));
+  return false;
+}
+
 bool WriterCore::WaitForAcks(std::chrono::milliseconds timeout, std::string* error) {
   const dds_return_t rc = dds_wait_for_acks(
       writer_, std::chrono::duration_cast<std::chrono::nanoseconds>(timeout).count());
@@ -277,6 +290,25 @@ TakeStatus ReaderCore::Take(void* sample, std::chrono::nanoseconds timeout, std:
     dds_sample_info_t info;
     const dds_return_t n = dds_take(read_condition_, buffers, &info, 1, 1);
     *valid = n > 0 && info.valid_data;
+    return n;
+  });
+}
+
+TakeStatus ReaderCore::TakeWithInfo(void* sample, SampleState* state,
+                                    std::chrono::nanoseconds timeout, std::string* error) {
+  return TakeWhenReady(timeout, error, [&](bool* valid) {
+    void* buffers[1] = {sample};
+    dds_sample_info_t info;
+    const dds_return_t n = dds_take(read_condition_, buffers, &info, 1, 1);
+    *valid = n > 0;  // samples without data count: they carry the instance's end
+    if (n > 0) {
+      state->valid_data = info.valid_data;
+      state->instance = info.instance_state == DDS_IST_ALIVE ? InstanceState::kAlive
+                        : info.instance_state == DDS_IST_NOT_ALIVE_DISPOSED
+                            ? InstanceState::kDisposed
+                            : InstanceState::kNoWriters;
+      state->source_timestamp_ns = info.source_timestamp;
+    }
     return n;
   });
 }

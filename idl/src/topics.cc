@@ -44,6 +44,14 @@ bool TopicQos::IsValid(std::string* why) const {
     if (why) *why = "max_blocking_ms must be ≥ 0, got " + std::to_string(max_blocking_ms);
     return false;
   }
+  if (liveliness_lease_ms < 0) {
+    if (why) *why = "liveliness_lease_ms must be ≥ 0, got " + std::to_string(liveliness_lease_ms);
+    return false;
+  }
+  if (partition.size() > 64) {
+    if (why) *why = "partition longer than 64 characters";
+    return false;
+  }
   return true;
 }
 

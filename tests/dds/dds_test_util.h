@@ -9,6 +9,7 @@
 #include <unistd.h>
 
 #include <cstdint>
+#include <cstdlib>
 #include <memory>
 #include <random>
 #include <string>
@@ -25,8 +26,14 @@ inline std::string TestDdsConfig() {
 }
 
 // One random domain per test process (1..kMaxDomainId; 0 is the usual default).
+// CRAFTSCAN_TEST_DOMAIN (a test's child process) names it instead.
 inline std::uint32_t ProcessDomainId() {
-  static const std::uint32_t id = 1 + std::random_device{}() % dds::kMaxDomainId;
+  static const std::uint32_t id = [] {
+    if (const char* given = std::getenv("CRAFTSCAN_TEST_DOMAIN")) {
+      return static_cast<std::uint32_t>(std::strtoul(given, nullptr, 10) % (dds::kMaxDomainId + 1));
+    }
+    return static_cast<std::uint32_t>(1 + std::random_device{}() % dds::kMaxDomainId);
+  }();
   return id;
 }
 

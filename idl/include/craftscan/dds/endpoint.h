@@ -42,6 +42,19 @@ struct RawSample {
   int64_t source_timestamp_ns = 0;  // ns since the Unix epoch
 };
 
+// A keyed topic's instance as a taken sample left it (DDS instance states).
+enum class InstanceState {
+  kAlive,      // some writer has it and has not disposed it
+  kDisposed,   // a writer disposed it (the thing it stands for ended)
+  kNoWriters,  // no live writer has it: each unregistered, died, was cut off or
+               // let its liveliness lease lapse
+};
+struct SampleState {
+  bool valid_data = false;  // false: only the key fields are set (an instance state change)
+  InstanceState instance = InstanceState::kAlive;
+  int64_t source_timestamp_ns = 0;
+};
+
 namespace internal {
 
 // The untyped parts of Writer/Reader (descriptor + void* samples).
@@ -56,6 +69,7 @@ class WriterCore {
   WriterCore& operator=(const WriterCore&) = delete;
 
   bool Write(const void* sample, std::string* error);
+  bool Dispose(const void* sample, std::string* error);
   bool WaitForAcks(std::chrono::milliseconds timeout, std::string* error);
   int MatchedReaders() const;
   bool WaitForReaders(int count, std::chrono::milliseconds timeout) const;
@@ -79,6 +93,8 @@ class ReaderCore {
   ReaderCore& operator=(const ReaderCore&) = delete;
 
   TakeStatus Take(void* sample, std::chrono::nanoseconds timeout, std::string* error);
+  TakeStatus TakeWithInfo(void* sample, SampleState* state, std::chrono::nanoseconds timeout,
+                          std::string* error);
   // `decoded` (may be null): a sample of the reader's type to deserialise into.
   TakeStatus TakeRaw(RawSample* raw, void* decoded, std::chrono::nanoseconds timeout,
                      std::string* error);
@@ -116,6 +132,10 @@ class Writer {
   // up to qos.max_blocking_ms while readers catch up; then false with a
   // timeout error and the sample not sent. Thread-safe.
   bool Write(const Msg& message, std::string* error) { return core_->Write(&message, error); }
+
+  // Disposes the instance with `message`'s key (keyed topics): readers see
+  // it kDisposed.
+  bool Dispose(const Msg& message, std::string* error) { return core_->Dispose(&message, error); }
 
   // Waits until every matched reliable reader has acknowledged everything
   // written so far (e.g. before exiting: deleting a writer waits for acks only
@@ -159,6 +179,14 @@ class Reader {
   // a time.
   TakeStatus Take(std::chrono::nanoseconds timeout, Sample<Msg>* sample, std::string* error) {
     return core_->Take(sample->mutable_storage(), timeout, error);
+  }
+
+  // As Take, but also returns samples without data, which a keyed topic's
+  // reader gets when an instance is disposed or loses its last live writer:
+  // *state says which (only the key fields of *sample are then set).
+  TakeStatus TakeWithInfo(std::chrono::nanoseconds timeout, Sample<Msg>* sample, SampleState* state,
+                          std::string* error) {
+    return core_->TakeWithInfo(sample->mutable_storage(), state, timeout, error);
   }
 
   // As Take, but keeps the sample as it was on the wire: *raw gets its

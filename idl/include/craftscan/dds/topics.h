@@ -66,6 +66,20 @@ struct TopicQos {
   // How long a reliable Write may block when the writer's unacknowledged data
   // is above Cyclone's WhcHigh (readers lagging), ms (≥ 0).
   int32_t max_blocking_ms = 1000;
+  // The DDS partition of the writer's publisher / reader's subscriber; ""
+  // is the default partition. A writer and a reader match only in the same
+  // partition (the site topics, site.h, keep sites apart this way).
+  std::string partition;
+  // Liveliness: 0 = automatic, never lost while the participant lives.
+  // Otherwise manual-by-topic with this lease (ms): the writer is alive
+  // while it writes (or asserts) at least once a lease; after that a reader
+  // sees its instances NOT_ALIVE_NO_WRITERS. Writer and reader must agree
+  // (a reader's lease ≥ the writer's).
+  int32_t liveliness_lease_ms = 0;
+  // A writer that unregisters an instance (or whose liveliness lapses)
+  // disposes it too (DDS's default); false: readers see kNoWriters then, and
+  // only an explicit Dispose disposes.
+  bool autodispose = true;
 
   bool IsValid(std::string* why) const;
 };

@@ -354,6 +354,29 @@ bool LogLevelFromString(std::string_view text, LogLevel* level) {
   return false;
 }
 
+std::string_view ToString(ReconstructionMode mode) {
+  switch (mode) {
+    case ReconstructionMode::kLocal:
+      return "local";
+    case ReconstructionMode::kRemote:
+      return "remote";
+    case ReconstructionMode::kAuto:
+      return "auto";
+  }
+  return "local";
+}
+
+bool ReconstructionModeFromString(std::string_view text, ReconstructionMode* mode) {
+  for (ReconstructionMode m :
+       {ReconstructionMode::kLocal, ReconstructionMode::kRemote, ReconstructionMode::kAuto}) {
+    if (text == ToString(m)) {
+      *mode = m;
+      return true;
+    }
+  }
+  return false;
+}
+
 std::string DefaultPluginDirectory() { return CRAFTSCAN_DEFAULT_PLUGIN_DIR; }
 
 std::string PluginSettings::SearchPath() const { return Join(path, ":"); }

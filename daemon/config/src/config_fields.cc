@@ -195,6 +195,14 @@ bool IsStationId(std::string_view text) {
          ((text[0] >= 'a' && text[0] <= 'z') || (text[0] >= 'A' && text[0] <= 'Z'));
 }
 bool IsDriverName(std::string_view text) { return IsIdentifier(text, 64); }
+// As craftscan::dds::IsValidSiteId (a DDS partition name).
+bool IsSiteName(std::string_view text) {
+  if (text.empty() || text.size() > 64) return false;
+  return std::all_of(text.begin(), text.end(), [](char c) {
+    return (c >= 'a' && c <= 'z') || (c >= 'A' && c <= 'Z') || (c >= '0' && c <= '9') ||
+           c == '_' || c == '-';
+  });
+}
 
 // Valid UTF-8 (shortest forms, no surrogates) without control characters,
 // at most 1024 bytes: text written into every model's metadata.
@@ -361,6 +369,9 @@ std::vector<Field> MakeFields() {
       "station", [](DaemonConfig& c) -> std::string& { return c.station; }, IsStationId,
       "1 to 32 characters of A-Z, a-z, 0-9, _, starting with a letter"));
   f.push_back(StringField(
+      "site", [](DaemonConfig& c) -> std::string& { return c.site; }, IsSiteName,
+      "1 to 64 characters of A-Z, a-z, 0-9, _, -"));
+  f.push_back(StringField(
       "data_dir", [](DaemonConfig& c) -> std::string& { return c.data_dir; }, IsAbsolutePath,
       "an absolute path"));
   f.push_back(EnumField<LogLevel>(
@@ -495,6 +506,17 @@ std::vector<Field> MakeFields() {
       16));
   f.push_back(
       BoolField("watchdog.enabled", [](DaemonConfig& c) -> bool& { return c.watchdog.enabled; }));
+  f.push_back(EnumField<ReconstructionMode>(
+      "reconstruction.mode",
+      [](DaemonConfig& c) -> ReconstructionMode& { return c.reconstruction.mode; }, ToString,
+      ReconstructionModeFromString,
+      {ReconstructionMode::kLocal, ReconstructionMode::kRemote, ReconstructionMode::kAuto}));
+  f.push_back(IntField(
+      "reconstruction.offer_timeout_ms",
+      [](DaemonConfig& c) -> int& { return c.reconstruction.offer_timeout_ms; }, 100, 600000));
+  f.push_back(IntField(
+      "reconstruction.max_remote_s",
+      [](DaemonConfig& c) -> int& { return c.reconstruction.max_remote_s; }, 10, 86400));
   f.push_back(StringField(
       "deliverables.rights", [](DaemonConfig& c) -> std::string& { return c.deliverables.rights; },
       IsRightsText, "UTF-8 text without control characters, at most 1024 bytes"));
@@ -529,6 +551,7 @@ const std::vector<std::string>& Sections() {
                                                     "pipeline",
                                                     "limits",
                                                     "watchdog",
+                                                    "reconstruction",
                                                     "deliverables"};
   return sections;
 }

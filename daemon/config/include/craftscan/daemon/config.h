@@ -9,6 +9,8 @@
 //
 //   version: 1                    required; other versions are refused
 //   station: station1             [A-Za-z0-9_]{1,32}; in DDS topic names
+//   site: default                 [A-Za-z0-9_-]{1,64}; the DDS partition of the site's
+//                                 topics (stations and workers that share jobs)
 //   data_dir: /var/lib/craftscan  absolute; sessions/ and calibration/ live here
 //   log_level: info               debug | info | warning | error
 //   dds:
@@ -82,6 +84,12 @@
 //   watchdog:
 //     enabled: true               ping systemd's watchdog when it asks
 //                                 (WATCHDOG_USEC); false never pings
+//   reconstruction:
+//     mode: local                 local | remote | auto: where a scan is reconstructed
+//                                 (remote: a craftscan-worker of the site; auto: remote
+//                                 when a worker is idle, else local)
+//     offer_timeout_ms: 3000      100..600000: unclaimed this long → local
+//     max_remote_s: 1800          10..86400: a granted job with no result this long → local
 //   deliverables:
 //     rights: ""                  rights statement and licence written into
 //                                 every model (mesh.glb's asset.copyright and
@@ -268,8 +276,29 @@ struct DeliverableSettings {
   std::string rights;
 };
 
+// Where a scan's reconstruction runs (after its views are matched):
+// kLocal on this station; kRemote on a worker of the site (craftscan-worker),
+// this station taking over when no worker claims the job within
+// offer_timeout_ms; kAuto remote when a worker is idle now, else local.
+enum class ReconstructionMode { kLocal, kRemote, kAuto };
+std::string_view ToString(ReconstructionMode mode);  // "local", "remote", "auto"
+bool ReconstructionModeFromString(std::string_view text, ReconstructionMode* mode);
+
+struct ReconstructionSettings {
+  ReconstructionMode mode = ReconstructionMode::kLocal;
+  // An offer nobody claims (or a job whose worker was lost and that nobody
+  // claims again) is reconstructed here after this long (ms), 100..600000.
+  int offer_timeout_ms = 3000;
+  // A granted job whose result has not come this long after the grant (s,
+  // 10..86400) is taken back and reconstructed here.
+  int max_remote_s = 1800;
+};
+
 struct DaemonConfig {
   std::string station = "station1";             // [A-Za-z0-9_]{1,32}
+  // The site the station belongs to: its stations and workers share jobs
+  // and see each other in this DDS partition (craftscan/dds/site.h).
+  std::string site = "default";                 // [A-Za-z0-9_-]{1,64}
   std::string data_dir = "/var/lib/craftscan";  // absolute
   LogLevel log_level = LogLevel::kInfo;
   DdsSettings dds;
@@ -282,6 +311,7 @@ struct DaemonConfig {
   LimitSettings limits;
   WatchdogSettings watchdog;
   DeliverableSettings deliverables;
+  ReconstructionSettings reconstruction;
 
   // Checks every field's range and the cross-field rules (board validity,
   // views × step_deg ≤ 360, volume heights ordered, matcher options). On

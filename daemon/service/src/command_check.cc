@@ -147,6 +147,18 @@ bool CheckArguments(const std::map<std::string, ArgSpec>& spec, const nlohmann::
   return true;
 }
 
+// calibration.yaml or views/NNN/<file>: a session file a worker fetches
+// besides the outputs (`get` with a list of names).
+bool IsSessionInputName(const std::string& name) {
+  if (name == kCalibrationYaml) return true;
+  if (name.size() < 11 || name.compare(0, 6, "views/") != 0 || name[9] != '/') return false;
+  for (int i = 6; i < 9; ++i)
+    if (name[i] < '0' || name[i] > '9') return false;
+  const std::string file = name.substr(10);
+  std::string why;
+  return file.find('/') == std::string::npos && IsValidOutputName(file, &why);
+}
+
 // The checks of argument values by shape, after CheckArguments has checked
 // their types and ranges.
 bool CheckValues(const std::string& verb, const nlohmann::json& args, std::string* why) {
@@ -167,7 +179,8 @@ bool CheckValues(const std::string& verb, const nlohmann::json& args, std::strin
   }
   if (verb == "get" && args.contains("files") && args["files"].is_array()) {
     for (const nlohmann::json& name : args["files"]) {
-      if (!IsValidOutputName(name.get_ref<const std::string&>(), why)) {
+      if (!IsValidOutputName(name.get_ref<const std::string&>(), why) &&
+          !IsSessionInputName(name.get_ref<const std::string&>())) {
         *why = "files: '" + name.get<std::string>() + "': " + *why;
         return false;
       }

@@ -74,6 +74,22 @@ nlohmann::json TurnsSummaryJson(const nlohmann::json& turns, const std::string& 
   return out;
 }
 
+// A session file that is not an output, by name: calibration.yaml or
+// views/NNN/<file> (what a worker fetches to reconstruct); nullopt for
+// anything else or a file the manifest does not hold.
+std::optional<FileRecord> SessionInput(const Manifest& manifest, const std::string& name) {
+  if (name == kCalibrationYaml) return manifest.calibration;
+  int index = -1;
+  char file[64] = {};
+  if (name.size() > 10 + sizeof file - 1 || std::sscanf(name.c_str(), "views/%3d/%63s", &index, file) != 2)
+    return std::nullopt;
+  const auto view = manifest.views.find(index);
+  if (view == manifest.views.end()) return std::nullopt;
+  const auto record = view->second.files.find(file);
+  if (record == view->second.files.end()) return std::nullopt;
+  return record->second;
+}
+
 }  // namespace
 
 nlohmann::json JobJson(const JobInfo& job) {
@@ -351,6 +367,10 @@ CommandReply CommandHandler::GetFiles(const std::string& id, const nlohmann::jso
     std::set<std::string> seen;
     for (const nlohmann::json& item : files) {
       const std::string& name = item.get_ref<const std::string&>();
+      if (const std::optional<FileRecord> input = SessionInput(manifest, name)) {
+        if (seen.insert(name).second) named.emplace_back(name, *input);
+        continue;
+      }
       if (!manifest.outputs.count(name)) {
         std::string available;
         for (const auto& [output, unused] : manifest.outputs) {

@@ -13,6 +13,7 @@
 #include "craftscan/daemon/commands.h"
 #include "craftscan/daemon/devices.h"
 #include "craftscan/daemon/jobs.h"
+#include "craftscan/daemon/remote_jobs.h"
 #include "craftscan/daemon/notify.h"
 #include "craftscan/daemon/report.h"
 #include "craftscan/daemon/session_store.h"
@@ -123,6 +124,8 @@ struct Daemon::Impl {
   std::unique_ptr<SessionStore> store;
   std::optional<TokenAuthority> tokens;
   std::shared_ptr<dds::Participant> participant;
+  // Reconstruction on the site's workers (reconstruction.mode remote/auto).
+  std::unique_ptr<RemoteJobs> remote;
   StatusWriter status_writer;
   CommandChannel commands;
   DdsPublisher publisher;
@@ -318,6 +321,19 @@ std::unique_ptr<Daemon> Daemon::Create(const DaemonConfig& config, std::string* 
   jobs.calibration_guided = config.calibration.guided;
   jobs.calibration_guided_max_s = config.calibration.guided_max_s;
   jobs.max_rms_px = config.calibration.max_rms_px;
+  if (config.reconstruction.mode != ReconstructionMode::kLocal) {
+    impl->remote = RemoteJobs::Create(impl->participant, config.site, config.station,
+                                      &*impl->tokens, Log, &why);
+    if (!impl->remote) {
+      *error = "reconstruction: " + why;
+      return nullptr;
+    }
+    jobs.remote = impl->remote.get();
+    jobs.reconstruction = config.reconstruction.mode;
+    jobs.remote_config = DumpDaemonConfig(config);
+    jobs.remote_offer_timeout = std::chrono::milliseconds(config.reconstruction.offer_timeout_ms);
+    jobs.remote_max = std::chrono::seconds(config.reconstruction.max_remote_s);
+  }
   jobs.calibration.rectification.zero_disparity = false;
   impl->jobs = std::make_unique<JobEngine>(jobs, impl->devices.get(), impl->store.get(),
                                            &impl->publisher, Log, MakeReportFiles);

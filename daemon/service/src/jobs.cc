@@ -1,5 +1,7 @@
 #include "craftscan/daemon/jobs.h"
 
+#include "craftscan/daemon/remote_jobs.h"
+
 #include <fcntl.h>
 #include <sys/stat.h>
 #include <unistd.h>
@@ -697,6 +699,17 @@ JobEngine::JobOutcome JobEngine::RunScanStages(ScanPlan& plan) {
   build.label = label;
   build.turns = plan.turns;
   build.join.num_threads = std::max(1, options_.threads);
+  const bool offered = options_.remote != nullptr && plan.turn == 1 && plan.reconstruct &&
+                       (options_.reconstruction == ReconstructionMode::kRemote ||
+                        (options_.reconstruction == ReconstructionMode::kAuto &&
+                         options_.remote->WorkersIdle() > 0));
+  if (offered) {
+    build.remote = options_.remote;
+    build.remote_config = options_.remote_config;
+    build.remote_offer_timeout = options_.remote_offer_timeout;
+    build.remote_max = options_.remote_max;
+    build.on_remote = options_.on_remote;
+  }
   ReconstructStage reconstruct(context, &plan.calibration, std::move(build), report_);
 
   std::thread matcher(

@@ -6,7 +6,9 @@
 
 #include "craftscan/daemon/glb.h"
 #include "craftscan/daemon/jobs.h"
+#include "craftscan/daemon/remote_jobs.h"
 #include "craftscan/daemon/report.h"
+#include "craftscan/daemon/scan_outputs.h"
 #include "craftscan/daemon/stages.h"
 #include "craftscan/pipeline/common/atomic_file.h"
 #include "craftscan/pipeline/common/ply.h"
@@ -224,6 +226,10 @@ ReconstructOutcome ReconstructStage::Run(BoundedQueue<MatchedView>& in) {
   // both are here, while the turntable turns to the next; views that come
   // early wait for their turn.
   IncrementalScan incremental(calibration_->turntable, turn_scan);
+  // Handed to a worker (one turn; a join is made here): the views are only
+  // kept, for a local reconstruction should no worker do it.
+  const bool remote = options_.remote != nullptr && !joining;
+  std::vector<ScanView> kept;
   std::vector<std::optional<MatchedView>> waiting(static_cast<std::size_t>(std::max(n, 0)));
   int next = 0;
   while (std::optional<MatchedView> item = in.Pop()) {
@@ -236,7 +242,11 @@ ReconstructOutcome ReconstructStage::Run(BoundedQueue<MatchedView>& in) {
         ScanView v;
         v.commanded_angle_rad = view.angle_deg * kDegToRad;
         v.cloud_in_rig = std::move(view.cloud);
-        incremental.Add(std::move(v));
+        if (remote) {
+          kept.push_back(std::move(v));
+        } else {
+          incremental.Add(std::move(v));
+        }
       }
       waiting[static_cast<std::size_t>(next)].reset();
     }
@@ -257,10 +267,28 @@ ReconstructOutcome ReconstructStage::Run(BoundedQueue<MatchedView>& in) {
     out.status = StageOutcome::Storage(set, "");
     return out;
   }
-  context_.Progress("register", 0, 1,
-                    label + "closing the loop over " + std::to_string(n) + " registered views");
   const auto start = std::chrono::steady_clock::now();
-  ScanResult r = incremental.Finish();
+  ScanResult r;
+  if (remote) {
+    RemoteJobOutcome handed = RunRemote();
+    if (handed.status == RemoteJobOutcome::Status::kCancelled) {
+      out.status = StageOutcome::Cancelled();
+      return out;
+    }
+    if (handed.status == RemoteJobOutcome::Status::kDone) {
+      StoreRemote(handed, MsSince(start), &out);
+      return out;
+    }
+    context_.Log(drivers::LogLevel::kWarning, "session " + session.id() + ": reconstructing here: " +
+                                                  handed.message);
+    context_.Progress("register", 0, 1, "reconstructing here: " + handed.message);
+    r = ReconstructScan(kept, calibration_->turntable, turn_scan);
+    out.result["remote"] = {{"job", handed.job_id}, {"outcome", "local"}, {"why", handed.message}};
+  } else {
+    context_.Progress("register", 0, 1,
+                      label + "closing the loop over " + std::to_string(n) + " registered views");
+    r = incremental.Finish();
+  }
   if (joining && r.IsUsable()) {
     const std::string turn = "turn " + std::to_string(options_.turn);
     ScanResult first_turn;
@@ -299,42 +327,14 @@ ReconstructOutcome ReconstructStage::Run(BoundedQueue<MatchedView>& in) {
     return out;
   }
   context_.Progress("write", 0, 1, "writing fused cloud, mesh and report");
-  const bool mesh = r.mesh.status == MeshResult::Status::kOk;
-  const std::string report = WithTurns(ScanReportJson(r), out.result);
-  // Encoded here and written with the Status-returning WriteFileAtomically,
-  // so a full or read-only disk reaches the job as its code.
-  const auto encoded = [&](const std::string& bytes) {
-    return [&bytes](const std::string& path) { return WriteFileAtomically(path, bytes); };
-  };
-  const std::string fused_ply = EncodePly(r.fused, true);
-  const std::string mesh_ply = mesh ? EncodeMeshPly(r.mesh.mesh, true) : std::string();
-  const std::string mesh_obj = mesh ? EncodeMeshObj(r.mesh.mesh) : std::string();
-  const std::string mesh_glb = mesh ? EncodeModel(report, r) : std::string();
-  Status written = session.StoreOutputWith("fused.ply", encoded(fused_ply));
-  if (written.ok() && mesh) written = session.StoreOutputWith("mesh.ply", encoded(mesh_ply));
-  if (written.ok() && mesh) written = session.StoreOutputWith("mesh.obj", encoded(mesh_obj));
-  if (written.ok() && !mesh_glb.empty())
-    written = session.StoreOutputWith("mesh.glb", encoded(mesh_glb));
-  if (written.ok()) written = session.StoreOutput("report.json", report);
-  if (!written.ok()) {
-    // Storage, not the pipeline: resumable like a capture that failed.
-    out.status = StageOutcome::Storage(written, "outputs: ");
+  ScanOutputs outputs = MakeScanOutputs(r, WithTurns(ScanReportJson(r), out.result), OutputContext());
+  if (StageOutcome stored = StoreScanOutputs(session, outputs, context_.log); !stored.ok()) {
+    out.status = stored;
     return out;
   }
-  StoreReport(report, r, &out.result);
   if (context_.sink) context_.sink->Cloud(session.id(), -1, r.fused, cv::Matx44d::eye());
-
-  out.result["fused_points"] = r.fused.size();
-  out.result["mesh_vertices"] = r.mesh.mesh.vertices_mm.size();
+  out.result.update(outputs.result);
   out.result["reconstruct_ms"] = reconstruct_ms;
-  out.result["stage_ms"] = {{"condition", r.condition_ms}, {"register", r.register_ms},
-                            {"loop", r.loop_ms},           {"fuse", r.fuse_ms},
-                            {"mesh", r.mesh_ms},           {"measure", r.measure_ms}};
-  out.result["box_mm"] = {r.box.extents_mm[0], r.box.extents_mm[1], r.box.extents_mm[2]};
-  const nlohmann::json report_json = nlohmann::json::parse(report, nullptr, false);
-  if (report_json.is_object() && report_json.contains("measurement")) {
-    out.result["measurement"] = report_json["measurement"];
-  }
   out.summary = std::to_string(n) + " views, " + std::to_string(r.fused.size()) + " fused points";
   out.done_detail = "fused " + std::to_string(r.fused.size()) + " points";
   if (joining) {
@@ -413,72 +413,89 @@ std::vector<std::pair<int, double>> ReconstructStage::ReportViews() const {
   return views;
 }
 
-// mesh.glb with the session's provenance; "" (logged) when it cannot be
-// encoded: the PLY and OBJ still hold the model.
-std::string ReconstructStage::EncodeModel(const std::string& report_json, const ScanResult& r) {
+RemoteJobOutcome ReconstructStage::RunRemote() {
   Session& session = *context_.session;
   const Manifest manifest = session.manifest();
-  ModelProvenance p;
-  p.object_name = manifest.object_name;
-  p.session_id = session.id();
-  p.station = options_.station;
-  p.captured_utc =
-      manifest.views.empty() ? manifest.created_utc : manifest.views.begin()->second.captured_utc;
-  if (const auto client = manifest.params.find("client");
-      client != manifest.params.end() && client->is_string())
-    p.client = client->get<std::string>();
-  p.calibration_id = manifest.calibration_id;
-  p.calibration_rms_px = calibration_->report.rms_stereo_px;
-  p.calibration_epipolar_mean_px = calibration_->report.epipolar_mean_px;
-  p.software = options_.software;
-  p.rights = options_.rights;
-  p.scan_report_json = report_json;
-  std::string glb, why;
-  if (!EncodeGlb(r.mesh.mesh, p, &glb, &why)) {
-    context_.Log(drivers::LogLevel::kWarning, "session " + session.id() + ": mesh.glb: " + why);
-    return {};
+  const ScanOutputContext c = OutputContext();
+  RemoteJobRequest request;
+  request.session = session.id();
+  request.offer_timeout = options_.remote_offer_timeout;
+  request.max_remote = options_.remote_max;
+  if (manifest.calibration) {
+    request.inputs.push_back(
+        {kCalibrationYaml, manifest.calibration->size_bytes, manifest.calibration->sha256});
   }
-  return glb;
-}
-
-// The page people look at: measurements, calibration, registration and
-// pictures. A report that cannot be made is noted, not a failed scan.
-void ReconstructStage::StoreReport(const std::string& report_json, const ScanResult& r,
-                                   nlohmann::json* result) {
-  if (!report_) return;
-  Session& session = *context_.session;
-  context_.Progress("report", 0, 1, "rendering previews and report.html");
-  const Manifest manifest = session.manifest();
-  ReportInputs inputs;
-  inputs.session_id = session.id();
-  inputs.object_name = manifest.object_name;
-  inputs.created_utc = manifest.created_utc;
-  inputs.calibration_id = manifest.calibration_id;
-  inputs.scan_report_json = report_json;
-  inputs.calibration = calibration_;
-  inputs.fused = &r.fused;
-  if (r.mesh.status == MeshResult::Status::kOk) inputs.mesh = &r.mesh.mesh;
-  for (const auto& [k, angle] : ReportViews()) {
-    DisparityView view;
-    view.index = k;
-    view.angle_deg = angle;
-    view.min_disparity_px = options_.min_disparity;
-    view.max_disparity_px = options_.min_disparity + options_.num_disparities - 1;
-    if (session.LoadDisparity(k, &view.disparity_px, nullptr)) {
-      inputs.disparities.push_back(std::move(view));
+  nlohmann::json views = nlohmann::json::array();
+  for (int k = 0; k < options_.views; ++k) {
+    const int v = options_.first_view + k;
+    const auto record = manifest.views.find(v);
+    if (record == manifest.views.end()) continue;
+    views.push_back({{"index", v}, {"angle_deg", record->second.angle_deg}});
+    char folder[16];
+    std::snprintf(folder, sizeof folder, "views/%03d/", v);
+    for (const char* file : {"cloud.ply", "disparity.pfm"}) {
+      const auto f = record->second.files.find(file);
+      if (f != record->second.files.end())
+        request.inputs.push_back({folder + std::string(file), f->second.size_bytes, f->second.sha256});
     }
   }
-  ReportFiles files;
-  std::string why;
-  bool ok = report_(inputs, &files, &why);
-  for (std::size_t i = 0; ok && i < files.files.size(); ++i) {
-    const Status stored = session.StoreOutput(files.files[i].name, files.files[i].bytes);
-    ok = stored.ok();
-    if (!ok) why = stored.message();
+  nlohmann::json report_views = nlohmann::json::array();
+  for (const auto& [index, angle] : c.report_views) report_views.push_back({index, angle});
+  request.parameters = {{"config", options_.remote_config},
+                        {"views", views},
+                        {"report_views", report_views},
+                        {"report", static_cast<bool>(report_)},
+                        {"min_disparity", c.min_disparity},
+                        {"num_disparities", c.num_disparities},
+                        {"session", c.session_id},
+                        {"object_name", c.object_name},
+                        {"created_utc", c.created_utc},
+                        {"captured_utc", c.captured_utc},
+                        {"client", c.client},
+                        {"calibration_id", c.calibration_id},
+                        {"station", c.station},
+                        {"software", c.software},
+                        {"rights", c.rights}};
+  static const std::atomic<bool> never{false};
+  return options_.remote->Run(request, context_.stop ? *context_.stop : never, context_.progress,
+                              options_.on_remote);
+}
+
+void ReconstructStage::StoreRemote(const RemoteJobOutcome& handed, double reconstruct_ms,
+                                   ReconstructOutcome* out) {
+  Session& session = *context_.session;
+  context_.Progress("write", 0, 1, "writing the model worker " + handed.worker + " made");
+  if (StageOutcome stored = StoreScanOutputs(session, handed.outputs, context_.log); !stored.ok()) {
+    out->status = stored;
+    return;
   }
-  if (!ok)
-    context_.Log(drivers::LogLevel::kWarning, "session " + session.id() + ": report: " + why);
-  (*result)["report_ms"] = files.render_ms;
+  PointCloud fused;
+  std::string why;
+  if (context_.sink && ReadPly(session.dir() + "/fused.ply", &fused, &why))
+    context_.sink->Cloud(session.id(), -1, fused, cv::Matx44d::eye());
+  out->result.update(handed.outputs.result);
+  out->result["reconstruct_ms"] = reconstruct_ms;
+  out->result["remote"] = {{"job", handed.job_id},       {"outcome", "done"},
+                           {"worker", handed.worker},    {"grants", handed.grants},
+                           {"seconds", handed.seconds}, {"bytes_back", handed.bytes_back}};
+  const auto points = handed.outputs.result.value("fused_points", std::size_t{0});
+  out->summary = std::to_string(options_.views) + " views, " + std::to_string(points) +
+                 " fused points (reconstructed by worker " + handed.worker + ")";
+  out->done_detail = "fused " + std::to_string(points) + " points on worker " + handed.worker;
+}
+
+ScanOutputContext ReconstructStage::OutputContext() const {
+  ScanOutputContext c = SessionOutputContext(*context_.session, calibration_);
+  c.station = options_.station;
+  c.software = options_.software;
+  c.rights = options_.rights;
+  c.report_views = ReportViews();
+  c.min_disparity = options_.min_disparity;
+  c.num_disparities = options_.num_disparities;
+  c.report = report_;
+  c.progress = context_.progress;
+  c.log = context_.log;
+  return c;
 }
 
 }  // namespace craftscan::daemon

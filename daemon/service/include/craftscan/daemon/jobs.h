@@ -50,6 +50,7 @@
 #include <nlohmann/json.hpp>
 #include <opencv2/core.hpp>
 
+#include "craftscan/daemon/config.h"
 #include "craftscan/daemon/devices.h"
 #include "craftscan/daemon/live_preview.h"
 #include "craftscan/daemon/session_store.h"
@@ -92,6 +93,15 @@ struct JobEngineOptions {
   std::string station;
   std::string software;  // "craftscan <version>"
   std::string rights;    // deliverables.rights; "" = none
+  // Reconstruction on the site's workers (remote_jobs.h): null = always here.
+  // With `remote`: kRemote offers every scan's reconstruction, kAuto only
+  // when a worker is idle as the scan starts (a join is always made here).
+  RemoteJobs* remote = nullptr;
+  ReconstructionMode reconstruction = ReconstructionMode::kLocal;
+  std::string remote_config;  // DumpDaemonConfig of the station's config
+  std::chrono::milliseconds remote_offer_timeout{3000};
+  std::chrono::seconds remote_max{1800};
+  std::function<void(const std::string& job, const std::string& worker)> on_remote;
   int default_views = 6;
   double default_step_deg = 60;
   std::chrono::milliseconds settle{200};

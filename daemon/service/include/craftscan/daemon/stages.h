@@ -45,6 +45,9 @@
 namespace craftscan::daemon {
 
 class JobSink;
+struct ScanOutputContext;  // craftscan/daemon/scan_outputs.h
+class RemoteJobs;          // craftscan/daemon/remote_jobs.h
+struct RemoteJobOutcome;
 struct ReportInputs;  // craftscan/daemon/report.h
 struct ReportFiles;
 
@@ -266,6 +269,16 @@ class ReconstructStage {
     std::string label;              // "turn 2: " for progress messages
     std::vector<TurnRecord> turns;  // all the session's turns, this one last
     TurnJoinOptions join;
+    // Not null (a first turn only): the reconstruction is offered to the
+    // site's workers (remote_jobs.h) once the views are in, and made here
+    // only when none does it. remote_config: the station's config
+    // (DumpDaemonConfig) the worker takes the pipeline settings from.
+    RemoteJobs* remote = nullptr;
+    std::string remote_config;
+    std::chrono::milliseconds remote_offer_timeout{3000};
+    std::chrono::seconds remote_max{1800};
+    // Told the job's worker as it changes (the site view); may be empty.
+    std::function<void(const std::string& job, const std::string& worker)> on_remote;
   };
   // `report` may be empty: no report pages.
   ReconstructStage(StageContext context, const StereoCalibration* calibration, Options options,
@@ -288,8 +301,12 @@ class ReconstructStage {
   std::string WithTurns(const std::string& report, const nlohmann::json& result);
   // The views the report shows: (index, commanded angle), every joined turn's.
   std::vector<std::pair<int, double>> ReportViews() const;
-  std::string EncodeModel(const std::string& report_json, const ScanResult& r);
-  void StoreReport(const std::string& report_json, const ScanResult& r, nlohmann::json* result);
+  // What the outputs are made from (scan_outputs.h): the session's provenance.
+  ScanOutputContext OutputContext() const;
+  // The reconstruction offered to the site's workers (options_.remote).
+  RemoteJobOutcome RunRemote();
+  // A worker's model stored as the station's own.
+  void StoreRemote(const RemoteJobOutcome& handed, double reconstruct_ms, ReconstructOutcome* out);
 
   StageContext context_;
   const StereoCalibration* calibration_;

@@ -1,0 +1,97 @@
+// The station's side of a reconstruction handed to a worker on another host
+// (craftscan/dds/site.h has the protocol and which DDS mechanism carries
+// each rule). One RemoteJobs per daemon, on the daemon's participant:
+//
+//   offer (JobOffer "offered", transient-local)
+//     → claims (JobClaim; a claim whose token the station's tokens file does
+//       not list with role operator or admin, or from a worker not alive on
+//       the site, is refused and logged: an unknown worker is never granted)
+//     → grant (the JobOffer instance again: "granted", worker, grant n)
+//     → the worker's lease: its WorkerStatus instance; NOT_ALIVE (died, cut
+//       off, stopped) → offered again (grant n+1 on the next claim)
+//     → result (JobResult chunks of grant n, SHA-256 checked) → done: the
+//       instance disposed; a chunk of any other job or grant is dropped and
+//       logged (a late duplicate).
+//   No claim within offer_timeout (first offer or after a lost lease), a
+//   grant older than max_remote, or a worker reporting failure → the
+//   caller reconstructs locally (kLocal), the offer disposed.
+#pragma once
+
+#include <atomic>
+#include <chrono>
+#include <cstdint>
+#include <functional>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include <nlohmann/json.hpp>
+
+#include "craftscan/daemon/auth.h"
+#include "craftscan/daemon/scan_outputs.h"
+#include "craftscan/dds/participant.h"
+
+namespace craftscan::daemon {
+
+// A session file the worker fetches with `get`.
+struct RemoteInput {
+  std::string name;  // "calibration.yaml", "views/000/cloud.ply", ...
+  std::uint64_t size = 0;
+  std::string sha256;
+};
+
+struct RemoteJobRequest {
+  std::string session;
+  std::vector<RemoteInput> inputs;
+  nlohmann::json parameters;  // RemoteParameters (worker side reads the same keys)
+  std::chrono::milliseconds offer_timeout{3000};
+  std::chrono::seconds max_remote{1800};
+};
+
+struct RemoteJobOutcome {
+  enum class Status {
+    kDone,       // `outputs` hold the checked files and the worker's result
+    kLocal,      // no worker did it: reconstruct here (`message` says why)
+    kCancelled,  // the stop flag was set
+  };
+  Status status = Status::kLocal;
+  std::string message;
+  ScanOutputs outputs;
+  std::string job_id;
+  std::string worker;            // who delivered it (kDone)
+  int grants = 0;                // grants made (> 1: a lease was lost on the way)
+  double seconds = 0;            // from the offer to the last file
+  std::uint64_t bytes_back = 0;  // result bytes received
+};
+
+class RemoteJobs {
+ public:
+  // `tokens` (not owned, outlives this; null: no claim is honoured) decides
+  // which workers may be granted. Null with *error when a DDS entity cannot
+  // be made.
+  static std::unique_ptr<RemoteJobs> Create(std::shared_ptr<dds::Participant> participant,
+                                            const std::string& site, const std::string& station,
+                                            const TokenAuthority* tokens, LogFn log,
+                                            std::string* error);
+  ~RemoteJobs();
+  RemoteJobs(const RemoteJobs&) = delete;
+  RemoteJobs& operator=(const RemoteJobs&) = delete;
+
+  // Workers alive on the site now and, of them, those idle.
+  int WorkersAlive();
+  int WorkersIdle();
+
+  // Offers one job and sees it through (above). `on_change(job, worker)` is
+  // told the job's worker as it changes ("" = offered, none) and ("", "")
+  // at the end; may be empty. Blocks; one Run at a time.
+  RemoteJobOutcome Run(const RemoteJobRequest& request, const std::atomic<bool>& stop,
+                       const ProgressFn& progress,
+                       const std::function<void(const std::string&, const std::string&)>& on_change);
+
+ private:
+  struct Impl;
+  explicit RemoteJobs(std::unique_ptr<Impl> impl);
+  std::unique_ptr<Impl> impl_;
+};
+
+}  // namespace craftscan::daemon

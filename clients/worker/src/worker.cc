@@ -1,0 +1,486 @@
+// craftscan-worker's job loop (worker.h; the protocol in craftscan/dds/site.h).
+#include "craftscan/worker/worker.h"
+
+#include <unistd.h>
+
+#include <chrono>
+#include <cstdio>
+#include <cstdlib>
+#include <filesystem>
+#include <map>
+#include <mutex>
+#include <thread>
+#include <utility>
+#include <vector>
+
+#include <nlohmann/json.hpp>
+
+#include "craftscan/client/station_client.h"
+#include "craftscan/daemon/config.h"
+#include "craftscan/daemon/report.h"
+#include "craftscan/daemon/scan_outputs.h"
+#include "craftscan/dds/endpoint.h"
+#include "craftscan/dds/site.h"
+#include "craftscan/pipeline/calib/calibration.h"
+#include "craftscan/pipeline/common/pfm.h"
+#include "craftscan/pipeline/common/ply.h"
+#include "craftscan/pipeline/common/sha256.h"
+#include "craftscan/pipeline/surface/visibility.h"
+
+namespace craftscan::worker {
+
+bool WorkerOptions::IsValid(std::string* why) const {
+  const auto fail = [&](const std::string& message) {
+    if (why) *why = message;
+    return false;
+  };
+  std::string reason;
+  if (!dds::IsValidWorkerId(worker_id, &reason)) return fail("worker: " + reason);
+  if (!dds::IsValidSiteId(site, &reason)) return fail("site: " + reason);
+  if (domain > dds::kMaxDomainId)
+    return fail("dds.domain: must be 0.." + std::to_string(dds::kMaxDomainId) + ", got " +
+                std::to_string(domain));
+  if (threads < 1 || threads > 256)
+    return fail("threads: must be 1..256, got " + std::to_string(threads));
+  if (work_dir.empty() || work_dir.front() != '/')
+    return fail("work_dir: must be an absolute path, got '" + work_dir + "'");
+  if (token.size() > 256) return fail("token: longer than 256 bytes");
+  return true;
+}
+
+namespace {
+
+using Clock = std::chrono::steady_clock;
+using std::chrono::milliseconds;
+
+constexpr auto kRenewEvery = milliseconds(dds::kWorkerLeaseMs / 4);
+constexpr auto kClaimEvery = milliseconds(1000);
+constexpr std::size_t kChunkBytes = std::size_t{1} << 20;
+constexpr std::size_t kAckEveryBytes = std::size_t{8} << 20;
+
+int64_t NowNs() {
+  return std::chrono::duration_cast<std::chrono::nanoseconds>(
+             std::chrono::system_clock::now().time_since_epoch())
+      .count();
+}
+
+double LoadPerCore() {
+  double load[1] = {0};
+  if (getloadavg(load, 1) != 1) return 0;
+  const unsigned cores = std::max(1u, std::thread::hardware_concurrency());
+  return load[0] / cores;
+}
+
+struct Offer {
+  std::string job_id, station, session, state, worker;
+  uint32_t grant = 0;
+  std::string inputs, parameters;
+  int64_t offered_ns = 0;
+};
+
+// One granted job, run on a thread of its own while the loop renews the lease.
+struct Job {
+  Offer offer;
+  std::atomic<bool> abort{false};
+  std::atomic<bool> finished{false};
+  std::string phase = "fetching";  // guarded by Loop::mutex
+  std::thread thread;
+};
+
+class Loop {
+ public:
+  Loop(const WorkerOptions& options, const WorkerHooks& hooks) : o_(options), hooks_(hooks) {}
+
+  bool Open(std::string* error) {
+    dds::ParticipantOptions p;
+    p.domain_id = o_.domain;
+    p.config = o_.dds_config;
+    participant_ = dds::Participant::Create(p, error);
+    if (!participant_) return false;
+    status_ = dds::Writer<dds::msg::WorkerStatus>::Create(participant_,
+                                                          dds::WorkerStatusTopic(o_.site), error);
+    claims_ =
+        status_ ? dds::Writer<dds::msg::JobClaim>::Create(participant_, dds::JobClaimTopic(o_.site),
+                                                          error)
+                : nullptr;
+    results_ = claims_ ? dds::Writer<dds::msg::JobResult>::Create(
+                             participant_, dds::JobResultTopic(o_.site), error)
+                       : nullptr;
+    offers_ = results_ ? dds::Reader<dds::msg::JobOffer>::Create(participant_,
+                                                                 dds::JobOfferTopic(o_.site), error)
+                       : nullptr;
+    return offers_ != nullptr;
+  }
+
+  void Run(const std::atomic<bool>& stop) {
+    WriteStatus();
+    if (hooks_.ready) hooks_.ready();
+    Log(1, "worker " + o_.worker_id + " on site " + o_.site + ": waiting for jobs");
+    auto renewed = Clock::now();
+    while (!stop.load()) {
+      TakeOffers();
+      if (job_ && job_->finished.load()) EndJob();
+      if (!job_) ClaimOrStart();
+      if (Clock::now() - renewed >= kRenewEvery) {
+        WriteStatus();
+        renewed = Clock::now();
+      }
+      if (hooks_.alive) hooks_.alive();
+    }
+    if (job_) {
+      job_->abort = true;
+      EndJob();
+    }
+    std::string error;
+    dds::Outgoing<dds::msg::WorkerStatus> gone;
+    gone.msg().worker = gone.Keep(o_.worker_id);
+    status_->Dispose(gone.msg(), &error);
+  }
+
+ private:
+  void Log(int level, const std::string& message) const {
+    if (hooks_.log) hooks_.log(level, message);
+  }
+  void Status(const std::string& line) const {
+    if (hooks_.status) hooks_.status(line);
+  }
+
+  // The lease renewal: what the worker is doing, at least every lease/4.
+  void WriteStatus() {
+    dds::Outgoing<dds::msg::WorkerStatus> s;
+    dds::msg::WorkerStatus& m = s.msg();
+    m.worker = s.Keep(o_.worker_id);
+    {
+      std::lock_guard lock(mutex_);
+      m.state = s.Keep(job_ ? job_->phase : std::string("idle"));
+      m.job_id = s.Keep(job_ ? job_->offer.job_id : std::string());
+      m.station = s.Keep(job_ ? job_->offer.station : std::string());
+      m.grant = job_ ? job_->offer.grant : 0;
+    }
+    m.cores = static_cast<uint32_t>(o_.threads);
+    m.load = LoadPerCore();
+    m.jobs_done = jobs_done_;
+    m.stamp_ns = NowNs();
+    std::string error;
+    if (!status_->Write(m, &error)) Log(2, "status: " + error);
+  }
+
+  // Offers as they change; a job in hand whose offer no longer grants it to
+  // this worker (disposed, station gone, granted again elsewhere) is dropped.
+  void TakeOffers() {
+    dds::Sample<dds::msg::JobOffer> sample;
+    dds::SampleState state;
+    std::string error;
+    while (offers_->TakeWithInfo(milliseconds(100), &sample, &state, &error) ==
+           dds::TakeStatus::kOk) {
+      const std::string id(dds::View(sample->job_id));
+      if (state.instance != dds::InstanceState::kAlive) {
+        offers_seen_.erase(id);
+        if (job_ && job_->offer.job_id == id && !job_->abort.exchange(true)) {
+          Log(2, "job " + id + ": withdrawn by its station (" +
+                     (state.instance == dds::InstanceState::kDisposed ? "ended" : "station gone") +
+                     "): abandoned");
+        }
+        continue;
+      }
+      if (!state.valid_data) continue;
+      Offer o;
+      o.job_id = id;
+      o.station = dds::View(sample->station);
+      o.session = dds::View(sample->session);
+      o.state = dds::View(sample->state);
+      o.worker = dds::View(sample->worker);
+      o.grant = sample->grant;
+      o.inputs = dds::View(sample->inputs);
+      o.parameters = dds::View(sample->parameters);
+      o.offered_ns = sample->offered_ns;
+      if (job_ && job_->offer.job_id == id &&
+          (o.worker != o_.worker_id || o.grant != job_->offer.grant) &&
+          !job_->abort.exchange(true)) {
+        Log(2, "job " + id + ": granted again (to " + (o.worker.empty() ? "nobody yet" : o.worker) +
+                   ", grant " + std::to_string(o.grant) + "): abandoned");
+      }
+      offers_seen_[id] = std::move(o);
+    }
+  }
+
+  void ClaimOrStart() {
+    // A grant to this worker not yet worked on starts the job.
+    for (const auto& [id, o] : offers_seen_) {
+      if (o.state == "granted" && o.worker == o_.worker_id && done_grants_[id] < o.grant) {
+        StartJob(o);
+        return;
+      }
+    }
+    // Else claim the oldest open offer (again every second while it is open).
+    const Offer* best = nullptr;
+    for (const auto& [id, o] : offers_seen_) {
+      if (o.state != "offered") continue;
+      if (!best || o.offered_ns < best->offered_ns) best = &o;
+    }
+    if (!best) return;
+    auto& last = claimed_at_[best->job_id];
+    if (Clock::now() - last < kClaimEvery) return;
+    last = Clock::now();
+    dds::Outgoing<dds::msg::JobClaim> c;
+    c.msg().job_id = c.Keep(best->job_id);
+    c.msg().worker = c.Keep(o_.worker_id);
+    c.msg().token = c.Keep(o_.token);
+    c.msg().cores = static_cast<uint32_t>(o_.threads);
+    c.msg().load = LoadPerCore();
+    c.msg().stamp_ns = NowNs();
+    std::string error;
+    if (!claims_->Write(c.msg(), &error)) Log(2, "claim: " + error);
+  }
+
+  void StartJob(const Offer& offer) {
+    done_grants_[offer.job_id] = offer.grant;
+    auto job = std::make_unique<Job>();
+    job->offer = offer;
+    Job* raw = job.get();
+    {
+      std::lock_guard lock(mutex_);
+      job_ = std::move(job);
+    }
+    Log(1, "job " + offer.job_id + ": granted (grant " + std::to_string(offer.grant) + ")");
+    WriteStatus();
+    raw->thread = std::thread([this, raw] {
+      try {
+        Work(*raw);
+      } catch (const std::exception& e) {
+        Log(3, "job " + raw->offer.job_id + ": " + e.what());
+      }
+      raw->finished = true;
+    });
+  }
+
+  void EndJob() {
+    if (job_->thread.joinable()) job_->thread.join();
+    std::error_code ec;
+    std::filesystem::remove_all(JobDir(job_->offer), ec);
+    std::lock_guard lock(mutex_);
+    job_.reset();
+    Status("idle");
+  }
+
+  std::string JobDir(const Offer& offer) const {
+    std::string name = offer.job_id;
+    for (char& c : name)
+      if (c == '/') c = '_';
+    return o_.work_dir + "/" + name;
+  }
+
+  void Phase(Job& job, const std::string& phase) {
+    {
+      std::lock_guard lock(mutex_);
+      job.phase = phase;
+    }
+    Status("job " + job.offer.job_id + ": " + phase);
+    WriteStatus();
+  }
+
+  // Fetch, reconstruct, return.
+  void Work(Job& job) {
+    const Offer& offer = job.offer;
+    const std::string dir = JobDir(offer);
+    const nlohmann::json inputs = nlohmann::json::parse(offer.inputs, nullptr, false);
+    const nlohmann::json params = nlohmann::json::parse(offer.parameters, nullptr, false);
+    if (!inputs.is_array() || !params.is_object()) return Fail(job, "the offer's inputs or parameters are not JSON");
+
+    Phase(job, "fetching");
+    client::ConnectOptions connect;
+    connect.station = offer.station;
+    connect.domain_id = o_.domain;
+    connect.token = o_.token;
+    connect.client_name = "craftscan-worker@" + o_.worker_id;
+    std::string error;
+    std::unique_ptr<client::StationClient>& station = stations_[offer.station];
+    if (!station) station = client::StationClient::Connect(connect, &error);
+    if (!station) return Fail(job, "cannot reach station " + offer.station + ": " + error);
+    client::FetchRequest fetch;
+    fetch.session = offer.session;
+    fetch.out_dir = dir;
+    fetch.cancel = &job.abort;
+    std::map<std::string, std::string> expected;
+    for (const nlohmann::json& input : inputs) {
+      fetch.files.push_back(input.value("name", std::string()));
+      expected[fetch.files.back()] = input.value("sha256", std::string());
+    }
+    const client::FetchResult fetched = station->Fetch(fetch);
+    if (job.abort.load()) return;
+    if (fetched.status != client::FetchStatus::kOk)
+      return Fail(job, "fetching the views: " + fetched.message);
+    for (const client::FetchedFile& f : fetched.files) {
+      if (!expected[f.name].empty() && expected[f.name] != f.sha256)
+        return Fail(job, f.name + ": SHA-256 differs from the offer's");
+    }
+    fetched_bytes_ = 0;
+    for (const client::FetchedFile& f : fetched.files) fetched_bytes_ += f.size_bytes;
+
+    Phase(job, "reconstructing");
+    const auto start = Clock::now();
+    daemon::DaemonConfig config;
+    if (!daemon::ParseDaemonConfig(params.value("config", std::string()), {}, &config, &error))
+      return Fail(job, "the station's settings: " + error);
+    StereoCalibration calibration;
+    if (!LoadCalibration(dir + "/calibration.yaml", &calibration, &error))
+      return Fail(job, "calibration.yaml: " + error);
+    ScanOptions scan = daemon::ReconstructionOptions(config.pipeline);
+    scan.num_threads = o_.threads;
+    scan.camera = RectifiedLeftCamera(calibration);
+    const auto view_file = [&](int index, const char* file) {
+      char folder[16];
+      std::snprintf(folder, sizeof folder, "views/%03d/", index);
+      return dir + "/" + folder + file;
+    };
+    std::vector<ScanView> views;
+    for (const nlohmann::json& v : params.value("views", nlohmann::json::array())) {
+      ScanView view;
+      view.commanded_angle_rad = v.value("angle_deg", 0.0) * CV_PI / 180;
+      if (!ReadPly(view_file(v.value("index", 0), "cloud.ply"), &view.cloud_in_rig, &error))
+        return Fail(job, "view " + std::to_string(v.value("index", 0)) + ": " + error);
+      views.push_back(std::move(view));
+    }
+    const ScanResult r = ReconstructScan(views, calibration.turntable, scan);
+    if (job.abort.load()) return;
+    if (!r.IsUsable()) return Fail(job, "reconstruction: " + r.message);
+
+    daemon::ScanOutputContext c;
+    c.session_id = params.value("session", std::string());
+    c.object_name = params.value("object_name", std::string());
+    c.created_utc = params.value("created_utc", std::string());
+    c.captured_utc = params.value("captured_utc", std::string());
+    c.client = params.value("client", std::string());
+    c.calibration_id = params.value("calibration_id", std::string());
+    c.calibration = &calibration;
+    c.station = params.value("station", std::string());
+    c.software = params.value("software", std::string());
+    c.rights = params.value("rights", std::string());
+    for (const nlohmann::json& v : params.value("report_views", nlohmann::json::array()))
+      if (v.is_array() && v.size() == 2) c.report_views.emplace_back(v[0].get<int>(), v[1].get<double>());
+    c.min_disparity = params.value("min_disparity", 0);
+    c.num_disparities = params.value("num_disparities", 0);
+    c.load_disparity = [&](int index, cv::Mat* disparity) {
+      return ReadPfm(view_file(index, "disparity.pfm"), disparity, nullptr);
+    };
+    if (params.value("report", false)) c.report = daemon::MakeReportFiles;
+    c.log = [this](drivers::LogLevel level, std::string_view message) {
+      Log(static_cast<int>(level), std::string(message));
+    };
+    daemon::ScanOutputs outputs = daemon::MakeScanOutputs(r, ScanReportJson(r), c);
+    outputs.result["worker"] = o_.worker_id;
+    outputs.result["worker_ms"] =
+        std::chrono::duration<double, std::milli>(Clock::now() - start).count();
+    outputs.result["bytes_fetched"] = fetched_bytes_;
+    if (job.abort.load()) return;
+
+    Phase(job, "returning");
+    if (Send(job, outputs)) {
+      ++jobs_done_;
+      Log(1, "job " + offer.job_id + ": result sent (" + std::to_string(outputs.files.size()) +
+                 " files)");
+    }
+  }
+
+  // The outputs as JobResult chunks of this grant; false when abandoned.
+  bool Send(Job& job, const daemon::ScanOutputs& outputs) {
+    std::string error;
+    const std::string result = outputs.result.dump();
+    std::size_t since_ack = 0;
+    for (std::size_t i = 0; i < outputs.files.size(); ++i) {
+      const daemon::ScanOutputFile& file = outputs.files[i];
+      const std::string sha = Sha256Hex(file.bytes);
+      std::size_t offset = 0;
+      do {
+        if (job.abort.load()) return false;
+        const std::size_t n = std::min(kChunkBytes, file.bytes.size() - offset);
+        const bool last = offset + n == file.bytes.size();
+        dds::Outgoing<dds::msg::JobResult> chunk;
+        Fill(job, &chunk);
+        dds::msg::JobResult& m = chunk.msg();
+        m.name = chunk.Keep(file.name);
+        m.file_index = static_cast<uint32_t>(i);
+        m.file_count = static_cast<uint32_t>(outputs.files.size());
+        m.total_size = file.bytes.size();
+        m.offset = offset;
+        dds::Borrow(&m.data, reinterpret_cast<const uint8_t*>(file.bytes.data()) + offset, n);
+        m.last = last;
+        m.sha256 = chunk.Keep(sha);
+        if (last && i + 1 == outputs.files.size()) m.result = chunk.Keep(result);
+        if (!results_->Write(m, &error)) {
+          Log(2, "job " + job.offer.job_id + ": " + error);
+          return false;
+        }
+        offset += n;
+        since_ack += n;
+        if (since_ack >= kAckEveryBytes) {
+          results_->WaitForAcks(milliseconds(30000), &error);
+          since_ack = 0;
+        }
+      } while (offset < file.bytes.size());
+    }
+    return results_->WaitForAcks(milliseconds(30000), &error);
+  }
+
+  void Fill(const Job& job, dds::Outgoing<dds::msg::JobResult>* chunk) {
+    chunk->msg().job_id = chunk->Keep(job.offer.job_id);
+    chunk->msg().worker = chunk->Keep(o_.worker_id);
+    chunk->msg().token = chunk->Keep(o_.token);
+    chunk->msg().grant = job.offer.grant;
+  }
+
+  // Tells the station this grant's job failed here (it reconstructs itself).
+  void Fail(Job& job, const std::string& why) {
+    Log(3, "job " + job.offer.job_id + ": " + why);
+    if (job.abort.load()) return;
+    dds::Outgoing<dds::msg::JobResult> chunk;
+    Fill(job, &chunk);
+    chunk.msg().error = chunk.Keep(why);
+    chunk.msg().last = true;
+    std::string error;
+    if (!results_->Write(chunk.msg(), &error)) Log(2, "job " + job.offer.job_id + ": " + error);
+  }
+
+  const WorkerOptions& o_;
+  const WorkerHooks& hooks_;
+  std::shared_ptr<dds::Participant> participant_;
+  std::unique_ptr<dds::Writer<dds::msg::WorkerStatus>> status_;
+  std::unique_ptr<dds::Writer<dds::msg::JobClaim>> claims_;
+  std::unique_ptr<dds::Writer<dds::msg::JobResult>> results_;
+  std::unique_ptr<dds::Reader<dds::msg::JobOffer>> offers_;
+  std::map<std::string, Offer> offers_seen_;
+  // One client per station, kept: its reader stays matched between jobs.
+  std::map<std::string, std::unique_ptr<client::StationClient>> stations_;
+  std::map<std::string, Clock::time_point> claimed_at_;
+  std::map<std::string, uint32_t> done_grants_;  // the last grant worked on, per job
+  std::mutex mutex_;                             // guards job_ against WriteStatus
+  std::unique_ptr<Job> job_;
+  std::atomic<uint64_t> jobs_done_{0};
+  std::uint64_t fetched_bytes_ = 0;
+};
+
+}  // namespace
+
+int RunWorker(const WorkerOptions& options, const std::atomic<bool>& stop, const WorkerHooks& hooks,
+              std::string* error) {
+  std::string why;
+  if (!options.IsValid(&why)) {
+    if (error) *error = why;
+    return 1;
+  }
+  std::error_code ec;
+  std::filesystem::create_directories(options.work_dir, ec);
+  if (ec) {
+    if (error) *error = "work_dir " + options.work_dir + ": " + ec.message();
+    return 1;
+  }
+  Loop loop(options, hooks);
+  if (!loop.Open(&why)) {
+    if (error) *error = "dds: " + why;
+    return 1;
+  }
+  loop.Run(stop);
+  return 0;
+}
+
+}  // namespace craftscan::worker

@@ -35,7 +35,8 @@ bool IsValidSiteId(std::string_view site, std::string* why) {
 bool IsValidWorkerId(std::string_view worker, std::string* why) {
   std::string station_why;
   if (IsValidStationId(worker, &station_why)) return true;
-  if (why) *why = "worker id '" + std::string(worker) + "'" + station_why.substr(station_why.find(':'));
+  if (why)
+    *why = "worker id '" + std::string(worker) + "'" + station_why.substr(station_why.find(':'));
   return false;
 }
 

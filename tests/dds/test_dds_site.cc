@@ -35,7 +35,8 @@ bool WaitForState(Reader<Msg>& reader, const std::string& key, KeyFn key_of, Ins
   SampleState state;
   std::string error;
   while (Clock::now() - start < wait) {
-    if (reader.TakeWithInfo(milliseconds(100), &sample, &state, &error) != TakeStatus::kOk) continue;
+    if (reader.TakeWithInfo(milliseconds(100), &sample, &state, &error) != TakeStatus::kOk)
+      continue;
     const char* k = key_of(sample.get());
     if (k != nullptr && key == k && state.instance == instance && state.valid_data == valid_data) {
       if (seconds) *seconds = std::chrono::duration<double>(Clock::now() - start).count();

@@ -99,10 +99,9 @@ class Loop {
     if (!participant_) return false;
     status_ = dds::Writer<dds::msg::WorkerStatus>::Create(participant_,
                                                           dds::WorkerStatusTopic(o_.site), error);
-    claims_ =
-        status_ ? dds::Writer<dds::msg::JobClaim>::Create(participant_, dds::JobClaimTopic(o_.site),
-                                                          error)
-                : nullptr;
+    claims_ = status_ ? dds::Writer<dds::msg::JobClaim>::Create(participant_,
+                                                                dds::JobClaimTopic(o_.site), error)
+                      : nullptr;
     results_ = claims_ ? dds::Writer<dds::msg::JobResult>::Create(
                              participant_, dds::JobResultTopic(o_.site), error)
                        : nullptr;
@@ -285,7 +284,8 @@ class Loop {
     const std::string dir = JobDir(offer);
     const nlohmann::json inputs = nlohmann::json::parse(offer.inputs, nullptr, false);
     const nlohmann::json params = nlohmann::json::parse(offer.parameters, nullptr, false);
-    if (!inputs.is_array() || !params.is_object()) return Fail(job, "the offer's inputs or parameters are not JSON");
+    if (!inputs.is_array() || !params.is_object())
+      return Fail(job, "the offer's inputs or parameters are not JSON");
 
     Phase(job, "fetching");
     client::ConnectOptions connect;
@@ -357,7 +357,8 @@ class Loop {
     c.software = params.value("software", std::string());
     c.rights = params.value("rights", std::string());
     for (const nlohmann::json& v : params.value("report_views", nlohmann::json::array()))
-      if (v.is_array() && v.size() == 2) c.report_views.emplace_back(v[0].get<int>(), v[1].get<double>());
+      if (v.is_array() && v.size() == 2)
+        c.report_views.emplace_back(v[0].get<int>(), v[1].get<double>());
     c.min_disparity = params.value("min_disparity", 0);
     c.num_disparities = params.value("num_disparities", 0);
     c.load_disparity = [&](int index, cv::Mat* disparity) {

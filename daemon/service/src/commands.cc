@@ -81,7 +81,8 @@ std::optional<FileRecord> SessionInput(const Manifest& manifest, const std::stri
   if (name == kCalibrationYaml) return manifest.calibration;
   int index = -1;
   char file[64] = {};
-  if (name.size() > 10 + sizeof file - 1 || std::sscanf(name.c_str(), "views/%3d/%63s", &index, file) != 2)
+  if (name.size() > 10 + sizeof file - 1 ||
+      std::sscanf(name.c_str(), "views/%3d/%63s", &index, file) != 2)
     return std::nullopt;
   const auto view = manifest.views.find(index);
   if (view == manifest.views.end()) return std::nullopt;

@@ -98,9 +98,10 @@ struct RemoteJobs::Impl {
                             std::string(dds::View(chunk.worker)) + "|" +
                             std::to_string(chunk.grant);
     if (!late_logged.insert(key).second) return;
-    Log(drivers::LogLevel::kWarning, "dropped a result of job " + std::string(dds::View(chunk.job_id)) +
-                                         " from worker " + std::string(dds::View(chunk.worker)) +
-                                         " (grant " + std::to_string(chunk.grant) + "): " + why);
+    Log(drivers::LogLevel::kWarning, "dropped a result of job " +
+                                         std::string(dds::View(chunk.job_id)) + " from worker " +
+                                         std::string(dds::View(chunk.worker)) + " (grant " +
+                                         std::to_string(chunk.grant) + "): " + why);
   }
 };
 
@@ -117,9 +118,11 @@ std::unique_ptr<RemoteJobs> RemoteJobs::Create(std::shared_ptr<dds::Participant>
   impl->station = station;
   impl->tokens = tokens;
   impl->log = std::move(log);
-  impl->offers = dds::Writer<dds::msg::JobOffer>::Create(participant, dds::JobOfferTopic(site), error);
+  impl->offers =
+      dds::Writer<dds::msg::JobOffer>::Create(participant, dds::JobOfferTopic(site), error);
   if (!impl->offers) return nullptr;
-  impl->claims = dds::Reader<dds::msg::JobClaim>::Create(participant, dds::JobClaimTopic(site), error);
+  impl->claims =
+      dds::Reader<dds::msg::JobClaim>::Create(participant, dds::JobClaimTopic(site), error);
   if (!impl->claims) return nullptr;
   impl->results =
       dds::Reader<dds::msg::JobResult>::Create(participant, dds::JobResultTopic(site), error);
@@ -247,13 +250,13 @@ RemoteJobOutcome RemoteJobs::Run(
       reoffer("lost its lease (no sign of life for " + std::to_string(dds::kWorkerLeaseMs) +
               " ms)");
     } else if (!worker.empty() && Clock::now() - granted_at > request.max_remote) {
-      return end(RemoteJobOutcome::Status::kLocal,
-                 "worker " + worker + " did not deliver within " +
-                     std::to_string(request.max_remote.count()) + " s");
+      return end(RemoteJobOutcome::Status::kLocal, "worker " + worker + " did not deliver within " +
+                                                       std::to_string(request.max_remote.count()) +
+                                                       " s");
     } else if (worker.empty() && Clock::now() - round > request.offer_timeout) {
-      return end(RemoteJobOutcome::Status::kLocal,
-                 "no worker claimed it within " +
-                     std::to_string(request.offer_timeout.count()) + " ms");
+      return end(
+          RemoteJobOutcome::Status::kLocal,
+          "no worker claimed it within " + std::to_string(request.offer_timeout.count()) + " ms");
     }
     // Results: this job's current grant only, in order, checked.
     dds::Sample<dds::msg::JobResult> chunk;
@@ -265,10 +268,9 @@ RemoteJobOutcome RemoteJobs::Run(
       }
       if (worker.empty() || dds::View(c.worker) != worker ||
           c.grant != static_cast<uint32_t>(out.grants)) {
-        m.DropLate(c, "the job is " +
-                          (worker.empty() ? std::string("not granted now")
-                                          : "granted to " + worker + " as grant " +
-                                                std::to_string(out.grants)));
+        m.DropLate(c, "the job is " + (worker.empty() ? std::string("not granted now")
+                                                      : "granted to " + worker + " as grant " +
+                                                            std::to_string(out.grants)));
         continue;
       }
       if (!m.Trusted(dds::View(c.token))) {

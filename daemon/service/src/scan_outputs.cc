@@ -135,8 +135,7 @@ StageOutcome StoreScanOutputs(Session& session, const ScanOutputs& outputs, cons
     // Storage, not the pipeline: resumable like a capture that failed.
     if (file.required) return StageOutcome::Storage(stored, "outputs: ");
     if (log)
-      log(drivers::LogLevel::kWarning,
-          "session " + session.id() + ": report: " + stored.message());
+      log(drivers::LogLevel::kWarning, "session " + session.id() + ": report: " + stored.message());
   }
   return StageOutcome::Ok();
 }

@@ -279,8 +279,8 @@ ReconstructOutcome ReconstructStage::Run(BoundedQueue<MatchedView>& in) {
       StoreRemote(handed, MsSince(start), &out);
       return out;
     }
-    context_.Log(drivers::LogLevel::kWarning, "session " + session.id() + ": reconstructing here: " +
-                                                  handed.message);
+    context_.Log(drivers::LogLevel::kWarning,
+                 "session " + session.id() + ": reconstructing here: " + handed.message);
     context_.Progress("register", 0, 1, "reconstructing here: " + handed.message);
     r = ReconstructScan(kept, calibration_->turntable, turn_scan);
     out.result["remote"] = {{"job", handed.job_id}, {"outcome", "local"}, {"why", handed.message}};
@@ -327,7 +327,8 @@ ReconstructOutcome ReconstructStage::Run(BoundedQueue<MatchedView>& in) {
     return out;
   }
   context_.Progress("write", 0, 1, "writing fused cloud, mesh and report");
-  ScanOutputs outputs = MakeScanOutputs(r, WithTurns(ScanReportJson(r), out.result), OutputContext());
+  ScanOutputs outputs =
+      MakeScanOutputs(r, WithTurns(ScanReportJson(r), out.result), OutputContext());
   if (StageOutcome stored = StoreScanOutputs(session, outputs, context_.log); !stored.ok()) {
     out.status = stored;
     return out;
@@ -436,7 +437,8 @@ RemoteJobOutcome ReconstructStage::RunRemote() {
     for (const char* file : {"cloud.ply", "disparity.pfm"}) {
       const auto f = record->second.files.find(file);
       if (f != record->second.files.end())
-        request.inputs.push_back({folder + std::string(file), f->second.size_bytes, f->second.sha256});
+        request.inputs.push_back(
+            {folder + std::string(file), f->second.size_bytes, f->second.sha256});
     }
   }
   nlohmann::json report_views = nlohmann::json::array();
@@ -475,8 +477,8 @@ void ReconstructStage::StoreRemote(const RemoteJobOutcome& handed, double recons
     context_.sink->Cloud(session.id(), -1, fused, cv::Matx44d::eye());
   out->result.update(handed.outputs.result);
   out->result["reconstruct_ms"] = reconstruct_ms;
-  out->result["remote"] = {{"job", handed.job_id},       {"outcome", "done"},
-                           {"worker", handed.worker},    {"grants", handed.grants},
+  out->result["remote"] = {{"job", handed.job_id},      {"outcome", "done"},
+                           {"worker", handed.worker},   {"grants", handed.grants},
                            {"seconds", handed.seconds}, {"bytes_back", handed.bytes_back}};
   const auto points = handed.outputs.result.value("fused_points", std::size_t{0});
   out->summary = std::to_string(options_.views) + " views, " + std::to_string(points) +

@@ -111,6 +111,8 @@ class DaemonFixture {
   // launcher that execs the rest, e.g. tests/tools/hardened-run and its
   // options), so pid() stays the daemon's.
   std::vector<std::string> launcher;
+  // More top-level config, appended as is (e.g. "site: s1\nreconstruction: {mode: remote}\n").
+  std::string extra_yaml;
 
   // Writes tokens, config and the exact sim calibration. False with *error.
   bool Prepare(std::string* error, bool with_calibration = true) {
@@ -151,6 +153,7 @@ class DaemonFixture {
                           : "")
            << pipeline_extra << "}\n";
     if (!calibration_yaml.empty()) config << "calibration: " << calibration_yaml << "\n";
+    config << extra_yaml;
     config.close();
     if (!with_calibration) return true;
     sim::SimDriverOptions options;

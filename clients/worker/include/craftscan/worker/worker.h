@@ -17,22 +17,23 @@
 namespace craftscan::worker {
 
 struct WorkerOptions {
-  std::string worker_id;    // unique on the site, [A-Za-z][A-Za-z0-9_]{0,63}
+  std::string worker_id;  // unique on the site, [A-Za-z][A-Za-z0-9_]{0,63}
   std::string site = "default";
   uint32_t domain = 0;
-  std::string dds_config;   // Cyclone config (ParticipantOptions::config); "" = CYCLONEDDS_URI
-  std::string token;        // presented with claims, results and `get`
-  int threads = 2;          // reconstruction threads
-  std::string work_dir;     // scratch for fetched inputs (absolute); emptied per job
+  std::string dds_config;  // Cyclone config (ParticipantOptions::config); "" = CYCLONEDDS_URI
+  std::string token;       // presented with claims, results and `get`
+  int threads = 2;         // reconstruction threads
+  std::string work_dir;    // scratch for fetched inputs (absolute); emptied per job
 
   bool IsValid(std::string* why) const;
 };
 
 // What the loop tells its host process (all may be empty).
 struct WorkerHooks {
-  std::function<void()> ready;                            // announced on the site
-  std::function<void(const std::string& status)> status;  // one line: "idle", "job st1/...: fetching"
-  std::function<void()> alive;                            // called at least once a second (watchdog)
+  std::function<void()> ready;  // announced on the site
+  std::function<void(const std::string& status)>
+      status;                   // one line: "idle", "job st1/...: fetching"
+  std::function<void()> alive;  // called at least once a second (watchdog)
   std::function<void(int level, const std::string& message)> log;  // 0 debug .. 3 error
 };
 

@@ -295,7 +295,7 @@ struct ReconstructionSettings {
 };
 
 struct DaemonConfig {
-  std::string station = "station1";             // [A-Za-z0-9_]{1,32}
+  std::string station = "station1";  // [A-Za-z0-9_]{1,32}
   // The site the station belongs to: its stations and workers share jobs
   // and see each other in this DDS partition (craftscan/dds/site.h).
   std::string site = "default";                 // [A-Za-z0-9_-]{1,64}

@@ -84,9 +84,9 @@ class RemoteJobs {
   // Offers one job and sees it through (above). `on_change(job, worker)` is
   // told the job's worker as it changes ("" = offered, none) and ("", "")
   // at the end; may be empty. Blocks; one Run at a time.
-  RemoteJobOutcome Run(const RemoteJobRequest& request, const std::atomic<bool>& stop,
-                       const ProgressFn& progress,
-                       const std::function<void(const std::string&, const std::string&)>& on_change);
+  RemoteJobOutcome Run(
+      const RemoteJobRequest& request, const std::atomic<bool>& stop, const ProgressFn& progress,
+      const std::function<void(const std::string&, const std::string&)>& on_change);
 
  private:
   struct Impl;

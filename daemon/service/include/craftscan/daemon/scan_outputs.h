@@ -42,7 +42,7 @@ struct ScanOutputContext {
 };
 
 struct ScanOutputFile {
-  std::string name;   // session output name
+  std::string name;  // session output name
   std::string bytes;
   bool required = true;  // false: the report's pages (one that cannot be stored is logged)
 };

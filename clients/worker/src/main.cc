@@ -173,8 +173,7 @@ int main(int argc, char** argv) {
   });
 
   spdlog::info("craftscan-worker {}: worker '{}' on site '{}', DDS domain {}, {} thread(s){}",
-               CRAFTSCAN_VERSION, options.worker_id, options.site, options.domain,
-               options.threads,
+               CRAFTSCAN_VERSION, options.worker_id, options.site, options.domain, options.threads,
                watchdog.Active() ? ", watchdog every " +
                                        std::to_string(watchdog.interval().count() / 1000) + " ms"
                                  : "");

@@ -106,8 +106,8 @@ const std::vector<Field>& Fields() {
     domain.set = [](std::string_view text, WorkerConfig& c, std::string* what) {
       long long v = 0;
       if (!daemon::ParseConfigInteger(text, &v) || v < 0 || v > dds::kMaxDomainId) {
-        *what = "must be an integer in 0.." + std::to_string(dds::kMaxDomainId) + ", got " +
-                Got(text);
+        *what =
+            "must be an integer in 0.." + std::to_string(dds::kMaxDomainId) + ", got " + Got(text);
         return false;
       }
       c.dds.domain = static_cast<uint32_t>(v);
@@ -343,8 +343,7 @@ std::string DumpWorkerConfig(const WorkerConfig& config) {
       if (!section.empty()) out << YAML::Key << section << YAML::Value << YAML::BeginMap;
       open = section;
     }
-    out << YAML::Key << field.path.substr(section.empty() ? 0 : section.size() + 1)
-        << YAML::Value;
+    out << YAML::Key << field.path.substr(section.empty() ? 0 : section.size() + 1) << YAML::Value;
     if (field.quoted) {
       out << YAML::DoubleQuoted << field.get(config);
     } else {
@@ -403,8 +402,8 @@ bool ReadWorkerToken(const std::string& path, std::string* token, std::string* e
     return Fail(error, where + "the first line is empty; put the worker's token there");
   }
   if (text.size() > kMaxTokenBytes) {
-    return Fail(error, where + "the token is longer than " + std::to_string(kMaxTokenBytes) +
-                           " bytes");
+    return Fail(error,
+                where + "the token is longer than " + std::to_string(kMaxTokenBytes) + " bytes");
   }
   for (char ch : text) {
     if (static_cast<unsigned char>(ch) < ' ' || ch == 0x7f) {
@@ -420,7 +419,14 @@ bool MakeWorkerOptions(const WorkerConfig& config, WorkerOptions* options, std::
   made.worker_id = config.worker;
   made.site = config.site;
   made.domain = config.dds.domain;
-  made.dds_config = config.dds.config_file.empty() ? "" : dds::ConfigFileUri(config.dds.config_file);
+  if (!config.dds.config_file.empty()) {
+    // Cyclone would only say it cannot parse its configuration.
+    if (::access(config.dds.config_file.c_str(), R_OK) != 0) {
+      return Fail(error, "dds.config_file: " + config.dds.config_file +
+                             ": cannot read: " + std::strerror(errno));
+    }
+    made.dds_config = dds::ConfigFileUri(config.dds.config_file);
+  }
   if (!ReadWorkerToken(config.auth.token_file, &made.token, error)) return false;
   made.threads = config.threads;
   made.work_dir = config.work_dir;

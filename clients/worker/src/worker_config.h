@@ -96,7 +96,8 @@ bool ReadWorkerToken(const std::string& path, std::string* token, std::string* e
 
 // The job loop's options from the config: reads the token file, and the
 // Cyclone config as a file:// URI when config_file is set. False with
-// *error on a token problem or options the loop would refuse.
+// *error on a token problem, an unreadable dds.config_file or options the
+// loop would refuse; *options is untouched then.
 bool MakeWorkerOptions(const WorkerConfig& config, WorkerOptions* options, std::string* error);
 
 }  // namespace craftscan::worker

@@ -91,7 +91,8 @@ bool CheckConfigRoot(const YAML::Node& root, int version, std::string_view progr
     long long number = 0;
     if (ParseConfigInteger(text, &number)) {
       if (number == version) return true;
-      return Fail(error, "version: " + text + " is not supported; " + supported + AtYamlLine(value));
+      return Fail(error,
+                  "version: " + text + " is not supported; " + supported + AtYamlLine(value));
     }
     return Fail(error, "version: must be an integer (" + supported + "), got " +
                            (text.empty() ? "nothing" : "'" + text + "'") + AtYamlLine(value));

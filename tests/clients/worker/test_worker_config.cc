@@ -103,9 +103,8 @@ TEST(WorkerConfig, DefaultWorkerIdIsMadeValidFromAnyHostName) {
   EXPECT_EQ(WorkerIdForHost("ünï"), "worker___n__");  // each UTF-8 byte
   WorkerOptions options;
   options.work_dir = "/w";
-  for (const std::string& id : {WorkerIdForHost("a.b-c"), WorkerIdForHost(""),
-                                WorkerIdForHost("1"), WorkerIdForHost(std::string(300, '.')),
-                                DefaultWorkerId()}) {
+  for (const std::string& id : {WorkerIdForHost("a.b-c"), WorkerIdForHost(""), WorkerIdForHost("1"),
+                                WorkerIdForHost(std::string(300, '.')), DefaultWorkerId()}) {
     options.worker_id = id;
     std::string why;
     EXPECT_TRUE(options.IsValid(&why)) << id << ": " << why;
@@ -142,8 +141,9 @@ INSTANTIATE_TEST_SUITE_P(
                  "dds.config_file: must be an absolute path or \"\", got 'cyclone.xml' (line 3)"},
         BadField{"version: 1\nauth:\n  token_file: worker.token\n",
                  "auth.token_file: must be an absolute path, got 'worker.token' (line 3)"},
-        BadField{"version: 1\nauth:\n  token_file:\n", "auth.token_file: must be an absolute path, "
-                                                       "got nothing (line 3)"},
+        BadField{"version: 1\nauth:\n  token_file:\n",
+                 "auth.token_file: must be an absolute path, "
+                 "got nothing (line 3)"},
         BadField{"version: 1\nthreads: 0\n",
                  "threads: must be an integer in 1..256, got '0' (line 2)"},
         BadField{"version: 1\nthreads: 257\n", "threads: must be an integer in 1..256, got '257'"},
@@ -153,9 +153,11 @@ INSTANTIATE_TEST_SUITE_P(
         BadField{"version: 1\nwatchdog:\n  enabled: maybe\n",
                  "watchdog.enabled: must be true or false, got 'maybe' (line 3)"},
         BadField{"version: 1\nthreads: [1, 2]\n", "threads: must be a single value, not a list"},
-        BadField{"version: 1\ndds: 3\n", "dds: must be a mapping of keys (known in dds: domain, "
-                                         "config_file) (line 2)"},
-        BadField{"version: 1\nthreads: 2\nthreads: 3\n", "threads: given more than once (line 3)"}));
+        BadField{"version: 1\ndds: 3\n",
+                 "dds: must be a mapping of keys (known in dds: domain, "
+                 "config_file) (line 2)"},
+        BadField{"version: 1\nthreads: 2\nthreads: 3\n",
+                 "threads: given more than once (line 3)"}));
 
 TEST(WorkerConfig, UnknownKeysAreRefusedWithTheirPath) {
   EXPECT_THAT(ErrorFor("version: 1\nworkers: 2\n"),
@@ -213,19 +215,19 @@ TEST(WorkerConfig, BadEnvironmentValueNamesTheVariable) {
 
 TEST(WorkerConfig, EnvironmentVariablesFollowTheKeyPaths) {
   EXPECT_THAT(WorkerEnvironmentVariables(),
-              ::testing::ElementsAre("CRAFTSCAN_WORKER_WORKER", "CRAFTSCAN_WORKER_SITE",
-                                     "CRAFTSCAN_WORKER_LOG_LEVEL", "CRAFTSCAN_WORKER_DDS_DOMAIN",
-                                     "CRAFTSCAN_WORKER_DDS_CONFIG_FILE",
-                                     "CRAFTSCAN_WORKER_AUTH_TOKEN_FILE",
-                                     "CRAFTSCAN_WORKER_THREADS", "CRAFTSCAN_WORKER_WORK_DIR",
-                                     "CRAFTSCAN_WORKER_WATCHDOG_ENABLED"));
+              ::testing::ElementsAre(
+                  "CRAFTSCAN_WORKER_WORKER", "CRAFTSCAN_WORKER_SITE", "CRAFTSCAN_WORKER_LOG_LEVEL",
+                  "CRAFTSCAN_WORKER_DDS_DOMAIN", "CRAFTSCAN_WORKER_DDS_CONFIG_FILE",
+                  "CRAFTSCAN_WORKER_AUTH_TOKEN_FILE", "CRAFTSCAN_WORKER_THREADS",
+                  "CRAFTSCAN_WORKER_WORK_DIR", "CRAFTSCAN_WORKER_WATCHDOG_ENABLED"));
 }
 
 TEST(WorkerConfig, DumpReadsBackTheSame) {
   WorkerConfig c;
   ASSERT_EQ(Parse(kFullConfig, &c), "");
   const std::string dump = DumpWorkerConfig(c);
-  EXPECT_THAT(dump, HasSubstr("dds:\n  domain: 7\n  config_file: \"/etc/craftscan/cyclonedds.xml\""));
+  EXPECT_THAT(dump,
+              HasSubstr("dds:\n  domain: 7\n  config_file: \"/etc/craftscan/cyclonedds.xml\""));
   WorkerConfig again;
   ASSERT_EQ(Parse(dump, &again), "") << dump;
   EXPECT_EQ(DumpWorkerConfig(again), dump);
@@ -297,14 +299,14 @@ TEST_F(WorkerToken, EmptyFileOrFirstLineIsRefused) {
 
 TEST_F(WorkerToken, ReadableByOthersIsRefused) {
   const std::string path = Write("open", "token\n", 0644);
-  EXPECT_THAT(TokenError(path),
-              AllOf(HasSubstr("auth.token_file: " + path + ": mode 0644"),
-                    HasSubstr("group or others"), HasSubstr("chmod 0600")));
+  EXPECT_THAT(TokenError(path), AllOf(HasSubstr("auth.token_file: " + path + ": mode 0644"),
+                                      HasSubstr("group or others"), HasSubstr("chmod 0600")));
   EXPECT_THAT(TokenError(Write("group", "token\n", 0640)), HasSubstr("mode 0640"));
 }
 
 TEST_F(WorkerToken, TooLongOrControlCharactersAreRefused) {
-  EXPECT_EQ(TokenError(Write("ok", std::string(256, 'k') + "\n")), "read '" + std::string(256, 'k') + "'");
+  EXPECT_EQ(TokenError(Write("ok", std::string(256, 'k') + "\n")),
+            "read '" + std::string(256, 'k') + "'");
   EXPECT_THAT(TokenError(Write("long", std::string(257, 'k'))),
               HasSubstr("the token is longer than 256 bytes"));
   EXPECT_THAT(TokenError(Write("ctl", std::string("to\x01ken\n"))),
@@ -316,16 +318,24 @@ TEST_F(WorkerToken, OptionsComeFromTheConfig) {
   WorkerConfig c;
   ASSERT_EQ(Parse(kFullConfig, &c), "");
   c.auth.token_file = Write("worker.token", "tok-123\n");
+  c.dds.config_file = Write("cyclonedds.xml", "<CycloneDDS/>\n", 0644);
   WorkerOptions options;
   std::string error;
   ASSERT_TRUE(MakeWorkerOptions(c, &options, &error)) << error;
   EXPECT_EQ(options.worker_id, "gpu_box_2");
   EXPECT_EQ(options.site, "museum-east");
   EXPECT_EQ(options.domain, 7u);
-  EXPECT_EQ(options.dds_config, "file:///etc/craftscan/cyclonedds.xml");
+  EXPECT_EQ(options.dds_config, "file://" + c.dds.config_file);
   EXPECT_EQ(options.token, "tok-123");
   EXPECT_EQ(options.threads, 6);
   EXPECT_EQ(options.work_dir, "/srv/worker");
+  // A Cyclone file that is not there is named (Cyclone would not say which).
+  const std::string given = c.dds.config_file;
+  c.dds.config_file = (dir_ / "absent.xml").string();
+  EXPECT_FALSE(MakeWorkerOptions(c, &options, &error));
+  EXPECT_EQ(error,
+            "dds.config_file: " + c.dds.config_file + ": cannot read: No such file or directory");
+  EXPECT_EQ(options.dds_config, "file://" + given);  // untouched
   // No Cyclone file: CYCLONEDDS_URI decides.
   c.dds.config_file.clear();
   ASSERT_TRUE(MakeWorkerOptions(c, &options, &error)) << error;

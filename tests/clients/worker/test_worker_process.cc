@@ -55,9 +55,9 @@ class WorkerProcess : public ::testing::Test {
   // A valid config with `extra` lines appended (later keys must not repeat
   // earlier ones).
   std::string WriteConfig(const std::string& extra = "", bool with_token = true) {
-    std::string text = "version: 1\nworker: test_worker\nsite: test_site\nwork_dir: " +
-                       (dir_ / "work").string() + "\ndds:\n  domain: " +
-                       std::to_string(testing::ProcessDomainId()) + "\n";
+    std::string text =
+        "version: 1\nworker: test_worker\nsite: test_site\nwork_dir: " + (dir_ / "work").string() +
+        "\ndds:\n  domain: " + std::to_string(testing::ProcessDomainId()) + "\n";
     if (with_token) text += "auth:\n  token_file: " + token_ + "\n";
     text += extra;
     const std::string path = (dir_ / "craftscan-worker.yaml").string();
@@ -89,8 +89,8 @@ class WorkerProcess : public ::testing::Test {
     int pings = 0;
     const auto end = std::chrono::steady_clock::now() + window;
     while (std::chrono::steady_clock::now() < end) {
-      const auto left =
-          std::chrono::duration_cast<std::chrono::milliseconds>(end - std::chrono::steady_clock::now());
+      const auto left = std::chrono::duration_cast<std::chrono::milliseconds>(
+          end - std::chrono::steady_clock::now());
       const auto m = manager_.Receive(std::max(left, 1ms));
       if (!m) continue;
       if (m->Has("WATCHDOG=1")) {
@@ -127,7 +127,8 @@ TEST_F(WorkerProcess, ReadyPingsAndStopsCleanlyOnSigterm) {
   EXPECT_EQ(child_.Wait(kExitDeadline), 0) << Err();
   // Logged as craftscand logs: ISO time, level, message.
   EXPECT_TRUE(std::regex_search(
-      Err(), std::regex(R"((^|\n)\d{4}-\d\d-\d\dT\d\d:\d\d:\d\d\.\d{3} .*info.* ready: announced)")))
+      Err(),
+      std::regex(R"((^|\n)\d{4}-\d\d-\d\dT\d\d:\d\d:\d\d\.\d{3} .*info.* ready: announced)")))
       << Err();
   EXPECT_THAT(Err(), HasSubstr("signal 15: stopping"));
 }
@@ -181,6 +182,14 @@ TEST_F(WorkerProcess, MissingOrOpenTokenExits2) {
   ::chmod(token_.c_str(), 0644);
   EXPECT_EQ(Run({"--config", WriteConfig()}), 2);
   EXPECT_THAT(Err(), HasSubstr("mode 0644"));
+  EXPECT_TRUE(manager_.Drain().empty());
+}
+
+TEST_F(WorkerProcess, MissingCycloneFileExits2) {
+  const std::string missing = (dir_ / "cyclonedds.xml").string();
+  ScopedEnv file("CRAFTSCAN_WORKER_DDS_CONFIG_FILE", missing);
+  EXPECT_EQ(Run({"--config", WriteConfig()}), 2);
+  EXPECT_THAT(Err(), HasSubstr("dds.config_file: " + missing + ": cannot read"));
   EXPECT_TRUE(manager_.Drain().empty());
 }
 

@@ -17,14 +17,15 @@ set(CPACK_PACKAGE_VERSION ${PROJECT_VERSION})
 set(CPACK_PACKAGE_VENDOR craftscan)
 set(CPACK_PACKAGE_CONTACT "craftscan maintainers <craftscan@localhost>")
 set(CPACK_PACKAGE_DESCRIPTION_SUMMARY
-    "open 3D scanning station for museums: daemon, operator CLI, archiver, web console")
+    "open 3D scanning station for museums: daemon, operator CLI, archiver, web console, worker")
 # The first line is the synopsis, the rest the extended description.
 set(CPACK_DEBIAN_PACKAGE_DESCRIPTION "${CPACK_PACKAGE_DESCRIPTION_SUMMARY}
 craftscand captures stereo views of an object on a turntable (GigE or USB3
 Vision cameras through Aravis, a GRBL turntable, or the simulated station),
 reconstructs a model and writes every output atomically into a session
 folder. craftscanctl, craftscan-record and the craftscan-web console talk to
-it over DDS (Cyclone DDS).")
+it over DDS (Cyclone DDS); craftscan-worker reconstructs the scans of a
+site's stations on other hosts.")
 set(CPACK_PACKAGING_INSTALL_PREFIX /usr)
 set(CPACK_DEBIAN_FILE_NAME DEB-DEFAULT)
 set(CPACK_DEBIAN_PACKAGE_SECTION science)

@@ -123,7 +123,7 @@ for f in ./postinst ./prerm ./postrm ./conffiles ./md5sums; do
   grep -qx "$f" "$work/control.list" || fail "control archive lacks $f: $(tr '\n' ' ' <"$work/control.list")"
 done
 conffiles=$(dpkg-deb -I "$deb" conffiles | sort | tr '\n' ' ')
-[[ $conffiles == "/etc/craftscan/craftscand.yaml /etc/craftscan/cyclonedds.xml /etc/craftscan/web.yaml " ]] ||
+[[ $conffiles == "/etc/craftscan/craftscan-worker.yaml /etc/craftscan/craftscand.yaml /etc/craftscan/cyclonedds.xml /etc/craftscan/web.yaml " ]] ||
   fail "conffiles: $conffiles"
 
 # --- Contents --------------------------------------------------------------------
@@ -132,11 +132,12 @@ expect_file() { # MODE PATH
   grep -qx -- "$1 .$2" "$work/contents" || fail "package lacks $2 (mode $1); it has:
 $(grep -v /assets/ "$work/contents")"
 }
-for p in craftscand craftscanctl craftscan-record craftscan-web; do expect_file -rwxr-xr-x /usr/bin/$p; done
+for p in craftscand craftscanctl craftscan-record craftscan-web craftscan-worker; do expect_file -rwxr-xr-x /usr/bin/$p; done
 for d in sim aravis serial_turntable; do
   expect_file -rw-r--r-- /usr/lib/craftscan/drivers/craftscan-driver-$d.so
 done
 for f in /lib/systemd/system/craftscand.service /lib/systemd/system/craftscan-web.service \
+  /lib/systemd/system/craftscan-worker.service /etc/craftscan/craftscan-worker.yaml \
   /usr/lib/sysusers.d/craftscan.conf /lib/udev/rules.d/70-craftscan-cameras.rules \
   /usr/lib/sysctl.d/60-craftscan.conf /etc/craftscan/craftscand.yaml /etc/craftscan/cyclonedds.xml \
   /etc/craftscan/web.yaml /usr/share/craftscan/web/assets/index.html \
@@ -175,12 +176,15 @@ echo "# edited by $prog" >>/etc/craftscan/web.yaml
 dpkg -i "$deb" >"$work/dpkg-i2.log" 2>&1 || fail "dpkg -i over the installed package: $(cat "$work/dpkg-i2.log")"
 grep -q "^# edited by $prog" /etc/craftscan/web.yaml || fail "reinstalling lost the edit to /etc/craftscan/web.yaml"
 [[ $(/usr/bin/craftscanctl --version) == *"$version"* ]] || fail "craftscanctl --version: $(/usr/bin/craftscanctl --version)"
+[[ $(/usr/bin/craftscan-worker --version) == *"$version"* ]] ||
+  fail "craftscan-worker --version: $(/usr/bin/craftscan-worker --version)"
 
 # --- systemd-analyze verify ------------------------------------------------------
 if command -v systemd-analyze >/dev/null; then
   set +e
   systemd-analyze verify --man=no /lib/systemd/system/craftscand.service \
-    /lib/systemd/system/craftscan-web.service >"$work/verify.out" 2>"$work/verify.err"
+    /lib/systemd/system/craftscan-web.service /lib/systemd/system/craftscan-worker.service \
+    >"$work/verify.out" 2>"$work/verify.err"
   verify_rc=$?
   set -e
   # Parse problems are only warnings on stderr (exit 0): any line naming a
@@ -190,7 +194,7 @@ if command -v systemd-analyze >/dev/null; then
     cat "$work/verify.err" >&2
     fail "systemd-analyze verify of the installed units: exit $verify_rc (above)"
   fi
-  say "systemd-analyze verify: both installed units clean"
+  say "systemd-analyze verify: the installed units are clean"
 else
   say "systemd-analyze not installed (package systemd): unit verification not done"
 fi

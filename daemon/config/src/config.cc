@@ -1,6 +1,5 @@
 #include "craftscan/daemon/config.h"
 
-#include <yaml-cpp/eventhandler.h>
 #include <yaml-cpp/yaml.h>
 
 #include <algorithm>
@@ -13,6 +12,7 @@
 #include <utility>
 
 #include "config_fields.h"
+#include "craftscan/daemon/yaml_document.h"
 
 extern char** environ;
 
@@ -28,10 +28,7 @@ bool Fail(std::string* error, std::string message) {
   return false;
 }
 
-std::string AtLine(const YAML::Node& node) {
-  const YAML::Mark mark = node.Mark();
-  return mark.is_null() ? std::string() : " (line " + std::to_string(mark.line + 1) + ")";
-}
+std::string AtLine(const YAML::Node& node) { return AtYamlLine(node); }
 
 std::string Join(const std::vector<std::string>& items, std::string_view separator) {
   std::string out;
@@ -99,40 +96,12 @@ class YamlReader {
   explicit YamlReader(DaemonConfig* config) : config_(config) {}
 
   bool ReadRoot(const YAML::Node& root, std::string* error) {
-    if (!root.IsDefined() || root.IsNull()) {
-      return Fail(error, "empty configuration; expected a mapping starting with 'version: " +
-                             std::to_string(kConfigVersion) + "'");
-    }
-    if (!root.IsMap()) {
-      return Fail(error, "the configuration must be a mapping of keys (e.g. 'version: " +
-                             std::to_string(kConfigVersion) + "')" + AtLine(root));
-    }
-    if (!ReadVersion(root, error)) return false;
+    if (!CheckConfigRoot(root, kConfigVersion, "craftscand", error)) return false;
     if (!ReadMap(root, "", error)) return false;
     return CheckDevices(error);
   }
 
  private:
-  bool ReadVersion(const YAML::Node& root, std::string* error) {
-    const std::string supported =
-        "this craftscand reads config version " + std::to_string(kConfigVersion);
-    for (const auto& entry : root) {
-      if (!entry.first.IsScalar() || entry.first.Scalar() != "version") continue;
-      const YAML::Node& value = entry.second;
-      const std::string text = value.IsScalar() ? value.Scalar() : "";
-      if (text == std::to_string(kConfigVersion)) return true;
-      long long number = 0;
-      std::istringstream in(text);
-      if (value.IsScalar() && (in >> number) && in.eof()) {
-        return Fail(error, "version: " + text + " is not supported; " + supported + AtLine(value));
-      }
-      return Fail(error, "version: must be an integer (" + supported + "), got " +
-                             config_internal::Got(text) + AtLine(value));
-    }
-    return Fail(error, "version: missing; add 'version: " + std::to_string(kConfigVersion) + "' (" +
-                           supported + ")");
-  }
-
   bool ReadMap(const YAML::Node& map, const std::string& section, std::string* error) {
     std::set<std::string> keys;
     for (const auto& entry : map) {
@@ -146,7 +115,7 @@ class YamlReader {
         return Fail(error, path + ": given more than once" + AtLine(key));
       }
       seen_.insert(path);
-      if (path == "version") continue;  // ReadVersion
+      if (path == "version") continue;  // CheckConfigRoot
       if (!ReadEntry(path, key, entry.second, error)) return false;
     }
     return true;
@@ -434,61 +403,18 @@ bool DaemonConfig::IsValid(std::string* why) const {
   return true;
 }
 
-namespace {
-
-// The number of YAML documents in `text`, as YAML::LoadAll counts them, but
-// stopping where the parser makes no progress: yaml-cpp 0.7's LoadAll never
-// returns on some malformed input (e.g. ",": the parser hands back the same
-// empty document forever and the list grows until memory runs out;
-// jbeder/yaml-cpp#1040, fixed upstream by #1319). Found by tests/fuzz.
-// Throws YAML::Exception on a syntax error, as LoadAll does.
-std::size_t CountDocuments(const std::string& text) {
-  struct Starts : YAML::EventHandler {
-    std::vector<std::size_t> positions;
-    void OnDocumentStart(const YAML::Mark& mark) override { positions.push_back(mark.pos); }
-    void OnDocumentEnd() override {}
-    void OnNull(const YAML::Mark&, YAML::anchor_t) override {}
-    void OnAlias(const YAML::Mark&, YAML::anchor_t) override {}
-    void OnScalar(const YAML::Mark&, const std::string&, YAML::anchor_t,
-                  const std::string&) override {}
-    void OnSequenceStart(const YAML::Mark&, const std::string&, YAML::anchor_t,
-                         YAML::EmitterStyle::value) override {}
-    void OnSequenceEnd() override {}
-    void OnMapStart(const YAML::Mark&, const std::string&, YAML::anchor_t,
-                    YAML::EmitterStyle::value) override {}
-    void OnMapEnd() override {}
-  } starts;
-  std::istringstream stream(text);
-  YAML::Parser parser(stream);
-  while (parser.HandleNextDocument(starts)) {
-    const std::size_t n = starts.positions.size();
-    if (n >= 2 && starts.positions[n - 1] == starts.positions[n - 2]) return n - 1;
-  }
-  return starts.positions.size();
-}
-
-}  // namespace
-
 bool ParseDaemonConfig(const std::string& yaml_text, const std::map<std::string, std::string>& env,
                        DaemonConfig* config, std::string* error) {
   DaemonConfig parsed;
+  YAML::Node root;
+  if (!LoadOneYamlDocument(yaml_text, &root, error)) return false;
   try {
-    const std::size_t documents = CountDocuments(yaml_text);
-    if (documents > 1) {
-      return Fail(
-          error, "the configuration must be one YAML document, found " + std::to_string(documents));
-    }
     YamlReader reader(&parsed);
-    if (!reader.ReadRoot(documents == 0 ? YAML::Node() : YAML::Load(yaml_text), error)) {
-      return false;
-    }
+    if (!reader.ReadRoot(root, error)) return false;
   } catch (const YAML::Exception& e) {
-    std::string where;
-    if (!e.mark.is_null()) {
-      where = " at line " + std::to_string(e.mark.line + 1) + ", column " +
-              std::to_string(e.mark.column + 1);
-    }
-    return Fail(error, "YAML syntax error" + where + ": " + e.msg);
+    const std::string where =
+        e.mark.is_null() ? std::string() : " at line " + std::to_string(e.mark.line + 1);
+    return Fail(error, "YAML error" + where + ": " + e.msg);
   }
   if (!ApplyEnvironment(env, &parsed, error)) return false;
   if (!parsed.IsValid(error)) return false;
@@ -497,15 +423,10 @@ bool ParseDaemonConfig(const std::string& yaml_text, const std::map<std::string,
 }
 
 bool LoadDaemonConfig(const std::string& path, DaemonConfig* config, std::string* error) {
-  std::error_code ec;
-  if (std::filesystem::is_directory(path, ec)) return Fail(error, path + ": is a directory");
-  std::ifstream in(path, std::ios::binary);
-  if (!in) return Fail(error, path + ": cannot open: " + std::strerror(errno));
-  std::ostringstream text;
-  text << in.rdbuf();
-  if (in.bad()) return Fail(error, path + ": read error: " + std::strerror(errno));
+  std::string text;
+  if (!ReadConfigText(path, &text, error)) return false;
   std::string why;
-  if (!ParseDaemonConfig(text.str(), CraftscanEnvironment(), config, &why)) {
+  if (!ParseDaemonConfig(text, CraftscanEnvironment(), config, &why)) {
     return Fail(error, path + ": " + why);
   }
   return true;

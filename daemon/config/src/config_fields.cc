@@ -9,6 +9,7 @@
 #include <opencv2/aruco/dictionary.hpp>
 #include <utility>
 
+#include "craftscan/daemon/yaml_document.h"
 #include "craftscan/pipeline/stereo/exposure_merge.h"
 
 namespace craftscan::daemon::config_internal {
@@ -25,9 +26,7 @@ const T& Read(Ref<T> ref, const DaemonConfig& config) {
 }
 
 bool ParseInteger(std::string_view text, long long* value) {
-  const char* end = text.data() + text.size();
-  auto [ptr, ec] = std::from_chars(text.data(), end, *value);
-  return !text.empty() && ec == std::errc() && ptr == end;
+  return ParseConfigInteger(text, value);
 }
 
 bool ParseReal(std::string_view text, double* value) {
@@ -36,19 +35,7 @@ bool ParseReal(std::string_view text, double* value) {
   return !text.empty() && ec == std::errc() && ptr == end && std::isfinite(*value);
 }
 
-bool ParseBool(std::string_view text, bool* value) {
-  static constexpr std::array<std::string_view, 4> kTrue = {"true", "yes", "on", "1"};
-  static constexpr std::array<std::string_view, 4> kFalse = {"false", "no", "off", "0"};
-  if (std::find(kTrue.begin(), kTrue.end(), text) != kTrue.end()) {
-    *value = true;
-    return true;
-  }
-  if (std::find(kFalse.begin(), kFalse.end(), text) != kFalse.end()) {
-    *value = false;
-    return true;
-  }
-  return false;
-}
+bool ParseBool(std::string_view text, bool* value) { return ParseConfigBool(text, value); }
 
 Field IntField(std::string path, Ref<int> ref, int lo, int hi) {
   const std::string expect =

@@ -1,4 +1,4 @@
-// The files in systemd/: the unit passes `systemd-analyze verify` with no
+// The files in systemd/: the units pass `systemd-analyze verify` with no
 // parse warnings, the sysusers entry is accepted by systemd-sysusers (dry run
 // on an empty root), the udev rules are well-formed, and the files agree
 // with each other (user, groups, config path). Tools that are missing skip
@@ -132,6 +132,34 @@ TEST_F(SystemdFiles, ConsoleUnitPassesSystemdAnalyzeVerify) {
   const ToolRun run = Verify(text, "craftscan-web.service");
   EXPECT_EQ(run.exit_code, 0) << run.err;
   EXPECT_THAT(UnitProblems(run.err, Path("craftscan-web.service")), ::testing::IsEmpty())
+      << "systemd-analyze verify:\n"
+      << run.err;
+}
+
+// craftscan-worker's unit (issue 21): verified the same way; a notify
+// service with a watchdog, reading /etc/craftscan/craftscan-worker.yaml,
+// with the station's hardening and its scratch folder as StateDirectory
+// (the example config's work_dir).
+TEST_F(SystemdFiles, WorkerUnitPassesSystemdAnalyzeVerify) {
+  const std::string unit = ReadFile(kSystemdDir / "craftscan-worker.service");
+  for (const char* setting :
+       {"Type=notify\n", "NotifyAccess=main\n",
+        "ExecStart=/usr/bin/craftscan-worker --config /etc/craftscan/craftscan-worker.yaml\n",
+        "WatchdogSec=", "Restart=on-failure\n", "User=craftscan\n",
+        "StateDirectory=craftscan-worker\n",
+        "Environment=CYCLONEDDS_URI=file:///etc/craftscan/cyclonedds.xml\n",
+        "ProtectSystem=strict\n", "MemoryDenyWriteExecute=yes\n", "PrivateDevices=yes\n",
+        "RestrictAddressFamilies=AF_UNIX AF_INET AF_INET6 AF_NETLINK\n"}) {
+    EXPECT_THAT(unit, HasSubstr(setting));
+  }
+  EXPECT_THAT(ReadFile(kSystemdDir / "craftscan-worker.yaml"),
+              HasSubstr("\nwork_dir: /var/lib/craftscan-worker\n"));
+  if (analyze_.empty()) GTEST_SKIP() << "systemd-analyze not installed (package systemd)";
+  const ToolRun run = Verify(TestableUnit("craftscan-worker"), "craftscan-worker.service");
+  EXPECT_EQ(run.exit_code, 0) << run.err;
+  // Parse problems are only warnings: nothing at all on stderr.
+  EXPECT_EQ(run.err, "");
+  EXPECT_THAT(UnitProblems(run.err, Path("craftscan-worker.service")), ::testing::IsEmpty())
       << "systemd-analyze verify:\n"
       << run.err;
 }

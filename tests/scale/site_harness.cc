@@ -252,9 +252,9 @@ bool SiteNetwork::Build(const std::vector<SiteHostSpec>& hosts, std::string* why
     return false;
   }
   for (const SiteHostSpec& spec : hosts) {
-    if (spec.name.empty() || spec.name.find_first_not_of("abcdefghijklmnopqrstuvwxyz"
-                                                         "ABCDEFGHIJKLMNOPQRSTUVWXYZ0123456789-_") !=
-                                 std::string::npos) {
+    if (spec.name.empty() || spec.name.find_first_not_of(
+                                 "abcdefghijklmnopqrstuvwxyz"
+                                 "ABCDEFGHIJKLMNOPQRSTUVWXYZ0123456789-_") != std::string::npos) {
       *why = "host name '" + spec.name + "': letters, digits, '-' and '_' only";
       return false;
     }
@@ -267,7 +267,7 @@ bool SiteNetwork::Build(const std::vector<SiteHostSpec>& hosts, std::string* why
     *why = std::string("no writable cgroup v1 cpu controller at ") + kCgroupCpuRoot;
     return false;
   }
-  for (const char* tool : {"ip", "nft"}) {
+  for (const char* tool : {"ip", "nft", "nsenter"}) {
     if (ResolveProgram(tool).empty()) {
       *why = std::string("'") + tool + "' is not installed (scripts/setup installs it)";
       return false;
@@ -287,8 +287,7 @@ bool SiteNetwork::Build(const std::vector<SiteHostSpec>& hosts, std::string* why
   }
   in_private_netns_ = true;
 
-  std::string pattern =
-      (std::filesystem::temp_directory_path() / "craftscan-site-XXXXXX").string();
+  std::string pattern = (std::filesystem::temp_directory_path() / "craftscan-site-XXXXXX").string();
   if (::mkdtemp(pattern.data()) == nullptr) {
     *why = Errno("mkdtemp " + pattern);
     return false;
@@ -371,9 +370,8 @@ int SiteNetwork::RunIn(int netns_fd, const std::string& cgroup_procs,
     if (output != nullptr) *output = argv[0] + ": not found";
     return 127;
   }
-  const std::string out = work_dir_.empty()
-                              ? std::string()
-                              : work_dir_ + "/run" + std::to_string(++runs_) + ".out";
+  const std::string out =
+      work_dir_.empty() ? std::string() : work_dir_ + "/run" + std::to_string(++runs_) + ".out";
   std::vector<std::string> env;
   for (char** e = environ; *e != nullptr; ++e) env.emplace_back(*e);
   ChildProcess child;
@@ -417,10 +415,24 @@ int SiteNetwork::Run(std::size_t host, const std::vector<std::string>& argv, std
   return RunIn(hosts_.at(host).netns_fd, cgroup_dir(host) + "/cgroup.procs", argv, output, timeout);
 }
 
+std::vector<std::string> SiteNetwork::Launcher(std::size_t host) const {
+  // sh -c SCRIPT CONFIG PROCS rest...: $0 is the Cyclone config, $1 the
+  // cgroup.procs file, the rest the command.
+  return {ResolveProgram("nsenter"),
+          "--net=" + netns_path(host),
+          "--",
+          "/bin/sh",
+          "-c",
+          "echo $$ > \"$1\" && shift && exec /usr/bin/env \"CYCLONEDDS_URI=$0\" \"$@\"",
+          DdsConfig(host),
+          cgroup_dir(host) + "/cgroup.procs"};
+}
+
 bool SiteNetwork::Cut(std::size_t host, std::string* error) {
   // Everything on eth0, both ways; the host's loopback (its processes among
-  // themselves) stays. Dropped quietly in the input/output hooks, so a
-  // sender sees EPERM, as with a local firewall rule, not a silent loss.
+  // themselves) stays. Dropped in the host's input and output hooks: a
+  // sender elsewhere sees silence; a sender in the host gets EPERM from
+  // sendto (as with a local firewall rule) rather than silence.
   const std::string rules = work_dir_ + "/cut.nft";
   {
     std::ofstream file(rules);

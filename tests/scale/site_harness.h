@@ -90,13 +90,20 @@ class SiteNetwork {
   // CYCLONEDDS_URI and NOTIFY_SOCKET, plus CYCLONEDDS_URI=DdsConfig(host),
   // plus command.env. False with *error if it could not be forked (a failing
   // exec shows as exit 127 with the reason in its stderr file).
-  bool Start(std::size_t host, const HostCommand& command, ChildProcess* child,
-             std::string* error);
+  bool Start(std::size_t host, const HostCommand& command, ChildProcess* child, std::string* error);
   // Runs `argv` in `host` to its end: its exit code (128+signal when killed
   // by one), or -1 if it did not end within `timeout` (then it is killed).
   // *output (may be null): its stdout and stderr.
   int Run(std::size_t host, const std::vector<std::string>& argv, std::string* output,
           std::chrono::milliseconds timeout = std::chrono::seconds(10));
+
+  // An argv prefix that runs the rest of a command line in `host` when it
+  // is spawned from this thread by other helpers (DaemonFixture::launcher,
+  // Spawn): nsenter into its namespace, then a shell that moves itself into
+  // the host's cgroup and execs `env CYCLONEDDS_URI=DdsConfig(host) rest...`
+  // (so the spawned pid stays the program's). Unlike Start, the process is
+  // not killed with the test process (teardown still kills it).
+  std::vector<std::string> Launcher(std::size_t host) const;
 
   // Drops every packet to and from the host's eth0 (an nftables table "cut"
   // in its namespace). False with *error (nft's output) if nft failed.

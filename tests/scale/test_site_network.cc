@@ -8,6 +8,7 @@
 
 #include <chrono>
 #include <cstdio>
+#include <cstdlib>
 #include <filesystem>
 #include <fstream>
 #include <random>
@@ -75,15 +76,20 @@ std::string Describe(const CtlResult& r) {
 
 // craftscanctl in `host` (its DDS configuration from CYCLONEDDS_URI, set by
 // the harness): --station, --domain, --timeout, the token, then `args`.
-CtlResult Ctl(SiteNetwork& site, std::size_t host, const std::string& station,
-              std::uint32_t domain, double timeout_s, const std::vector<std::string>& args) {
+CtlResult Ctl(SiteNetwork& site, std::size_t host, const std::string& station, std::uint32_t domain,
+              double timeout_s, const std::vector<std::string>& args) {
   static int runs = 0;
   const std::string tag = site.work_dir() + "/ctl" + std::to_string(++runs);
   HostCommand command;
-  command.argv = {CraftscanctlPath(), "--station", station,
-                  "--domain",         std::to_string(domain),
-                  "--timeout",        std::to_string(timeout_s),
-                  "--token",          kToken};
+  command.argv = {CraftscanctlPath(),
+                  "--station",
+                  station,
+                  "--domain",
+                  std::to_string(domain),
+                  "--timeout",
+                  std::to_string(timeout_s),
+                  "--token",
+                  kToken};
   command.argv.insert(command.argv.end(), args.begin(), args.end());
   command.stdout_path = tag + ".out";
   command.stderr_path = tag + ".err";
@@ -129,6 +135,33 @@ std::string NetnsOf(const std::string& path) {
   return std::filesystem::read_symlink(path, ec).string();
 }
 
+// craftscand started in `host` on the config `s` (its log in s.dir).
+void StartDaemon(SiteNetwork& site, std::size_t host, const StationConfig& s, ChildProcess* daemon,
+                 std::string* error) {
+  HostCommand command;
+  command.argv = {CraftscandPath(), "--config", s.config};
+  command.stdout_path = s.dir + "/craftscand.log";
+  ASSERT_TRUE(site.Start(host, command, daemon, error)) << *error;
+}
+
+std::string DaemonLog(const StationConfig& s) {
+  return "\n" + s.station + " craftscand.log:\n" + ReadFile(s.dir + "/craftscand.log");
+}
+
+// `status --json` from `host` until it answers (the daemon starting up) or
+// 40 s have passed; fails the test if the daemon exits meanwhile.
+CtlResult WaitForStatus(SiteNetwork& site, std::size_t host, const StationConfig& s,
+                        std::uint32_t domain, ChildProcess& daemon) {
+  CtlResult r;
+  const auto deadline = Clock::now() + 40s;
+  do {
+    r = Ctl(site, host, s.station, domain, 10, {"status", "--json"});
+    EXPECT_TRUE(daemon.Running()) << "craftscand exited (wait status " << daemon.status() << ")"
+                                  << DaemonLog(s);
+  } while (r.exit_code != 0 && daemon.Running() && Clock::now() < deadline);
+  return r;
+}
+
 TEST(SiteNetwork, CtlReachesAStationOnAnotherHostUntilItIsCutAndAgainWhenHealed) {
   std::string why;
   auto site = SiteNetwork::Create(
@@ -163,21 +196,12 @@ TEST(SiteNetwork, CtlReachesAStationOnAnotherHostUntilItIsCutAndAgainWhenHealed)
   const std::uint32_t domain = RandomDomain();
   const StationConfig a = WriteStation(site->work_dir(), "site_a", domain);
   ChildProcess daemon;
-  HostCommand start_daemon;
-  start_daemon.argv = {CraftscandPath(), "--config", a.config};
-  start_daemon.stdout_path = a.dir + "/craftscand.log";
-  ASSERT_TRUE(site->Start(0, start_daemon, &daemon, &why)) << why;
-  const auto log = [&] { return "\ncraftscand.log:\n" + ReadFile(a.dir + "/craftscand.log"); };
+  StartDaemon(*site, 0, a, &daemon, &why);
+  const auto log = [&] { return DaemonLog(a); };
 
   // From host B: status answers once the daemon is up (discovery across
   // the bridge; craftscanctl waits up to --timeout for the station).
-  CtlResult r;
-  const auto up_deadline = Clock::now() + 40s;
-  do {
-    r = Ctl(*site, 1, a.station, domain, 10, {"status", "--json"});
-    ASSERT_TRUE(daemon.Running()) << "craftscand exited (status " << daemon.status() << ")"
-                                  << log();
-  } while (r.exit_code != 0 && Clock::now() < up_deadline);
+  CtlResult r = WaitForStatus(*site, 1, a, domain, daemon);
   ASSERT_EQ(r.exit_code, 0) << Describe(r) << log();
   nlohmann::json status = nlohmann::json::parse(r.out, nullptr, false);
   EXPECT_EQ(status.value("station", ""), a.station) << r.out;
@@ -219,11 +243,109 @@ TEST(SiteNetwork, CtlReachesAStationOnAnotherHostUntilItIsCutAndAgainWhenHealed)
   status = nlohmann::json::parse(r.out, nullptr, false);
   EXPECT_EQ(status.value("station", ""), a.station) << r.out;
 
-  std::printf("site: first status after %.1f s, cut status failed after %.1f s, "
-              "healed status in %.1f s\n",
-              first_status_s, cut_s, heal_s);
+  std::printf(
+      "site: first status after %.2f s, cut status failed after %.2f s, "
+      "healed status in %.2f s\n",
+      first_status_s, cut_s, heal_s);
   daemon.Signal(SIGTERM);
   EXPECT_EQ(daemon.Wait(30s), 0) << log();
+}
+
+// Three stations in three hosts and the client in a fourth: each answers;
+// with one cut off, the other two still do.
+TEST(SiteNetwork, ThreeStationsOnThreeHostsAnswerAClientOnAFourth) {
+  std::string why;
+  auto site = SiteNetwork::Create(
+      {{"station-1", 0.3}, {"station-2", 0.3}, {"station-3", 0.3}, {"client", 0.3}}, &why);
+  if (!site) GTEST_SKIP() << "site network unavailable: " << why;
+  const auto test_start = Clock::now();
+  const std::uint32_t domain = RandomDomain();
+  std::vector<StationConfig> stations;
+  std::vector<ChildProcess> daemons(3);
+  for (std::size_t i = 0; i < 3; ++i) {
+    stations.push_back(WriteStation(site->work_dir(), "site_" + std::to_string(i + 1), domain));
+    StartDaemon(*site, i, stations[i], &daemons[i], &why);
+  }
+  for (std::size_t i = 0; i < 3; ++i) {
+    const CtlResult r = WaitForStatus(*site, 3, stations[i], domain, daemons[i]);
+    ASSERT_EQ(r.exit_code, 0) << Describe(r) << DaemonLog(stations[i]);
+    const nlohmann::json status = nlohmann::json::parse(r.out, nullptr, false);
+    EXPECT_EQ(status.value("station", ""), stations[i].station) << r.out;
+  }
+  const double all_up_s = Seconds(test_start);
+
+  ASSERT_TRUE(site->Cut(1, &why)) << why;
+  for (std::size_t i = 0; i < 3; ++i) {
+    const CtlResult r = Ctl(*site, 3, stations[i].station, domain, 3, {"status"});
+    EXPECT_EQ(r.exit_code, i == 1 ? 5 : 0) << stations[i].station << " " << Describe(r);
+  }
+  ASSERT_TRUE(site->Heal(1, &why)) << why;
+  const CtlResult r = Ctl(*site, 3, stations[1].station, domain, 10, {"status"});
+  EXPECT_EQ(r.exit_code, 0) << Describe(r) << DaemonLog(stations[1]);
+  std::printf("site: 3 stations answered after %.2f s\n", all_up_s);
+}
+
+// Launcher() for helpers that spawn by themselves, and a teardown that
+// leaves nothing: processes, cgroups, work folder, the thread's namespace.
+TEST(SiteNetwork, LauncherAndTeardownLeaveNothingBehind) {
+  const std::string netns_before = NetnsOf("/proc/thread-self/ns/net");
+  std::string why, site_cgroup, work_dir;
+  ChildProcess sleeper;
+  {
+    auto site = SiteNetwork::Create({{"h0", 0.25}, {"h1", 0}}, &why);
+    if (!site) GTEST_SKIP() << "site network unavailable: " << why;
+    EXPECT_NE(NetnsOf("/proc/thread-self/ns/net"), netns_before) << "not in a private namespace";
+    site_cgroup = std::filesystem::path(site->cgroup_dir(0)).parent_path().string();
+    work_dir = site->work_dir();
+    EXPECT_TRUE(std::filesystem::is_directory(site_cgroup));
+    EXPECT_EQ(ReadFile(site->cgroup_dir(0) + "/cpu.cfs_quota_us"), "25000\n");
+
+    // The quota holds: a busy loop in h0 for 1 s is throttled.
+    std::string out;
+    EXPECT_EQ(site->Run(0, {"timeout", "1", "sh", "-c", "while :; do :; done"}, &out), 124) << out;
+    const std::string stat = ReadFile(site->cgroup_dir(0) + "/cpu.stat");
+    long throttled = 0;
+    const std::size_t at = stat.find("nr_throttled ");
+    if (at != std::string::npos) throttled = std::atol(stat.c_str() + at + 13);
+    EXPECT_GT(throttled, 3) << stat;
+
+    HostCommand sleep;
+    sleep.argv = {"sleep", "600"};
+    ASSERT_TRUE(site->Start(0, sleep, &sleeper, &why)) << why;
+
+    std::vector<std::string> argv = site->Launcher(1);
+    for (const char* a : {"/bin/sh", "-c",
+                          "cat /proc/self/cgroup; readlink /proc/self/ns/net; "
+                          "echo \"uri=$CYCLONEDDS_URI\""}) {
+      argv.push_back(a);
+    }
+    ChildProcess launched;
+    SpawnOptions options;
+    options.stdout_path = work_dir + "/launched.out";
+    options.stderr_to_stdout = true;
+    ASSERT_TRUE(Spawn(argv, options, &launched));
+    EXPECT_EQ(launched.Wait(10s), 0) << ReadFile(options.stdout_path);
+    out = ReadFile(options.stdout_path);
+    EXPECT_NE(out.find(":cpu:" + site->cgroup_path(1) + "\n"), std::string::npos) << out;
+    EXPECT_NE(out.find(NetnsOf(site->netns_path(1)) + "\n"), std::string::npos) << out;
+    EXPECT_NE(out.find("uri=" + site->DdsConfig(1) + "\n"), std::string::npos) << out;
+
+    // Cut and heal are visible as the nftables table in the host only.
+    ASSERT_TRUE(site->Cut(0, &why)) << why;
+    std::string rules;
+    EXPECT_EQ(site->Run(0, {"nft", "list", "tables"}, &rules), 0) << rules;
+    EXPECT_NE(rules.find("table inet cut"), std::string::npos) << rules;
+    EXPECT_EQ(site->Run(1, {"nft", "list", "tables"}, &rules), 0) << rules;
+    EXPECT_EQ(rules.find("table inet cut"), std::string::npos) << rules;
+    ASSERT_TRUE(site->Heal(0, &why)) << why;
+    EXPECT_EQ(site->Run(0, {"nft", "list", "tables"}, &rules), 0) << rules;
+    EXPECT_EQ(rules.find("table inet cut"), std::string::npos) << rules;
+    EXPECT_TRUE(sleeper.Running());
+  }
+  EXPECT_EQ(sleeper.Wait(5s), 128 + SIGKILL) << "the host's process outlived the site";
+  EXPECT_EQ(NetnsOf("/proc/thread-self/ns/net"), netns_before);
+  EXPECT_FALSE(std::filesystem::exists(site_cgroup)) << site_cgroup;
+  EXPECT_FALSE(std::filesystem::exists(work_dir)) << work_dir;
 }
 
 }  // namespace

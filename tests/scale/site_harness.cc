@@ -195,6 +195,28 @@ bool StartHolder(pid_t* pid, std::string* why) {
   return true;
 }
 
+// Removes the cgroups of sites whose test process is gone (killed before its
+// destructor ran: its hosts' processes died with it, PR_SET_PDEATHSIG, but
+// the folders stay): kills what is left in them, then rmdir.
+void RemoveStaleSiteCgroups() {
+  std::error_code ec;
+  for (const auto& entry : std::filesystem::directory_iterator(kCgroupCpuRoot, ec)) {
+    const std::string name = entry.path().filename().string();
+    const std::string prefix = "craftscan-site-";
+    if (name.rfind(prefix, 0) != 0 || !entry.is_directory(ec)) continue;
+    const std::string pid = name.substr(prefix.size());
+    if (pid.empty() || pid.find_first_not_of("0123456789") != std::string::npos) continue;
+    if (std::filesystem::exists("/proc/" + pid, ec)) continue;  // (a live site, or pid reuse)
+    for (const auto& host : std::filesystem::directory_iterator(entry.path(), ec)) {
+      if (!host.is_directory(ec)) continue;
+      std::ifstream procs(host.path() / "cgroup.procs");
+      for (pid_t p; procs >> p;) ::kill(p, SIGKILL);
+      ::rmdir(host.path().c_str());
+    }
+    ::rmdir(entry.path().c_str());
+  }
+}
+
 }  // namespace
 
 std::unique_ptr<SiteNetwork> SiteNetwork::Create(const std::vector<SiteHostSpec>& hosts,
@@ -295,6 +317,7 @@ bool SiteNetwork::Build(const std::vector<SiteHostSpec>& hosts, std::string* why
   work_dir_ = pattern;
 
   // Cgroups: the site's folder, then one per host.
+  RemoveStaleSiteCgroups();
   const std::string site_cgroup =
       std::string(kCgroupCpuRoot) + "/craftscan-site-" + std::to_string(::getpid());
   if (::mkdir(site_cgroup.c_str(), 0755) != 0) {

@@ -21,7 +21,6 @@
 #include "process_util.h"
 #include "site_harness.h"
 #include "test_paths.h"
-#include "wait_util.h"
 
 namespace craftscan::testing {
 namespace {

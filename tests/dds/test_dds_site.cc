@@ -47,9 +47,9 @@ bool WaitForState(Reader<Msg>& reader, const std::string& key, KeyFn key_of, Ins
 }
 
 // The worker side, in a process of its own (a remote peer, as a worker is):
-// run as this binary with CRAFTSCAN_SITE_WORKER=<site>; writes its status
+// run as this binary with CRAFTSCAN_SITE_WORKER=<site> (disabled: only run so); writes its status
 // every 400 ms for 3 s, then stays silent (alive, not writing) for 10 s.
-TEST(DdsSiteWorkerProcess, RenewsThenFallsSilent) {
+TEST(DdsSiteWorkerProcess, DISABLED_RenewsThenFallsSilent) {
   const char* site = std::getenv("CRAFTSCAN_SITE_WORKER");
   if (site == nullptr) GTEST_SKIP() << "the worker side of a test: run by it";
   auto participant = testing::MakeTestParticipant();
@@ -81,7 +81,7 @@ TEST(DdsSite, AWorkerThatStopsRenewingItsLeaseGoesNotAliveNoWritersWithinTheLeas
     setenv("CRAFTSCAN_SITE_WORKER", site.c_str(), 1);
     setenv("CRAFTSCAN_TEST_DOMAIN", std::to_string(testing::ProcessDomainId()).c_str(), 1);
     execl("/proc/self/exe", "test_dds_site", "--gtest_filter=DdsSiteWorkerProcess.*",
-          static_cast<char*>(nullptr));
+          "--gtest_also_run_disabled_tests", static_cast<char*>(nullptr));
     _exit(127);
   }
   const auto key = [](const msg::WorkerStatus& m) { return m.worker; };

@@ -14,17 +14,11 @@
 
 #include <nlohmann/json.hpp>
 
-#include "../daemon/sessions/status_util.h"
-#include "craftscan/daemon/config.h"
-#include "craftscan/daemon/session_store.h"
-#include "craftscan/pipeline/calib/calibration.h"
-#include "craftscan/pipeline/common/ply.h"
-#include "craftscan/pipeline/surface/scan_reconstruction.h"
-#include "craftscan/pipeline/surface/visibility.h"
 #include "craftscan/worker/worker.h"
 #include "ctl_runner.h"
 #include "daemon_fixture.h"
 #include "file_util.h"
+#include "remote_check.h"
 
 namespace craftscan::testing {
 namespace {
@@ -109,37 +103,6 @@ std::string Describe(const CtlRun& r) {
   return "exit " + std::to_string(r.exit_code) + "\nstdout:\n" + r.out + "\nstderr:\n" + r.err;
 }
 
-// The fused cloud the station makes from the session's stored views, with
-// its own pipeline settings (the daemon's config file).
-std::string LocalFusedPly(const DaemonFixture& fixture, const std::string& session_id, int threads) {
-  std::string error;
-  daemon::DaemonConfig config;
-  EXPECT_TRUE(daemon::ParseDaemonConfig(ReadFile(fixture.root() + "/craftscand.yaml"), {}, &config,
-                                        &error))
-      << error;
-  auto store = daemon::SessionStore::Open(fixture.data_dir(), StatusInto(&error));
-  EXPECT_TRUE(store) << error;
-  if (!store) return {};
-  auto session = store->OpenSession(session_id, StatusInto(&error));
-  EXPECT_TRUE(session) << error;
-  if (!session) return {};
-  StereoCalibration calibration;
-  EXPECT_TRUE(LoadCalibration(session->CalibrationPath(), &calibration, &error)) << error;
-  std::vector<ScanView> views;
-  for (const auto& [index, record] : session->manifest().views) {
-    ScanView view;
-    view.commanded_angle_rad = record.angle_deg * CV_PI / 180;
-    EXPECT_TRUE(session->LoadCloud(index, &view.cloud_in_rig, &error)) << error;
-    views.push_back(std::move(view));
-  }
-  ScanOptions scan = daemon::ReconstructionOptions(config.pipeline);
-  scan.num_threads = threads;
-  scan.camera = RectifiedLeftCamera(calibration);
-  const ScanResult r = ReconstructScan(views, calibration.turntable, scan);
-  EXPECT_TRUE(r.IsUsable()) << r.message;
-  return EncodePly(r.fused, true);
-}
-
 TEST(RemoteJobs, AScanReconstructedByAWorkerIsTheModelTheStationWouldHaveMade) {
   RemoteStation station("{mode: remote, offer_timeout_ms: 20000}");
   std::string error;
@@ -158,14 +121,16 @@ TEST(RemoteJobs, AScanReconstructedByAWorkerIsTheModelTheStationWouldHaveMade) {
   EXPECT_EQ(remote.value("outcome", ""), "done") << r.out;
   EXPECT_EQ(remote.value("worker", ""), "w1") << r.out;
   EXPECT_EQ(remote.value("grants", 0), 1) << r.out;
-  std::printf("4-view 640x512 scan reconstructed by a worker: %.1f s, %.0f s remote, %.1f MB back\n",
-              r.seconds, remote.value("seconds", 0.0), remote.value("bytes_back", 0.0) / 1e6);
+  std::printf(
+      "4-view 640x512 scan reconstructed by a worker: %.1f s, %.0f s remote, %.1f MB back\n",
+      r.seconds, remote.value("seconds", 0.0), remote.value("bytes_back", 0.0) / 1e6);
 
   // The stored model is what the station makes of the same views.
   const std::string dir = station.fixture.data_dir() + "/sessions/" + session;
   const std::string stored = ReadFile(dir + "/fused.ply");
   ASSERT_FALSE(stored.empty());
-  EXPECT_TRUE(stored == LocalFusedPly(station.fixture, session, TestThreads()))
+  EXPECT_TRUE(stored == LocalFusedPly(station.fixture.root() + "/craftscand.yaml",
+                                      station.fixture.data_dir(), session, TestThreads()))
       << "the worker's fused.ply differs from a local reconstruction of the same views";
   for (const char* name : {"mesh.ply", "mesh.glb", "report.json", "report.html"})
     EXPECT_FALSE(ReadFile(dir + "/" + name).empty()) << name;

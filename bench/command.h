@@ -38,5 +38,7 @@ std::unique_ptr<BenchCommand> MakeRegistrationCommand();
 std::unique_ptr<BenchCommand> MakeDdsCommand();
 std::unique_ptr<BenchCommand> MakeScanCommand();
 std::unique_ptr<BenchCommand> MakeTurnJoinCommand();
+// Built with the tests only (it runs on their site harness).
+std::unique_ptr<BenchCommand> MakeSiteCommand();
 
 }  // namespace craftscan::bench

@@ -23,6 +23,9 @@ int main(int argc, char** argv) {
   commands.push_back(MakeDdsCommand());
   commands.push_back(MakeScanCommand());
   commands.push_back(MakeTurnJoinCommand());
+#ifdef CRAFTSCAN_BENCH_SITE
+  commands.push_back(MakeSiteCommand());
+#endif
 
   std::vector<std::pair<CLI::App*, BenchCommand*>> registered;
   for (auto& command : commands) registered.emplace_back(command->Register(&app), command.get());

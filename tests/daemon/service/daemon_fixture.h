@@ -93,6 +93,9 @@ class DaemonFixture {
            dds::LoopbackOnlyConfigXml();
   }
   FakeNotifySocket& notify() { return notify_; }
+  // Puts the daemon on `domain` instead of its random one (before Prepare),
+  // e.g. several daemons of one site, or the test's own domain.
+  void set_domain(std::uint32_t domain) { domain_ = domain; }
 
   // Appended inside the config's pipeline mapping by Prepare, e.g.
   // ", mesh: false" for tests that need no mesh.
@@ -111,6 +114,8 @@ class DaemonFixture {
   // launcher that execs the rest, e.g. tests/tools/hardened-run and its
   // options), so pid() stays the daemon's.
   std::vector<std::string> launcher;
+  // More top-level lines of the config, e.g. "site: museum\n".
+  std::string extra_yaml;
 
   // Writes tokens, config and the exact sim calibration. False with *error.
   bool Prepare(std::string* error, bool with_calibration = true) {
@@ -151,6 +156,7 @@ class DaemonFixture {
                           : "")
            << pipeline_extra << "}\n";
     if (!calibration_yaml.empty()) config << "calibration: " << calibration_yaml << "\n";
+    config << extra_yaml;
     config.close();
     if (!with_calibration) return true;
     sim::SimDriverOptions options;

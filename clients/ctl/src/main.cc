@@ -142,14 +142,16 @@ int main(int argc, char** argv) {
   if (const char* env = std::getenv("CRAFTSCAN_SITE")) site_name = env;
   double site_wait_s = 2;
   auto add_site_options = [&](CLI::App* sub) {
-    return std::make_pair(
+    CLI::Option* site_option =
         sub->add_option("--site", site_name,
                         "the site (craftscand's `site`; default: CRAFTSCAN_SITE, else default)")
-            ->capture_default_str(),
+            ->capture_default_str();
+    CLI::Option* wait_option =
         sub->add_option("--wait", site_wait_s,
                         "seconds to listen for the site's stations and workers")
             ->check(CLI::Range(0.1, 600.0))
-            ->capture_default_str());
+            ->capture_default_str();
+    return std::make_pair(site_option, wait_option);
   };
   bool status_all = false;
   CLI::Option* all_option = status->add_flag(

@@ -35,10 +35,10 @@ json StationFields(const dds::msg::SiteStation& m) {
 }
 
 json WorkerFields(const dds::msg::WorkerStatus& m) {
-  return {{"worker", Text(m.worker)},   {"state", Text(m.state)},
-          {"job_id", Text(m.job_id)},   {"station", Text(m.station)},
-          {"grant", m.grant},           {"cores", m.cores},
-          {"load", m.load},             {"jobs_done", m.jobs_done},
+  return {{"worker", Text(m.worker)}, {"state", Text(m.state)},
+          {"job_id", Text(m.job_id)}, {"station", Text(m.station)},
+          {"grant", m.grant},         {"cores", m.cores},
+          {"load", m.load},           {"jobs_done", m.jobs_done},
           {"stamp_ns", m.stamp_ns}};
 }
 
@@ -126,15 +126,14 @@ json SiteJson(const std::string& site, std::uint32_t domain, const SiteInstances
 std::string SiteTable(const json& site) {
   const json& stations = site["stations"];
   const json& workers = site["workers"];
-  std::string out = "site " + Str(site, "site") + " (DDS domain " +
-                    std::to_string(site.value("domain", 0u)) + "): " +
-                    std::to_string(stations.size()) +
-                    (stations.size() == 1 ? " station, " : " stations, ") +
-                    std::to_string(workers.size()) + (workers.size() == 1 ? " worker" : " workers") +
-                    "\n";
+  std::string out =
+      "site " + Str(site, "site") + " (DDS domain " + std::to_string(site.value("domain", 0u)) +
+      "): " + std::to_string(stations.size()) +
+      (stations.size() == 1 ? " station, " : " stations, ") + std::to_string(workers.size()) +
+      (workers.size() == 1 ? " worker" : " workers") + "\n";
   out += "\nSTATIONS\n";
-  std::vector<Row> rows = {{"STATION", "STATE", "JOB", "RECONSTRUCTION", "REMOTE JOB -> WORKER",
-                            "LOAD"}};
+  std::vector<Row> rows = {
+      {"STATION", "STATE", "JOB", "RECONSTRUCTION", "REMOTE JOB -> WORKER", "LOAD"}};
   for (const json& s : stations) {
     std::string job = "-";
     if (!Str(s, "job_id").empty()) {

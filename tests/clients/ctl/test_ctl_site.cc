@@ -279,7 +279,8 @@ TEST(CraftscanctlSite, ListsTheSitesLiveStationsAndWorkersAndDropsThoseThatEnd) 
   EXPECT_TRUE(Stations(listing).empty()) << listing;
   EXPECT_TRUE(Workers(listing).empty()) << listing;
   // The other site's station was never affected.
-  EXPECT_EQ(Ids(Stations(view.Listing(1, other_site))), std::set<std::string>{elsewhere->station()});
+  EXPECT_EQ(Ids(Stations(view.Listing(1, other_site))),
+            std::set<std::string>{elsewhere->station()});
 }
 
 TEST(CraftscanctlSite, TableNamesEachStationAndWorkerAndUsageErrorsExit2) {
@@ -306,7 +307,7 @@ TEST(CraftscanctlSite, TableNamesEachStationAndWorkerAndUsageErrorsExit2) {
   EXPECT_NE(r.out.find("WORKERS"), std::string::npos) << r.out;
   // One row per station, naming its state and mode; the worker's row.
   const std::vector<std::pair<std::string, std::string>> modes = {{a->station(), "local"},
-                                                                   {b->station(), "remote"}};
+                                                                  {b->station(), "remote"}};
   for (const auto& [id, mode] : modes) {
     const auto row = r.out.find("\n" + id + " ");
     ASSERT_NE(row, std::string::npos) << id << "\n" << r.out;
@@ -329,8 +330,7 @@ TEST(CraftscanctlSite, TableNamesEachStationAndWorkerAndUsageErrorsExit2) {
     r = all.Wait(60s);
     ASSERT_EQ(r.exit_code, 0) << Describe(r);
     const json listing = SiteView::Parse(r);
-    EXPECT_EQ(Ids(Stations(listing)), (std::set<std::string>{a->station(), b->station()}))
-        << r.out;
+    EXPECT_EQ(Ids(Stations(listing)), (std::set<std::string>{a->station(), b->station()})) << r.out;
     EXPECT_EQ(Ids(Workers(listing)), std::set<std::string>{worker_id}) << r.out;
   }
   // Usage errors: exit 2 with a message naming the problem; no token needed.

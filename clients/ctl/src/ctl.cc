@@ -110,6 +110,17 @@ bool IsTerminalStage(const std::string& stage) {
 
 }  // namespace
 
+std::string ResolveDdsConfig(const std::string& given) {
+  if (given.empty()) return client::DefaultDdsConfig();
+  if (given.front() != '<' && given.find("://") == std::string::npos &&
+      given.find(',') == std::string::npos) {
+    // A plain path: Cyclone wants a file:// URI.
+    std::error_code ec;
+    return "file://" + std::filesystem::absolute(given, ec).string();
+  }
+  return given;
+}
+
 int Ctl::Init(const GlobalOptions& options) {
   options_ = options;
   std::string token = options.token;
@@ -140,16 +151,7 @@ int Ctl::Init(const GlobalOptions& options) {
   connect.domain_id = options.domain;
   connect.token = token;
   connect.client_name = ClientName();
-  connect.dds_config = options.dds_config;
-  if (connect.dds_config.empty()) {
-    connect.dds_config = client::DefaultDdsConfig();
-  } else if (connect.dds_config.front() != '<' &&
-             connect.dds_config.find("://") == std::string::npos &&
-             connect.dds_config.find(',') == std::string::npos) {
-    // A plain path: Cyclone wants a file:// URI.
-    std::error_code ec;
-    connect.dds_config = "file://" + std::filesystem::absolute(connect.dds_config, ec).string();
-  }
+  connect.dds_config = ResolveDdsConfig(options.dds_config);
   std::string why;
   if (!connect.IsValid(&why)) {
     Error(why);

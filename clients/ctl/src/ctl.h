@@ -37,6 +37,11 @@ struct GlobalOptions {
   bool json = false;
 };
 
+// The Cyclone configuration for --dds-config `given`: empty →
+// client::DefaultDdsConfig(); a plain path → its file:// URI; XML, URIs and
+// lists as given.
+std::string ResolveDdsConfig(const std::string& given);
+
 struct WaitOptions {
   bool wait = true;       // wait for the job's end
   double max_wait_s = 0;  // 0 = as long as the daemon keeps answering

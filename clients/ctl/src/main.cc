@@ -20,13 +20,16 @@
 #include <cstdlib>
 #include <map>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include <CLI/CLI.hpp>
 
 #include "craftscan/client/file_assembler.h"
 #include "craftscan/dds/participant.h"
+#include "craftscan/dds/site.h"
 #include "ctl.h"
+#include "site_view.h"
 
 namespace {
 
@@ -49,11 +52,11 @@ constexpr const char* kFooter = R"(Exit codes:
   6    --max-wait passed while the job still runs (it goes on)
   130  Ctrl-C while waiting (a job goes on at the station)
 
-Environment: CRAFTSCAN_TOKEN (token), CRAFTSCAN_STATION, CRAFTSCAN_DDS_DOMAIN
-(defaults for --station and --domain), CRAFTSCAN_SOURCE_ORGANIZATION (default
-for get --source-organization), CYCLONEDDS_URI (Cyclone DDS
-configuration when --dds-config is not given; without either,
-/etc/craftscan/cyclonedds.xml is used if present).)";
+Environment: CRAFTSCAN_TOKEN (token), CRAFTSCAN_STATION, CRAFTSCAN_DDS_DOMAIN,
+CRAFTSCAN_SITE (defaults for --station, --domain and site's --site),
+CRAFTSCAN_SOURCE_ORGANIZATION (default for get --source-organization),
+CYCLONEDDS_URI (Cyclone DDS configuration when --dds-config is not given;
+without either, /etc/craftscan/cyclonedds.xml is used if present).)";
 
 // "exposure=5000 gain=2" → {"exposure_us": 5000, "gain_db": 2}. False with *why.
 bool ParseCameraSettings(const std::vector<std::string>& items, nlohmann::json* args,
@@ -134,6 +137,33 @@ int main(int argc, char** argv) {
 
   CLI::App* status =
       app.add_subcommand("status", "the station's state, devices, job and calibration");
+  // site (and status --all): the site's stations and workers; no token.
+  std::string site_name(craftscan::dds::kDefaultSite);
+  if (const char* env = std::getenv("CRAFTSCAN_SITE")) site_name = env;
+  double site_wait_s = 2;
+  auto add_site_options = [&](CLI::App* sub) {
+    CLI::Option* site_option =
+        sub->add_option("--site", site_name,
+                        "the site (craftscand's `site`; default: CRAFTSCAN_SITE, else default)")
+            ->capture_default_str();
+    CLI::Option* wait_option =
+        sub->add_option("--wait", site_wait_s,
+                        "seconds to listen for the site's stations and workers")
+            ->check(CLI::Range(0.1, 600.0))
+            ->capture_default_str();
+    return std::make_pair(site_option, wait_option);
+  };
+  bool status_all = false;
+  CLI::Option* all_option = status->add_flag(
+      "--all", status_all, "every station and worker of the site instead (as `site`; no token)");
+  const auto [status_site, status_wait] = add_site_options(status);
+  status_site->needs(all_option);
+  status_wait->needs(all_option);
+  CLI::App* site = app.add_subcommand(
+      "site",
+      "every station and reconstruction worker of the site: state, job, reconstruction mode, "
+      "remote job, load (listens only: no token needed)");
+  add_site_options(site);
   CLI::App* devices = app.add_subcommand("devices", "the cameras and the turntable");
   CLI::App* sessions = app.add_subcommand("sessions", "the sessions on the station");
   CLI::App* calibrate = app.add_subcommand("calibrate", "calibrate the stereo cameras (admin)");
@@ -270,6 +300,16 @@ int main(int argc, char** argv) {
   sigaction(SIGINT, &action, nullptr);
   sigaction(SIGTERM, &action, nullptr);
   signal(SIGPIPE, SIG_IGN);
+
+  if (*site || (*status && status_all)) {
+    craftscan::ctl::SiteOptions options;
+    options.site = site_name;
+    options.domain = g.domain;
+    options.dds_config = g.dds_config;
+    options.wait_s = site_wait_s;
+    options.json = g.json;
+    return craftscan::ctl::Site(options, &g_interrupted);
+  }
 
   craftscan::ctl::Ctl ctl(&g_interrupted);
   if (const int rc = ctl.Init(g)) return rc;

@@ -30,7 +30,9 @@ constexpr std::chrono::seconds kStoreRetryInterval{10};
 constexpr std::chrono::seconds kDeviceRetryInterval{10};
 // How long the command loop waits for a command before its periodic work.
 constexpr std::chrono::milliseconds kCommandWait{100};
-// StationStatus is republished at least this often, changed or not.
+// StationStatus (and SiteStation) is republished at least this often,
+// changed or not; SiteStation also at least every SiteWriter::kRenewInterval
+// (its liveliness lease).
 constexpr std::chrono::seconds kStatusInterval{1};
 // A running job silent for longer is taken for a hung driver call: the
 // watchdog pings stop, systemd restarts the daemon, the session resumes.
@@ -127,6 +129,7 @@ struct Daemon::Impl {
   // Reconstruction on the site's workers (reconstruction.mode remote/auto).
   std::unique_ptr<RemoteJobs> remote;
   StatusWriter status_writer;
+  SiteWriter site;  // this station on the site's topic; the job protocol sets its remote job
   CommandChannel commands;
   DdsPublisher publisher;
   FileSender files;
@@ -158,7 +161,12 @@ struct Daemon::Impl {
   // What StationStatus and the status verb show.
   StationStatusFields Snapshot() const;
   nlohmann::json StatusJson() const;
-  void PublishStatus() { status_writer.Publish(Snapshot()); }
+  // StationStatus and SiteStation.
+  void PublishStatus() {
+    const StationStatusFields snapshot = Snapshot();
+    status_writer.Publish(snapshot);
+    site.Publish(snapshot);
+  }
   // last_error and storage_error, as the status shows them.
   std::string Problems() const;
   // Tries to open the session store; on success marks unfinished sessions
@@ -267,6 +275,8 @@ bool Daemon::Impl::OpenDds(std::string* error) {
   participant = dds::Participant::Create(options, error);
   const std::string& station = config.station;
   return participant && status_writer.Create(participant, station, error) &&
+         site.Create(participant, config.site, station, ToString(config.reconstruction.mode),
+                     error) &&
          commands.Create(participant, station, error) &&
          publisher.Create(participant, station, error) && files.Create(participant, station, error);
 }
@@ -524,7 +534,8 @@ void Daemon::Impl::NotifySummary(const JobInfo& job) {
 }
 
 void Daemon::Impl::PublishStatusIfDue(Clock::time_point now) {
-  if (status_dirty.exchange(false) || now - loop.last_status > kStatusInterval) {
+  if (status_dirty.exchange(false) || now - loop.last_status > kStatusInterval ||
+      site.RenewalDue(now)) {
     PublishStatus();
     loop.last_status = now;
   }
@@ -551,6 +562,7 @@ void Daemon::Impl::ShutDown() {
   jobs->Shutdown();
   devices->Close();
   PublishStatus();
+  site.Dispose();  // the site view drops this station now, not after its lease
   spdlog::info("stopped cleanly");
 }
 

@@ -7,6 +7,7 @@
 
 #include <algorithm>
 #include <cerrno>
+#include <cstdlib>
 #include <cstring>
 #include <string_view>
 #include <utility>
@@ -119,6 +120,83 @@ void StatusWriter::Publish(const StationStatusFields& status) {
   m.stamp_ns = WallNs();
   m.calibration_id = out.Keep(status.calibration_id);
   WriteOrLog(*writer_, m, "status");
+}
+
+// --- SiteWriter -------------------------------------------------------------
+
+namespace {
+
+// The 1-minute load average per online core, 0 when unknown.
+double LoadPerCore() {
+  double load[1] = {0};
+  const long cores = ::sysconf(_SC_NPROCESSORS_ONLN);
+  if (::getloadavg(load, 1) != 1 || cores <= 0) return 0;
+  return load[0] / static_cast<double>(cores);
+}
+
+}  // namespace
+
+bool SiteWriter::Create(const std::shared_ptr<dds::Participant>& p, const std::string& site,
+                        const std::string& station, std::string_view reconstruction,
+                        std::string* error) {
+  std::lock_guard lock(mutex_);
+  station_ = station;
+  reconstruction_ = std::string(reconstruction);
+  writer_ = dds::Writer<dds::msg::SiteStation>::Create(p, dds::SiteStationTopic(site), error);
+  return writer_ != nullptr;
+}
+
+void SiteWriter::Publish(const StationStatusFields& status) {
+  std::lock_guard lock(mutex_);
+  state_ = status.state;
+  job_ = status.job;
+  WriteLocked();
+}
+
+void SiteWriter::SetRemoteJob(std::string job_id, std::string worker) {
+  std::lock_guard lock(mutex_);
+  if (job_id == remote_job_ && worker == remote_worker_) return;
+  remote_job_ = std::move(job_id);
+  remote_worker_ = std::move(worker);
+  WriteLocked();
+}
+
+void SiteWriter::Dispose() {
+  std::lock_guard lock(mutex_);
+  if (!writer_ || disposed_) return;
+  disposed_ = true;
+  dds::Outgoing<dds::msg::SiteStation> out;
+  out.msg().station = out.Keep(station_);
+  std::string error;
+  if (!writer_->Dispose(out.msg(), &error)) {
+    spdlog::warn("site station: {}", error);
+  } else if (!writer_->WaitForAcks(kDisposeAckTimeout, &error)) {
+    spdlog::debug("site station: the disposal was not acknowledged by every reader: {}", error);
+  }
+}
+
+bool SiteWriter::RenewalDue(Clock::time_point now) const {
+  std::lock_guard lock(mutex_);
+  return now - last_write_ >= kRenewInterval;
+}
+
+void SiteWriter::WriteLocked() {
+  if (!writer_ || disposed_) return;
+  dds::Outgoing<dds::msg::SiteStation> out;
+  auto& m = out.msg();
+  m.station = out.Keep(station_);
+  m.state = out.Keep(ToString(state_));
+  m.job_id = out.Keep(job_.id);
+  m.job_verb = out.Keep(job_.verb);
+  m.job_state = out.Keep(ToString(job_.state));
+  m.progress = job_.progress;
+  m.reconstruction = out.Keep(reconstruction_);
+  m.remote_job = out.Keep(remote_job_);
+  m.remote_worker = out.Keep(remote_worker_);
+  m.load = LoadPerCore();
+  m.stamp_ns = WallNs();
+  WriteOrLog(*writer_, m, "site station");
+  last_write_ = Clock::now();
 }
 
 // --- DdsPublisher -----------------------------------------------------------

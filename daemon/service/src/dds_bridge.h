@@ -5,6 +5,7 @@
 //
 //   CommandChannel  craftscan/<station>/command in, .../reply out
 //   StatusWriter    craftscan/<station>/status (StationStatus)
+//   SiteWriter      craftscan/site/station (SiteStation) in the site's partition
 //   DdsPublisher    what the jobs produce (JobSink): progress, capture,
 //                   disparity, cloud, and the ROS 2-compatible rt/... topics
 //   FileSender      craftscan/<station>/file: the chunks of `get` transfers
@@ -23,6 +24,7 @@
 #include <memory>
 #include <mutex>
 #include <string>
+#include <string_view>
 #include <thread>
 #include <vector>
 
@@ -33,6 +35,7 @@
 #include "craftscan/dds/convert.h"
 #include "craftscan/dds/endpoint.h"
 #include "craftscan/dds/participant.h"
+#include "craftscan/dds/site.h"
 #include "craftscan/dds/topics.h"
 
 namespace craftscan::daemon {
@@ -91,6 +94,56 @@ class StatusWriter {
 
  private:
   std::unique_ptr<dds::Writer<dds::msg::StationStatus>> writer_;
+};
+
+// The station's instance on the site's topic (dds::SiteStationTopic(site):
+// SiteStation keyed by the station id, in the site's DDS partition): what
+// `craftscanctl site` and the site's workers see of this station. The writer
+// has a manual-by-topic liveliness lease (dds::kStationLeaseMs): the service
+// writes at least every kRenewInterval, so a daemon that died or froze shows
+// at the readers as NOT_ALIVE_NO_WRITERS within the lease; a clean stop
+// disposes the instance (Dispose).
+// Thread-safety: every method may be called from any thread; the fields and
+// each write are under one mutex, so the writes keep the order of the calls.
+class SiteWriter {
+ public:
+  using Clock = std::chrono::steady_clock;
+  // How often the instance must be written at least (a quarter of the lease).
+  static constexpr std::chrono::milliseconds kRenewInterval{dds::kStationLeaseMs / 4};
+
+  // `reconstruction`: the config's reconstruction mode as text ("local",
+  // "remote", "auto"), sent in every sample.
+  bool Create(const std::shared_ptr<dds::Participant>& p, const std::string& site,
+              const std::string& station, std::string_view reconstruction, std::string* error);
+
+  // Takes state, job and progress from `status` and writes the instance
+  // (with the load average, stamped now). A failed write is logged.
+  void Publish(const StationStatusFields& status);
+  // The job of this station offered or granted to a worker of the site now,
+  // and that worker ("" for none; a job offered but not granted has no
+  // worker yet). Written at once when it changes. For the job protocol.
+  void SetRemoteJob(std::string job_id, std::string worker);
+  // Disposes the instance (the station stops): readers drop it. Nothing is
+  // written after.
+  void Dispose();
+  // Whether kRenewInterval has passed since the last write.
+  bool RenewalDue(Clock::time_point now) const;
+
+ private:
+  // Dispose waits this long at most for the readers to have the disposal.
+  static constexpr std::chrono::milliseconds kDisposeAckTimeout{1000};
+
+  void WriteLocked();  // mutex_ held
+
+  std::unique_ptr<dds::Writer<dds::msg::SiteStation>> writer_;
+  mutable std::mutex mutex_;
+  // Guarded by mutex_:
+  std::string station_, reconstruction_;
+  StationState state_ = StationState::kStarting;
+  JobInfo job_;
+  std::string remote_job_, remote_worker_;
+  Clock::time_point last_write_{};
+  bool disposed_ = false;
 };
 
 // Publishes what the jobs produce (JobSink) on the station's topics, in the

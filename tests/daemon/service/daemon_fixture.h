@@ -93,6 +93,9 @@ class DaemonFixture {
            dds::LoopbackOnlyConfigXml();
   }
   FakeNotifySocket& notify() { return notify_; }
+  // Puts the daemon on `domain` instead of its random one (before Prepare),
+  // e.g. several daemons of one site, or the test's own domain.
+  void set_domain(std::uint32_t domain) { domain_ = domain; }
 
   // Appended inside the config's pipeline mapping by Prepare, e.g.
   // ", mesh: false" for tests that need no mesh.

@@ -70,8 +70,9 @@ class SiteCommand : public BenchCommand {
  public:
   CLI::App* Register(CLI::App* app) override {
     CLI::App* sub = app->add_subcommand(
-        "site", "A burst of simulated scans from N stations with 0, 1, 2 … workers, each a host "
-                "with its own CPU share (needs root)");
+        "site",
+        "A burst of simulated scans from N stations with 0, 1, 2 … workers, each a host "
+        "with its own CPU share (needs root)");
     sub->add_option("--stations", stations_, "Stations (hosts), each scanning once")
         ->check(CLI::Range(1, 20));
     sub->add_option("--workers", workers_, "Worker counts to run, e.g. 0,1,2")->delimiter(',');
@@ -99,9 +100,10 @@ class SiteCommand : public BenchCommand {
     }
     std::vector<bench::Run> runs;
     for (int w : workers_) {
-      std::printf("site: %d stations (%.2f core each), %d workers (%.2f core each), %d views "
-                  "at %s ...\n",
-                  stations_, station_cpu_, w, worker_cpu_, views_, image_size_.c_str());
+      std::printf(
+          "site: %d stations (%.2f core each), %d workers (%.2f core each), %d views "
+          "at %s ...\n",
+          stations_, station_cpu_, w, worker_cpu_, views_, image_size_.c_str());
       std::fflush(stdout);
       runs.push_back(Burst(w));
       const bench::Run& r = runs.back();
@@ -120,10 +122,10 @@ class SiteCommand : public BenchCommand {
   bool PrepareStation(const std::string& dir, int index, bool remote, std::string* error) const {
     std::filesystem::create_directories(dir + "/data/calibration");
     const std::string tokens = dir + "/tokens.yaml";
-    if (!WriteText(tokens,
-                   std::string("tokens:\n  - {name: site, token: \"") + kToken +
-                       "\", role: operator}\n",
-                   error))
+    if (!WriteText(
+            tokens,
+            std::string("tokens:\n  - {name: site, token: \"") + kToken + "\", role: operator}\n",
+            error))
       return false;
     ::chmod(tokens.c_str(), 0600);
     const std::string sim = "{driver: sim, config: {image_size: " + image_size_ + ", threads: 1}}";
@@ -140,8 +142,8 @@ class SiteCommand : public BenchCommand {
     if (!sim::SimDriverOptionsFromConfig({{"image_size", image_size_}}, &options, error))
       return false;
     auto station = sim::SimStation::Create(sim::SimRigOptions(options), error);
-    return station && SaveCalibration(dir + "/data/calibration/current.yaml",
-                                      station->calibration(), error);
+    return station &&
+           SaveCalibration(dir + "/data/calibration/current.yaml", station->calibration(), error);
   }
 
   bool PrepareWorker(const std::string& dir, int index, std::string* error) const {
@@ -207,14 +209,19 @@ class SiteCommand : public BenchCommand {
     for (int j = 0; j < workers; ++j) {
       const std::string dir = root + "/wk" + std::to_string(j);
       if (!PrepareWorker(dir, j, &why)) return fail("worker " + std::to_string(j));
-      if (!start(stations_ + j,
-                 {WorkerPath(), "--config", dir + "/craftscan-worker.yaml"}, dir + "/worker.log"))
+      if (!start(stations_ + j, {WorkerPath(), "--config", dir + "/craftscan-worker.yaml"},
+                 dir + "/worker.log"))
         return fail("starting craftscan-worker");
     }
     const auto ctl = [&](int station, std::vector<std::string> args) {
-      std::vector<std::string> argv = {testing::CraftscanctlPath(), "--station",
-                                       "st" + std::to_string(station), "--domain",
-                                       std::to_string(kDomain), "--timeout", "30", "--token",
+      std::vector<std::string> argv = {testing::CraftscanctlPath(),
+                                       "--station",
+                                       "st" + std::to_string(station),
+                                       "--domain",
+                                       std::to_string(kDomain),
+                                       "--timeout",
+                                       "30",
+                                       "--token",
                                        kToken};
       argv.insert(argv.end(), args.begin(), args.end());
       return argv;
@@ -231,7 +238,8 @@ class SiteCommand : public BenchCommand {
                       std::chrono::seconds(60)))
         return fail("worker wk" + std::to_string(j) + " did not start");
     }
-    std::this_thread::sleep_for(std::chrono::seconds(2));  // the workers' status reaches the stations
+    std::this_thread::sleep_for(
+        std::chrono::seconds(2));  // the workers' status reaches the stations
 
     const auto t0 = Clock::now();
     std::vector<std::unique_ptr<ChildProcess>> scans;
@@ -247,10 +255,11 @@ class SiteCommand : public BenchCommand {
     for (int i = 0; i < stations_; ++i) {
       if (!scans[i]->WaitForExit(std::chrono::minutes(30)))
         return fail("scan of st" + std::to_string(i) + " did not end in 30 min");
-      json job = json::parse(ReadText(root + "/scan" + std::to_string(i) + ".json"), nullptr, false);
+      json job =
+          json::parse(ReadText(root + "/scan" + std::to_string(i) + ".json"), nullptr, false);
       if (!job.is_object() || job.value("state", "") != "done")
-        return fail("scan of st" + std::to_string(i) + " failed: " +
-                    ReadText(root + "/scan" + std::to_string(i) + ".err"));
+        return fail("scan of st" + std::to_string(i) +
+                    " failed: " + ReadText(root + "/scan" + std::to_string(i) + ".err"));
       run.jobs.push_back(std::move(job));
     }
     run.burst_s = std::chrono::duration<double>(Clock::now() - t0).count();
@@ -258,9 +267,9 @@ class SiteCommand : public BenchCommand {
   }
 
   int Report(const std::vector<bench::Run>& runs, int paper_stations, int paper_workers) const {
-    json out = {{"stations", stations_},       {"views", views_},
-                {"image_size", image_size_},   {"station_cpu", station_cpu_},
-                {"worker_cpu", worker_cpu_},   {"runs", json::array()}};
+    json out = {{"stations", stations_},     {"views", views_},
+                {"image_size", image_size_}, {"station_cpu", station_cpu_},
+                {"worker_cpu", worker_cpu_}, {"runs", json::array()}};
     double base = 0, local_s = 0, station_s = 0, worker_s = 0;
     int remote_jobs = 0;
     std::printf("\n%8s %10s %10s %9s %12s %12s %8s\n", "workers", "burst s", "scans/h", "speed-up",

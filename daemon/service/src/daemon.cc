@@ -343,6 +343,10 @@ std::unique_ptr<Daemon> Daemon::Create(const DaemonConfig& config, std::string* 
     jobs.remote_config = DumpDaemonConfig(config);
     jobs.remote_offer_timeout = std::chrono::milliseconds(config.reconstruction.offer_timeout_ms);
     jobs.remote_max = std::chrono::seconds(config.reconstruction.max_remote_s);
+    SiteWriter* site = &impl->site;
+    jobs.on_remote = [site](const std::string& job, const std::string& worker) {
+      site->SetRemoteJob(job, worker);
+    };
   }
   jobs.calibration.rectification.zero_disparity = false;
   impl->jobs = std::make_unique<JobEngine>(jobs, impl->devices.get(), impl->store.get(),

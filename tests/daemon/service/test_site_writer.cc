@@ -25,8 +25,8 @@ class SiteWriterTest : public ::testing::Test {
     ASSERT_NE(participant_, nullptr);
     site_ = testing::UniqueStation("site");
     std::string error;
-    reader_ = dds::Reader<dds::msg::SiteStation>::Create(participant_,
-                                                         dds::SiteStationTopic(site_), &error);
+    reader_ = dds::Reader<dds::msg::SiteStation>::Create(participant_, dds::SiteStationTopic(site_),
+                                                         &error);
     ASSERT_NE(reader_, nullptr) << error;
     ASSERT_TRUE(writer_.Create(participant_, site_, "st1", "auto", &error)) << error;
   }

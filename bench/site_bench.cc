@@ -219,6 +219,8 @@ class SiteCommand : public BenchCommand {
                                        "st" + std::to_string(station),
                                        "--domain",
                                        std::to_string(kDomain),
+                                       "--dds-config",
+                                       site->DdsConfig(client),
                                        "--timeout",
                                        "30",
                                        "--token",

@@ -44,7 +44,7 @@ bool WorkerOptions::IsValid(std::string* why) const {
     return fail("threads: must be 1..256, got " + std::to_string(threads));
   if (work_dir.empty() || work_dir.front() != '/')
     return fail("work_dir: must be an absolute path, got '" + work_dir + "'");
-  if (token.size() > 256) return fail("token: longer than 256 bytes");
+  if (token.size() > 128) return fail("token: longer than 128 bytes");
   return true;
 }
 

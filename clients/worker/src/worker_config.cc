@@ -24,7 +24,7 @@ namespace {
 
 using daemon::AtYamlLine;
 
-constexpr std::size_t kMaxTokenBytes = 256;
+constexpr std::size_t kMaxTokenBytes = 128;  // what a Command carries (get)
 constexpr std::string_view kEnvironmentPrefix = "CRAFTSCAN_WORKER_";
 
 bool Fail(std::string* error, std::string message) {

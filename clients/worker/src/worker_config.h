@@ -91,7 +91,7 @@ std::vector<std::string> WorkerEnvironmentVariables();
 // The token in `path`: its first line without trailing blanks. False with
 // *error ("auth.token_file: /etc/craftscan/worker.token: …") when the file
 // cannot be read, is not a regular file, is readable by group or others,
-// or its first line is empty or longer than 256 bytes.
+// or its first line is empty or longer than 128 bytes.
 bool ReadWorkerToken(const std::string& path, std::string* token, std::string* error);
 
 // The job loop's options from the config: reads the token file, and the

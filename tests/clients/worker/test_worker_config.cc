@@ -305,10 +305,10 @@ TEST_F(WorkerToken, ReadableByOthersIsRefused) {
 }
 
 TEST_F(WorkerToken, TooLongOrControlCharactersAreRefused) {
-  EXPECT_EQ(TokenError(Write("ok", std::string(256, 'k') + "\n")),
-            "read '" + std::string(256, 'k') + "'");
-  EXPECT_THAT(TokenError(Write("long", std::string(257, 'k'))),
-              HasSubstr("the token is longer than 256 bytes"));
+  EXPECT_EQ(TokenError(Write("ok", std::string(128, 'k') + "\n")),
+            "read '" + std::string(128, 'k') + "'");
+  EXPECT_THAT(TokenError(Write("long", std::string(129, 'k'))),
+              HasSubstr("the token is longer than 128 bytes"));
   EXPECT_THAT(TokenError(Write("ctl", std::string("to\x01ken\n"))),
               HasSubstr("the token has a control character"));
   EXPECT_THAT(TokenError(dir_.string()), HasSubstr("not a regular file"));
@@ -368,8 +368,8 @@ TEST(WorkerOptions, IsValidNamesTheField) {
   EXPECT_THAT(bad([](WorkerOptions& x) { x.threads = 257; }), HasSubstr("threads"));
   EXPECT_THAT(bad([](WorkerOptions& x) { x.work_dir = "rel"; }),
               HasSubstr("work_dir: must be an absolute path"));
-  EXPECT_THAT(bad([](WorkerOptions& x) { x.token = std::string(257, 't'); }),
-              HasSubstr("token: longer than 256 bytes"));
+  EXPECT_THAT(bad([](WorkerOptions& x) { x.token = std::string(129, 't'); }),
+              HasSubstr("token: longer than 128 bytes"));
 }
 
 }  // namespace

@@ -9,6 +9,7 @@
 #include <filesystem>
 #include <map>
 #include <mutex>
+#include <set>
 #include <thread>
 #include <utility>
 #include <vector>
@@ -76,11 +77,13 @@ struct Offer {
   uint32_t grant = 0;
   std::string inputs, parameters;
   int64_t offered_ns = 0;
+  int views_ready = 0, views_total = 0;
 };
 
 // One granted job, run on a thread of its own while the loop renews the lease.
 struct Job {
-  Offer offer;
+  Offer offer;   // as granted
+  Offer latest;  // as last written by its station (guarded by Loop::mutex)
   std::atomic<bool> abort{false};
   std::atomic<bool> finished{false};
   std::string phase = "fetching";  // guarded by Loop::mutex
@@ -193,6 +196,12 @@ class Loop {
       o.inputs = dds::View(sample->inputs);
       o.parameters = dds::View(sample->parameters);
       o.offered_ns = sample->offered_ns;
+      o.views_ready = sample->views_ready;
+      o.views_total = sample->views_total;
+      if (job_ && job_->offer.job_id == id) {
+        std::lock_guard lock(mutex_);
+        job_->latest = o;
+      }
       if (job_ && job_->offer.job_id == id &&
           (o.worker != o_.worker_id || o.grant != job_->offer.grant) &&
           !job_->abort.exchange(true)) {
@@ -236,6 +245,8 @@ class Loop {
     done_grants_[offer.job_id] = offer.grant;
     auto job = std::make_unique<Job>();
     job->offer = offer;
+    job->latest = offer;
+    fetched_.clear();
     Job* raw = job.get();
     {
       std::lock_guard lock(mutex_);
@@ -279,13 +290,43 @@ class Loop {
   }
 
   // Fetch, reconstruct, return.
+  // The job's offer as the station last wrote it (views are added to it).
+  Offer Latest(Job& job) {
+    std::lock_guard lock(mutex_);
+    return job.latest;
+  }
+
+  // Fetches `names` of the job's session into its folder, each checked
+  // against the offer's SHA-256; "" when fine, else why not.
+  std::string FetchInputs(Job& job, client::StationClient& station,
+                          const std::vector<std::string>& names,
+                          const std::map<std::string, std::string>& sha256) {
+    client::FetchRequest fetch;
+    fetch.session = job.offer.session;
+    fetch.out_dir = JobDir(job.offer);
+    fetch.cancel = &job.abort;
+    fetch.files = names;
+    const client::FetchResult fetched = station.Fetch(fetch);
+    if (job.abort.load()) return "abandoned";
+    if (fetched.status != client::FetchStatus::kOk)
+      return "fetching the inputs: " + fetched.message;
+    for (const client::FetchedFile& f : fetched.files) {
+      const auto expected = sha256.find(f.name);
+      if (expected != sha256.end() && !expected->second.empty() && expected->second != f.sha256)
+        return f.name + ": SHA-256 differs from the offer's";
+      fetched_bytes_ += f.size_bytes;
+    }
+    return {};
+  }
+
+  // Fetch the calibration, then each view as the station lists it and add
+  // it to the scan (registration while the station still captures), then
+  // finish, make the outputs and return them.
   void Work(Job& job) {
     const Offer& offer = job.offer;
     const std::string dir = JobDir(offer);
-    const nlohmann::json inputs = nlohmann::json::parse(offer.inputs, nullptr, false);
     const nlohmann::json params = nlohmann::json::parse(offer.parameters, nullptr, false);
-    if (!inputs.is_array() || !params.is_object())
-      return Fail(job, "the offer's inputs or parameters are not JSON");
+    if (!params.is_object()) return Fail(job, "the offer's parameters are not JSON");
 
     Phase(job, "fetching");
     client::ConnectOptions connect;
@@ -297,59 +338,82 @@ class Loop {
     std::unique_ptr<client::StationClient>& station = stations_[offer.station];
     if (!station) station = client::StationClient::Connect(connect, &error);
     if (!station) return Fail(job, "cannot reach station " + offer.station + ": " + error);
-    client::FetchRequest fetch;
-    fetch.session = offer.session;
-    fetch.out_dir = dir;
-    fetch.cancel = &job.abort;
-    std::map<std::string, std::string> expected;
-    for (const nlohmann::json& input : inputs) {
-      fetch.files.push_back(input.value("name", std::string()));
-      expected[fetch.files.back()] = input.value("sha256", std::string());
-    }
-    const client::FetchResult fetched = station->Fetch(fetch);
-    if (job.abort.load()) return;
-    if (fetched.status != client::FetchStatus::kOk)
-      return Fail(job, "fetching the views: " + fetched.message);
-    for (const client::FetchedFile& f : fetched.files) {
-      if (!expected[f.name].empty() && expected[f.name] != f.sha256)
-        return Fail(job, f.name + ": SHA-256 differs from the offer's");
-    }
     fetched_bytes_ = 0;
-    for (const client::FetchedFile& f : fetched.files) fetched_bytes_ += f.size_bytes;
-
-    Phase(job, "reconstructing");
     const auto start = Clock::now();
     daemon::DaemonConfig config;
     if (!daemon::ParseDaemonConfig(params.value("config", std::string()), {}, &config, &error))
       return Fail(job, "the station's settings: " + error);
+    std::map<std::string, std::string> sha256;
+    const auto list = [&](const Offer& o) {
+      std::vector<nlohmann::json> entries;
+      const nlohmann::json inputs = nlohmann::json::parse(o.inputs, nullptr, false);
+      if (!inputs.is_array()) return entries;
+      for (const nlohmann::json& input : inputs) {
+        sha256[input.value("name", std::string())] = input.value("sha256", std::string());
+        entries.push_back(input);
+      }
+      return entries;
+    };
+    list(offer);
+    if (std::string why = FetchInputs(job, *station, {"calibration.yaml"}, sha256); !why.empty())
+      return job.abort.load() ? void() : Fail(job, why);
     StereoCalibration calibration;
     if (!LoadCalibration(dir + "/calibration.yaml", &calibration, &error))
       return Fail(job, "calibration.yaml: " + error);
     ScanOptions scan = daemon::ReconstructionOptions(config.pipeline);
     scan.num_threads = o_.threads;
     scan.camera = RectifiedLeftCamera(calibration);
+    IncrementalScan incremental(calibration.turntable, scan);
+    std::string captured_utc;
+    int added = 0;
+    const int total = std::max(offer.views_total, 0);
+    while (added < total) {
+      if (job.abort.load()) return;
+      const Offer latest = Latest(job);
+      std::vector<std::string> names;
+      std::vector<std::pair<std::string, double>> clouds;  // in view order
+      for (const nlohmann::json& input : list(latest)) {
+        const int view = input.value("view", -1);
+        const std::string name = input.value("name", std::string());
+        if (name == "calibration.yaml" || fetched_.count(name)) continue;
+        names.push_back(name);
+        if (view >= 0) {
+          clouds.emplace_back(name, input.value("angle_deg", 0.0));
+          if (captured_utc.empty()) captured_utc = input.value("captured_utc", std::string());
+        }
+      }
+      if (names.empty()) {
+        std::this_thread::sleep_for(milliseconds(50));
+        continue;
+      }
+      Phase(job, "reconstructing " + std::to_string(added) + "/" + std::to_string(total));
+      if (std::string why = FetchInputs(job, *station, names, sha256); !why.empty())
+        return job.abort.load() ? void() : Fail(job, why);
+      for (const std::string& name : names) fetched_.insert(name);
+      for (const auto& [name, angle] : clouds) {
+        ScanView view;
+        view.commanded_angle_rad = angle * CV_PI / 180;
+        if (!ReadPly(dir + "/" + name, &view.cloud_in_rig, &error))
+          return Fail(job, name + ": " + error);
+        incremental.Add(std::move(view));
+        ++added;
+      }
+    }
+    Phase(job, "reconstructing");
+    const ScanResult r = incremental.Finish();
+    if (job.abort.load()) return;
+    if (!r.IsUsable()) return Fail(job, "reconstruction: " + r.message);
     const auto view_file = [&](int index, const char* file) {
       char folder[16];
       std::snprintf(folder, sizeof folder, "views/%03d/", index);
       return dir + "/" + folder + file;
     };
-    std::vector<ScanView> views;
-    for (const nlohmann::json& v : params.value("views", nlohmann::json::array())) {
-      ScanView view;
-      view.commanded_angle_rad = v.value("angle_deg", 0.0) * CV_PI / 180;
-      if (!ReadPly(view_file(v.value("index", 0), "cloud.ply"), &view.cloud_in_rig, &error))
-        return Fail(job, "view " + std::to_string(v.value("index", 0)) + ": " + error);
-      views.push_back(std::move(view));
-    }
-    const ScanResult r = ReconstructScan(views, calibration.turntable, scan);
-    if (job.abort.load()) return;
-    if (!r.IsUsable()) return Fail(job, "reconstruction: " + r.message);
 
     daemon::ScanOutputContext c;
     c.session_id = params.value("session", std::string());
     c.object_name = params.value("object_name", std::string());
     c.created_utc = params.value("created_utc", std::string());
-    c.captured_utc = params.value("captured_utc", std::string());
+    c.captured_utc = captured_utc;
     c.client = params.value("client", std::string());
     c.calibration_id = params.value("calibration_id", std::string());
     c.calibration = &calibration;
@@ -458,6 +522,7 @@ class Loop {
   std::unique_ptr<Job> job_;
   std::atomic<uint64_t> jobs_done_{0};
   std::uint64_t fetched_bytes_ = 0;
+  std::set<std::string> fetched_;  // the job's files fetched so far
 };
 
 }  // namespace

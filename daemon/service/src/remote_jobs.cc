@@ -105,6 +105,29 @@ struct RemoteJobs::Impl {
   }
 };
 
+void RemoteJobFeed::Add(std::vector<RemoteInput> inputs, int views_ready) {
+  std::lock_guard lock(mutex_);
+  for (RemoteInput& input : inputs) inputs_.push_back(std::move(input));
+  views_ready_ = views_ready;
+  changed_ = true;
+}
+
+void RemoteJobFeed::Close() {
+  std::lock_guard lock(mutex_);
+  closed_ = true;
+  changed_ = true;
+}
+
+bool RemoteJobFeed::Take(std::vector<RemoteInput>* inputs, int* views_ready, bool* closed) {
+  std::lock_guard lock(mutex_);
+  if (!changed_) return false;
+  changed_ = false;
+  *inputs = inputs_;
+  *views_ready = views_ready_;
+  *closed = closed_;
+  return true;
+}
+
 RemoteJobs::RemoteJobs(std::unique_ptr<Impl> impl) : impl_(std::move(impl)) {}
 RemoteJobs::~RemoteJobs() = default;
 
@@ -163,9 +186,23 @@ RemoteJobOutcome RemoteJobs::Run(
     if (on_change) on_change(job, worker);
   };
 
-  nlohmann::json inputs = nlohmann::json::array();
-  for (const RemoteInput& input : request.inputs)
-    inputs.push_back({{"name", input.name}, {"size", input.size}, {"sha256", input.sha256}});
+  const auto inputs_json = [](const std::vector<RemoteInput>& list) {
+    nlohmann::json inputs = nlohmann::json::array();
+    for (const RemoteInput& input : list) {
+      nlohmann::json entry = {{"name", input.name}, {"size", input.size}, {"sha256", input.sha256}};
+      if (input.view >= 0) {
+        entry["view"] = input.view;
+        entry["angle_deg"] = input.angle_deg;
+        entry["captured_utc"] = input.captured_utc;
+      }
+      inputs.push_back(std::move(entry));
+    }
+    return inputs.dump();
+  };
+  std::vector<RemoteInput> inputs = request.inputs;
+  const std::size_t fixed_inputs = inputs.size();
+  int views_ready = request.feed ? 0 : request.views_total;
+  bool closed = request.feed == nullptr;
   dds::Outgoing<dds::msg::JobOffer> offer;
   dds::msg::JobOffer& o = offer.msg();
   o.job_id = offer.Keep(out.job_id);
@@ -173,9 +210,11 @@ RemoteJobOutcome RemoteJobs::Run(
   o.session = offer.Keep(request.session);
   o.kind = offer.Keep("reconstruct");
   o.lease_ms = dds::kWorkerLeaseMs;
-  o.inputs = offer.Keep(inputs.dump());
+  o.inputs = offer.Keep(inputs_json(inputs));
   o.parameters = offer.Keep(request.parameters.dump());
   o.offered_ns = NowNs();
+  o.views_total = request.views_total;
+  o.views_ready = views_ready;
   std::string worker;  // granted to ("" while offered)
   std::string error;
   const auto publish = [&]() {
@@ -186,6 +225,7 @@ RemoteJobOutcome RemoteJobs::Run(
       m.Log(drivers::LogLevel::kWarning, "job " + out.job_id + ": " + error);
   };
   const auto end = [&](RemoteJobOutcome::Status status, const std::string& message) {
+    if (request.feed) request.feed->SetEnded();
     if (!m.offers->Dispose(o, &error))
       m.Log(drivers::LogLevel::kWarning, "job " + out.job_id + ": " + error);
     out.status = status;
@@ -220,6 +260,19 @@ RemoteJobOutcome RemoteJobs::Run(
 
   for (;;) {
     if (stop.load()) return end(RemoteJobOutcome::Status::kCancelled, "cancelled");
+    // Views as they become durable: the offer grows (the worker fetches them).
+    std::vector<RemoteInput> fed;
+    if (request.feed && request.feed->Take(&fed, &views_ready, &closed)) {
+      inputs.resize(fixed_inputs);
+      inputs.insert(inputs.end(), fed.begin(), fed.end());
+      o.inputs = offer.Keep(inputs_json(inputs));
+      o.views_ready = views_ready;
+      publish();
+      if (closed && views_ready < request.views_total)
+        return end(RemoteJobOutcome::Status::kLocal,
+                   "the scan ended after " + std::to_string(views_ready) + " of " +
+                       std::to_string(request.views_total) + " views");
+    }
     // Claims: the first trusted, alive worker is granted the job.
     dds::Sample<dds::msg::JobClaim> claim;
     while (m.claims->Take(milliseconds(0), &claim, &error) == dds::TakeStatus::kOk) {

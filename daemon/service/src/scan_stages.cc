@@ -226,10 +226,28 @@ ReconstructOutcome ReconstructStage::Run(BoundedQueue<MatchedView>& in) {
   // both are here, while the turntable turns to the next; views that come
   // early wait for their turn.
   IncrementalScan incremental(calibration_->turntable, turn_scan);
-  // Handed to a worker (one turn; a join is made here): the views are only
-  // kept, for a local reconstruction should no worker do it.
-  const bool remote = options_.remote != nullptr && !joining;
+  // Handed to a worker (one turn; a join is made here): offered as the scan
+  // starts, each view handed on as it is durable so the worker registers
+  // while the turntable turns; the views are kept here too, for a local
+  // reconstruction should no worker finish it (then fed to `incremental`).
+  bool remote = options_.remote != nullptr && !joining;
   std::vector<ScanView> kept;
+  RemoteJobFeed feed;
+  RemoteJobOutcome handed;
+  std::thread offering;
+  if (remote) offering = std::thread([&] { handed = RunRemote(&feed); });
+  struct JoinOnExit {  // whatever way Run leaves (the job ends: stop, timeouts)
+    std::thread& thread;
+    ~JoinOnExit() {
+      if (thread.joinable()) thread.join();
+    }
+  } join_offering{offering};
+  // The job ended without a result while views still come: on here.
+  const auto take_back = [&] {
+    if (offering.joinable()) offering.join();
+    for (ScanView& v : kept) incremental.Add(std::move(v));
+    kept.clear();
+  };
   std::vector<std::optional<MatchedView>> waiting(static_cast<std::size_t>(std::max(n, 0)));
   int next = 0;
   while (std::optional<MatchedView> item = in.Pop()) {
@@ -242,8 +260,10 @@ ReconstructOutcome ReconstructStage::Run(BoundedQueue<MatchedView>& in) {
         ScanView v;
         v.commanded_angle_rad = view.angle_deg * kDegToRad;
         v.cloud_in_rig = std::move(view.cloud);
-        if (remote) {
+        if (remote && feed.ended() && offering.joinable()) take_back();
+        if (remote && offering.joinable()) {
           kept.push_back(std::move(v));
+          feed.Add(ViewInputs(view.view, view.angle_deg), next + 1);
         } else {
           incremental.Add(std::move(v));
         }
@@ -251,6 +271,8 @@ ReconstructOutcome ReconstructStage::Run(BoundedQueue<MatchedView>& in) {
       waiting[static_cast<std::size_t>(next)].reset();
     }
   }
+  feed.Close();
+  if (offering.joinable()) offering.join();
   if (context_.Stopping()) {
     out.status = StageOutcome::Cancelled();
     return out;
@@ -270,7 +292,6 @@ ReconstructOutcome ReconstructStage::Run(BoundedQueue<MatchedView>& in) {
   const auto start = std::chrono::steady_clock::now();
   ScanResult r;
   if (remote) {
-    RemoteJobOutcome handed = RunRemote();
     if (handed.status == RemoteJobOutcome::Status::kCancelled) {
       out.status = StageOutcome::Cancelled();
       return out;
@@ -282,7 +303,8 @@ ReconstructOutcome ReconstructStage::Run(BoundedQueue<MatchedView>& in) {
     context_.Log(drivers::LogLevel::kWarning,
                  "session " + session.id() + ": reconstructing here: " + handed.message);
     context_.Progress("register", 0, 1, "reconstructing here: " + handed.message);
-    r = ReconstructScan(kept, calibration_->turntable, turn_scan);
+    take_back();
+    r = incremental.Finish();
     out.result["remote"] = {{"job", handed.job_id}, {"outcome", "local"}, {"why", handed.message}};
   } else {
     context_.Progress("register", 0, 1,
@@ -414,7 +436,28 @@ std::vector<std::pair<int, double>> ReconstructStage::ReportViews() const {
   return views;
 }
 
-RemoteJobOutcome ReconstructStage::RunRemote() {
+std::vector<RemoteInput> ReconstructStage::ViewInputs(int view, double angle_deg) const {
+  std::vector<RemoteInput> inputs;
+  const Manifest manifest = context_.session->manifest();
+  const auto record = manifest.views.find(view);
+  if (record == manifest.views.end()) return inputs;
+  char folder[16];
+  std::snprintf(folder, sizeof folder, "views/%03d/", view);
+  for (const char* file : {"cloud.ply", "disparity.pfm"}) {
+    const auto f = record->second.files.find(file);
+    if (f == record->second.files.end()) continue;
+    RemoteInput input{folder + std::string(file), f->second.size_bytes, f->second.sha256};
+    if (std::string(file) == "cloud.ply") {
+      input.view = view;
+      input.angle_deg = angle_deg;
+      input.captured_utc = record->second.captured_utc;
+    }
+    inputs.push_back(std::move(input));
+  }
+  return inputs;
+}
+
+RemoteJobOutcome ReconstructStage::RunRemote(RemoteJobFeed* feed) {
   Session& session = *context_.session;
   const Manifest manifest = session.manifest();
   const ScanOutputContext c = OutputContext();
@@ -422,29 +465,15 @@ RemoteJobOutcome ReconstructStage::RunRemote() {
   request.session = session.id();
   request.offer_timeout = options_.remote_offer_timeout;
   request.max_remote = options_.remote_max;
+  request.views_total = options_.views;
+  request.feed = feed;
   if (manifest.calibration) {
     request.inputs.push_back(
         {kCalibrationYaml, manifest.calibration->size_bytes, manifest.calibration->sha256});
   }
-  nlohmann::json views = nlohmann::json::array();
-  for (int k = 0; k < options_.views; ++k) {
-    const int v = options_.first_view + k;
-    const auto record = manifest.views.find(v);
-    if (record == manifest.views.end()) continue;
-    views.push_back({{"index", v}, {"angle_deg", record->second.angle_deg}});
-    char folder[16];
-    std::snprintf(folder, sizeof folder, "views/%03d/", v);
-    for (const char* file : {"cloud.ply", "disparity.pfm"}) {
-      const auto f = record->second.files.find(file);
-      if (f != record->second.files.end())
-        request.inputs.push_back(
-            {folder + std::string(file), f->second.size_bytes, f->second.sha256});
-    }
-  }
   nlohmann::json report_views = nlohmann::json::array();
   for (const auto& [index, angle] : c.report_views) report_views.push_back({index, angle});
   request.parameters = {{"config", options_.remote_config},
-                        {"views", views},
                         {"report_views", report_views},
                         {"report", static_cast<bool>(report_)},
                         {"min_disparity", c.min_disparity},

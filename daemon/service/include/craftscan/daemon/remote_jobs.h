@@ -22,6 +22,7 @@
 #include <cstdint>
 #include <functional>
 #include <memory>
+#include <mutex>
 #include <string>
 #include <vector>
 
@@ -38,12 +39,39 @@ struct RemoteInput {
   std::string name;  // "calibration.yaml", "views/000/cloud.ply", ...
   std::uint64_t size = 0;
   std::string sha256;
+  int view = -1;             // a view's cloud.ply: its index (the worker adds it to the scan)
+  double angle_deg = 0;      // and its commanded angle
+  std::string captured_utc;  // and when it was captured
+};
+
+// The views of a job as they become durable (the station's stage thread
+// adds, RemoteJobs::Run takes). Thread-safe.
+class RemoteJobFeed {
+ public:
+  // `inputs` of views up to `views_ready` (all views before it durable).
+  void Add(std::vector<RemoteInput> inputs, int views_ready);
+  // No more views will come (all in, or the scan stopped).
+  void Close();
+  // What came since the last Take: false when nothing did.
+  bool Take(std::vector<RemoteInput>* inputs, int* views_ready, bool* closed);
+  // Set by RemoteJobs::Run when it ends (any outcome): the stage stops feeding.
+  void SetEnded() { ended_ = true; }
+  bool ended() const { return ended_; }
+
+ private:
+  std::mutex mutex_;
+  std::vector<RemoteInput> inputs_;
+  int views_ready_ = 0;
+  bool closed_ = false, changed_ = false;
+  std::atomic<bool> ended_{false};
 };
 
 struct RemoteJobRequest {
   std::string session;
-  std::vector<RemoteInput> inputs;
-  nlohmann::json parameters;  // RemoteParameters (worker side reads the same keys)
+  std::vector<RemoteInput> inputs;  // known at the offer (calibration.yaml)
+  nlohmann::json parameters;        // what the worker reads (ReconstructStage::RunRemote)
+  int views_total = 0;
+  RemoteJobFeed* feed = nullptr;  // the views as they come; null: all in `inputs` already
   std::chrono::milliseconds offer_timeout{3000};
   std::chrono::seconds max_remote{1800};
 };

@@ -47,7 +47,9 @@ namespace craftscan::daemon {
 class JobSink;
 struct ScanOutputContext;  // craftscan/daemon/scan_outputs.h
 class RemoteJobs;          // craftscan/daemon/remote_jobs.h
+class RemoteJobFeed;
 struct RemoteJobOutcome;
+struct RemoteInput;
 struct ReportInputs;  // craftscan/daemon/report.h
 struct ReportFiles;
 
@@ -303,8 +305,11 @@ class ReconstructStage {
   std::vector<std::pair<int, double>> ReportViews() const;
   // What the outputs are made from (scan_outputs.h): the session's provenance.
   ScanOutputContext OutputContext() const;
-  // The reconstruction offered to the site's workers (options_.remote).
-  RemoteJobOutcome RunRemote();
+  // The reconstruction offered to the site's workers (options_.remote),
+  // its views fed as they come. Thread: its own, while Run takes the views.
+  RemoteJobOutcome RunRemote(RemoteJobFeed* feed);
+  // A durable view's files as a worker fetches them.
+  std::vector<RemoteInput> ViewInputs(int view, double angle_deg) const;
   // A worker's model stored as the station's own.
   void StoreRemote(const RemoteJobOutcome& handed, double reconstruct_ms, ReconstructOutcome* out);
 

@@ -45,6 +45,7 @@ bool WorkerOptions::IsValid(std::string* why) const {
     return fail("threads: must be 1..256, got " + std::to_string(threads));
   if (work_dir.empty() || work_dir.front() != '/')
     return fail("work_dir: must be an absolute path, got '" + work_dir + "'");
+  if (jobs < 1 || jobs > 16) return fail("jobs: must be 1..16, got " + std::to_string(jobs));
   if (token.size() > 128) return fail("token: longer than 128 bytes");
   return true;
 }
@@ -88,6 +89,8 @@ struct Job {
   std::atomic<bool> finished{false};
   std::string phase = "fetching";  // guarded by Loop::mutex
   std::thread thread;
+  std::set<std::string> fetched;  // its files fetched so far (its thread only)
+  std::uint64_t fetched_bytes = 0;
 };
 
 class Loop {
@@ -121,18 +124,17 @@ class Loop {
     auto renewed = Clock::now();
     while (!stop.load()) {
       TakeOffers();
-      if (job_ && job_->finished.load()) EndJob();
-      if (!job_) ClaimOrStart();
+      EndFinishedJobs();
+      if (static_cast<int>(jobs_.size()) < std::max(1, o_.jobs)) ClaimOrStart();
       if (Clock::now() - renewed >= kRenewEvery) {
         WriteStatus();
         renewed = Clock::now();
       }
       if (hooks_.alive) hooks_.alive();
     }
-    if (job_) {
-      job_->abort = true;
-      EndJob();
-    }
+    for (auto& job : jobs_) job->abort = true;
+    for (auto& job : jobs_) job->finished.wait(false);
+    EndFinishedJobs();
     std::string error;
     dds::Outgoing<dds::msg::WorkerStatus> gone;
     gone.msg().worker = gone.Keep(o_.worker_id);
@@ -153,11 +155,17 @@ class Loop {
     dds::msg::WorkerStatus& m = s.msg();
     m.worker = s.Keep(o_.worker_id);
     {
+      // The first job held (and how many more) or idle.
       std::lock_guard lock(mutex_);
-      m.state = s.Keep(job_ ? job_->phase : std::string("idle"));
-      m.job_id = s.Keep(job_ ? job_->offer.job_id : std::string());
-      m.station = s.Keep(job_ ? job_->offer.station : std::string());
-      m.grant = job_ ? job_->offer.grant : 0;
+      const Job* first = jobs_.empty() ? nullptr : jobs_.front().get();
+      m.state =
+          s.Keep(!first ? std::string("idle")
+                        : first->phase + (jobs_.size() > 1
+                                              ? " (+" + std::to_string(jobs_.size() - 1) + " more)"
+                                              : std::string()));
+      m.job_id = s.Keep(first ? first->offer.job_id : std::string());
+      m.station = s.Keep(first ? first->offer.station : std::string());
+      m.grant = first ? first->offer.grant : 0;
     }
     m.cores = static_cast<uint32_t>(o_.threads);
     m.load = LoadPerCore();
@@ -178,7 +186,8 @@ class Loop {
       const std::string id(dds::View(sample->job_id));
       if (state.instance != dds::InstanceState::kAlive) {
         offers_seen_.erase(id);
-        if (job_ && job_->offer.job_id == id && !job_->abort.exchange(true)) {
+        Job* job = FindJob(id);
+        if (job && !job->abort.exchange(true)) {
           Log(2, "job " + id + ": withdrawn by its station (" +
                      (state.instance == dds::InstanceState::kDisposed ? "ended" : "station gone") +
                      "): abandoned");
@@ -198,13 +207,13 @@ class Loop {
       o.offered_ns = sample->offered_ns;
       o.views_ready = sample->views_ready;
       o.views_total = sample->views_total;
-      if (job_ && job_->offer.job_id == id) {
+      Job* job = FindJob(id);
+      if (job) {
         std::lock_guard lock(mutex_);
-        job_->latest = o;
+        job->latest = o;
       }
-      if (job_ && job_->offer.job_id == id &&
-          (o.worker != o_.worker_id || o.grant != job_->offer.grant) &&
-          !job_->abort.exchange(true)) {
+      if (job && (o.worker != o_.worker_id || o.grant != job->offer.grant) &&
+          !job->abort.exchange(true)) {
         Log(2, "job " + id + ": granted again (to " + (o.worker.empty() ? "nobody yet" : o.worker) +
                    ", grant " + std::to_string(o.grant) + "): abandoned");
       }
@@ -223,7 +232,7 @@ class Loop {
     // Else claim the oldest open offer (again every second while it is open).
     const Offer* best = nullptr;
     for (const auto& [id, o] : offers_seen_) {
-      if (o.state != "offered") continue;
+      if (o.state != "offered" || FindJob(id)) continue;
       if (!best || o.offered_ns < best->offered_ns) best = &o;
     }
     if (!best) return;
@@ -246,11 +255,10 @@ class Loop {
     auto job = std::make_unique<Job>();
     job->offer = offer;
     job->latest = offer;
-    fetched_.clear();
     Job* raw = job.get();
     {
       std::lock_guard lock(mutex_);
-      job_ = std::move(job);
+      jobs_.push_back(std::move(job));
     }
     Log(1, "job " + offer.job_id + ": granted (grant " + std::to_string(offer.grant) + ")");
     WriteStatus();
@@ -261,16 +269,32 @@ class Loop {
         Log(3, "job " + raw->offer.job_id + ": " + e.what());
       }
       raw->finished = true;
+      raw->finished.notify_all();
     });
   }
 
-  void EndJob() {
-    if (job_->thread.joinable()) job_->thread.join();
-    std::error_code ec;
-    std::filesystem::remove_all(JobDir(job_->offer), ec);
-    std::lock_guard lock(mutex_);
-    job_.reset();
-    Status("idle");
+  Job* FindJob(const std::string& id) const {
+    for (const auto& job : jobs_)
+      if (job->offer.job_id == id) return job.get();
+    return nullptr;
+  }
+
+  void EndFinishedJobs() {
+    for (std::size_t i = 0; i < jobs_.size();) {
+      Job& job = *jobs_[i];
+      if (!job.finished.load()) {
+        ++i;
+        continue;
+      }
+      if (job.thread.joinable()) job.thread.join();
+      std::error_code ec;
+      std::filesystem::remove_all(JobDir(job.offer), ec);
+      {
+        std::lock_guard lock(mutex_);
+        jobs_.erase(jobs_.begin() + static_cast<std::ptrdiff_t>(i));
+      }
+      if (jobs_.empty()) Status("idle");
+    }
   }
 
   std::string JobDir(const Offer& offer) const {
@@ -314,7 +338,7 @@ class Loop {
       const auto expected = sha256.find(f.name);
       if (expected != sha256.end() && !expected->second.empty() && expected->second != f.sha256)
         return f.name + ": SHA-256 differs from the offer's";
-      fetched_bytes_ += f.size_bytes;
+      job.fetched_bytes += f.size_bytes;
     }
     return {};
   }
@@ -335,10 +359,14 @@ class Loop {
     connect.token = o_.token;
     connect.client_name = "craftscan-worker@" + o_.worker_id;
     std::string error;
-    std::unique_ptr<client::StationClient>& station = stations_[offer.station];
-    if (!station) station = client::StationClient::Connect(connect, &error);
+    client::StationClient* station = nullptr;
+    {
+      std::lock_guard lock(stations_mutex_);
+      std::unique_ptr<client::StationClient>& client = stations_[offer.station];
+      if (!client) client = client::StationClient::Connect(connect, &error);
+      station = client.get();
+    }
     if (!station) return Fail(job, "cannot reach station " + offer.station + ": " + error);
-    fetched_bytes_ = 0;
     const auto start = Clock::now();
     daemon::DaemonConfig config;
     if (!daemon::ParseDaemonConfig(params.value("config", std::string()), {}, &config, &error))
@@ -375,7 +403,7 @@ class Loop {
       for (const nlohmann::json& input : list(latest)) {
         const int view = input.value("view", -1);
         const std::string name = input.value("name", std::string());
-        if (name == "calibration.yaml" || fetched_.count(name)) continue;
+        if (name == "calibration.yaml" || job.fetched.count(name)) continue;
         names.push_back(name);
         if (view >= 0) {
           clouds.emplace_back(name, input.value("angle_deg", 0.0));
@@ -389,7 +417,7 @@ class Loop {
       Phase(job, "reconstructing " + std::to_string(added) + "/" + std::to_string(total));
       if (std::string why = FetchInputs(job, *station, names, sha256); !why.empty())
         return job.abort.load() ? void() : Fail(job, why);
-      for (const std::string& name : names) fetched_.insert(name);
+      for (const std::string& name : names) job.fetched.insert(name);
       for (const auto& [name, angle] : clouds) {
         ScanView view;
         view.commanded_angle_rad = angle * CV_PI / 180;
@@ -436,7 +464,7 @@ class Loop {
     outputs.result["worker"] = o_.worker_id;
     outputs.result["worker_ms"] =
         std::chrono::duration<double, std::milli>(Clock::now() - start).count();
-    outputs.result["bytes_fetched"] = fetched_bytes_;
+    outputs.result["bytes_fetched"] = job.fetched_bytes;
     if (job.abort.load()) return;
 
     Phase(job, "returning");
@@ -518,11 +546,10 @@ class Loop {
   std::map<std::string, std::unique_ptr<client::StationClient>> stations_;
   std::map<std::string, Clock::time_point> claimed_at_;
   std::map<std::string, uint32_t> done_grants_;  // the last grant worked on, per job
-  std::mutex mutex_;                             // guards job_ against WriteStatus
-  std::unique_ptr<Job> job_;
+  std::mutex mutex_;  // guards jobs_ (changed by the loop) and Job::phase/latest
+  std::vector<std::unique_ptr<Job>> jobs_;
+  std::mutex stations_mutex_;  // guards stations_ (each client serves one job at a time)
   std::atomic<uint64_t> jobs_done_{0};
-  std::uint64_t fetched_bytes_ = 0;
-  std::set<std::string> fetched_;  // the job's files fetched so far
 };
 
 }  // namespace

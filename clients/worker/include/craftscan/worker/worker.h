@@ -23,6 +23,7 @@ struct WorkerOptions {
   std::string dds_config;  // Cyclone config (ParticipantOptions::config); "" = CYCLONEDDS_URI
   std::string token;       // presented with claims, results and `get`
   int threads = 2;         // reconstruction threads
+  int jobs = 2;            // jobs held at once, 1..16 (a job waits for its views as they come)
   std::string work_dir;    // scratch for fetched inputs (absolute); emptied per job
 
   bool IsValid(std::string* why) const;

@@ -20,6 +20,7 @@
 #include <fstream>
 #include <iostream>
 #include <memory>
+#include <sstream>
 #include <string>
 #include <thread>
 #include <vector>
@@ -58,10 +59,27 @@ bool WriteText(const std::string& path, const std::string& text, std::string* er
   return static_cast<bool>(out);
 }
 
+// CPU seconds (user + system) a process has used so far; 0 if unknown.
+double CpuSeconds(pid_t pid) {
+  std::ifstream stat("/proc/" + std::to_string(pid) + "/stat");
+  std::string text((std::istreambuf_iterator<char>(stat)), std::istreambuf_iterator<char>());
+  const std::size_t end = text.rfind(')');  // the name may hold spaces
+  if (end == std::string::npos) return 0;
+  std::istringstream rest(text.substr(end + 2));
+  std::string field;
+  unsigned long long utime = 0, stime = 0;
+  for (int i = 3; i <= 15 && rest >> field; ++i) {
+    if (i == 14) utime = std::stoull(field);
+    if (i == 15) stime = std::stoull(field);
+  }
+  return static_cast<double>(utime + stime) / static_cast<double>(::sysconf(_SC_CLK_TCK));
+}
+
 struct Run {
   int workers = 0;
   double burst_s = 0;
-  std::vector<json> jobs;  // each scan's job result (craftscanctl scan --json)
+  double station_cpu_s = 0, worker_cpu_s = 0;  // the burst's, all stations / all workers
+  std::vector<json> jobs;                      // each scan's job result (craftscanctl scan --json)
   bool ok = true;
   std::string error;
 };
@@ -265,6 +283,10 @@ class SiteCommand : public BenchCommand {
       run.jobs.push_back(std::move(job));
     }
     run.burst_s = std::chrono::duration<double>(Clock::now() - t0).count();
+    for (int i = 0; i < static_cast<int>(processes.size()); ++i) {
+      const double cpu = CpuSeconds(*processes[static_cast<std::size_t>(i)]->pid_slot());
+      (i < stations_ ? run.station_cpu_s : run.worker_cpu_s) += cpu;
+    }
     return run;
   }
 
@@ -272,8 +294,7 @@ class SiteCommand : public BenchCommand {
     json out = {{"stations", stations_},     {"views", views_},
                 {"image_size", image_size_}, {"station_cpu", station_cpu_},
                 {"worker_cpu", worker_cpu_}, {"runs", json::array()}};
-    double base = 0, local_s = 0, station_s = 0, worker_s = 0;
-    int remote_jobs = 0;
+    double base = 0;
     std::printf("\n%8s %10s %10s %9s %12s %12s %8s\n", "workers", "burst s", "scans/h", "speed-up",
                 "MB to worker", "MB back", "remote");
     for (const bench::Run& r : runs) {
@@ -284,17 +305,10 @@ class SiteCommand : public BenchCommand {
       for (const json& job : r.jobs) {
         const json result = job.value("result", json::object());
         const json handed = result.value("remote", json::object());
-        const double capture_match =
-            (result.value("capture_ms", 0.0) + result.value("match_ms", 0.0)) / 1000;
         if (handed.value("outcome", "") == "done") {
           ++remote;
           fetched += result.value("bytes_fetched", 0.0);
           back += handed.value("bytes_back", 0.0);
-          station_s += capture_match;
-          worker_s += result.value("worker_ms", 0.0) / 1000;
-          ++remote_jobs;
-        } else if (r.workers == 0) {
-          local_s += capture_match + result.value("reconstruct_ms", 0.0) / 1000;
         }
         jobs.push_back({{"session", result.value("session", "")},
                         {"worker", handed.value("worker", "")},
@@ -312,41 +326,49 @@ class SiteCommand : public BenchCommand {
                   remote ? back / remote / 1e6 : 0.0, remote, static_cast<int>(r.jobs.size()));
       out["runs"].push_back({{"workers", r.workers},
                              {"burst_s", r.burst_s},
+                             {"station_cpu_s", r.station_cpu_s},
+                             {"worker_cpu_s", r.worker_cpu_s},
                              {"scans_per_hour", stations_ * 3600.0 / r.burst_s},
                              {"speedup", speedup},
                              {"jobs", jobs}});
     }
-    // On paper: a station's own time per scan (local: capture, match and
-    // reconstruction; remote: capture and match) and a worker's per job,
-    // each at the CPU shares measured; a burst then takes the station part
-    // plus ceil(S/W) worker jobs one after another, and a steady site the
-    // slower of its stations and its workers.
-    const int base_jobs = runs.empty() ? 0 : static_cast<int>(runs.front().jobs.size());
-    if (local_s > 0 && remote_jobs > 0 && base_jobs > 0) {
-      const double t_local = local_s / base_jobs, t_station = station_s / remote_jobs,
-                   t_worker = worker_s / remote_jobs;
-      const int s = paper_stations, w = paper_workers;
-      const double burst_local = t_local;
-      const double burst_remote =
-          w > 0 ? t_station + std::ceil(static_cast<double>(s) / w) * t_worker : t_local;
-      const double hour_local = s * 3600.0 / t_local;
-      const double hour_remote =
-          w > 0 ? std::min(s * 3600.0 / t_station, w * 3600.0 / t_worker) : hour_local;
+    // On paper, from the CPU seconds each kind of host spent per scan (the
+    // processes' own counters over the burst): a station alone spends
+    // c_local per scan at its share s, one with workers c_station; a worker
+    // c_worker per job at its share w. A site of S stations and W workers
+    // then makes min(S·s/c_station, W·w/c_worker) scans a second against
+    // S·s/c_local alone, and a burst of one scan per station takes about
+    // max(c_station/s, S·c_worker/(W·w)) against c_local/s.
+    double c_local = 0, c_station = 0, c_worker = 0;
+    for (const bench::Run& r : runs) {
+      if (r.workers == 0 && !r.jobs.empty()) c_local = r.station_cpu_s / r.jobs.size();
+      if (r.workers > 0 && c_worker == 0 && !r.jobs.empty()) {
+        c_station = r.station_cpu_s / r.jobs.size();
+        c_worker = r.worker_cpu_s / r.jobs.size();
+      }
+    }
+    if (c_local > 0 && c_station > 0 && c_worker > 0) {
+      const double s = station_cpu_, w = worker_cpu_;
+      const int n = paper_stations, k = paper_workers;
+      const double alone_rate = n * s / c_local;
+      const double rate = k > 0 ? std::min(n * s / c_station, k * w / c_worker) : alone_rate;
+      const double alone_burst = c_local / s;
+      const double burst = k > 0 ? std::max(c_station / s, n * c_worker / (k * w)) : alone_burst;
       std::printf(
-          "\nper job (measured): station alone %.1f s; with a worker: station %.1f s + worker "
-          "%.1f s\non paper, %d stations and %d workers: a burst %.0f s vs %.0f s alone "
-          "(%.2fx), steady %.0f vs %.0f scans/h (%.2fx)\n",
-          t_local, t_station, t_worker, s, w, burst_remote, burst_local, burst_local / burst_remote,
-          hour_remote, hour_local, hour_remote / hour_local);
-      out["paper"] = {{"stations", s},
-                      {"workers", w},
-                      {"job_local_s", t_local},
-                      {"job_station_s", t_station},
-                      {"job_worker_s", t_worker},
-                      {"burst_s", burst_remote},
-                      {"burst_alone_s", burst_local},
-                      {"scans_per_hour", hour_remote},
-                      {"scans_per_hour_alone", hour_local}};
+          "\nCPU per scan (measured): a station alone %.1f s; with workers a station %.1f s and "
+          "a worker %.1f s\non paper, %d stations (%.2f core) and %d workers (%.2f core): a burst "
+          "%.0f s vs %.0f s alone (%.2fx), steady %.0f vs %.0f scans/h (%.2fx)\n",
+          c_local, c_station, c_worker, n, s, k, w, burst, alone_burst, alone_burst / burst,
+          rate * 3600, alone_rate * 3600, rate / alone_rate);
+      out["paper"] = {{"stations", n},
+                      {"workers", k},
+                      {"cpu_s_per_scan_alone", c_local},
+                      {"cpu_s_per_scan_station", c_station},
+                      {"cpu_s_per_scan_worker", c_worker},
+                      {"burst_s", burst},
+                      {"burst_alone_s", alone_burst},
+                      {"scans_per_hour", rate * 3600},
+                      {"scans_per_hour_alone", alone_rate * 3600}};
     }
     if (!json_path_.empty()) {
       std::string error;

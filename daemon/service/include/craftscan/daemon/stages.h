@@ -272,8 +272,8 @@ class ReconstructStage {
     std::vector<TurnRecord> turns;  // all the session's turns, this one last
     TurnJoinOptions join;
     // Not null (a first turn only): the reconstruction is offered to the
-    // site's workers (remote_jobs.h) once the views are in, and made here
-    // only when none does it. remote_config: the station's config
+    // site's workers (remote_jobs.h) as the scan starts, each view handed on
+    // as it is durable, and made here only when none does it. remote_config: the station's config
     // (DumpDaemonConfig) the worker takes the pipeline settings from.
     RemoteJobs* remote = nullptr;
     std::string remote_config;

@@ -102,6 +102,8 @@ class SiteCommand : public BenchCommand {
         ->check(CLI::Range(0.05, 2.0));
     sub->add_option("--paper", paper_, "A site figured on paper from the costs, SxW");
     sub->add_option("--json", json_path_, "Write the figures as JSON");
+    sub->add_option("--keep", keep_dir_,
+                    "Copy each burst's logs and scan results into this folder (<workers>w/)");
     return sub;
   }
 
@@ -283,6 +285,21 @@ class SiteCommand : public BenchCommand {
       run.jobs.push_back(std::move(job));
     }
     run.burst_s = std::chrono::duration<double>(Clock::now() - t0).count();
+    if (!keep_dir_.empty()) {
+      const std::string kept = keep_dir_ + "/" + std::to_string(workers) + "w";
+      std::error_code ec;
+      std::filesystem::create_directories(kept, ec);
+      for (const auto& entry : std::filesystem::recursive_directory_iterator(root, ec)) {
+        const std::string name = entry.path().filename().string();
+        if (name.ends_with(".log") || name.rfind("scan", 0) == 0) {
+          const std::string relative = std::filesystem::relative(entry.path(), root).string();
+          std::string flat = relative;
+          std::replace(flat.begin(), flat.end(), '/', '_');
+          std::filesystem::copy_file(entry.path(), kept + "/" + flat,
+                                     std::filesystem::copy_options::overwrite_existing, ec);
+        }
+      }
+    }
     for (int i = 0; i < static_cast<int>(processes.size()); ++i) {
       const double cpu = CpuSeconds(*processes[static_cast<std::size_t>(i)]->pid_slot());
       (i < stations_ ? run.station_cpu_s : run.worker_cpu_s) += cpu;
@@ -391,6 +408,7 @@ class SiteCommand : public BenchCommand {
   double worker_cpu_ = 0.5;
   std::string paper_ = "10x4";
   std::string json_path_;
+  std::string keep_dir_;
 };
 
 }  // namespace

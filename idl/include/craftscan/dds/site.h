@@ -57,8 +57,10 @@ CRAFTSCAN_DDS_SITE_TRAITS(craftscan_msg_JobResult);
 inline constexpr std::string_view kDefaultSite = "default";
 // A worker's liveliness lease (ms): it writes its WorkerStatus at least every
 // quarter of it; a station takes a granted job back this long after the
-// worker's last sign of life.
-inline constexpr int32_t kWorkerLeaseMs = 2000;
+// worker's last sign of life. Not shorter: a station on a small CPU share
+// that is matching may take its DDS samples a few seconds late (2 s was
+// seen to lapse for a live worker on a 0.3-core station).
+inline constexpr int32_t kWorkerLeaseMs = 6000;
 // A station's SiteStation writer has the same kind of lease, so the site
 // view drops a station that died without disposing its instance.
 inline constexpr int32_t kStationLeaseMs = 4000;

@@ -1,6 +1,8 @@
 // craftscan-worker's job loop (worker.h; the protocol in craftscan/dds/site.h).
 #include "craftscan/worker/worker.h"
 
+#include <sys/resource.h>
+#include <sys/syscall.h>
 #include <unistd.h>
 
 #include <chrono>
@@ -263,6 +265,11 @@ class Loop {
     Log(1, "job " + offer.job_id + ": granted (grant " + std::to_string(offer.grant) + ")");
     WriteStatus();
     raw->thread = std::thread([this, raw] {
+      // Below the loop and DDS's own threads (nice 10, inherited by the
+      // pipeline's thread pools): on a small CPU share two jobs' meshing
+      // starved the lease renewals and Cyclone's participant liveliness
+      // (a live worker lost both its grants).
+      ::setpriority(PRIO_PROCESS, static_cast<id_t>(::syscall(SYS_gettid)), 10);
       try {
         Work(*raw);
       } catch (const std::exception& e) {

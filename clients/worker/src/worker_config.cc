@@ -151,19 +151,6 @@ const std::vector<Field>& Fields() {
     };
     threads.get = [](const WorkerConfig& c) { return std::to_string(c.threads); };
     f.push_back(threads);
-    Field jobs;
-    jobs.path = "jobs";
-    jobs.set = [](std::string_view text, WorkerConfig& c, std::string* what) {
-      long long v = 0;
-      if (!daemon::ParseConfigInteger(text, &v) || v < 1 || v > 16) {
-        *what = "must be an integer in 1..16, got " + Got(text);
-        return false;
-      }
-      c.jobs = static_cast<int>(v);
-      return true;
-    };
-    jobs.get = [](const WorkerConfig& c) { return std::to_string(c.jobs); };
-    f.push_back(jobs);
     f.push_back(StringField("work_dir", &WorkerConfig::work_dir, AbsolutePath));
     Field watchdog;
     watchdog.path = "watchdog.enabled";
@@ -442,7 +429,6 @@ bool MakeWorkerOptions(const WorkerConfig& config, WorkerOptions* options, std::
   }
   if (!ReadWorkerToken(config.auth.token_file, &made.token, error)) return false;
   made.threads = config.threads;
-  made.jobs = config.jobs;
   made.work_dir = config.work_dir;
   std::string why;
   if (!made.IsValid(&why)) return Fail(error, why);

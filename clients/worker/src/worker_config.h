@@ -23,8 +23,6 @@
 //                                tokens.yaml) on its first line; readable by its
 //                                owner only (mode 0600 or 0400)
 //   threads: 2                   1..256 reconstruction threads
-//   jobs: 2                      1..16 jobs held at once (a job streams its
-//                                views in as its station captures them)
 //   work_dir: /var/lib/craftscan-worker   absolute; scratch for a job's inputs
 //   watchdog:
 //     enabled: true              ping systemd's watchdog (when WatchdogSec= is set)
@@ -65,7 +63,6 @@ struct WorkerConfig {
     std::string token_file = "/etc/craftscan/worker.token";
   } auth;
   int threads = 2;
-  int jobs = 2;
   std::string work_dir = "/var/lib/craftscan-worker";
   struct {
     bool enabled = true;

@@ -37,7 +37,6 @@ dds:
 auth:
   token_file: /etc/craftscan/other.token
 threads: 6
-jobs: 3
 work_dir: /srv/worker
 watchdog:
   enabled: false
@@ -65,7 +64,6 @@ TEST(WorkerConfig, ReadsEveryKey) {
   EXPECT_EQ(c.dds.config_file, "/etc/craftscan/cyclonedds.xml");
   EXPECT_EQ(c.auth.token_file, "/etc/craftscan/other.token");
   EXPECT_EQ(c.threads, 6);
-  EXPECT_EQ(c.jobs, 3);
   EXPECT_EQ(c.work_dir, "/srv/worker");
   EXPECT_FALSE(c.watchdog.enabled);
 }
@@ -164,7 +162,7 @@ INSTANTIATE_TEST_SUITE_P(
 TEST(WorkerConfig, UnknownKeysAreRefusedWithTheirPath) {
   EXPECT_THAT(ErrorFor("version: 1\nworkers: 2\n"),
               AllOf(HasSubstr("workers: unknown key (known: version, worker, site, log_level, "
-                              "dds, auth, threads, jobs, work_dir, watchdog)"),
+                              "dds, auth, threads, work_dir, watchdog)"),
                     HasSubstr("(line 2)")));
   EXPECT_THAT(ErrorFor("version: 1\ndds:\n  domain: 1\n  domian: 2\n"),
               AllOf(HasSubstr("dds.domian: unknown key (known in dds: domain, config_file)"),
@@ -216,13 +214,12 @@ TEST(WorkerConfig, BadEnvironmentValueNamesTheVariable) {
 }
 
 TEST(WorkerConfig, EnvironmentVariablesFollowTheKeyPaths) {
-  EXPECT_THAT(
-      WorkerEnvironmentVariables(),
-      ::testing::ElementsAre("CRAFTSCAN_WORKER_WORKER", "CRAFTSCAN_WORKER_SITE",
-                             "CRAFTSCAN_WORKER_LOG_LEVEL", "CRAFTSCAN_WORKER_DDS_DOMAIN",
-                             "CRAFTSCAN_WORKER_DDS_CONFIG_FILE", "CRAFTSCAN_WORKER_AUTH_TOKEN_FILE",
-                             "CRAFTSCAN_WORKER_THREADS", "CRAFTSCAN_WORKER_JOBS",
-                             "CRAFTSCAN_WORKER_WORK_DIR", "CRAFTSCAN_WORKER_WATCHDOG_ENABLED"));
+  EXPECT_THAT(WorkerEnvironmentVariables(),
+              ::testing::ElementsAre(
+                  "CRAFTSCAN_WORKER_WORKER", "CRAFTSCAN_WORKER_SITE", "CRAFTSCAN_WORKER_LOG_LEVEL",
+                  "CRAFTSCAN_WORKER_DDS_DOMAIN", "CRAFTSCAN_WORKER_DDS_CONFIG_FILE",
+                  "CRAFTSCAN_WORKER_AUTH_TOKEN_FILE", "CRAFTSCAN_WORKER_THREADS",
+                  "CRAFTSCAN_WORKER_WORK_DIR", "CRAFTSCAN_WORKER_WATCHDOG_ENABLED"));
 }
 
 TEST(WorkerConfig, DumpReadsBackTheSame) {
@@ -331,7 +328,6 @@ TEST_F(WorkerToken, OptionsComeFromTheConfig) {
   EXPECT_EQ(options.dds_config, "file://" + c.dds.config_file);
   EXPECT_EQ(options.token, "tok-123");
   EXPECT_EQ(options.threads, 6);
-  EXPECT_EQ(options.jobs, 3);
   EXPECT_EQ(options.work_dir, "/srv/worker");
   // A Cyclone file that is not there is named (Cyclone would not say which).
   const std::string given = c.dds.config_file;

@@ -26,9 +26,7 @@ inline std::string LocalFusedPly(const std::string& config_path, const std::stri
                                  const std::string& session_id, int threads) {
   std::string error;
   daemon::DaemonConfig config;
-  EXPECT_TRUE(daemon::ParseDaemonConfig(ReadFile(config_path), {}, &config,
-                                        &error))
-      << error;
+  EXPECT_TRUE(daemon::ParseDaemonConfig(ReadFile(config_path), {}, &config, &error)) << error;
   auto store = daemon::SessionStore::Open(data_dir, StatusInto(&error));
   EXPECT_TRUE(store) << error;
   if (!store) return {};

@@ -212,8 +212,10 @@ class FaultSite {
   bool WaitWorkerReady(std::size_t i) {
     WorkerProcess& w = *workers_.at(i);
     return WaitFor(
-        [&] { return w.Log().find("ready: announced") != std::string::npos || !w.child.Running(); },
-        30s) &&
+               [&] {
+                 return w.Log().find("ready: announced") != std::string::npos || !w.child.Running();
+               },
+               30s) &&
            w.child.Running();
   }
 
@@ -222,8 +224,15 @@ class FaultSite {
   void StartCtl(std::size_t i, const std::vector<std::string>& args, CtlProcess* ctl) {
     const std::string tag = net_->work_dir() + "/ctl" + std::to_string(++ctl_runs_);
     HostCommand command;
-    command.argv = {CraftscanctlPath(), "--station", station(i).station(), "--domain",
-                    std::to_string(domain_), "--timeout", "30", "--token", kOperatorToken};
+    command.argv = {CraftscanctlPath(),
+                    "--station",
+                    station(i).station(),
+                    "--domain",
+                    std::to_string(domain_),
+                    "--timeout",
+                    "30",
+                    "--token",
+                    kOperatorToken};
     command.argv.insert(command.argv.end(), args.begin(), args.end());
     command.stdout_path = ctl->out = tag + ".out";
     command.stderr_path = ctl->err = tag + ".err";
@@ -233,10 +242,10 @@ class FaultSite {
   }
 
   void StartScan(std::size_t i, CtlProcess* ctl) {
-    StartCtl(i,
-             {"scan", "--object", "box", "--views", std::to_string(kViews), "--step", kStep,
-              "--json"},
-             ctl);
+    StartCtl(
+        i,
+        {"scan", "--object", "box", "--views", std::to_string(kViews), "--step", kStep, "--json"},
+        ctl);
   }
 
   // `status` from station i's host until it answers (40 s at most).
@@ -303,9 +312,9 @@ void CheckModel(DaemonFixture& fixture, const std::string& session, const json& 
     return;
   }
   const daemon::VerifyResult verified = store->Verify(session);
-  EXPECT_TRUE(verified.IsIntact()) << context << ": "
-                                   << (verified.problems.empty() ? "manifest unreadable"
-                                                                 : verified.problems.front());
+  EXPECT_TRUE(verified.IsIntact())
+      << context << ": "
+      << (verified.problems.empty() ? "manifest unreadable" : verified.problems.front());
   lost = lost || !verified.IsIntact();
   {
     auto s = store->OpenSession(session, StatusInto(&error));
@@ -327,9 +336,8 @@ void CheckModel(DaemonFixture& fixture, const std::string& session, const json& 
   // One "result of worker ... stored" line for all the jobs of this session
   // when a worker made it; none when the station fell back to local.
   const std::string log = fixture.Log();
-  const std::size_t stored =
-      CountLines(log, {"job " + fixture.station() + "/" + session + "/", ": result of worker ",
-                       " stored ("});
+  const std::size_t stored = CountLines(
+      log, {"job " + fixture.station() + "/" + session + "/", ": result of worker ", " stored ("});
   const std::string outcome = remote.is_object() ? remote.value("outcome", "") : "";
   EXPECT_TRUE(outcome == "done" || outcome == "local") << context << ": " << remote.dump();
   EXPECT_EQ(stored, outcome == "done" ? 1u : 0u) << context << ": outcome " << outcome;
@@ -340,9 +348,9 @@ void CheckModel(DaemonFixture& fixture, const std::string& session, const json& 
   }
   // The model is the station's own reconstruction of the stored views.
   const std::string model = ReadFile(fixture.data_dir() + "/sessions/" + session + "/fused.ply");
-  const bool same = !model.empty() && model == LocalFusedPly(fixture.root() + "/craftscand.yaml",
-                                                             fixture.data_dir(), session,
-                                                             TestThreads());
+  const bool same =
+      !model.empty() && model == LocalFusedPly(fixture.root() + "/craftscand.yaml",
+                                               fixture.data_dir(), session, TestThreads());
   EXPECT_TRUE(same) << context << ": fused.ply (" << model.size()
                     << " bytes) differs from a local reconstruction of the same views";
   lost = lost || !same;
@@ -355,6 +363,13 @@ std::string RemoteSummary(const json& remote) {
   if (remote.value("outcome", "") == "local") return "local (" + remote.value("why", "") + ")";
   return remote.value("worker", "?") + " (grants " + std::to_string(remote.value("grants", 0)) +
          ")";
+}
+
+// " (scan 12.3 s)": how long craftscanctl waited for the job.
+std::string Took(const CtlProcess& ctl) {
+  char text[48];
+  std::snprintf(text, sizeof text, " (scan %.1f s)", ctl.seconds);
+  return text;
 }
 
 // Runs `run` Runs() times and prints the fault table's lines.
@@ -497,7 +512,7 @@ TEST(SiteFaults, AWorkerKilledMidJobLosesItsLeaseAndTheOtherDelivers) {
         << site->Logs();
     CheckModel(site->station(0), r.session, r.remote, &out);
     out.outcome = site->worker(static_cast<std::size_t>(victim)).name + " killed, " +
-                  RemoteSummary(r.remote) + " delivered";
+                  RemoteSummary(r.remote) + " delivered" + Took(scan);
     return out;
   });
 }
@@ -528,7 +543,8 @@ TEST(SiteFaults, AWorkerCutOffMidJobAndHealedNeverStoresASecondModel) {
     EXPECT_EQ(r.remote.value("grants", 0), 2) << r.remote.dump();
     // Healed: the cut worker learns its job is over (abandoned) or its
     // late result is dropped by the station.
-    const std::string dropped = "dropped a result of job " + job + " from worker " + cut_worker.name;
+    const std::string dropped =
+        "dropped a result of job " + job + " from worker " + cut_worker.name;
     std::string fate;
     const bool told = WaitFor(
         [&] {
@@ -545,12 +561,13 @@ TEST(SiteFaults, AWorkerCutOffMidJobAndHealedNeverStoresASecondModel) {
                       << site->Logs();
     // (A result it sent after all may sit unread at the station until its
     // next job: nothing is stored from it, which CheckModel's count shows.)
-    if (!told) fate = CountLines(cut_worker.Log(), {"job " + job + ": result sent"}) > 0
-                          ? "result sent, not yet seen"
-                          : "no word";
+    if (!told)
+      fate = CountLines(cut_worker.Log(), {"job " + job + ": result sent"}) > 0
+                 ? "result sent, not yet seen"
+                 : "no word";
     CheckModel(site->station(0), r.session, r.remote, &out);
     out.outcome = cut_worker.name + " cut (" + fate + "), " + RemoteSummary(r.remote) +
-                  " delivered";
+                  " delivered" + Took(scan);
     return out;
   });
 }
@@ -574,8 +591,7 @@ TEST(SiteFaults, AStationRestartedWhileItsJobIsRemoteResumesAndStoresTheModelOnc
     scan.child.Kill();
     // The session: the one folder in sessions/.
     std::string session;
-    for (const auto& entry :
-         std::filesystem::directory_iterator(station.data_dir() + "/sessions"))
+    for (const auto& entry : std::filesystem::directory_iterator(station.data_dir() + "/sessions"))
       if (entry.is_directory()) session = entry.path().filename().string();
     if (session.empty()) {
       ADD_FAILURE() << "no session on disk" << site->Logs();
@@ -599,11 +615,17 @@ TEST(SiteFaults, AStationRestartedWhileItsJobIsRemoteResumesAndStoresTheModelOnc
     EXPECT_EQ(CountLines(station.Log(), {"job " + first_job + ": result of worker "}), 0u)
         << site->Logs();
     CheckModel(station, session, r.remote, &out);
-    const bool dropped =
-        CountLines(station.Log(), {"dropped a result of job " + first_job + " "}) > 0;
-    out.outcome = site->worker(static_cast<std::size_t>(first)).name +
-                  " had it; resumed: " + RemoteSummary(r.remote) +
-                  (dropped ? "; first result dropped" : "");
+    // What became of the first grant: the worker abandoned it (the
+    // station's offer went NOT_ALIVE_NO_WRITERS or was disposed), or it
+    // finished and its result was dropped.
+    const WorkerProcess& had = site->worker(static_cast<std::size_t>(first));
+    std::string fate = "still busy";
+    if (CountLines(had.Log(), {"job " + first_job + ": ", "abandoned"}) > 0) fate = "abandoned";
+    if (CountLines(had.Log(), {"job " + first_job + ": result sent"}) > 0) fate = "result sent";
+    if (CountLines(station.Log(), {"dropped a result of job " + first_job + " "}) > 0)
+      fate = "result dropped";
+    out.outcome =
+        had.name + " had it (" + fate + "); resumed: " + RemoteSummary(r.remote) + Took(resume);
     return out;
   });
 }
@@ -638,7 +660,7 @@ TEST(SiteFaults, AForgedWorkerIsNeverGrantedAndTheStationFallsBackToLocal) {
     EXPECT_EQ(CountLines(log, {"granted to worker"}), 0u) << site->Logs();
     EXPECT_EQ(site->worker(0).Log().find(": granted (grant"), std::string::npos) << site->Logs();
     CheckModel(site->station(0), r.session, r.remote, &out);
-    out.outcome = "never granted, " + RemoteSummary(r.remote);
+    out.outcome = "never granted, " + RemoteSummary(r.remote) + Took(scan);
     return out;
   });
 }

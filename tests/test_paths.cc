@@ -14,6 +14,7 @@ const char* PluginDir() { return CRAFTSCAN_PLUGIN_DIR; }
 const char* BadPluginDir() { return CRAFTSCAN_BAD_PLUGIN_DIR; }
 const char* CraftscandPath() { return CRAFTSCAND_PATH; }
 const char* CraftscanctlPath() { return CRAFTSCANCTL_PATH; }
+const char* WorkerPath() { return CRAFTSCAN_WORKER_PATH; }
 const char* RecordPath() { return CRAFTSCAN_RECORD_PATH; }
 const char* DdsPeerPath() { return CRAFTSCAN_DDS_PEER; }
 const char* DdsSecurityPeerPath() { return CRAFTSCAN_DDS_SECURITY_PEER; }

@@ -21,6 +21,7 @@ const char* PluginDir();             // the built driver plugins
 const char* BadPluginDir();          // the deliberately broken test plugins
 const char* CraftscandPath();
 const char* CraftscanctlPath();
+const char* WorkerPath();           // craftscan-worker
 const char* RecordPath();           // craftscan-record
 const char* DdsPeerPath();          // tests/dds/craftscan_dds_peer
 const char* DdsSecurityPeerPath();  // tests/dds/security/craftscan_dds_security_peer

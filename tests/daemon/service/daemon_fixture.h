@@ -88,8 +88,6 @@ class DaemonFixture {
   std::string data_dir() const { return root_ + "/data"; }
   const std::string& station() const { return station_; }
   std::uint32_t domain() const { return domain_; }
-  // Another domain (before Prepare), e.g. one shared by several stations.
-  void set_domain(std::uint32_t domain) { domain_ = domain; }
   std::string dds_config() const {
     return dds::ConfigFileUri(::craftscan::testing::CycloneDdsXml()) + "," +
            dds::LoopbackOnlyConfigXml();

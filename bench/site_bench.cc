@@ -9,7 +9,7 @@
 //
 //   craftscan-bench site [--stations 3] [--workers 0,1,2] [--views 6]
 //                        [--image-size 640x512] [--station-cpu 0.3]
-//                        [--worker-cpu 0.5] [--paper 10x4] [--json FILE]
+//                        [--worker-cpu 0.5] [--worker-jobs 2] [--paper 10x4] [--json FILE]
 #include <sys/stat.h>
 #include <unistd.h>
 
@@ -100,6 +100,8 @@ class SiteCommand : public BenchCommand {
         ->check(CLI::Range(0.05, 2.0));
     sub->add_option("--worker-cpu", worker_cpu_, "Cores per worker host")
         ->check(CLI::Range(0.05, 2.0));
+    sub->add_option("--worker-jobs", worker_jobs_, "Jobs a worker holds at once (its jobs: key)")
+        ->check(CLI::Range(1, 16));
     sub->add_option("--paper", paper_, "A site figured on paper from the costs, SxW");
     sub->add_option("--json", json_path_, "Write the figures as JSON");
     sub->add_option("--keep", keep_dir_,
@@ -174,8 +176,8 @@ class SiteCommand : public BenchCommand {
     return WriteText(dir + "/craftscan-worker.yaml",
                      "version: 1\nworker: wk" + std::to_string(index) +
                          "\nsite: bench\ndds: {domain: " + std::to_string(kDomain) +
-                         "}\nauth: {token_file: " + token + "}\nthreads: 1\nwork_dir: " + dir +
-                         "/work\n",
+                         "}\nauth: {token_file: " + token + "}\nthreads: 1\njobs: " +
+                         std::to_string(worker_jobs_) + "\nwork_dir: " + dir + "/work\n",
                      error);
   }
 
@@ -310,7 +312,8 @@ class SiteCommand : public BenchCommand {
   int Report(const std::vector<bench::Run>& runs, int paper_stations, int paper_workers) const {
     json out = {{"stations", stations_},     {"views", views_},
                 {"image_size", image_size_}, {"station_cpu", station_cpu_},
-                {"worker_cpu", worker_cpu_}, {"runs", json::array()}};
+                {"worker_cpu", worker_cpu_}, {"worker_jobs", worker_jobs_},
+                {"runs", json::array()}};
     double base = 0;
     std::printf("\n%8s %10s %10s %9s %12s %12s %8s\n", "workers", "burst s", "scans/h", "speed-up",
                 "MB to worker", "MB back", "remote");
@@ -406,6 +409,7 @@ class SiteCommand : public BenchCommand {
   std::string image_size_ = "640x512";
   double station_cpu_ = 0.3;
   double worker_cpu_ = 0.5;
+  int worker_jobs_ = 2;
   std::string paper_ = "10x4";
   std::string json_path_;
   std::string keep_dir_;

@@ -13,6 +13,7 @@
 #include <random>
 #include <sstream>
 #include <string>
+#include <thread>
 #include <vector>
 
 #include "craftscan/pipeline/common/ply.h"
@@ -564,6 +565,31 @@ TEST_F(Mesh, PoissonSphere) {
   for (std::size_t v = 0; v < mesh.vertices_mm.size(); ++v) {
     const cv::Vec3d radial = cv::normalize(cv::Vec3d(mesh.vertices_mm[v]) - centre);
     ASSERT_GT(radial.dot(cv::Vec3d(mesh.normals[v])), 0.95) << v;
+  }
+}
+
+// A worker holds several jobs in one process: meshes made on several threads
+// at once are each the mesh made alone (PCL's Poisson keeps static state; two
+// at once segfaulted before PoissonMesh serialised them).
+TEST_F(Mesh, PoissonOnSeveralThreadsAtOnceGivesTheMeshMadeAlone) {
+  const PointCloud a = Sphere(6000, {0, 0, 150});
+  const PointCloud b = Sphere(9000, {40, 10, 120});
+  PoissonOptions options;
+  options.num_threads = 1;
+  const MeshResult alone_a = PoissonMesh(a, options);
+  const MeshResult alone_b = PoissonMesh(b, options);
+  ASSERT_TRUE(alone_a.IsUsable() && alone_b.IsUsable());
+  std::vector<MeshResult> together(4);
+  std::vector<std::thread> threads;
+  for (std::size_t i = 0; i < together.size(); ++i)
+    threads.emplace_back([&, i] { together[i] = PoissonMesh(i % 2 ? b : a, options); });
+  for (std::thread& t : threads) t.join();
+  for (std::size_t i = 0; i < together.size(); ++i) {
+    const MeshResult& alone = i % 2 ? alone_b : alone_a;
+    ASSERT_TRUE(together[i].IsUsable()) << i << ": " << together[i].message;
+    EXPECT_EQ(together[i].mesh.faces.size(), alone.mesh.faces.size()) << i;
+    ASSERT_EQ(together[i].mesh.vertices_mm.size(), alone.mesh.vertices_mm.size()) << i;
+    EXPECT_EQ(together[i].mesh.vertices_mm, alone.mesh.vertices_mm) << i;
   }
 }
 

@@ -47,6 +47,23 @@ struct Field {
 };
 
 // A string whose values `valid` accepts (*what says why not).
+// An integer key in 1..max.
+Field IntField(std::string path, int WorkerConfig::*member, int max) {
+  Field f;
+  f.path = std::move(path);
+  f.set = [member, max](std::string_view text, WorkerConfig& c, std::string* what) {
+    long long v = 0;
+    if (!daemon::ParseConfigInteger(text, &v) || v < 1 || v > max) {
+      *what = "must be an integer in 1.." + std::to_string(max) + ", got " + Got(text);
+      return false;
+    }
+    c.*member = static_cast<int>(v);
+    return true;
+  };
+  f.get = [member](const WorkerConfig& c) { return std::to_string(c.*member); };
+  return f;
+}
+
 Field StringField(std::string path, std::string WorkerConfig::*member,
                   std::function<bool(std::string_view, std::string*)> valid) {
   Field f;
@@ -138,19 +155,8 @@ const std::vector<Field>& Fields() {
     };
     token.get = [](const WorkerConfig& c) { return c.auth.token_file; };
     f.push_back(token);
-    Field threads;
-    threads.path = "threads";
-    threads.set = [](std::string_view text, WorkerConfig& c, std::string* what) {
-      long long v = 0;
-      if (!daemon::ParseConfigInteger(text, &v) || v < 1 || v > 256) {
-        *what = "must be an integer in 1..256, got " + Got(text);
-        return false;
-      }
-      c.threads = static_cast<int>(v);
-      return true;
-    };
-    threads.get = [](const WorkerConfig& c) { return std::to_string(c.threads); };
-    f.push_back(threads);
+    f.push_back(IntField("threads", &WorkerConfig::threads, 256));
+    f.push_back(IntField("jobs", &WorkerConfig::jobs, 16));
     f.push_back(StringField("work_dir", &WorkerConfig::work_dir, AbsolutePath));
     Field watchdog;
     watchdog.path = "watchdog.enabled";
@@ -429,6 +435,7 @@ bool MakeWorkerOptions(const WorkerConfig& config, WorkerOptions* options, std::
   }
   if (!ReadWorkerToken(config.auth.token_file, &made.token, error)) return false;
   made.threads = config.threads;
+  made.jobs = config.jobs;
   made.work_dir = config.work_dir;
   std::string why;
   if (!made.IsValid(&why)) return Fail(error, why);

@@ -23,6 +23,9 @@
 //                                tokens.yaml) on its first line; readable by its
 //                                owner only (mode 0600 or 0400)
 //   threads: 2                   1..256 reconstruction threads
+//   jobs: 1                      1..16 jobs held at once (their threads share
+//                                the host; 2 keeps a worker busy while one job
+//                                waits for its station's next view)
 //   work_dir: /var/lib/craftscan-worker   absolute; scratch for a job's inputs
 //   watchdog:
 //     enabled: true              ping systemd's watchdog (when WatchdogSec= is set)
@@ -63,6 +66,7 @@ struct WorkerConfig {
     std::string token_file = "/etc/craftscan/worker.token";
   } auth;
   int threads = 2;
+  int jobs = 1;
   std::string work_dir = "/var/lib/craftscan-worker";
   struct {
     bool enabled = true;

@@ -15,6 +15,7 @@
 #include <cstring>
 #include <exception>
 #include <limits>
+#include <mutex>
 #include <numbers>
 #include <string_view>
 #include <unordered_map>
@@ -137,9 +138,16 @@ PoissonInput OrientedPoints(const PointCloud& cloud) {
 }
 
 // PCL's Poisson surface (triangles, manifold). Throws what PCL throws.
+// One at a time per process: PCL's poisson4 keeps its octree's node
+// allocator and flags in static members (TreeOctNode::SetAllocator,
+// TreeNodeData::UseIndex), which reconstruct() resets, so two reconstructions
+// at once corrupt each other (a worker holding two jobs segfaulted in
+// libpcl_surface). Each reconstruction still uses its own threads.
 void ReconstructPoisson(const PoissonInput& in, const PoissonOptions& options,
                         pcl::PointCloud<pcl::PointNormal>* vertices,
                         std::vector<pcl::Vertices>* polygons) {
+  static std::mutex one_at_a_time;
+  std::lock_guard lock(one_at_a_time);
   pcl::Poisson<pcl::PointNormal> poisson;
   poisson.setDepth(options.depth);
   poisson.setSamplesPerNode(static_cast<float>(options.samples_per_node));

@@ -37,6 +37,7 @@ dds:
 auth:
   token_file: /etc/craftscan/other.token
 threads: 6
+jobs: 3
 work_dir: /srv/worker
 watchdog:
   enabled: false
@@ -64,6 +65,7 @@ TEST(WorkerConfig, ReadsEveryKey) {
   EXPECT_EQ(c.dds.config_file, "/etc/craftscan/cyclonedds.xml");
   EXPECT_EQ(c.auth.token_file, "/etc/craftscan/other.token");
   EXPECT_EQ(c.threads, 6);
+  EXPECT_EQ(c.jobs, 3);
   EXPECT_EQ(c.work_dir, "/srv/worker");
   EXPECT_FALSE(c.watchdog.enabled);
 }
@@ -79,6 +81,7 @@ TEST(WorkerConfig, OnlyVersionGivesTheDefaults) {
   EXPECT_EQ(c.dds.config_file, "");
   EXPECT_EQ(c.auth.token_file, "/etc/craftscan/worker.token");
   EXPECT_EQ(c.threads, 2);
+  EXPECT_EQ(c.jobs, 1);
   EXPECT_EQ(c.work_dir, "/var/lib/craftscan-worker");
   EXPECT_TRUE(c.watchdog.enabled);
   EXPECT_TRUE(c.IsValid(nullptr));
@@ -147,6 +150,7 @@ INSTANTIATE_TEST_SUITE_P(
         BadField{"version: 1\nthreads: 0\n",
                  "threads: must be an integer in 1..256, got '0' (line 2)"},
         BadField{"version: 1\nthreads: 257\n", "threads: must be an integer in 1..256, got '257'"},
+        BadField{"version: 1\njobs: 17\n", "jobs: must be an integer in 1..16, got '17'"},
         BadField{"version: 1\nthreads: 2.5\n", "threads: must be an integer in 1..256, got '2.5'"},
         BadField{"version: 1\nwork_dir: scratch\n",
                  "work_dir: must be an absolute path, got 'scratch' (line 2)"},
@@ -162,7 +166,7 @@ INSTANTIATE_TEST_SUITE_P(
 TEST(WorkerConfig, UnknownKeysAreRefusedWithTheirPath) {
   EXPECT_THAT(ErrorFor("version: 1\nworkers: 2\n"),
               AllOf(HasSubstr("workers: unknown key (known: version, worker, site, log_level, "
-                              "dds, auth, threads, work_dir, watchdog)"),
+                              "dds, auth, threads, jobs, work_dir, watchdog)"),
                     HasSubstr("(line 2)")));
   EXPECT_THAT(ErrorFor("version: 1\ndds:\n  domain: 1\n  domian: 2\n"),
               AllOf(HasSubstr("dds.domian: unknown key (known in dds: domain, config_file)"),
@@ -214,12 +218,13 @@ TEST(WorkerConfig, BadEnvironmentValueNamesTheVariable) {
 }
 
 TEST(WorkerConfig, EnvironmentVariablesFollowTheKeyPaths) {
-  EXPECT_THAT(WorkerEnvironmentVariables(),
-              ::testing::ElementsAre(
-                  "CRAFTSCAN_WORKER_WORKER", "CRAFTSCAN_WORKER_SITE", "CRAFTSCAN_WORKER_LOG_LEVEL",
-                  "CRAFTSCAN_WORKER_DDS_DOMAIN", "CRAFTSCAN_WORKER_DDS_CONFIG_FILE",
-                  "CRAFTSCAN_WORKER_AUTH_TOKEN_FILE", "CRAFTSCAN_WORKER_THREADS",
-                  "CRAFTSCAN_WORKER_WORK_DIR", "CRAFTSCAN_WORKER_WATCHDOG_ENABLED"));
+  EXPECT_THAT(
+      WorkerEnvironmentVariables(),
+      ::testing::ElementsAre("CRAFTSCAN_WORKER_WORKER", "CRAFTSCAN_WORKER_SITE",
+                             "CRAFTSCAN_WORKER_LOG_LEVEL", "CRAFTSCAN_WORKER_DDS_DOMAIN",
+                             "CRAFTSCAN_WORKER_DDS_CONFIG_FILE", "CRAFTSCAN_WORKER_AUTH_TOKEN_FILE",
+                             "CRAFTSCAN_WORKER_THREADS", "CRAFTSCAN_WORKER_JOBS",
+                             "CRAFTSCAN_WORKER_WORK_DIR", "CRAFTSCAN_WORKER_WATCHDOG_ENABLED"));
 }
 
 TEST(WorkerConfig, DumpReadsBackTheSame) {

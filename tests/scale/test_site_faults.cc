@@ -204,6 +204,7 @@ class FaultSite {
              << "dds: {domain: " << domain_ << "}\n"
              << "auth: {token_file: " << dir << "/worker.token}\n"
              << "threads: " << TestThreads() << "\n"
+             << "jobs: 2\n"
              << "work_dir: " << dir << "/work\n"
              << "watchdog: {enabled: false}\n";
     }

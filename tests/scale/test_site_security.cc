@@ -67,8 +67,7 @@ constexpr const char* kStep = "90";
 constexpr const char* kImageSize = "320x256";
 // Long enough for an idle worker's claim (every second), short enough for
 // the fallback case.
-constexpr const char* kReconstruction =
-    "{mode: remote, offer_timeout_ms: 5000, max_remote_s: 300}";
+constexpr const char* kReconstruction = "{mode: remote, offer_timeout_ms: 5000, max_remote_s: 300}";
 
 // Why Cyclone's security plugins cannot be loaded, or "" if they can: they
 // are looked up as Cyclone does, by name and then in libddsc0debian/ beside
@@ -102,8 +101,7 @@ bool Eventually(const std::function<bool()>& done, std::chrono::milliseconds lim
 
 std::size_t Count(const std::string& text, const std::string& what) {
   std::size_t n = 0;
-  for (std::size_t at = text.find(what); at != std::string::npos; at = text.find(what, at + 1))
-    ++n;
+  for (std::size_t at = text.find(what); at != std::string::npos; at = text.find(what, at + 1)) ++n;
   return n;
 }
 
@@ -213,11 +211,17 @@ class SecuredSite {
   int Ctl(const std::string& console_config, const std::vector<std::string>& args,
           std::chrono::seconds limit, std::string* out, std::string* err = nullptr) {
     HostCommand command;
-    command.argv = {CraftscanctlPath(), "--station", station_->station(),
-                    "--domain",         std::to_string(domain_),
-                    "--dds-config",     console_config,
-                    "--timeout",        "30",
-                    "--token",          kOperatorToken};
+    command.argv = {CraftscanctlPath(),
+                    "--station",
+                    station_->station(),
+                    "--domain",
+                    std::to_string(domain_),
+                    "--dds-config",
+                    console_config,
+                    "--timeout",
+                    "30",
+                    "--token",
+                    kOperatorToken};
     command.argv.insert(command.argv.end(), args.begin(), args.end());
     const std::string tag = dir() + "/ctl" + std::to_string(++ctl_runs_);
     command.stdout_path = tag + ".out";
@@ -317,12 +321,11 @@ TEST(SiteSecurity, OnlyAWorkerOfTheSiteCaIsGrantedAndItsModelIsTheStationsOwn) {
   // The site CA signs the station's identities and the site's worker;
   // another CA (the station's own, as made without --ca) signs "wforeign".
   const std::string pki = site->dir() + "/pki", foreign = site->dir() + "/foreign";
-  ASSERT_TRUE(site->Setup(pki, {"--ca", site->dir() + "/site-ca", "--client", "console",
-                                "--worker", "wsite"}));
+  ASSERT_TRUE(site->Setup(
+      pki, {"--ca", site->dir() + "/site-ca", "--client", "console", "--worker", "wsite"}));
   ASSERT_TRUE(site->Setup(foreign, {"--worker", "wforeign"}));
   EXPECT_NE(ReadFile(pki + "/identities/wsite/cert.pem"), "");
-  const std::string console =
-      site->HostConfig(kStation, pki + "/identities/console");
+  const std::string console = site->HostConfig(kStation, pki + "/identities/console");
 
   std::string error;
   ASSERT_TRUE(site->StartStation(site->HostConfig(kStation, pki + "/identities/daemon"), &error))
@@ -375,8 +378,8 @@ TEST(SiteSecurity, OnlyAWorkerOfTheSiteCaIsGrantedAndItsModelIsTheStationsOwn) {
 
   // The console identity reads the site's topics: the station and wsite.
   std::string view;
-  EXPECT_EQ(site->Ctl(console, {"site", "--site", site->site(), "--wait", "3", "--json"}, 60s, &view),
-            0)
+  EXPECT_EQ(
+      site->Ctl(console, {"site", "--site", site->site(), "--wait", "3", "--json"}, 60s, &view), 0)
       << view;
   EXPECT_NE(view.find("\"" + site->station().station() + "\""), std::string::npos) << view;
   EXPECT_NE(view.find("\"wsite\""), std::string::npos) << view;

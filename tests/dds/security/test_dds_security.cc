@@ -13,8 +13,11 @@
 // another CA's certificate get no sample and deliver no command, during a
 // window in which the authenticated client keeps receiving. A control run
 // without security shows the same intruder does get through then. The
-// permissions allow every topic of topics.h to its role, and the script's
-// idempotence and key protection are checked too.
+// permissions allow every topic of topics.h to its role; on a site (a
+// site CA, --site, --worker) each role gets its site topics in the site's
+// partition only (the site end to end, with craftscand and
+// craftscan-worker as hosts: tests/scale/test_site_security.cc). The
+// script's idempotence and key protection are checked too.
 //
 // No timed assertions: the window only bounds how long we watch for samples
 // that must never arrive. Cyclone logs the refused handshakes on stderr

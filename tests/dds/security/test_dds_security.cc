@@ -561,9 +561,9 @@ TEST_F(DdsSecurity, PermissionsCoverEveryStationTopic) {
 TEST_F(DdsSecurity, SitePermissionsGiveEachRoleItsSiteTopicsOnly) {
   ASSERT_FALSE(temp_.path().empty());
   const std::string pki = temp_.path() + "/site", site = "museum";
-  const ScriptRun made = RunSetup(
-      pki, station(),
-      {"--ca", temp_.path() + "/site-ca", "--site", site, "--client", "console", "--worker", "w1"});
+  const ScriptRun made = RunSetup(pki, station(),
+                                  {"--ca", temp_.path() + "/site-ca", "--site", site, "--client",
+                                   "console", "--viewer", "recorder", "--worker", "w1"});
   ASSERT_EQ(made.exit_code, 0) << made.output;
   EXPECT_NE(ReadFile(Identity(pki, "w1") + "/permissions.xml").find("<grant name=\"worker\">"),
             std::string::npos);
@@ -604,6 +604,9 @@ TEST_F(DdsSecurity, SitePermissionsGiveEachRoleItsSiteTopicsOnly) {
        {"sub station " + site, "sub worker " + site},
        {"sub station " + elsewhere, "sub job " + site, "sub claim " + site, "sub result " + site,
         "pub station " + site, "pub worker " + site}},
+      {"recorder",
+       {"sub station " + site, "sub worker " + site},
+       {"pub command " + s, "pub worker " + site, "sub job " + site}},
       {"w1",
        {"pub worker " + site, "pub claim " + site, "pub result " + site, "sub job " + site,
         "pub command " + s, "pub command " + other, "sub reply " + s, "sub reply " + other,

@@ -13,10 +13,9 @@
 // byte to the station's own reconstruction of the same stored views
 // (LocalFusedPly).
 //
-// Not here yet: DDS Security on. systemd/security/permissions.xml and
-// scripts/dds-security-setup grant a station's own topics only (no
-// craftscan/site/* topics, no worker role), so a secured worker could not
-// join the site.
+// DDS Security on is its own case: tests/scale/test_site_security.cc (a
+// secured station, a worker of the site CA granted, workers of another CA
+// or with no identity never heard).
 //
 // CRAFTSCAN_SCALE_RUNS=N repeats each case N times (default 1), each run on
 // a site of its own; every run prints a "fault-table:" line and each case a

@@ -363,6 +363,9 @@ class Loop {
     client::ConnectOptions connect;
     connect.station = offer.station;
     connect.domain_id = o_.domain;
+    // No dds_config: the site participant made this process's domain with
+    // the worker's config (its DDS Security identity, role worker, too); a
+    // further participant joins that domain, which only an empty config may.
     connect.token = o_.token;
     connect.client_name = "craftscan-worker@" + o_.worker_id;
     std::string error;

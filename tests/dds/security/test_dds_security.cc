@@ -13,8 +13,11 @@
 // another CA's certificate get no sample and deliver no command, during a
 // window in which the authenticated client keeps receiving. A control run
 // without security shows the same intruder does get through then. The
-// permissions allow every topic of topics.h to its role, and the script's
-// idempotence and key protection are checked too.
+// permissions allow every topic of topics.h to its role; on a site (a
+// site CA, --site, --worker) each role gets its site topics in the site's
+// partition only (the site end to end, with craftscand and
+// craftscan-worker as hosts: tests/scale/test_site_security.cc). The
+// script's idempotence and key protection are checked too.
 //
 // No timed assertions: the window only bounds how long we watch for samples
 // that must never arrive. Cyclone logs the refused handshakes on stderr
@@ -49,6 +52,7 @@
 #include "craftscan/dds/convert.h"
 #include "craftscan/dds/endpoint.h"
 #include "craftscan/dds/participant.h"
+#include "craftscan/dds/site.h"
 #include "craftscan/dds/topics.h"
 #include "dds_test_util.h"
 #include "file_util.h"
@@ -516,6 +520,7 @@ std::string TryStationTopics(const std::shared_ptr<Participant>& participant,
   refused += TryEndpoint(participant, out, CaptureTopic(station));
   refused += TryEndpoint(participant, out, DisparityTopic(station));
   refused += TryEndpoint(participant, out, CloudTopic(station));
+  refused += TryEndpoint(participant, out, PreviewTopic(station));
   refused += TryEndpoint(participant, out, FileTopic(station));
   for (Side side : {Side::kLeft, Side::kRight}) {
     refused += TryEndpoint(participant, out, RosImageTopic(station, side));
@@ -547,6 +552,101 @@ TEST_F(DdsSecurity, PermissionsCoverEveryStationTopic) {
     EXPECT_NE(TryEndpoint(participant, true, StatusTopic("other_station")), "") << name;
     EXPECT_NE(TryEndpoint(participant, false, StatusTopic("other_station")), "") << name;
   }
+}
+
+// The site (issue 21), with a site CA (--ca), --site and a --worker: each
+// role may use its site topics in the site's partition and nothing more (a
+// worker offers no job and reads no capture; no site topic in another
+// site's partition), and the worker may `get` from any station.
+TEST_F(DdsSecurity, SitePermissionsGiveEachRoleItsSiteTopicsOnly) {
+  ASSERT_FALSE(temp_.path().empty());
+  const std::string pki = temp_.path() + "/site", site = "museum";
+  const ScriptRun made = RunSetup(pki, station(),
+                                  {"--ca", temp_.path() + "/site-ca", "--site", site, "--client",
+                                   "console", "--viewer", "recorder", "--worker", "w1"});
+  ASSERT_EQ(made.exit_code, 0) << made.output;
+  EXPECT_NE(ReadFile(Identity(pki, "w1") + "/permissions.xml").find("<grant name=\"worker\">"),
+            std::string::npos);
+  // role: {allowed, refused}, as "pub "/"sub " + topic + " " + partition.
+  const auto try_all = [&](const std::shared_ptr<Participant>& p,
+                           const std::vector<std::string>& which) {
+    std::string refused;
+    for (const std::string& w : which) {
+      const std::size_t a = w.find(' '), b = w.rfind(' ');
+      const bool pub = w.substr(0, a) == "pub";
+      const std::string topic = w.substr(a + 1, b - a - 1), part = w.substr(b + 1);
+      const std::string one = topic == "station"   ? TryEndpoint(p, pub, SiteStationTopic(part))
+                              : topic == "worker"  ? TryEndpoint(p, pub, WorkerStatusTopic(part))
+                              : topic == "job"     ? TryEndpoint(p, pub, JobOfferTopic(part))
+                              : topic == "claim"   ? TryEndpoint(p, pub, JobClaimTopic(part))
+                              : topic == "result"  ? TryEndpoint(p, pub, JobResultTopic(part))
+                              : topic == "command" ? TryEndpoint(p, pub, CommandTopic(part))
+                              : topic == "reply"   ? TryEndpoint(p, pub, ReplyTopic(part))
+                              : topic == "file"    ? TryEndpoint(p, pub, FileTopic(part))
+                              : topic == "status"  ? TryEndpoint(p, pub, StatusTopic(part))
+                                                   : TryEndpoint(p, pub, CaptureTopic(part));
+      refused += one.empty() ? "" : w + "\n";
+    }
+    return refused;
+  };
+  const std::string s = station(), other = "other_station", elsewhere = "elsewhere";
+  struct Role {
+    std::string identity;
+    std::vector<std::string> allowed, refused;
+  };
+  const std::vector<Role> roles = {
+      {"daemon",
+       {"pub station " + site, "pub job " + site, "sub claim " + site, "sub result " + site,
+        "sub worker " + site},
+       {"pub station " + elsewhere, "pub job " + elsewhere, "pub worker " + site,
+        "pub claim " + site, "pub result " + site, "sub job " + site}},
+      {"console",
+       {"sub station " + site, "sub worker " + site},
+       {"sub station " + elsewhere, "sub job " + site, "sub claim " + site, "sub result " + site,
+        "pub station " + site, "pub worker " + site}},
+      {"recorder",
+       {"sub station " + site, "sub worker " + site},
+       {"pub command " + s, "pub worker " + site, "sub job " + site}},
+      {"w1",
+       {"pub worker " + site, "pub claim " + site, "pub result " + site, "sub job " + site,
+        "pub command " + s, "pub command " + other, "sub reply " + s, "sub reply " + other,
+        "sub file " + s, "sub file " + other},
+       {"pub worker " + elsewhere, "pub claim " + elsewhere, "sub job " + elsewhere,
+        "pub job " + site, "pub station " + site, "sub claim " + site, "sub result " + site,
+        "sub worker " + site, "sub command " + s, "pub reply " + s, "pub file " + s,
+        "sub status " + s, "sub capture " + s}},
+  };
+  for (const Role& role : roles) {
+    ParticipantOptions options;
+    options.domain_id = ProcessDomainId();
+    options.config = SecuredConfig(Identity(pki, role.identity));
+    std::string error;
+    auto participant = Participant::Create(options, &error);
+    ASSERT_TRUE(participant) << role.identity << ": " << error << kSecuredHint;
+    EXPECT_EQ(try_all(participant, role.allowed), "") << role.identity << ": refused";
+    std::string allowed;
+    for (const std::string& w : role.refused)
+      if (try_all(participant, {w}).empty()) allowed += w + "\n";
+    EXPECT_EQ(allowed, "") << role.identity << ": allowed";
+  }
+  // A second station of the site reuses the site CA: its daemon's certificate
+  // has the same issuer as w1's.
+  const ScriptRun second = RunSetup(temp_.path() + "/second", "second_station",
+                                    {"--ca", temp_.path() + "/site-ca", "--site", site});
+  ASSERT_EQ(second.exit_code, 0) << second.output;
+  EXPECT_EQ(ReadFile(temp_.path() + "/second/identities/daemon/ca.pem"),
+            ReadFile(Identity(pki, "w1") + "/ca.pem"));
+  EXPECT_FALSE(fs::exists(temp_.path() + "/second/ca"));
+  // --force reissues identities but never replaces the site CA.
+  const ScriptRun forced = RunSetup(temp_.path() + "/second", "second_station",
+                                    {"--ca", temp_.path() + "/site-ca", "--site", site, "--force"});
+  EXPECT_EQ(forced.exit_code, 0) << forced.output;
+  EXPECT_EQ(ReadFile(temp_.path() + "/site-ca/ca.pem"), ReadFile(Identity(pki, "w1") + "/ca.pem"));
+  // The site CA of another site is not taken for this one.
+  const ScriptRun wrong = RunSetup(temp_.path() + "/third", "third_station",
+                                   {"--ca", temp_.path() + "/site-ca", "--site", "another"});
+  EXPECT_EQ(wrong.exit_code, 1) << wrong.output;
+  EXPECT_NE(wrong.output.find("the CA of another site"), std::string::npos) << wrong.output;
 }
 
 // Control for the two tests above: without security on the daemon's side

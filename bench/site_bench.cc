@@ -359,14 +359,23 @@ class SiteCommand : public BenchCommand {
     // then makes min(S·s/c_station, W·w/c_worker) scans a second against
     // S·s/c_local alone, and a burst of one scan per station takes about
     // max(c_station/s, S·c_worker/(W·w)) against c_local/s.
+    // The costs with workers come from a burst whose jobs were all remote
+    // (one reconstructed at its station would count as a station's cost).
     double c_local = 0, c_station = 0, c_worker = 0;
     for (const bench::Run& r : runs) {
       if (r.workers == 0 && !r.jobs.empty()) c_local = r.station_cpu_s / r.jobs.size();
-      if (r.workers > 0 && c_worker == 0 && !r.jobs.empty()) {
+      const bool all_remote =
+          !r.jobs.empty() && std::all_of(r.jobs.begin(), r.jobs.end(), [](const json& job) {
+            const json result = job.value("result", json::object());
+            return result.value("remote", json::object()).value("outcome", "") == "done";
+          });
+      if (r.workers > 0 && c_worker == 0 && all_remote) {
         c_station = r.station_cpu_s / r.jobs.size();
         c_worker = r.worker_cpu_s / r.jobs.size();
       }
     }
+    if (c_local > 0 && c_worker == 0)
+      std::printf("\nno figure on paper: no burst with workers had all its jobs done remotely\n");
     if (c_local > 0 && c_station > 0 && c_worker > 0) {
       const double s = station_cpu_, w = worker_cpu_;
       const int n = paper_stations, k = paper_workers;

@@ -76,7 +76,8 @@ struct MeshResult {
 // Fails (status kFailed, message says why) for invalid options or cloud, a
 // cloud without normals, fewer than 100 usable points, a reconstruction that
 // produces no triangle, or one that trimming removes entirely. Never throws.
-// Thread-safe (reentrant).
+// Thread-safe, but PCL's Poisson step runs one at a time per process (it
+// keeps static state): calls from several threads wait for each other there.
 MeshResult PoissonMesh(const PointCloud& cloud_with_normals, const PoissonOptions& options);
 
 // Which surface a scan's mesh is: Poisson's (closed, then trimmed where the

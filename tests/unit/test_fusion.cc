@@ -2,6 +2,8 @@
 // against synthetic surfaces with known geometry.
 #include <gtest/gtest.h>
 
+#include <sys/mman.h>
+#include <unistd.h>
 #include <algorithm>
 #include <chrono>
 #include <cmath>
@@ -591,6 +593,49 @@ TEST_F(Mesh, PoissonOnSeveralThreadsAtOnceGivesTheMeshMadeAlone) {
     ASSERT_EQ(together[i].mesh.vertices_mm.size(), alone.mesh.vertices_mm.size()) << i;
     EXPECT_EQ(together[i].mesh.vertices_mm, alone.mesh.vertices_mm) << i;
   }
+}
+
+// A scan-like cloud: an open hemisphere whose points lie up to a millimetre
+// off the surface and whose normals are off by up to ~15°, with a sprinkle of
+// floaters. PCL's Poisson prints "Vertex pair not in list" for such a cloud.
+PointCloud RoughHemisphere() {
+  PointCloud cloud = Sphere(20000, {0, 0, 150}, /*min_z=*/-5.0);
+  std::mt19937 random(11);
+  std::normal_distribution<float> off(0.f, 0.5f), tilt(0.f, 0.15f);
+  for (std::size_t i = 0; i < cloud.size(); ++i) {
+    cloud.points_mm[i] += cv::Vec3f(off(random), off(random), off(random));
+    cloud.normals[i] =
+        cv::normalize(cloud.normals[i] + cv::Vec3f(tilt(random), tilt(random), tilt(random)));
+  }
+  return cloud;
+}
+
+// PCL's Poisson printf()s diagnostics; a bench's JSON or a test's log must
+// not fill with them: none reaches stdout, they are counted, and stdout works
+// again after the call.
+TEST_F(Mesh, PoissonKeepsWhatPclPrintsOffStdoutAndCountsIt) {
+  const PointCloud cloud = RoughHemisphere();
+  std::fflush(stdout);
+  const int capture = memfd_create("test-stdout", MFD_CLOEXEC);
+  const int saved = dup(STDOUT_FILENO);
+  ASSERT_GE(capture, 0);
+  ASSERT_GE(saved, 0);
+  ASSERT_GE(dup2(capture, STDOUT_FILENO), 0);
+  std::printf("before\n");
+  const MeshResult r = PoissonMesh(cloud, PoissonOptions{});
+  std::printf("after\n");
+  std::fflush(stdout);
+  dup2(saved, STDOUT_FILENO);
+  close(saved);
+  std::string printed(4096, '\0');
+  const ssize_t n = pread(capture, printed.data(), printed.size(), 0);
+  close(capture);
+  printed.resize(static_cast<std::size_t>(std::max<ssize_t>(n, 0)));
+  ASSERT_TRUE(r.IsUsable()) << r.message;
+  // Else this cloud no longer makes PCL print, and the test shows nothing.
+  EXPECT_GT(r.library_stdout_lines, 0u);
+  EXPECT_EQ(printed, "before\nafter\n");
+  std::printf("PCL's Poisson printed %zu line(s), kept off stdout\n", r.library_stdout_lines);
 }
 
 TEST_F(Mesh, SmallComponentsAreRemoved) {

@@ -1,10 +1,13 @@
 #include "craftscan/pipeline/surface/mesh.h"
 
+#include <fcntl.h>
 #include <pcl/kdtree/kdtree_flann.h>
 #include <pcl/point_cloud.h>
 #include <pcl/point_types.h>
 #include <pcl/surface/marching_cubes.h>
 #include <pcl/surface/poisson.h>
+#include <sys/mman.h>
+#include <unistd.h>
 
 #include <algorithm>
 #include <bit>
@@ -12,6 +15,7 @@
 #include <chrono>
 #include <cmath>
 #include <cstdint>
+#include <cstdio>
 #include <cstring>
 #include <exception>
 #include <limits>
@@ -137,7 +141,55 @@ PoissonInput OrientedPoints(const PointCloud& cloud) {
   return in;
 }
 
-// PCL's Poisson surface (triangles, manifold). Throws what PCL throws.
+// Keeps what is printed to stdout (fd 1) while it lives off stdout, and
+// counts its lines. PCL's poisson4 printf()s a line for every edge its
+// marching cubes cannot pair ("Vertex pair not in list", thousands on a
+// scan's fused cloud), which would otherwise land in the output of whatever
+// process meshes: a bench's JSON, a test's log, a daemon's journal. Only
+// ReconstructPoisson uses it, under its lock, so two never nest; anything
+// another thread of the process prints meanwhile is counted with PCL's
+// lines, not shown (the daemon and the worker log to stderr). Without a
+// memfd or a spare descriptor it leaves stdout alone.
+class StdoutKeptOff {
+ public:
+  StdoutKeptOff() {
+    std::fflush(stdout);
+    sink_ = memfd_create("craftscan-library-stdout", MFD_CLOEXEC);
+    saved_ = sink_ < 0 ? -1 : fcntl(STDOUT_FILENO, F_DUPFD_CLOEXEC, 3);
+    if (saved_ < 0 || dup2(sink_, STDOUT_FILENO) < 0) Close();
+  }
+  StdoutKeptOff(const StdoutKeptOff&) = delete;
+  StdoutKeptOff& operator=(const StdoutKeptOff&) = delete;
+  ~StdoutKeptOff() { Restore(); }
+
+  // Puts stdout back; the number of lines printed meanwhile.
+  std::size_t Restore() {
+    if (saved_ < 0) return 0;
+    std::fflush(stdout);
+    dup2(saved_, STDOUT_FILENO);
+    std::size_t lines = 0;
+    char buffer[4096];
+    ssize_t n;
+    if (lseek(sink_, 0, SEEK_SET) == 0)
+      while ((n = read(sink_, buffer, sizeof buffer)) > 0)
+        lines += static_cast<std::size_t>(std::count(buffer, buffer + n, '\n'));
+    Close();
+    return lines;
+  }
+
+ private:
+  void Close() {
+    if (sink_ >= 0) close(sink_);
+    if (saved_ >= 0) close(saved_);
+    sink_ = saved_ = -1;
+  }
+  int sink_ = -1;
+  int saved_ = -1;
+};
+
+// PCL's Poisson surface (triangles, manifold). Throws what PCL throws. What
+// PCL prints to stdout meanwhile is kept off it (StdoutKeptOff); the number
+// of lines goes to *stdout_lines.
 // One at a time per process: PCL's poisson4 keeps its octree's node
 // allocator and flags in static members (TreeOctNode::SetAllocator,
 // TreeNodeData::UseIndex), which reconstruct() resets, so two reconstructions
@@ -145,9 +197,10 @@ PoissonInput OrientedPoints(const PointCloud& cloud) {
 // libpcl_surface). Each reconstruction still uses its own threads.
 void ReconstructPoisson(const PoissonInput& in, const PoissonOptions& options,
                         pcl::PointCloud<pcl::PointNormal>* vertices,
-                        std::vector<pcl::Vertices>* polygons) {
+                        std::vector<pcl::Vertices>* polygons, std::size_t* stdout_lines) {
   static std::mutex one_at_a_time;
   std::lock_guard lock(one_at_a_time);
+  StdoutKeptOff kept_off;
   pcl::Poisson<pcl::PointNormal> poisson;
   poisson.setDepth(options.depth);
   poisson.setSamplesPerNode(static_cast<float>(options.samples_per_node));
@@ -158,6 +211,7 @@ void ReconstructPoisson(const PoissonInput& in, const PoissonOptions& options,
   poisson.setThreads(options.num_threads);
   poisson.setInputCloud(in.oriented);
   poisson.reconstruct(*vertices, *polygons);
+  *stdout_lines = kept_off.Restore();
 }
 
 // The support radius: 2.5 × the median nearest-neighbour spacing of a
@@ -684,7 +738,7 @@ MeshResult PoissonMesh(const PointCloud& cloud, const PoissonOptions& options) {
     std::vector<pcl::Vertices> polygons;
     pcl::KdTreeFLANN<pcl::PointXYZ> tree;
     try {
-      ReconstructPoisson(input, options, &vertices, &polygons);
+      ReconstructPoisson(input, options, &vertices, &polygons, &r.library_stdout_lines);
       tree.setInputCloud(input.positions);
     } catch (const std::exception& e) {
       return Failed(r, kFailed,

@@ -499,6 +499,8 @@ std::string ScanReportJson(const ScanResult& result) {
     mesh["message"] = result.mesh.message;
     mesh["vertices"] = result.mesh.mesh.vertices_mm.size();
     mesh["faces"] = result.mesh.mesh.faces.size();
+    // Diagnostics PCL's Poisson printed, kept off stdout (PoissonMesh).
+    mesh["library_stdout_lines"] = result.mesh.library_stdout_lines;
     if (!result.mesh.mesh.vertices_mm.empty())
       mesh["bounds_mm"] = BoundsJson(result.mesh.mesh.vertices_mm);
     j["mesh"] = mesh;

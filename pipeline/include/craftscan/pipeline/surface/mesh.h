@@ -62,6 +62,8 @@ struct MeshResult {
   double support_radius_mm = 0;        // the radius used
   double support_threshold = 0;        // vertices with support below this were removed
   double seconds = 0;                  // wall time
+  // Lines PCL's Poisson printed to stdout, kept off it (see PoissonMesh).
+  std::size_t library_stdout_lines = 0;
 
   bool IsUsable() const { return status == Status::kOk; }
 };
@@ -78,6 +80,10 @@ struct MeshResult {
 // produces no triangle, or one that trimming removes entirely. Never throws.
 // Thread-safe, but PCL's Poisson step runs one at a time per process (it
 // keeps static state): calls from several threads wait for each other there.
+// PCL prints diagnostics to stdout there ("Vertex pair not in list", by the
+// thousand); for that step fd 1 goes to a memory file instead, and the lines
+// are counted in library_stdout_lines. Whatever another thread of the process
+// writes to stdout during that step is counted with them, not shown.
 MeshResult PoissonMesh(const PointCloud& cloud_with_normals, const PoissonOptions& options);
 
 // Which surface a scan's mesh is: Poisson's (closed, then trimmed where the

@@ -161,6 +161,11 @@ class SimDepthCommand : public BenchCommand {
     sub->add_flag("--coarse-to-fine", coarse_to_fine_,
                   "Per-pixel disparity ranges from a coarse pass (CoarseToFineOptions; used for "
                   "bands over 192 disparities)");
+    sub->add_option("--lanes", lanes_,
+                    "With --coarse-to-fine: disparities searched per pixel "
+                    "(CoarseToFineOptions::lanes, a multiple of 16)")
+        ->check(CLI::Range(16, 256))
+        ->capture_default_str();
     sub->add_option("--repeat", repeat_,
                     "Matcher calls on the same matcher; match_ms is then the median of all but "
                     "the first (which allocates the volumes)")
@@ -275,6 +280,7 @@ class SimDepthCommand : public BenchCommand {
     options.refinement.lr_tolerance_px = lr_tolerance_px_;
     options.refinement.uniqueness = uniqueness_;
     options.coarse_to_fine.enabled = coarse_to_fine_;
+    options.coarse_to_fine.lanes = lanes_;
     // A point cloud wants no invented surface: occluded and mismatched pixels
     // stay invalid unless --fill asks for the dense map.
     options.refinement.interpolate = fill_;
@@ -467,6 +473,7 @@ class SimDepthCommand : public BenchCommand {
   bool raw_ = false;
   int band_margin_px_ = kDisparityMarginPx;
   bool coarse_to_fine_ = false;
+  int lanes_ = CoarseToFineOptions{}.lanes;
   std::string json_path_;
 };
 

@@ -110,6 +110,43 @@ TEST(Registration, PointToPlaneAgrees) {
   EXPECT_LT(TranslationErrorMm(r.target_from_source, truth), 0.05);
 }
 
+// Conditioning's outlier filter and normals (its own neighbour searches,
+// PCL's rule and plane fits): floaters above a noisy plane go, the plane's
+// normals face the viewpoint, and the thread count changes nothing.
+TEST(Conditioning, DropsFloatersAndTheNormalsFaceTheViewpoint) {
+  PointCloud cloud;
+  std::mt19937 rng(11);
+  std::normal_distribution<float> noise(0, 0.05f);
+  for (double y = -30; y <= 30; y += 0.7)
+    for (double x = -30; x <= 30; x += 0.7)
+      cloud.points_mm.emplace_back(static_cast<float>(x), static_cast<float>(y), noise(rng));
+  std::uniform_real_distribution<float> across(-30, 30), up(5, 20);
+  constexpr int kFloaters = 40;
+  for (int i = 0; i < kFloaters; ++i)
+    cloud.points_mm.emplace_back(across(rng), across(rng), up(rng));
+  ConditioningOptions one = Conditioning();
+  one.num_threads = 1;
+  ConditioningOptions three = one;
+  three.num_threads = 3;
+  const ViewCloud a = ConditionCloud(cloud, one), b = ConditionCloud(cloud, three);
+  ASSERT_TRUE(a.ok()) << a.error;
+  EXPECT_GE(a.outlier_points, static_cast<std::size_t>(kFloaters));
+  EXPECT_LE(a.outlier_points, static_cast<std::size_t>(kFloaters) + a.fine.size() / 50);
+  for (const cv::Vec3f& p : a.fine.points_mm) ASSERT_LT(std::abs(p[2]), 1.f) << p;
+  ASSERT_EQ(a.fine.normals.size(), a.fine.size());
+  ASSERT_EQ(a.coarse.normals.size(), a.coarse.size());
+  for (const cv::Vec3f& n : a.fine.normals) EXPECT_GT(n[2], 0.98f) << n;
+  for (const cv::Vec3f& n : a.coarse.normals) EXPECT_GT(n[2], 0.98f) << n;
+  ASSERT_EQ(a.fine.size(), b.fine.size());
+  ASSERT_EQ(a.coarse.size(), b.coarse.size());
+  for (std::size_t i = 0; i < a.fine.size(); ++i) {
+    ASSERT_EQ(a.fine.points_mm[i], b.fine.points_mm[i]);
+    ASSERT_EQ(a.fine.normals[i], b.fine.normals[i]);
+  }
+  for (std::size_t i = 0; i < a.coarse.size(); ++i)
+    ASSERT_EQ(a.coarse.normals[i], b.coarse.normals[i]);
+}
+
 TEST(Registration, DeterministicForAnyThreadCount) {
   const cv::Matx44d truth = Pose({0.05, 0.3, 0.1}, {8, 3, -6});
   Pair pair = MakePair(3, truth, 0.2);

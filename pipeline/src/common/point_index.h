@@ -31,6 +31,12 @@ class PointIndex {
     *dist2 = d2;
     return true;
   }
+  // The k nearest points of q (fewer when the cloud has fewer), nearest
+  // first: their indices and squared distances; returns how many.
+  std::size_t KNearest(const float* q, std::size_t k, std::uint32_t* index, float* dist2) const {
+    if (points_->empty() || k == 0) return 0;
+    return tree_.knnSearch(q, k, index, dist2);
+  }
   // nanoflann's dataset adaptor interface.
   std::size_t kdtree_get_point_count() const { return points_->size(); }
   float kdtree_get_pt(std::size_t i, std::size_t dim) const { return (*points_)[i][dim]; }

@@ -138,6 +138,17 @@ inline bool RegionChanged(const Arms& arms, const cv::Mat& changed_prefix, int y
 // and removes those that leave (arms of neighbouring pixels overlap), instead
 // of counting each region from scratch. The counts are the same integers.
 //
+// Most unreliable pixels (large unmatched areas) have too few reliable
+// pixels in their region to vote at all. That count comes first, from per-row
+// prefix counts of the reliable pixels (one difference per row of the
+// region); only pixels that pass it update the running histogram.
+//
+// Every iteration reads the maps as the previous one left them: the votes
+// are collected per column and written afterwards. The per-pixel state
+// (bins, the prefix counts) is updated only in the rows that changed, and
+// each column keeps the list of its unreliable pixels, so the later
+// iterations cost what they change, not the image.
+//
 // With per-pixel ranges (cost has offsets) a pixel takes its region's vote
 // only among the disparities it searched (the votes for others still count
 // in the total): one range of bins to sum and search instead of the band.
@@ -150,71 +161,126 @@ void RegionVoting(const Arms& arms, const CostVolume& cost, const RefinementOpti
   // histogram loop needs no branch (bin ndisp collects the unreliable ones).
   cv::Mat bins(disparity->size(), CV_16SC1);
   const int nb = ndisp + 1;  // bins per histogram
+  // Per row, prefix counts over x of the reliable pixels.
+  cv::Mat reliable_prefix(height, width + 1, CV_32SC1);
+  const auto update_row = [&](int y) {
+    const float* d = disparity->ptr<float>(y);
+    const std::uint8_t* lab = labels->ptr<std::uint8_t>(y);
+    std::int16_t* b = bins.ptr<std::int16_t>(y);
+    int* rp = reliable_prefix.ptr<int>(y);
+    rp[0] = 0;
+    for (int x = 0; x < width; ++x) {
+      const bool reliable = lab[x] == kReliable;
+      b[x] = static_cast<std::int16_t>(reliable ? static_cast<int>(d[x]) : ndisp);
+      rp[x + 1] = rp[x] + (reliable ? 1 : 0);
+    }
+  };
+  parallel.For(0, height, [&](int y0, int y1) {
+    for (int y = y0; y < y1; ++y) update_row(y);
+  });
+  // The rows of each column's unreliable pixels, column after column
+  // (column x: rows todo[start[x] … start[x + 1])).
+  std::vector<int> start(static_cast<std::size_t>(width) + 1, 0), todo;
+  for (int y = 0; y < height; ++y) {
+    const std::uint8_t* lab = labels->ptr<std::uint8_t>(y);
+    for (int x = 0; x < width; ++x) start[static_cast<std::size_t>(x) + 1] += lab[x] != kReliable;
+  }
+  for (int x = 0; x < width; ++x) start[x + 1] += start[x];
+  todo.resize(static_cast<std::size_t>(start[width]));
+  {
+    std::vector<int> fill(start.begin(), start.end() - 1);
+    for (int y = 0; y < height; ++y) {
+      const std::uint8_t* lab = labels->ptr<std::uint8_t>(y);
+      for (int x = 0; x < width; ++x)
+        if (lab[x] != kReliable) todo[static_cast<std::size_t>(fill[x]++)] = y;
+    }
+  }
   // A pixel whose vote failed keeps failing until a pixel of its region
   // changes: later iterations revisit only regions with a pixel the previous
   // iteration made reliable (changed_prefix: per row, prefix counts of those).
   cv::Mat changed_prefix(height, width + 1, CV_32SC1, cv::Scalar(0));
+  cv::Mat changed_flag(height, width, CV_8UC1, cv::Scalar(0));
+  struct Vote1 {
+    int y;
+    float disparity;
+  };
+  std::vector<std::vector<Vote1>> votes(static_cast<std::size_t>(width));
+  std::vector<int> dirty_rows, previous_dirty_rows;
+  std::vector<std::uint8_t> row_is_dirty(static_cast<std::size_t>(height), 0);
   for (int it = 0; it < options.voting_iterations; ++it) {
-    for (int y = 0; y < height; ++y) {
-      const float* d = disparity->ptr<float>(y);
-      const std::uint8_t* lab = labels->ptr<std::uint8_t>(y);
-      std::int16_t* b = bins.ptr<std::int16_t>(y);
-      for (int x = 0; x < width; ++x)
-        b[x] = static_cast<std::int16_t>(lab[x] == kReliable ? static_cast<int>(d[x]) : ndisp);
-    }
-    cv::Mat new_disp = disparity->clone(), new_labels = labels->clone();
-    std::vector<int> changed_cols(width, 0);
     parallel.For(0, width, [&](int x0, int x1) {
       std::vector<int> histogram(range), partial(4 * static_cast<std::size_t>(nb));
       for (int x = x0; x < x1; ++x) {
+        std::vector<Vote1>& column_votes = votes[static_cast<std::size_t>(x)];
+        column_votes.clear();
         // The running window holds rows [w_lo, w_hi) of column x.
-        int w_lo = 0, w_hi = 0, count = 0;
+        int w_lo = 0, w_hi = 0;
         const auto add_row = [&](int v, int delta) {
           const std::size_t j = arms.index(v, x);
           const int u0 = x - arms.left[j], u1 = x + arms.right[j];
           CountBins(bins.ptr<std::int16_t>(v), u0, u1, delta, partial.data(), nb);
-          count += delta * (u1 - u0 + 1);
         };
-        for (int y = 0; y < height; ++y) {
-          if (labels->at<std::uint8_t>(y, x) == kReliable) continue;
+        for (int t = start[x]; t < start[x + 1]; ++t) {
+          const int y = todo[static_cast<std::size_t>(t)];
+          if (labels->at<std::uint8_t>(y, x) == kReliable) continue;  // voted before
           if (it > 0 && !RegionChanged(arms, changed_prefix, y, x)) continue;
           const std::size_t i = arms.index(y, x);
           const int t_lo = y - arms.up[i], t_hi = y + arms.down[i] + 1;
+          // Too few reliable votes: no vote, and no need for the histogram.
+          int reliable = 0;
+          for (int v = t_lo; v < t_hi; ++v) {
+            const std::size_t j = arms.index(v, x);
+            const int* rp = reliable_prefix.ptr<int>(v);
+            reliable += rp[x + arms.right[j] + 1] - rp[x - arms.left[j]];
+          }
+          if (reliable <= options.tau_s) continue;
           if (t_lo >= w_hi || t_hi <= w_lo) {  // no overlap: start afresh
             std::fill(partial.begin(), partial.end(), 0);
             w_lo = w_hi = t_lo;
-            count = 0;
           }
           for (; w_hi < t_hi; ++w_hi) add_row(w_hi, 1);
           for (; w_lo > t_lo; --w_lo) add_row(w_lo - 1, 1);
           for (; w_hi > t_hi; --w_hi) add_row(w_hi - 1, -1);
           for (; w_lo < t_lo; ++w_lo) add_row(w_lo, -1);
-          // Too few reliable votes: no need for the whole histogram.
-          const int unreliable = partial[ndisp] + partial[nb + ndisp] + partial[2 * nb + ndisp] +
-                                 partial[3 * nb + ndisp];
-          if (count - unreliable <= options.tau_s) continue;
           const int offset = cost.offset(y, x);
           SumPartials(partial.data() + offset, nb, range, histogram.data());
-          const int k = Vote(histogram.data(), range, count - unreliable, options);
-          if (k < 0) continue;
-          new_disp.at<float>(y, x) = static_cast<float>(offset + k);
-          new_labels.at<std::uint8_t>(y, x) = kReliable;
-          ++changed_cols[x];
+          const int k = Vote(histogram.data(), range, reliable, options);
+          if (k >= 0) column_votes.push_back({y, static_cast<float>(offset + k)});
         }
       }
     });
-    int changed = 0;
-    for (int c : changed_cols) changed += c;
-    if (changed == 0) break;
-    // Row prefix counts of the pixels this iteration made reliable.
-    for (int y = 0; y < height; ++y) {
-      const std::uint8_t* before = labels->ptr<std::uint8_t>(y);
-      const std::uint8_t* after = new_labels.ptr<std::uint8_t>(y);
-      int* cp = changed_prefix.ptr<int>(y);
-      for (int x = 0; x < width; ++x) cp[x + 1] = cp[x] + (before[x] != after[x] ? 1 : 0);
+    // Write the votes; note the rows they touch.
+    dirty_rows.clear();
+    for (int x = 0; x < width; ++x) {
+      for (const Vote1& v : votes[static_cast<std::size_t>(x)]) {
+        disparity->at<float>(v.y, x) = v.disparity;
+        labels->at<std::uint8_t>(v.y, x) = kReliable;
+        changed_flag.at<std::uint8_t>(v.y, x) = 1;
+        if (!row_is_dirty[static_cast<std::size_t>(v.y)]) {
+          row_is_dirty[static_cast<std::size_t>(v.y)] = 1;
+          dirty_rows.push_back(v.y);
+        }
+      }
     }
-    *disparity = new_disp;
-    *labels = new_labels;
+    if (dirty_rows.empty()) break;
+    // changed_prefix: this iteration's changes only (the rows of the last
+    // iteration's go back to zero).
+    for (int y : previous_dirty_rows) {
+      int* cp = changed_prefix.ptr<int>(y);
+      std::fill(cp, cp + width + 1, 0);
+    }
+    parallel.For(0, static_cast<int>(dirty_rows.size()), [&](int r0, int r1) {
+      for (int r = r0; r < r1; ++r) {
+        const int y = dirty_rows[static_cast<std::size_t>(r)];
+        update_row(y);
+        std::uint8_t* flag = changed_flag.ptr<std::uint8_t>(y);
+        int* cp = changed_prefix.ptr<int>(y);
+        for (int x = 0; x < width; ++x) cp[x + 1] = cp[x] + flag[x];
+        std::fill(flag, flag + width, 0);
+      }
+    });
+    for (int y : dirty_rows) row_is_dirty[static_cast<std::size_t>(y)] = 0;
+    previous_dirty_rows.swap(dirty_rows);
   }
 }
 

@@ -307,14 +307,20 @@ void DropSmallComponents(double fraction, MeshResult* r) {
 void TrimBySupport(const pcl::PointCloud<pcl::PointNormal>& vertices,
                    const std::vector<pcl::Vertices>& polygons,
                    const pcl::KdTreeFLANN<pcl::PointXYZ>& tree, double radius,
-                   double trim_density_quantile, MeshResult* r) {
+                   double trim_density_quantile, int threads, MeshResult* r) {
   std::vector<int> support(vertices.size(), 0);
-  std::vector<int> index;
-  std::vector<float> d2;
-  for (std::size_t v = 0; v < vertices.size(); ++v) {
-    const pcl::PointNormal& q = vertices[v];
-    if (!std::isfinite(q.x) || !std::isfinite(q.y) || !std::isfinite(q.z)) continue;
-    support[v] = tree.radiusSearch(pcl::PointXYZ(q.x, q.y, q.z), radius, index, d2);
+  const auto n = static_cast<long>(vertices.size());
+#pragma omp parallel num_threads(std::max(1, threads))
+  {
+    std::vector<int> index;
+    std::vector<float> d2;
+#pragma omp for schedule(dynamic, 1024)
+    for (long v = 0; v < n; ++v) {
+      const pcl::PointNormal& q = vertices[static_cast<std::size_t>(v)];
+      if (!std::isfinite(q.x) || !std::isfinite(q.y) || !std::isfinite(q.z)) continue;
+      support[static_cast<std::size_t>(v)] =
+          tree.radiusSearch(pcl::PointXYZ(q.x, q.y, q.z), radius, index, d2);
+    }
   }
   double threshold = 1;
   if (trim_density_quantile > 0) {
@@ -393,14 +399,20 @@ void OrientAndShade(const pcl::KdTreeFLANN<pcl::PointXYZ>& tree,
 
 // Each vertex takes the colour of its nearest input point.
 void ColorFromCloud(const pcl::KdTreeFLANN<pcl::PointXYZ>& tree, const PointCloud& cloud,
-                    const std::vector<std::size_t>& source_index, TriangleMesh* mesh) {
+                    const std::vector<std::size_t>& source_index, int threads, TriangleMesh* mesh) {
   mesh->colors_rgb.resize(mesh->vertices_mm.size());
-  std::vector<int> index(1);
-  std::vector<float> d2(1);
-  for (std::size_t v = 0; v < mesh->vertices_mm.size(); ++v) {
-    const cv::Vec3f& p = mesh->vertices_mm[v];
-    if (tree.nearestKSearch(pcl::PointXYZ(p[0], p[1], p[2]), 1, index, d2) == 1)
-      mesh->colors_rgb[v] = cloud.colors_rgb[source_index[static_cast<std::size_t>(index[0])]];
+  const auto n = static_cast<long>(mesh->vertices_mm.size());
+#pragma omp parallel num_threads(std::max(1, threads))
+  {
+    std::vector<int> index(1);
+    std::vector<float> d2(1);
+#pragma omp for schedule(static)
+    for (long v = 0; v < n; ++v) {
+      const cv::Vec3f& p = mesh->vertices_mm[static_cast<std::size_t>(v)];
+      if (tree.nearestKSearch(pcl::PointXYZ(p[0], p[1], p[2]), 1, index, d2) == 1)
+        mesh->colors_rgb[static_cast<std::size_t>(v)] =
+            cloud.colors_rgb[source_index[static_cast<std::size_t>(index[0])]];
+    }
   }
 }
 
@@ -432,11 +444,12 @@ bool UsableInput(const PointCloud& cloud, std::string_view where, MeshResult* r,
 // What every mesh gets after its surface: small components dropped, faces
 // turned outwards, vertex normals, and colours from the nearest input point.
 void FinishMesh(const pcl::KdTreeFLANN<pcl::PointXYZ>& tree, const PoissonInput& input,
-                const PointCloud& cloud, double min_component_fraction, bool colors,
+                const PointCloud& cloud, double min_component_fraction, bool colors, int threads,
                 MeshResult* r) {
   DropSmallComponents(min_component_fraction, r);
   OrientAndShade(tree, *input.oriented, &r->mesh);
-  if (colors && cloud.HasColors()) ColorFromCloud(tree, cloud, input.source_index, &r->mesh);
+  if (colors && cloud.HasColors())
+    ColorFromCloud(tree, cloud, input.source_index, threads, &r->mesh);
 }
 
 // ---------------------------------------------------------------------------
@@ -755,12 +768,14 @@ MeshResult PoissonMesh(const PointCloud& cloud, const PoissonOptions& options) {
       return Failed(r, kFailed, std::string(kWhere) + "could not estimate the point spacing");
     r.support_radius_mm = radius;
 
-    TrimBySupport(vertices, polygons, tree, radius, options.trim_density_quantile, &r);
+    TrimBySupport(vertices, polygons, tree, radius, options.trim_density_quantile,
+                  options.num_threads, &r);
     if (r.mesh.faces.empty()) {
       r.mesh = TriangleMesh{};  // a failed result holds no mesh
       return Failed(r, kFailed, std::string(kWhere) + "density trimming removed every triangle");
     }
-    FinishMesh(tree, input, cloud, options.min_component_fraction, options.colors, &r);
+    FinishMesh(tree, input, cloud, options.min_component_fraction, options.colors,
+               options.num_threads, &r);
     r.status = MeshResult::Status::kOk;
     r.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
     return r;
@@ -812,7 +827,8 @@ MeshResult ImplicitMesh(const PointCloud& cloud, const ImplicitMeshOptions& opti
       return Failed(r, kFailed, std::string(where) + "no surface: the cloud is too sparse or flat");
     }
     // Colours came from the grid.
-    FinishMesh(tree, input, cloud, options.min_component_fraction, /*colors=*/false, &r);
+    FinishMesh(tree, input, cloud, options.min_component_fraction, /*colors=*/false,
+               /*threads=*/1, &r);
     r.status = MeshResult::Status::kOk;
     r.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
     return r;

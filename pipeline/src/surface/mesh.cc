@@ -607,7 +607,8 @@ void EvaluateImls(const PoissonInput& in, const PointCloud& cloud,
     sums[k].Value(min_support, max_tangent_radii * radius, &g->value[k], &g->color[k]);
   if (!(fill_radius > radius)) return;
 
-  // The fill, ring by ring from the defined vertices near the surface.
+  // The fill, ring by ring from the defined vertices near the surface (each
+  // ring's values on OpenMP's threads; the grid does not depend on them).
   const double near_surface = 1.5 * h;
   const double fill_inv_sigma2 = 4.0 / (fill_radius * fill_radius);
   std::vector<std::uint8_t> tried(g->slot.size(), 0);
@@ -619,13 +620,21 @@ void EvaluateImls(const PoissonInput& in, const PointCloud& cloud,
       tried[v] = 1;
     }
   }
-  std::vector<int> index;
-  std::vector<float> d2;
   const std::size_t stride[3] = {1, static_cast<std::size_t>(g->nx),
                                  static_cast<std::size_t>(g->nx) * g->ny};
   const int rings = static_cast<int>(std::ceil(fill_radius / h));
+  // Each ring: its candidates in order, then their values (from the input
+  // points alone, so on any number of threads), then written in order: the
+  // grid is the same as one candidate after the other would make it.
+  struct Candidate {
+    std::size_t u = 0;
+    bool defined = false;
+    float value = 0;
+    cv::Vec3f color;
+  };
+  std::vector<Candidate> candidates;
   for (int step = 0; step < rings && !ring.empty(); ++step) {
-    std::vector<std::size_t> next;
+    candidates.clear();
     for (std::size_t v : ring) {
       const int c[3] = {static_cast<int>(v % g->nx), static_cast<int>((v / g->nx) % g->ny),
                         static_cast<int>(v / stride[2])};
@@ -635,39 +644,52 @@ void EvaluateImls(const PoissonInput& in, const PointCloud& cloud,
           const std::size_t u = dir < 0 ? v - stride[a] : v + stride[a];
           if (tried[u]) continue;
           tried[u] = 1;
-          std::int32_t k = g->slot[u];
+          const std::int32_t k = g->slot[u];
           if (k >= 0 && !std::isnan(g->value[static_cast<std::size_t>(k)])) continue;
-          const int x = static_cast<int>(u % g->nx), y = static_cast<int>((u / g->nx) % g->ny);
-          const cv::Vec3f q = g->Position(x, y, static_cast<int>(u / stride[2]));
-          const int found =
-              tree.radiusSearch(pcl::PointXYZ(q[0], q[1], q[2]), fill_radius, index, d2);
-          ImlsSum sum;
-          for (int j = 0; j < found; ++j) {
-            const std::size_t i = static_cast<std::size_t>(index[static_cast<std::size_t>(j)]);
-            const pcl::PointNormal& p = (*in.oriented)[i];
-            const cv::Vec3f pn(p.normal_x, p.normal_y, p.normal_z);
-            const cv::Vec3f d = q - cv::Vec3f(p.x, p.y, p.z);
-            sum.Add(
-                static_cast<float>(std::exp(-d2[static_cast<std::size_t>(j)] * fill_inv_sigma2)),
-                pn.dot(d), d, pn, colour(i));
-          }
-          float value;
-          cv::Vec3f color;
-          // No tangent test here (at a hole's edge the points lie on one side
-          // of x as at the data's edge): the points must surround x instead.
-          if (!sum.Value(min_support, 1e30, &value, &color) ||
-              !Surrounded(in, q, sum.normal, index, found))
-            continue;
-          if (k < 0) {
-            k = g->slot[u] = static_cast<std::int32_t>(g->value.size());
-            g->value.push_back(value);
-            g->color.push_back(color);
-          } else {
-            g->value[static_cast<std::size_t>(k)] = value;
-            g->color[static_cast<std::size_t>(k)] = color;
-          }
-          if (std::abs(value) < near_surface) next.push_back(u);
+          candidates.push_back({u});
         }
+    }
+    const auto count = static_cast<long>(candidates.size());
+#pragma omp parallel
+    {
+      std::vector<int> index;
+      std::vector<float> d2;
+#pragma omp for schedule(dynamic, 64)
+      for (long ci = 0; ci < count; ++ci) {
+        Candidate& cand = candidates[static_cast<std::size_t>(ci)];
+        const std::size_t u = cand.u;
+        const int x = static_cast<int>(u % g->nx), y = static_cast<int>((u / g->nx) % g->ny);
+        const cv::Vec3f q = g->Position(x, y, static_cast<int>(u / stride[2]));
+        const int found =
+            tree.radiusSearch(pcl::PointXYZ(q[0], q[1], q[2]), fill_radius, index, d2);
+        ImlsSum sum;
+        for (int j = 0; j < found; ++j) {
+          const std::size_t i = static_cast<std::size_t>(index[static_cast<std::size_t>(j)]);
+          const pcl::PointNormal& p = (*in.oriented)[i];
+          const cv::Vec3f pn(p.normal_x, p.normal_y, p.normal_z);
+          const cv::Vec3f d = q - cv::Vec3f(p.x, p.y, p.z);
+          sum.Add(static_cast<float>(std::exp(-d2[static_cast<std::size_t>(j)] * fill_inv_sigma2)),
+                  pn.dot(d), d, pn, colour(i));
+        }
+        // No tangent test here (at a hole's edge the points lie on one side
+        // of x as at the data's edge): the points must surround x instead.
+        cand.defined = sum.Value(min_support, 1e30, &cand.value, &cand.color) &&
+                       Surrounded(in, q, sum.normal, index, found);
+      }
+    }
+    std::vector<std::size_t> next;
+    for (const Candidate& cand : candidates) {
+      if (!cand.defined) continue;
+      std::int32_t k = g->slot[cand.u];
+      if (k < 0) {
+        k = g->slot[cand.u] = static_cast<std::int32_t>(g->value.size());
+        g->value.push_back(cand.value);
+        g->color.push_back(cand.color);
+      } else {
+        g->value[static_cast<std::size_t>(k)] = cand.value;
+        g->color[static_cast<std::size_t>(k)] = cand.color;
+      }
+      if (std::abs(cand.value) < near_surface) next.push_back(cand.u);
     }
     ring.swap(next);
   }

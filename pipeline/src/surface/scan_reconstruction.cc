@@ -352,10 +352,10 @@ ScanResult IncrementalScan::Impl::Finish() {
 
   // --- Mesh and measurement -------------------------------------------------------
   // Both read only the fused cloud and write their own parts of the result,
-  // so the measurement runs on a thread of its own while the mesh is made
-  // (PCL's Poisson keeps about one core busy).
+  // so with more than one thread the measurement runs on a thread of its own
+  // while the mesh is made (PCL's Poisson keeps about one core busy).
   std::string measure_error;
-  std::thread measure([&] {
+  const auto measure = [&] {
     const auto measure_start = Clock::now();
     try {
       measure_error = Measure(options, have_axis, &result);
@@ -363,16 +363,21 @@ ScanResult IncrementalScan::Impl::Finish() {
       measure_error = std::string("failed: ") + e.what();
     }
     result.measure_ms = MsSince(measure_start);
-  });
+  };
+  std::thread alongside;
+  if (options.num_threads > 1) alongside = std::thread(measure);
   start = Clock::now();
   try {
     MeshAndAssess(options, &result);
   } catch (...) {
-    measure.join();
+    if (alongside.joinable()) alongside.join();
     throw;
   }
   result.mesh_ms = MsSince(start);
-  measure.join();
+  if (alongside.joinable())
+    alongside.join();
+  else
+    measure();
   if (!measure_error.empty()) {
     result.message = "oriented box: " + measure_error;
     return std::move(result);

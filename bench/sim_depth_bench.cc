@@ -284,6 +284,9 @@ class SimDepthCommand : public BenchCommand {
     // A point cloud wants no invented surface: occluded and mismatched pixels
     // stay invalid unless --fill asks for the dense map.
     options.refinement.interpolate = fill_;
+    // The station's scanline penalties (ViewProcessor::Init, view_processing.cc).
+    options.pi1 = 0.5;
+    options.pi2 = 6.0;
     const bool peak_reset = ResetPeakRss();
     StereoMatcher matcher(options);
     // The first call allocates the volumes; a station's matcher is reused

@@ -159,6 +159,57 @@ double Constraint(const PointCloud& source, const PointCloud& normals_target,
   return largest > 0 ? eig.eigenvalues()(0) / largest : 0;
 }
 
+// The largest connected part of `cloud`'s points whose `in_part` is set:
+// points within `gap_mm` of each other are connected. Its point count.
+std::size_t LargestPart(const PointCloud& cloud, const std::vector<bool>& in_part, double gap_mm) {
+  PointCloud part;
+  for (std::size_t i = 0; i < cloud.size(); ++i)
+    if (in_part[i]) part.points_mm.push_back(cloud.points_mm[i]);
+  if (part.empty()) return 0;
+  const PointIndex index(part);
+  constexpr std::size_t kNeighbours = 16;  // a surface sampled at ~gap/1.6 has ≤ 12 within gap
+  const float gap2 = static_cast<float>(gap_mm * gap_mm);
+  std::vector<bool> seen(part.size(), false);
+  std::vector<std::size_t> stack;
+  std::uint32_t found[kNeighbours];
+  float d2[kNeighbours];
+  std::size_t largest = 0;
+  for (std::size_t s = 0; s < part.size(); ++s) {
+    if (seen[s]) continue;
+    seen[s] = true;
+    stack.assign(1, s);
+    std::size_t size = 0;
+    while (!stack.empty()) {
+      const std::size_t i = stack.back();
+      stack.pop_back();
+      ++size;
+      const std::size_t n = index.KNearest(&part.points_mm[i][0], kNeighbours, found, d2);
+      for (std::size_t k = 0; k < n; ++k)
+        if (d2[k] <= gap2 && !seen[found[k]]) {
+          seen[found[k]] = true;
+          stack.push_back(found[k]);
+        }
+    }
+    largest = std::max(largest, size);
+  }
+  return largest;
+}
+
+// The largest connected parts of the source that fit under `best` and not
+// under `other` (*best_only) and the other way round (*other_only), as
+// shares of the source points.
+void DistinctParts(const PointCloud& source, const Fit& best, const Fit& other, double gap_mm,
+                   double* best_only, double* other_only) {
+  std::vector<bool> only_best(source.size()), only_other(source.size());
+  for (std::size_t i = 0; i < source.size(); ++i) {
+    only_best[i] = best.state[i] == 1 && other.state[i] != 1;
+    only_other[i] = other.state[i] == 1 && best.state[i] != 1;
+  }
+  const double n = static_cast<double>(std::max<std::size_t>(1, source.size()));
+  *best_only = static_cast<double>(LargestPart(source, only_best, gap_mm)) / n;
+  *other_only = static_cast<double>(LargestPart(source, only_other, gap_mm)) / n;
+}
+
 // The share of the source points that fit under `best` and lie far from
 // the target under `other`: surface the other placement contradicts.
 double Contradicted(const Fit& best, const Fit& other) {
@@ -230,6 +281,9 @@ bool TurnJoinOptions::IsValid(std::string* why) const {
     return fail("contradiction_mm must be > fit_distance_mm");
   if (!(max_contradicted >= 0 && max_contradicted <= 1))
     return fail("max_contradicted must be in [0, 1]");
+  if (!(distinct_part_share >= 0 && distinct_part_share <= 1))
+    return fail("distinct_part_share must be in [0, 1]");
+  if (!(distinct_part_ratio >= 1)) return fail("distinct_part_ratio must be >= 1");
   if (!(contact_band_mm >= 0) || !(contact_cover_mm >= 0))
     return fail("contact_band_mm/contact_cover_mm must be >= 0");
   if (!(polish_min_fit > 0 && polish_min_fit <= 1)) return fail("polish_min_fit must be in (0, 1]");
@@ -425,6 +479,9 @@ TurnJoinResult JoinTurns(const PointCloud& turn_a, const PointCloud& turn_b,
         result.constraint =
             Constraint(b.fine, a.coarse, coarse_index_a, best.a_from_b, best.fit, &weak_rotation);
         result.weak_motion_rotation = weak_rotation;
+        // The closest placement dismissed for misplacing a distinctive part.
+        constexpr double kPartGapVoxels = 1.6;
+        double dismissed_ratio = 0, dismissed_deg = 0, dismissed_part = 0;
         for (const Placement& p : placements) {
           const double deg = RotationErrorDeg(p.a_from_b, best.a_from_b);
           // Distinct: the same points of B land elsewhere by the centroid's
@@ -436,12 +493,25 @@ TurnJoinResult JoinTurns(const PointCloud& turn_a, const PointCloud& turn_b,
           const double contradicted = Contradicted(best.fit, p.fit);
           if (contradicted > options.max_contradicted) continue;
           const double ratio = best.fit.fraction > 0 ? p.fit.fraction / best.fit.fraction : 0;
-          if (ratio > result.ambiguity) {
-            result.ambiguity = ratio;
-            result.alternative_deg = deg;
-            result.alternative_mm = mm;
-            result.alternative_contradicted = contradicted;
+          if (ratio <= result.ambiguity) continue;
+          // A placement that misplaces a distinctive part the join fits (a
+          // jug's handle) is no rival either.
+          double best_only = 0, other_only = 0;
+          DistinctParts(b.fine, best.fit, p.fit, kPartGapVoxels * options.fine_voxel_mm, &best_only,
+                        &other_only);
+          if (best_only >= options.distinct_part_share &&
+              best_only >= options.distinct_part_ratio * other_only) {
+            if (ratio >= options.max_ambiguity && ratio > dismissed_ratio) {
+              dismissed_ratio = ratio;
+              dismissed_deg = deg;
+              dismissed_part = best_only;
+            }
+            continue;
           }
+          result.ambiguity = ratio;
+          result.alternative_deg = deg;
+          result.alternative_mm = mm;
+          result.alternative_contradicted = contradicted;
         }
         result.time_ms = MsSince(start);
         const std::string figures = "fit " + Fixed(100 * result.overlap, 1) + " % of turn B, " +
@@ -483,6 +553,11 @@ TurnJoinResult JoinTurns(const PointCloud& turn_a, const PointCloud& turn_b,
         result.status = TurnJoinResult::Status::kJoined;
         result.message =
             "joined: " + figures + ", " + std::to_string(result.hypotheses) + " hypotheses refined";
+        if (dismissed_ratio > 0)
+          result.message += "; a placement " + Fixed(dismissed_deg, 1) + "° away fits " +
+                            Fixed(100 * dismissed_ratio, 0) +
+                            " % as well but misplaces a distinctive part the join fits (" +
+                            Fixed(100 * dismissed_part, 1) + " % of turn B in one piece)";
         return result;
       });
 }

@@ -109,6 +109,20 @@ struct TurnJoinOptions {
   // its wrong rivals 90° away 20–55 %. mm > fit_distance_mm; fraction 0..1.
   double contradiction_mm = 2.0;
   double max_contradicted = 0.02;
+  // Nor is it a rival when the join fits a distinctive part of turn B that
+  // the placement misplaces: a connected part (fine points within 1.6 fine
+  // voxels of each other) that fits under the join and not under the
+  // placement, of at least distinct_part_share of turn B's points and at
+  // least distinct_part_ratio × the largest connected part the placement
+  // fits and the join does not. A jug's handle seen by both turns is such a
+  // part: turned 5° about its body the jug still fits 97 % as well, but
+  // loses the handle whole (2–3.5 % of turn B in one piece, against at most
+  // 0.4 % gained in one piece). Placements a symmetry makes equivalent (an
+  // egg on its side turned about its axis) lose and gain scattered patches
+  // of alike size (each ≤ 1 %, ratio 0.8–1.5): still rivals.
+  // share 0..1 (1: off); ratio ≥ 1.
+  double distinct_part_share = 0.015;
+  double distinct_part_ratio = 3;
   // Refused too when the join's fit does not hold some motion: the smallest
   // eigenvalue of its point-to-plane information matrix (rotations scaled
   // by the object's size) over the largest below this (0..1). A surface of

@@ -147,7 +147,9 @@ class SimDepthCommand : public BenchCommand {
                     "The matcher's left-right check: |dL - dR| above this (px) is an outlier")
         ->check(CLI::Range(0.0, 64.0))
         ->capture_default_str();
-    sub->add_option("--uniqueness", uniqueness_, "The matcher's uniqueness test, [0, 1); 0 = off")
+    sub->add_option("--uniqueness", uniqueness_,
+                    "The matcher's uniqueness test, [0, 1); 0 = off; the station's is 0.1 "
+                    "(view_processing.cc)")
         ->check(CLI::Range(0.0, 0.99))
         ->capture_default_str();
     sub->add_flag("--projector", projector_,
@@ -284,7 +286,8 @@ class SimDepthCommand : public BenchCommand {
     // A point cloud wants no invented surface: occluded and mismatched pixels
     // stay invalid unless --fill asks for the dense map.
     options.refinement.interpolate = fill_;
-    // The station's scanline penalties (ViewProcessor::Init, view_processing.cc).
+    // The station's scanline penalties (ViewProcessor::Init, view_processing.cc);
+    // its uniqueness is --uniqueness's default.
     options.pi1 = 0.5;
     options.pi2 = 6.0;
     const bool peak_reset = ResetPeakRss();
@@ -471,7 +474,7 @@ class SimDepthCommand : public BenchCommand {
   bool fill_ = false;
   int aggregation_iterations_ = ViewProcessorOptions{}.aggregation_iterations;
   double lr_tolerance_px_ = RefinementOptions{}.lr_tolerance_px;
-  double uniqueness_ = RefinementOptions{}.uniqueness;
+  double uniqueness_ = 0.1;  // the station's (ViewProcessor::Init, view_processing.cc)
   bool projector_ = false;
   bool raw_ = false;
   int band_margin_px_ = kDisparityMarginPx;

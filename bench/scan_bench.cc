@@ -241,6 +241,10 @@ class ScanCommand : public BenchCommand {
                     "exposure and merged, as the daemon's scan.exposure_bracket (which --config "
                     "sets when this is not given)")
         ->delimiter(',');
+    sub->add_flag("--no-auto-bracket", no_auto_bracket_,
+                  "Without --bracket (and a config's list): never bracket; by default a view "
+                  "dark without texture on enough of the platter is also captured at 8 × the "
+                  "exposure, as the daemon's scan.auto_bracket");
     sub->add_option("--json", json_path_, "Write the figures as JSON to this file");
     sub->add_option("--save-turns", save_turns_dir_,
                     "--turns 2: write both turns' fused clouds (turn_a.ply, turn_b.ply, each in "
@@ -264,6 +268,7 @@ class ScanCommand : public BenchCommand {
     daemon::PipelineSettings settings = config.pipeline;
     if (bracket_.empty()) bracket_ = config.scan.exposure_bracket;
     config.scan.exposure_bracket = bracket_;
+    auto_bracket_ = bracket_.empty() && config.scan.auto_bracket && !no_auto_bracket_;
     if (!config.IsValid(&error)) return UsageError("--bracket: " + error);
     settings.threads = threads_;
 
@@ -283,6 +288,13 @@ class ScanCommand : public BenchCommand {
       std::unique_ptr<sim::SimStation> s = sim::SimStation::Create(longer, &error);
       if (!s) return DataError("--bracket: " + error);
       bracketed_.push_back(std::move(s));
+    }
+    if (auto_bracket_) {  // the exposure automatic bracketing adds
+      sim::RigOptions longer = rig;
+      longer.exposure *= AutoBracketOptions{}.multiple;
+      auto_bracketed_ = sim::SimStation::Create(longer, &error);
+      if (!auto_bracketed_) return DataError("automatic bracketing: " + error);
+      auto_region_ = PlatterRegionMask(station->calibration(), settings.platter_radius_mm);
     }
     std::unique_ptr<sim::Scene> scene = sim::Scene::Create(scene_options, &error);
     if (!scene) return DataError(error);
@@ -401,6 +413,25 @@ class ScanCommand : public BenchCommand {
         texture = t.left;
       }
       cv::Mat left = render.left, right = render.right;
+      double pair_gamma = 1.0;  // a merge is gamma-encoded (ViewProcessor::Process)
+      if (auto_bracket_) {      // as CaptureStage::CaptureView
+        const AutoBracketOptions automatic;
+        const double dark = DarkUntexturedSharePct(render.left, auto_region_, automatic);
+        if (dark >= automatic.min_share_pct) {
+          const sim::StereoRender e =
+              auto_bracketed_->Render(scene, static_cast<std::uint64_t>(k + 1000));
+          if (!e.IsUsable()) return DataError("bracket render failed: " + e.message);
+          times->render += e.render_ms;
+          ++auto_bracketed_views_;
+          pair_gamma = ExposureMergeOptions{}.gamma;
+          const std::vector<double> t{1.0, automatic.multiple};
+          if (!MergeExposures({render.left, e.left}, t, ExposureMergeOptions{}, &left, &error) ||
+              !MergeExposures({render.right, e.right}, t, ExposureMergeOptions{}, &right, &error))
+            return DataError(error);
+          std::printf("  %sview %d/%d: %.1f %% of the platter dark without texture: also x%g\n",
+                      turn == 0 ? "" : "turn 2 ", k + 1, views_, dark, automatic.multiple);
+        }
+      }
       if (!bracketed_.empty()) {
         std::vector<cv::Mat> ls{render.left}, rs{render.right};
         std::vector<double> t{1.0};
@@ -416,10 +447,11 @@ class ScanCommand : public BenchCommand {
         ExposureMergeOptions mo;
         if (!MergeExposures(ls, t, mo, &left, &error) || !MergeExposures(rs, t, mo, &right, &error))
           return DataError(error);
+        pair_gamma = mo.gamma;
       }
       if (k == views_ - 1) *last_pair = Clock::now();
       const auto start = Clock::now();
-      ProcessedView v = processor.Process(left, right, texture);
+      ProcessedView v = processor.Process(left, right, texture, pair_gamma);
       process_ms->push_back(MsSince(start));
       if (!v.ok) return DataError(TurnName(turn) + "view " + std::to_string(k) + ": " + v.message);
       ScanView view;
@@ -850,6 +882,8 @@ class ScanCommand : public BenchCommand {
     if (turns_ == 2)
       root["turn2_rotation_deg"] = {turn2_rotation_deg_[0], turn2_rotation_deg_[1],
                                     turn2_rotation_deg_[2]};
+    root["auto_bracket"] = auto_bracket_;
+    root["auto_bracketed_views"] = auto_bracketed_views_;
     if (r.turn_join) {
       const TurnJoinResult& j = *r.turn_join;
       root["turn_join"] = {{"status", ToString(j.status)},
@@ -929,6 +963,11 @@ class ScanCommand : public BenchCommand {
   int threads_ = 2;
   std::string image_size_ = "1280x1024";
   bool projector_ = false;
+  bool no_auto_bracket_ = false;
+  bool auto_bracket_ = false;  // no bracket given: CaptureStage's automatic bracketing
+  std::unique_ptr<sim::SimStation> auto_bracketed_;
+  cv::Mat auto_region_;
+  int auto_bracketed_views_ = 0;
   std::vector<double> bracket_;
   std::string config_path_, json_path_, out_dir_, save_turns_dir_;
 };

@@ -53,10 +53,13 @@
 #include <opencv2/calib3d.hpp>
 #include <opencv2/core.hpp>
 #include <opencv2/core/utility.hpp>
+#include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 
 #include "command.h"
+#include "craftscan/daemon/config.h"
 #include "craftscan/pipeline/stereo/adcensus.h"
+#include "craftscan/pipeline/stereo/exposure_merge.h"
 #include "craftscan/pipeline/stereo/reproject.h"
 #include "craftscan/pipeline/stereo/view_processing.h"
 #include "craftscan/sim/station.h"
@@ -79,6 +82,10 @@ struct SimDepthResult {
   long nonocc_pixels = 0, valid_nonocc_pixels = 0;  // object ∩ seen by the right camera
   double depth_err_median_mm = NAN, depth_err_p90_mm = NAN, disp_err_median_px = NAN;
   double disp_bad2_pct = NAN;  // valid object pixels more than 2 px off the true disparity
+  // The raw left image's share of dark pixels without texture on the
+  // platter (DarkUntexturedSharePct): what the station's automatic
+  // bracketing (scan.auto_bracket) decides by.
+  double dark_untextured_pct = NAN;
   double valid_pct = 0, valid_nonocc_pct = 0;
   double render_ms = 0, match_ms = 0, first_match_ms = 0;
   DisparityResult::Timings match_stages;  // the matcher's own stage times
@@ -176,6 +183,15 @@ class SimDepthCommand : public BenchCommand {
     sub->add_flag("--raw", raw_,
                   "Score the matcher's disparities as they are, without the station's clean-up "
                   "(speckles, depth edges, texture filter)");
+    sub->add_option("--match-gamma", match_gamma_,
+                    "The matcher sees the pair gamma-encoded with this (the station's "
+                    "pipeline.match_gamma; 1 = the linear render)")
+        ->check(CLI::Range(1.0, 4.0))
+        ->capture_default_str();
+    sub->add_option("--save-images", save_images_dir_,
+                    "Write the rectified pair and a map of the object's pixels to this folder "
+                    "(left.png, right.png, pixels.png: green within 1 px of the truth, red "
+                    "further, blue dropped by the matcher, yellow by the clean-up, grey occluded)");
     return sub;
   }
 
@@ -249,6 +265,10 @@ class SimDepthCommand : public BenchCommand {
     const sim::StereoRender render = station.Render(scene);
     if (!render.IsUsable()) return DataError("render failed: " + render.message);
     result->render_ms = render.render_ms;
+    result->dark_untextured_pct = DarkUntexturedSharePct(
+        render.left,
+        PlatterRegionMask(render.calibration, daemon::PipelineSettings{}.platter_radius_mm),
+        AutoBracketOptions{});
     const StereoCalibration& c = render.calibration;
     result->width = c.image_size.width;
     result->height = c.image_size.height;
@@ -261,6 +281,20 @@ class SimDepthCommand : public BenchCommand {
                                 CV_32FC1, map_rx, map_ry);
     cv::remap(render.left, left, map_lx, map_ly, cv::INTER_LINEAR, cv::BORDER_CONSTANT);
     cv::remap(render.right, right, map_rx, map_ry, cv::INTER_LINEAR, cv::BORDER_CONSTANT);
+
+    // The matcher's copy gamma-encoded as the station's (ViewProcessorOptions::
+    // match_gamma); the texture filter judges the pair as rendered.
+    cv::Mat match_left = left, match_right = right;
+    if (match_gamma_ != 1) {
+      cv::Mat table(1, 256, CV_8U);
+      for (int i = 0; i < 256; ++i)
+        table.at<std::uint8_t>(i) =
+            cv::saturate_cast<std::uint8_t>(255 * std::pow(i / 255.0, 1 / match_gamma_));
+      match_left = cv::Mat();  // not into left's buffer: the texture filter reads it
+      match_right = cv::Mat();
+      cv::LUT(left, table, match_left);
+      cv::LUT(right, table, match_right);
+    }
 
     // Search range: the object's true disparities plus a margin.
     const cv::Mat& mask = render.rectified_object_mask;
@@ -298,7 +332,7 @@ class SimDepthCommand : public BenchCommand {
     std::vector<double> times;
     for (int i = 0; i < repeat_; ++i) {
       const auto start = std::chrono::steady_clock::now();
-      match = matcher.Compute(left, right);
+      match = matcher.Compute(match_left, match_right);
       times.push_back(
           std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - start)
               .count());
@@ -312,7 +346,8 @@ class SimDepthCommand : public BenchCommand {
     result->searched_disparities = match.searched_disparities;
     if (peak_reset) result->match_peak_rss_mb = PeakRssMb();
     cv::Mat& disparity = match.disparity;
-    if (!raw_) {  // as ViewProcessor::Process and ReprojectToPoints
+    const cv::Mat matched = disparity.clone();  // before the clean-up, for --save-images
+    if (!raw_) {                                // as ViewProcessor::Process and ReprojectToPoints
       const ViewProcessorOptions station;
       const auto valid_on_object = [&] {
         long n = 0;
@@ -381,15 +416,59 @@ class SimDepthCommand : public BenchCommand {
                                    [](double e) { return e > 2.0; });
     result->disp_bad2_pct =
         disparity_errors.empty() ? NAN : 100.0 * bad / static_cast<double>(disparity_errors.size());
+    if (!save_images_dir_.empty()) return SaveImages(left, right, render, matched, disparity);
+    return kExitOk;
+  }
+
+  // --save-images: the rectified pair and what became of each object pixel.
+  int SaveImages(const cv::Mat& left, const cv::Mat& right, const sim::StereoRender& render,
+                 const cv::Mat& matched, const cv::Mat& cleaned) const {
+    cv::Mat map;
+    if (left.channels() == 1)
+      cv::cvtColor(left, map, cv::COLOR_GRAY2BGR);
+    else
+      left.copyTo(map);
+    map.convertTo(map, CV_8UC3, 0.35);  // the scene dimmed under the object's colours
+    for (int y = 0; y < map.rows; ++y) {
+      const std::uint8_t* m = render.rectified_object_mask.ptr<std::uint8_t>(y);
+      const std::uint8_t* seen = render.rectified_visible_right.ptr<std::uint8_t>(y);
+      const float* d0 = matched.ptr<float>(y);
+      const float* d = cleaned.ptr<float>(y);
+      const float* t = render.rectified_disparity.ptr<float>(y);
+      cv::Vec3b* out = map.ptr<cv::Vec3b>(y);
+      for (int x = 0; x < map.cols; ++x) {
+        if (!m[x]) continue;
+        if (!seen[x])
+          out[x] = {128, 128, 128};
+        else if (!IsValidDisparity(d0[x]))
+          out[x] = {255, 0, 0};
+        else if (!IsValidDisparity(d[x]))
+          out[x] = {0, 255, 255};
+        else if (std::abs(d[x] - t[x]) <= 1.0f)
+          out[x] = {0, 200, 0};
+        else
+          out[x] = {0, 0, 255};
+      }
+    }
+    std::error_code ec;
+    fs::create_directories(save_images_dir_, ec);
+    for (const auto& [name, image] : {std::pair<const char*, const cv::Mat&>{"left.png", left},
+                                      {"right.png", right},
+                                      {"pixels.png", map}}) {
+      const std::string path = (fs::path(save_images_dir_) / name).string();
+      if (!cv::imwrite(path, image)) return DataError("--save-images: cannot write " + path);
+    }
     return kExitOk;
   }
 
   void Print(const SimDepthResult& r) const {
     std::printf(
-        "sim-depth: %s, seed %llu, %d thread(s), %dx%d, turntable %.0f deg, %s, %s%s\n",
+        "sim-depth: %s, seed %llu, %d thread(s), %dx%d, turntable %.0f deg, %s, %s, match gamma "
+        "%g%s\n",
         r.object.c_str(), static_cast<unsigned long long>(seed_), threads_, r.width, r.height,
         kTurntableAngleRad * 180 / std::numbers::pi, fill_ ? "outliers filled" : "outliers invalid",
-        raw_ ? "raw matcher output" : "the station's clean-up", projector_ ? ", projector" : "");
+        raw_ ? "raw matcher output" : "the station's clean-up", match_gamma_,
+        projector_ ? ", projector" : "");
     std::printf("  object pixels %ld, true disparity %.1f … %.1f px, searched [%d, %d)\n",
                 r.object_pixels, r.gt_disparity_min, r.gt_disparity_max, r.min_disparity,
                 r.min_disparity + r.num_disparities);
@@ -405,6 +484,10 @@ class SimDepthCommand : public BenchCommand {
           "(on the object: %ld, %ld, %ld)\n",
           r.speckle_pixels, r.edge_pixels, r.textureless_pixels, r.speckle_object_pixels,
           r.edge_object_pixels, r.textureless_object_pixels);
+    std::printf(
+        "  dark_untextured_pct %.2f (of the platter's pixels in the raw left image; the "
+        "station brackets automatically from %.1f)\n",
+        r.dark_untextured_pct, AutoBracketOptions{}.min_share_pct);
     std::printf("  render_ms %.0f  match_ms %.0f (first call %.0f)  match_peak_rss_mb %.0f\n",
                 r.render_ms, r.match_ms, r.first_match_ms, r.match_peak_rss_mb);
     const DisparityResult::Timings& t = r.match_stages;
@@ -425,6 +508,8 @@ class SimDepthCommand : public BenchCommand {
     root["aggregation_iterations"] = aggregation_iterations_;
     root["projector"] = projector_;
     root["raw"] = raw_;
+    root["match_gamma"] = match_gamma_;
+    root["dark_untextured_pct"] = r.dark_untextured_pct;
     root["speckle_pixels"] = r.speckle_pixels;
     root["edge_pixels"] = r.edge_pixels;
     root["textureless_pixels"] = r.textureless_pixels;
@@ -481,6 +566,8 @@ class SimDepthCommand : public BenchCommand {
   bool coarse_to_fine_ = false;
   int lanes_ = CoarseToFineOptions{}.lanes;
   std::string json_path_;
+  std::string save_images_dir_;
+  double match_gamma_ = ViewProcessorOptions{}.match_gamma;
 };
 
 }  // namespace

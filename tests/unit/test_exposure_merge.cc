@@ -7,6 +7,7 @@
 #include <vector>
 
 #include <opencv2/core.hpp>
+#include <opencv2/imgproc.hpp>
 
 #include "craftscan/pipeline/stereo/exposure_merge.h"
 
@@ -127,6 +128,46 @@ TEST(ExposureMerge, RefusesWhatItCannotMergeAndSaysWhy) {
   EXPECT_EQ(merged.type(), CV_8UC3);
   // Radiance 10 from both: 255·(10/255)^(1/2.2) = 59.
   EXPECT_NEAR(merged.at<cv::Vec3b>(3, 3)[1], 59, 1);
+}
+
+// Automatic bracketing's measure: dark windows without texture, counted in
+// the region only.
+TEST(AutoBracket, CountsDarkUntexturedWindowsInTheRegion) {
+  const AutoBracketOptions options;
+  std::string why;
+  ASSERT_TRUE(options.IsValid(&why)) << why;
+  cv::Mat image(100, 200, CV_8UC1, cv::Scalar(200));      // bright, flat
+  image(cv::Rect(0, 0, 100, 100)).setTo(cv::Scalar(12));  // dark, flat: the left half
+  EXPECT_NEAR(DarkUntexturedSharePct(image, cv::Mat(), options), 50.0, 3.0);
+  // Texture (a random pattern, std ~20 levels) in the dark half: not counted.
+  cv::Mat textured = image.clone();
+  cv::Mat noise(100, 100, CV_8UC1);
+  cv::RNG(7).fill(noise, cv::RNG::UNIFORM, 0, 40);
+  noise.copyTo(textured(cv::Rect(0, 0, 100, 100)));
+  EXPECT_LT(DarkUntexturedSharePct(textured, cv::Mat(), options), 3.0);
+  // The region: its right half only is bright, so none; its left half all.
+  cv::Mat region(image.size(), CV_8UC1, cv::Scalar(0));
+  region(cv::Rect(120, 0, 80, 100)).setTo(255);
+  EXPECT_EQ(DarkUntexturedSharePct(image, region, options), 0.0);
+  region.setTo(0);
+  region(cv::Rect(10, 10, 50, 50)).setTo(255);
+  EXPECT_EQ(DarkUntexturedSharePct(image, region, options), 100.0);
+  // Colour images are judged by their grey.
+  cv::Mat colour;
+  cv::cvtColor(image, colour, cv::COLOR_GRAY2BGR);
+  EXPECT_EQ(DarkUntexturedSharePct(colour, region, options), 100.0);
+  // What it cannot judge: NaN.
+  EXPECT_TRUE(std::isnan(DarkUntexturedSharePct(image, cv::Mat(10, 10, CV_8UC1), options)));
+  EXPECT_TRUE(std::isnan(DarkUntexturedSharePct(cv::Mat(), cv::Mat(), options)));
+  EXPECT_TRUE(std::isnan(
+      DarkUntexturedSharePct(image, cv::Mat(image.size(), CV_8UC1, cv::Scalar(0)), options)));
+  AutoBracketOptions bad = options;
+  bad.window = 4;
+  EXPECT_FALSE(bad.IsValid(&why));
+  EXPECT_NE(why.find("window"), std::string::npos) << why;
+  bad = options;
+  bad.multiple = 1;
+  EXPECT_FALSE(bad.IsValid(&why));
 }
 
 }  // namespace

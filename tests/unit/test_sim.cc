@@ -10,6 +10,7 @@
 #include <cstring>
 #include <filesystem>
 #include <fstream>
+#include <memory>
 #include <numbers>
 #include <string>
 #include <vector>
@@ -21,6 +22,7 @@
 
 #include "craftscan/pipeline/common/ply.h"
 #include "craftscan/pipeline/common/triangle_mesh.h"
+#include "craftscan/pipeline/stereo/exposure_merge.h"
 #include "craftscan/pipeline/stereo/view_processing.h"
 #include "craftscan/sim/calibration_scenes.h"
 #include "craftscan/sim/station.h"
@@ -1215,6 +1217,125 @@ TEST(SimRender, DefaultRigCarvedBoxAtFullSize) {
   const double d_target = (Q(2, 3) / target[2] - Q(3, 3)) / Q(3, 2);
   EXPECT_LT(std::abs(d_target), 30) << "px";
   std::printf("1280x1024 stereo render on 2 threads: %.0f ms\n", r.render_ms);
+}
+
+// Automatic bracketing's measure on the simulated station: the platter's
+// region in the raw left image holds the platter and what stands on it,
+// never the black backdrop; the embroidery on dark cloth (seed 5151) is
+// bracketed, the carved box and the embroidery on light linen (seed 77) are
+// not. (1280x1024, craftscan-bench sim-depth: 7.73, 0.00 and 0.20 %.)
+TEST(SimStation, AutoBracketingJudgesThePlatterNotTheBackdrop) {
+  auto station = MakeStation(SmallRig(640, 512));
+  ASSERT_TRUE(station);
+  const StereoCalibration& c = station->calibration();
+  const cv::Mat region = PlatterRegionMask(c, 150);
+  ASSERT_EQ(region.size(), c.image_size);
+  // The axis' foot is inside; the top rows (the backdrop above the platter's
+  // far edge) are not.
+  std::vector<cv::Point2d> foot;
+  cv::projectPoints(std::vector<cv::Point3d>{cv::Point3d(c.R1.t() * c.turntable.point_in_rig_mm)},
+                    cv::Vec3d(0, 0, 0), cv::Vec3d(0, 0, 0), c.left.camera_matrix, c.left.distortion,
+                    foot);
+  EXPECT_EQ(region.at<std::uint8_t>(cvRound(foot[0].y), cvRound(foot[0].x)), 255);
+  EXPECT_EQ(cv::countNonZero(region.rowRange(0, 40)), 0);
+  const double share = 100.0 * cv::countNonZero(region) / static_cast<double>(region.total());
+  EXPECT_GT(share, 20.0);
+  EXPECT_LT(share, 90.0);
+  // No turntable axis, no region.
+  StereoCalibration no_axis = c;
+  no_axis.turntable.valid = false;
+  EXPECT_TRUE(PlatterRegionMask(no_axis, 150).empty());
+
+  const AutoBracketOptions automatic;
+  struct Case {
+    ObjectType object;
+    std::uint64_t seed;
+    bool bracketed;
+  };
+  for (const Case& k :
+       {Case{ObjectType::kEmbroidery, 5151, true}, Case{ObjectType::kEmbroidery, 77, false},
+        Case{ObjectType::kCarvedBox, 5151, false}}) {
+    SceneOptions options;
+    options.object.type = k.object;
+    options.seed = k.seed;
+    auto scene = MakeScene(options);
+    ASSERT_TRUE(scene);
+    const StereoRender r = station->Render(*scene, 0, RenderOutputs::kLeftImageOnly);
+    ASSERT_TRUE(r.IsUsable()) << r.message;
+    const double dark = DarkUntexturedSharePct(r.left, region, automatic);
+    // The whole image would count the black backdrop.
+    EXPECT_GT(DarkUntexturedSharePct(r.left, cv::Mat(), automatic), 15.0);
+    std::printf("object %d seed %llu: %.2f %% of the platter dark without texture\n",
+                static_cast<int>(k.object), static_cast<unsigned long long>(k.seed), dark);
+    EXPECT_EQ(dark >= automatic.min_share_pct, k.bracketed) << dark;
+  }
+}
+
+// The matcher's gamma (ViewProcessorOptions::match_gamma): a linear pair
+// is encoded for the matcher once (a pair that says it is encoded already,
+// an exposure merge, is matched as given), the pair's own image (colours,
+// texture test) is left alone, and bad gammas are refused by name.
+TEST(SimStation, ViewProcessorEncodesTheMatchersPairOnce) {
+  auto station = MakeStation(SmallRig(320, 256, 1));
+  ASSERT_TRUE(station);
+  SceneOptions options;
+  options.object.type = ObjectType::kEmbroidery;
+  auto scene = MakeScene(options);
+  ASSERT_TRUE(scene);
+  const StereoRender a = station->Render(*scene);
+  ASSERT_TRUE(a.IsUsable()) << a.message;
+  const auto make = [&](double match_gamma) {
+    ViewProcessorOptions view;
+    view.num_threads = 1;
+    view.match_gamma = match_gamma;
+    auto processor = std::make_unique<ViewProcessor>();
+    std::string error;
+    EXPECT_TRUE(processor->Init(a.calibration, view, &error)) << error;
+    return processor;
+  };
+  auto linear = make(1.0), encoding = make(2.2);
+  cv::Mat table(1, 256, CV_8U), left, right;
+  for (int i = 0; i < 256; ++i)
+    table.at<std::uint8_t>(i) = cv::saturate_cast<std::uint8_t>(255 * std::pow(i / 255.0, 1 / 2.2));
+  cv::LUT(a.left, table, left);
+  cv::LUT(a.right, table, right);
+  const ProcessedView encoded_here = encoding->Process(a.left, a.right);
+  const ProcessedView encoded_before = encoding->Process(left, right, cv::Mat(), 2.2);
+  const ProcessedView as_captured = linear->Process(a.left, a.right);
+  const ProcessedView said_encoded = encoding->Process(a.left, a.right, cv::Mat(), 2.2);
+  ASSERT_TRUE(encoded_here.ok && encoded_before.ok && as_captured.ok && said_encoded.ok)
+      << encoded_here.message;
+  // Matched as given: the same as the linear processor's.
+  EXPECT_TRUE(BitExact(said_encoded.disparity, as_captured.disparity));
+  EXPECT_FALSE(BitExact(encoded_here.disparity, as_captured.disparity));
+  // Encoded before or after rectification (which interpolates): nearly the
+  // same disparities.
+  long both = 0, close = 0;
+  for (int y = 0; y < encoded_here.disparity.rows; ++y) {
+    for (int x = 0; x < encoded_here.disparity.cols; ++x) {
+      const float d0 = encoded_here.disparity.at<float>(y, x);
+      const float d1 = encoded_before.disparity.at<float>(y, x);
+      if (!std::isfinite(d0) || !std::isfinite(d1)) continue;
+      ++both;
+      close += std::abs(d0 - d1) <= 1.0f;
+    }
+  }
+  ASSERT_GT(both, 1000);
+  EXPECT_GT(static_cast<double>(close) / static_cast<double>(both), 0.95);
+  // The texture test and the colours judge the pair as given: captured
+  // linear, the colours are the linear image's.
+  EXPECT_EQ(encoded_here.rectified_left.at<cv::Vec3b>(128, 160),
+            as_captured.rectified_left.at<cv::Vec3b>(128, 160));
+
+  const ProcessedView bad = encoding->Process(a.left, a.right, cv::Mat(), 0.5);
+  EXPECT_FALSE(bad.ok);
+  EXPECT_NE(bad.message.find("gamma"), std::string::npos) << bad.message;
+  ViewProcessorOptions view;
+  view.match_gamma = 5;
+  std::string error;
+  ViewProcessor refused;
+  EXPECT_FALSE(refused.Init(a.calibration, view, &error));
+  EXPECT_NE(error.find("match_gamma"), std::string::npos) << error;
 }
 
 }  // namespace

@@ -13,6 +13,7 @@
 
 #include "config_fields.h"
 #include "craftscan/daemon/yaml_document.h"
+#include "craftscan/pipeline/stereo/exposure_merge.h"
 
 extern char** environ;
 
@@ -391,6 +392,15 @@ bool DaemonConfig::IsValid(std::string* why) const {
                     config_internal::FormatNumber(scan.exposure_us * scan.exposure_bracket.back()) +
                     " µs is more than 10000000");
   }
+  if (const double m = AutoBracketOptions{}.multiple;
+      scan.auto_bracket && scan.exposure_bracket.empty() && scan.exposure_us * m > 1e7) {
+    return Fail(why,
+                "scan.auto_bracket: a dark view is also exposed × " +
+                    config_internal::FormatNumber(m) + ", and exposure_us × " +
+                    config_internal::FormatNumber(m) + " = " +
+                    config_internal::FormatNumber(scan.exposure_us * m) +
+                    " µs is more than 10000000: set auto_bracket: false or a shorter exposure");
+  }
   if (!(pipeline.volume.max_height_mm > pipeline.volume.min_height_mm)) {
     return Fail(why, "pipeline.volume_max_height_mm: must be above volume_min_height_mm (" +
                          config_internal::FormatNumber(pipeline.volume.min_height_mm) + ")");
@@ -476,6 +486,7 @@ ViewProcessorOptions ViewOptions(const PipelineSettings& settings) {
   options.num_threads = settings.threads;
   options.volume = settings.volume;
   options.platter_radius_mm = settings.platter_radius_mm;
+  options.match_gamma = settings.match_gamma;
   options.min_texture_std = settings.min_texture_std;
   options.min_disparity = settings.min_disparity;
   options.num_disparities = settings.num_disparities;

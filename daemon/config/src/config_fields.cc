@@ -433,6 +433,8 @@ std::vector<Field> MakeFields() {
   f.push_back(RealField("scan.gain_db", [](DaemonConfig& c) -> double& { return c.scan.gain_db; },
                         {0, 48}));
   f.push_back(ExposureBracketField());
+  f.push_back(
+      BoolField("scan.auto_bracket", [](DaemonConfig& c) -> bool& { return c.scan.auto_bracket; }));
   f.push_back(IntField(
       "pipeline.threads", [](DaemonConfig& c) -> int& { return c.pipeline.threads; }, 1, 256));
   f.push_back(IntField(
@@ -444,6 +446,8 @@ std::vector<Field> MakeFields() {
   f.push_back(RealField("pipeline.min_texture_std",
                         [](DaemonConfig& c) -> double& { return c.pipeline.min_texture_std; },
                         {0, 255}));
+  f.push_back(RealField("pipeline.match_gamma",
+                        [](DaemonConfig& c) -> double& { return c.pipeline.match_gamma; }, {1, 4}));
   f.push_back(RealField("pipeline.volume_radius_mm",
                         [](DaemonConfig& c) -> double& { return c.pipeline.volume.radius_mm; },
                         {0, kMax, true}));

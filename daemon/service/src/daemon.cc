@@ -320,6 +320,7 @@ std::unique_ptr<Daemon> Daemon::Create(const DaemonConfig& config, std::string* 
   jobs.default_step_deg = config.scan.step_deg;
   jobs.settle = std::chrono::milliseconds(config.scan.settle_ms);
   jobs.exposure_bracket = config.scan.exposure_bracket;
+  jobs.auto_bracket = config.scan.auto_bracket;
   jobs.queue_capacity = config.limits.queue_capacity;
   jobs.threads = config.pipeline.threads;
   jobs.view = ViewOptions(config.pipeline);

@@ -237,8 +237,16 @@ drivers::DriverStatus DeviceManager::Capture(drivers::StereoFrame* frame,
 drivers::DriverStatus DeviceManager::CaptureBracketed(const std::vector<double>& bracket,
                                                       drivers::StereoFrame* frame,
                                                       const std::atomic<bool>& cancel) {
-  drivers::DriverStatus s = Capture(frame, cancel);
-  if (!s.ok() || bracket.empty()) return s;
+  const drivers::DriverStatus s = Capture(frame, cancel);
+  if (!s.ok()) return s;
+  return AddExposures(bracket, frame, cancel);
+}
+
+drivers::DriverStatus DeviceManager::AddExposures(const std::vector<double>& bracket,
+                                                  drivers::StereoFrame* frame,
+                                                  const std::atomic<bool>& cancel) {
+  drivers::DriverStatus s;
+  if (bracket.empty()) return s;
   const drivers::CameraSettings reference = camera_settings();
   std::vector<cv::Mat> left{frame->left.image}, right{frame->right.image};
   std::vector<double> exposure{1.0};

@@ -103,6 +103,7 @@ struct JobEngine::ScanPlan {
   int views = 0;
   double step_deg = 0;
   std::vector<double> exposure_bracket;  // CaptureStage::Options::exposure_bracket
+  bool auto_bracket = false;             // CaptureStage::Options::auto_bracket
   bool reconstruct = true;               // false for a one-view capture
   // The turn captured (scan_turns.h): 1, or a later one joined onto turn 1;
   // its views from first_view on. `turns`: all of the session's, this one
@@ -374,9 +375,11 @@ bool JobEngine::StartScan(const ScanRequest& request, JobInfo* info, std::string
   plan->views = views;
   plan->step_deg = step;
   plan->exposure_bracket = bracket;
+  plan->auto_bracket = AutoBracket(request, bracket);
   const nlohmann::json params = {{"views", views},
                                  {"step_deg", step},
                                  {"exposure_bracket", BracketJson(bracket)},
+                                 {"auto_bracket", plan->auto_bracket},
                                  {"client", request.client},
                                  {"calibration_id", calibration_id()}};
   return StartSessionJob("scan", request.object, params, std::move(plan), info, error);
@@ -390,9 +393,12 @@ bool JobEngine::StartCapture(const std::string& object, JobInfo* info, std::stri
   plan->views = 1;
   plan->step_deg = 0;
   plan->exposure_bracket = options_.exposure_bracket;
+  plan->auto_bracket = AutoBracket(ScanRequest{}, plan->exposure_bracket);
   plan->reconstruct = false;
-  const nlohmann::json params = {
-      {"views", 1}, {"step_deg", 0}, {"exposure_bracket", BracketJson(plan->exposure_bracket)}};
+  const nlohmann::json params = {{"views", 1},
+                                 {"step_deg", 0},
+                                 {"exposure_bracket", BracketJson(plan->exposure_bracket)},
+                                 {"auto_bracket", plan->auto_bracket}};
   return StartSessionJob("capture", object, params, std::move(plan), info, error);
 }
 
@@ -464,7 +470,9 @@ bool JobEngine::StartAddTurn(const ScanRequest& request, JobInfo* info, std::str
   turn.views = views;
   turn.step_deg = step;
   turn.state = "capturing";
-  turn.extra = {{"exposure_bracket", BracketJson(bracket)}, {"client", request.client}};
+  turn.extra = {{"exposure_bracket", BracketJson(bracket)},
+                {"auto_bracket", AutoBracket(request, bracket)},
+                {"client", request.client}};
   if (turn.first_view + views - 1 > kMaxViewIndex) {
     return Fail(error, "add_to: session " + id + " has no room for " + std::to_string(views) +
                            " more views (view numbers end at " + std::to_string(kMaxViewIndex) +
@@ -489,6 +497,7 @@ bool JobEngine::StartAddTurn(const ScanRequest& request, JobInfo* info, std::str
   plan->views = views;
   plan->step_deg = step;
   plan->exposure_bracket = bracket;
+  plan->auto_bracket = AutoBracket(request, bracket);
   plan->turn = turn.turn;
   plan->first_view = turn.first_view;
   if (!Launch(
@@ -542,6 +551,12 @@ bool JobEngine::StartResume(const std::string& session_id, JobInfo* info, std::s
     return Fail(error, "session " + session_id + ": manifest's exposure_bracket is invalid" +
                            (why.empty() ? "" : ": " + why));
   }
+  // Sessions from before automatic bracketing: none.
+  const auto auto_bracket_of = [](const nlohmann::json& j) {
+    const auto it = j.find("auto_bracket");
+    return it != j.end() && it->is_boolean() && it->get<bool>();
+  };
+  plan->auto_bracket = auto_bracket_of(params);
   plan->reconstruct = plan->session->manifest().job == "scan";
   if (plan->session->manifest().params.contains("turns")) {
     // A later turn: the last one, where it stopped (turn 1 was done before it began).
@@ -555,6 +570,7 @@ bool JobEngine::StartResume(const std::string& session_id, JobInfo* info, std::s
     plan->exposure_bracket.clear();
     for (const nlohmann::json& m : last.extra.value("exposure_bracket", nlohmann::json::array()))
       if (m.is_number()) plan->exposure_bracket.push_back(m.get<double>());
+    plan->auto_bracket = auto_bracket_of(last.extra);
   }
   if (plan->views < 1) return Fail(error, "session " + session_id + ": manifest has no view count");
   if (!LoadCalibration(plan->session->dir() + "/calibration.yaml", &plan->calibration, error)) {
@@ -679,10 +695,15 @@ JobEngine::JobOutcome JobEngine::RunScanStages(ScanPlan& plan) {
     output.Close();
   };
   const StageContext context = Context(&session);
-  CaptureStage capture(context, devices_,
-                       {plan.views, plan.step_deg, options_.settle, plan.exposure_bracket,
-                        plan.first_view, plan.turn, label},
-                       &moving_);
+  CaptureStage::Options capture_options{
+      plan.views, plan.step_deg, options_.settle, plan.exposure_bracket, plan.first_view,
+      plan.turn,  label};
+  if (plan.auto_bracket) {
+    capture_options.auto_bracket = true;
+    capture_options.auto_bracket_region =
+        PlatterRegionMask(plan.calibration, options_.view.platter_radius_mm);
+  }
+  CaptureStage capture(context, devices_, std::move(capture_options), &moving_);
   MatchStage match(context, &processor, &plan.calibration, plan.views, plan.first_view, label);
   ReconstructStage::Options build;
   build.views = plan.views;

@@ -1,5 +1,6 @@
 // The scan's stages: capture, match, reconstruct (stages.h).
 #include <cmath>
+#include <cstdio>
 #include <exception>
 #include <thread>
 #include <utility>
@@ -12,6 +13,7 @@
 #include "craftscan/daemon/stages.h"
 #include "craftscan/pipeline/common/atomic_file.h"
 #include "craftscan/pipeline/common/ply.h"
+#include "craftscan/pipeline/stereo/exposure_merge.h"
 #include "craftscan/pipeline/surface/mesh.h"
 
 namespace craftscan::daemon {
@@ -95,6 +97,10 @@ StageOutcome CaptureStage::Run(BoundedQueue<CapturedView>& out) {
         return StageOutcome::Error(ErrorCode::kCorrupt,
                                    ViewPrefix(index) + "stored capture unreadable: " + why, false);
       }
+      // A stored merge (its meta lists the bracket) is gamma-encoded.
+      const auto bracket = meta.find("exposure_bracket");
+      if (bracket != meta.end() && bracket->is_array() && !bracket->empty())
+        item.gamma = ExposureMergeOptions{}.gamma;
     } else if (StageOutcome captured = CaptureView(index, angle, &item); !captured.ok()) {
       return captured;
     }
@@ -131,12 +137,32 @@ StageOutcome CaptureStage::CaptureView(int index, double angle, CapturedView* it
     std::this_thread::sleep_for(options_.settle);
   }
   drivers::StereoFrame frame;
-  const drivers::DriverStatus captured =
-      devices_->CaptureBracketed(options_.exposure_bracket, &frame, context_.StopFlag());
+  std::vector<double> bracket = options_.exposure_bracket;
+  double dark_pct = std::nan("");  // automatic bracketing's measure, when it ran
+  drivers::DriverStatus captured;
+  if (options_.auto_bracket && bracket.empty() && !options_.auto_bracket_region.empty()) {
+    captured = devices_->Capture(&frame, context_.StopFlag());
+    const AutoBracketOptions automatic;
+    if (captured.ok())
+      dark_pct = DarkUntexturedSharePct(frame.left.image, options_.auto_bracket_region, automatic);
+    if (captured.ok() && dark_pct >= automatic.min_share_pct) {
+      bracket = {automatic.multiple};
+      char why[96];
+      std::snprintf(why, sizeof why, ": %.1f %% of the platter dark without texture: also x%g",
+                    dark_pct, automatic.multiple);
+      context_.Progress("capture", k, n, label + "view " + std::to_string(index) + why);
+      captured = devices_->AddExposures(bracket, &frame, context_.StopFlag());
+    }
+  } else {
+    captured = devices_->CaptureBracketed(bracket, &frame, context_.StopFlag());
+  }
   if (!captured.ok()) return device_error(captured);
   nlohmann::json meta = FrameMeta(frame, angle);
   // The stored pair is the merge; the multiples say of what.
-  if (!options_.exposure_bracket.empty()) meta["exposure_bracket"] = options_.exposure_bracket;
+  if (!bracket.empty()) meta["exposure_bracket"] = bracket;
+  if (std::isfinite(dark_pct)) {
+    meta["auto_bracket"] = {{"dark_untextured_pct", dark_pct}, {"bracketed", !bracket.empty()}};
+  }
   if (options_.turn > 1) meta["turn"] = options_.turn;
   if (Status stored = context_.session->StoreCapture(index, angle, frame.left.image,
                                                      frame.right.image, meta, frame.texture_left);
@@ -150,6 +176,7 @@ StageOutcome CaptureStage::CaptureView(int index, double angle, CapturedView* it
   item->left = frame.left.image;
   item->right = frame.right.image;
   item->texture = frame.texture_left;
+  item->gamma = bracket.empty() ? 1.0 : ExposureMergeOptions{}.gamma;
   return StageOutcome::Ok();
 }
 
@@ -183,7 +210,7 @@ StageOutcome MatchStage::MatchView(CapturedView& item, MatchedView* out) {
     return StageOutcome::Ok();
   }
   const auto start = std::chrono::steady_clock::now();
-  ProcessedView v = processor_->Process(item.left, item.right, item.texture);
+  ProcessedView v = processor_->Process(item.left, item.right, item.texture, item.gamma);
   if (!v.ok) {
     return StageOutcome::Error(ErrorCode::kInvalidArgument, ViewPrefix(item.view) + v.message,
                                false);

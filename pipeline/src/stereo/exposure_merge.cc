@@ -3,7 +3,13 @@
 #include <algorithm>
 #include <array>
 #include <cmath>
+#include <cstdint>
 #include <cstdio>
+#include <limits>
+#include <numbers>
+
+#include <opencv2/calib3d.hpp>
+#include <opencv2/imgproc.hpp>
 
 namespace craftscan {
 
@@ -101,6 +107,93 @@ bool MergeExposures(const std::vector<cv::Mat>& images,
   }
   *merged = out;
   return true;
+}
+
+bool AutoBracketOptions::IsValid(std::string* why) const {
+  const auto fail = [&](const std::string& m) {
+    if (why) *why = m;
+    return false;
+  };
+  if (!IsValidExposureBracket({multiple}, why)) return false;
+  if (window < 3 || window > 31 || window % 2 == 0) return fail("window must be odd, in [3, 31]");
+  if (!(dark_level > 0 && dark_level < 255)) return fail("dark_level must be in (0, 255)");
+  if (!(max_texture_std >= 0 && max_texture_std < 255))
+    return fail("max_texture_std must be in [0, 255)");
+  if (!(min_share_pct > 0 && min_share_pct <= 100))
+    return fail("min_share_pct must be in (0, 100]");
+  return true;
+}
+
+cv::Mat PlatterRegionMask(const StereoCalibration& calibration, double platter_radius_mm) {
+  const TurntableAxis& axis = calibration.turntable;
+  const cv::Size size = calibration.image_size;
+  if (!axis.valid || !(platter_radius_mm > 0) || size.width <= 0 || size.height <= 0) return {};
+  // The disc's rim in the rig frame (the rectified left camera), then into
+  // the raw left camera (x_raw = R1ᵀ x_rig) and through its lens.
+  const cv::Vec3d n = cv::normalize(axis.direction_in_rig);
+  const cv::Vec3d helper = std::abs(n[0]) < 0.9 ? cv::Vec3d(1, 0, 0) : cv::Vec3d(0, 1, 0);
+  const cv::Vec3d u = cv::normalize(n.cross(helper)), v = n.cross(u);
+  const cv::Matx33d raw_from_rig = calibration.R1.t();
+  constexpr int kRim = 180;
+  std::vector<cv::Point3d> rim;
+  for (int i = 0; i < kRim; ++i) {
+    const double a = 2 * std::numbers::pi * i / kRim;
+    const cv::Vec3d p = raw_from_rig * (axis.point_in_rig_mm +
+                                        platter_radius_mm * (std::cos(a) * u + std::sin(a) * v));
+    if (!(p[2] > 1)) return {};  // part of the rim behind the camera: not a station's view
+    rim.emplace_back(p);
+  }
+  std::vector<cv::Point2d> image;
+  const CameraIntrinsics& left = calibration.left;
+  std::vector<double> distortion(left.distortion.val, left.distortion.val + 5);
+  if (left.distortion_rational != cv::Vec3d(0, 0, 0))
+    distortion.insert(distortion.end(), left.distortion_rational.val,
+                      left.distortion_rational.val + 3);
+  cv::projectPoints(rim, cv::Vec3d(0, 0, 0), cv::Vec3d(0, 0, 0), left.camera_matrix, distortion,
+                    image);
+  std::vector<cv::Point> polygon;
+  for (const cv::Point2d& q : image) {
+    if (!std::isfinite(q.x) || !std::isfinite(q.y)) return {};
+    polygon.emplace_back(cvRound(q.x), cvRound(q.y));
+  }
+  cv::Mat mask(size, CV_8UC1, cv::Scalar(0));
+  cv::fillPoly(mask, std::vector<std::vector<cv::Point>>{polygon}, cv::Scalar(255));
+  if (cv::countNonZero(mask) == 0) return {};
+  return mask;
+}
+
+double DarkUntexturedSharePct(const cv::Mat& image, const cv::Mat& region,
+                              const AutoBracketOptions& options) {
+  constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
+  if (image.empty() || image.depth() != CV_8U) return kNaN;
+  if (!region.empty() && (region.size() != image.size() || region.type() != CV_8UC1)) return kNaN;
+  cv::Mat grey;
+  if (image.channels() == 3)
+    cv::cvtColor(image, grey, cv::COLOR_BGR2GRAY);
+  else if (image.channels() == 1)
+    grey = image;
+  else
+    return kNaN;
+  // Window mean and variance by box filters over I and I².
+  cv::Mat g, mean, mean_sq;
+  grey.convertTo(g, CV_32F);
+  const cv::Size w(options.window, options.window);
+  cv::boxFilter(g, mean, CV_32F, w, cv::Point(-1, -1), true, cv::BORDER_REFLECT);
+  cv::boxFilter(g.mul(g), mean_sq, CV_32F, w, cv::Point(-1, -1), true, cv::BORDER_REFLECT);
+  const float dark = static_cast<float>(options.dark_level);
+  const float max_var = static_cast<float>(options.max_texture_std * options.max_texture_std);
+  long inside = 0, hits = 0;
+  for (int y = 0; y < g.rows; ++y) {
+    const std::uint8_t* r = region.empty() ? nullptr : region.ptr<std::uint8_t>(y);
+    const float* m = mean.ptr<float>(y);
+    const float* m2 = mean_sq.ptr<float>(y);
+    for (int x = 0; x < g.cols; ++x) {
+      if (r && !r[x]) continue;
+      ++inside;
+      hits += m[x] < dark && m2[x] - m[x] * m[x] <= max_var;
+    }
+  }
+  return inside > 0 ? 100.0 * static_cast<double>(hits) / static_cast<double>(inside) : kNaN;
 }
 
 }  // namespace craftscan

@@ -76,6 +76,7 @@ bool ViewProcessorOptions::IsValid(std::string* why) const {
     return Fail(why, "speckle_max_area_pct must be in [0, 1]");
   if (!(speckle_range_px > 0 && speckle_range_px <= 64))
     return Fail(why, "speckle_range_px must be in (0, 64]");
+  if (!(match_gamma >= 1 && match_gamma <= 4)) return Fail(why, "match_gamma must be in [1, 4]");
   return true;
 }
 
@@ -256,7 +257,7 @@ void Recolour(const cv::Mat& texture, const cv::Matx34d& P1, PointCloud* cloud) 
 }  // namespace
 
 ProcessedView ViewProcessor::Process(const cv::Mat& left_raw, const cv::Mat& right_raw,
-                                     const cv::Mat& texture_left_raw) {
+                                     const cv::Mat& texture_left_raw, double pair_gamma) {
   ProcessedView out;
   if (!matcher_) {
     out.message = "view processor not initialised";
@@ -283,7 +284,27 @@ ProcessedView ViewProcessor::Process(const cv::Mat& left_raw, const cv::Mat& rig
     }
     out.rectify_ms = MsSince(start);
     start = std::chrono::steady_clock::now();
-    DisparityResult match = matcher_->Compute(out.rectified_left, right);
+    // New buffers when re-encoded: LUT into a header of out.rectified_left
+    // would change the colours and the texture test's image.
+    cv::Mat match_left = out.rectified_left, match_right = right;
+    if (!(pair_gamma >= 1 && pair_gamma <= 4)) {
+      out.message = "the pair's gamma must be in [1, 4]";
+      return out;
+    }
+    // Only a linear pair is encoded; an encoded one (a merge) is matched as
+    // it is, never decoded to fewer dark levels.
+    if (pair_gamma == 1.0 && options_.match_gamma != 1.0) {
+      cv::Mat table(1, 256, CV_8U);
+      const double exponent = 1 / options_.match_gamma;
+      for (int i = 0; i < 256; ++i)
+        table.at<std::uint8_t>(i) =
+            cv::saturate_cast<std::uint8_t>(255 * std::pow(i / 255.0, exponent));
+      match_left = cv::Mat();
+      match_right = cv::Mat();
+      cv::LUT(out.rectified_left, table, match_left);
+      cv::LUT(right, table, match_right);
+    }
+    DisparityResult match = matcher_->Compute(match_left, match_right);
     out.match_ms = MsSince(start);
     if (!match.IsUsable()) {
       out.message = "matcher: " + match.message;

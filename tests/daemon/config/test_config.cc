@@ -273,6 +273,11 @@ INSTANTIATE_TEST_SUITE_P(
         BadValueCase{"scan: {exposure_bracket: 8}\n", "scan.exposure_bracket: must be a list"},
         BadValueCase{"scan: {exposure_us: 1000000, exposure_bracket: [16]}\n",
                      "scan.exposure_bracket: exposure_us × 16 = 16000000 µs is more than 10000000"},
+        BadValueCase{"scan: {exposure_us: 2000000}\n",
+                     "scan.auto_bracket: a dark view is also exposed × 8, and exposure_us × 8 = "
+                     "16000000 µs is more than 10000000: set auto_bracket: false or a shorter "
+                     "exposure"},
+        BadValueCase{"scan: {auto_bracket: maybe}\n", "scan.auto_bracket"},
         BadValueCase{"pipeline: {threads: 0}\n",
                      "pipeline.threads: must be an integer in 1..256, got '0'"},
         BadValueCase{"pipeline: {min_disparity: 5000}\n",

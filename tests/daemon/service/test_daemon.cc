@@ -21,6 +21,7 @@
 #include "../sessions/status_util.h"
 #include "craftscan/daemon/session_store.h"
 #include "craftscan/pipeline/common/point_cloud.h"
+#include "craftscan/pipeline/stereo/exposure_merge.h"
 #include "daemon_fixture.h"
 #include "mat_util.h"
 #include "station_client.h"
@@ -222,8 +223,21 @@ TEST(Daemon, EmbroideryAndEggScanWithTheDefaultConfiguration) {
       nlohmann::json meta;
       ASSERT_TRUE(session->LoadCapture(k, &left, &right, &meta, &error, &texture)) << error;
       EXPECT_EQ(texture.empty(), !c.projector) << "view " << k;
+      // Without a configured bracket the station brackets on its own
+      // (scan.auto_bracket): each view says how dark its platter was and
+      // whether it was exposed ×8 too.
+      bool bracketed = c.projector;
+      if (!c.projector) {
+        ASSERT_TRUE(meta.contains("auto_bracket")) << "view " << k << ": " << meta.dump();
+        const double dark = meta["auto_bracket"]["dark_untextured_pct"].get<double>();
+        EXPECT_TRUE(dark >= 0 && dark <= 100) << meta.dump();
+        bracketed = meta["auto_bracket"]["bracketed"].get<bool>();
+        EXPECT_EQ(bracketed, dark >= AutoBracketOptions{}.min_share_pct) << meta.dump();
+      } else {
+        EXPECT_FALSE(meta.contains("auto_bracket")) << meta.dump();
+      }
       EXPECT_EQ(meta.value("exposure_bracket", nlohmann::json::array()),
-                c.projector ? nlohmann::json::array({8.0}) : nlohmann::json::array())
+                bracketed ? nlohmann::json::array({8.0}) : nlohmann::json::array())
           << "view " << k << ": " << meta.dump();
       if (c.projector) {
         EXPECT_FALSE(BitExact(texture, left)) << "view " << k;

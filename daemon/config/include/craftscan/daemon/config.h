@@ -55,12 +55,18 @@
 //     exposure_bracket: []        multiples of exposure_us also captured per
 //                                 view and merged: each (1, 64], ascending,
 //                                 ≤ 4 of them; [] = off (e.g. [8] for black paint)
+//     auto_bracket: true          with exposure_bracket [], a view dark and without
+//                                 texture on ≥ 1 % of the platter is also captured
+//                                 at 8 × exposure_us (dark cloth); false = never
 //   pipeline:
 //     threads: 2                  1..256 worker threads per stage
 //     min_disparity: 0            px, −4096..4096
 //     num_disparities: 0          px, 0..4096; 0 = derive the band from the
 //                                 calibration and the working volume
 //     min_texture_std: 2.5        grey levels [0, 255]; 0 = off (ReprojectOptions)
+//     match_gamma: 1              [1, 4] the matcher sees the pair gamma-encoded
+//                                 (2.2: satin sheen matches better, faint bright
+//                                 paint worse; ViewProcessorOptions::match_gamma)
 //     volume_radius_mm: 120       (0, 10000] working volume around the axis
 //     volume_min_height_mm: 1.5   [−1000, 10000] above the platter
 //     volume_max_height_mm: 200   (min, 10000]
@@ -210,6 +216,11 @@ struct ScanSettings {
   // dark, weakly textured paint. Each in (1, 64], ascending, at most 4;
   // exposure_us × the largest ≤ 10000000. Empty (the default) = off.
   std::vector<double> exposure_bracket;
+  // With exposure_bracket empty: each view whose platter is dark without
+  // texture on enough of its pixels (dark cloth, black paint; AutoBracketOptions)
+  // is also captured at 8 × exposure_us and merged; the others once. Its
+  // meta.json says which. exposure_us × 8 ≤ 10000000 when on.
+  bool auto_bracket = true;
 };
 
 struct PipelineSettings {
@@ -217,6 +228,10 @@ struct PipelineSettings {
   int min_disparity = 0;         // px, −4096..4096
   int num_disparities = 0;       // px, 0..4096; 0 = derive from calibration + volume
   double min_texture_std = 2.5;  // grey levels, [0, 255]; 0 = off
+  // The matcher's copy of each pair gamma-encoded with this, [1, 4]; 1 =
+  // as the cameras deliver it (ViewProcessorOptions::match_gamma: 2.2 for
+  // textiles' sheen, at a cost on bright, weakly textured paint).
+  double match_gamma = 1.0;
   // pipeline.volume_radius_mm (0, 10000], pipeline.volume_min_height_mm
   // [−1000, 10000], pipeline.volume_max_height_mm (min, 10000]; mm.
   WorkingVolume volume;

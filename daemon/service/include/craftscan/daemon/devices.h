@@ -109,6 +109,11 @@ class DeviceManager {
   drivers::DriverStatus CaptureBracketed(const std::vector<double>& bracket,
                                          drivers::StereoFrame* frame,
                                          const std::atomic<bool>& cancel);
+  // The second half of CaptureBracketed: `frame` was captured at the current
+  // settings; the bracket's exposures are captured and merged into it.
+  // (Automatic bracketing looks at the first capture before it asks.)
+  drivers::DriverStatus AddExposures(const std::vector<double>& bracket,
+                                     drivers::StereoFrame* frame, const std::atomic<bool>& cancel);
   // A move stopped by AbortMove() ends with kAborted; a fault (alarm) with
   // kFault, a move that does not arrive with kTimeout. Messages start
   // "turntable: ".

@@ -106,6 +106,9 @@ struct JobEngineOptions {
   double default_step_deg = 60;
   std::chrono::milliseconds settle{200};
   std::vector<double> exposure_bracket;  // CaptureStage::Options::exposure_bracket
+  // scan.auto_bracket: where exposure_bracket is empty and a request names
+  // none, each view is bracketed when it needs it (CaptureStage::Options).
+  bool auto_bracket = false;
   int queue_capacity = 2;
   int threads = 2;  // matcher and reconstruction threads
   ViewProcessorOptions view;
@@ -226,6 +229,11 @@ class JobEngine {
               JobInfo* info, std::string* error);
   // Creates the session of a scan or capture with the current calibration
   // copied in and launches it.
+  // Whether a scan brackets automatically: the station's scan.auto_bracket,
+  // no bracket configured and none in the request (an explicit [] is off).
+  bool AutoBracket(const ScanRequest& request, const std::vector<double>& bracket) const {
+    return options_.auto_bracket && !request.exposure_bracket && bracket.empty();
+  }
   bool StartSessionJob(const std::string& verb, const std::string& object, nlohmann::json params,
                        std::shared_ptr<ScanPlan> plan, JobInfo* info, std::string* error);
   // ScanRequest::add_to: reopens the session for its next turn and launches it.

@@ -130,6 +130,9 @@ struct CapturedView {
   double angle_deg = 0;
   cv::Mat left, right;
   cv::Mat texture;  // the texture frame, when the station has a projector
+  // The pair's encoding (ViewProcessor::Process): 1 as captured, the
+  // merge's gamma for an exposure bracket.
+  double gamma = 1.0;
 };
 // Q2: a view's cloud in the rig frame (mm).
 struct MatchedView {
@@ -164,6 +167,13 @@ class CaptureStage {
     int first_view = 0;
     int turn = 1;
     std::string label;
+    // Automatic bracketing, when exposure_bracket is empty: a view whose
+    // left image is dark and without texture on enough of the platter
+    // (DarkUntexturedSharePct over auto_bracket_region, PlatterRegionMask;
+    // AutoBracketOptions' threshold) is also captured at its multiple. Off
+    // when the region is empty. meta.json records the share and the choice.
+    bool auto_bracket = false;
+    cv::Mat auto_bracket_region;
   };
   // `moving` (may be null) is true while a move is in progress, so a cancel
   // can abort it (DeviceManager::AbortMove).

@@ -11,6 +11,8 @@
 
 #include <opencv2/core/mat.hpp>
 
+#include "craftscan/pipeline/calib/calibration.h"
+
 namespace craftscan {
 
 struct ExposureMergeOptions {
@@ -51,5 +53,34 @@ bool IsValidExposureBracket(const std::vector<double>& multiples, std::string* w
 bool MergeExposures(const std::vector<cv::Mat>& images,
                     const std::vector<double>& relative_exposure,
                     const ExposureMergeOptions& options, cv::Mat* merged, std::string* error);
+
+// Automatic bracketing: a view is bracketed when enough of what stands on
+// the platter is too dark to carry texture at the reference exposure (dark
+// cloth, black paint), so a longer exposure could give the matcher texture
+// there. Only pixels whose rays meet the platter disc are judged: they see
+// the platter or an object in front of it, never the backdrop (black in the
+// simulator and in many real stations, and never matched anyway).
+struct AutoBracketOptions {
+  double multiple = 8;           // the exposure added, (1, 64]: the bracket is {multiple}
+  int window = 9;                // px, odd, [3, 31]: the texture window
+  double dark_level = 32;        // grey levels (0, 255): a window darker than this on average …
+  double max_texture_std = 2.5;  // … with a standard deviation at most this carries no texture
+  double min_share_pct = 1.0;    // (0, 100]: bracket at or above this share of the region
+
+  bool IsValid(std::string* why) const;
+};
+
+// The pixels of the raw (unrectified) left image whose rays meet the
+// platter, a disc of `platter_radius_mm` about the calibrated turntable
+// axis through its point on the platter (CV_8UC1, 255 inside). Empty when
+// the calibration has no turntable axis or the disc is not in view.
+cv::Mat PlatterRegionMask(const StereoCalibration& calibration, double platter_radius_mm);
+
+// The share (%) of `region`'s pixels (CV_8UC1, the image's size; empty =
+// the whole image) whose window in `image` (8-bit, 1 or 3 channels) is dark
+// and without texture by `options`. NaN when the region is empty or the
+// sizes differ.
+double DarkUntexturedSharePct(const cv::Mat& image, const cv::Mat& region,
+                              const AutoBracketOptions& options);
 
 }  // namespace craftscan

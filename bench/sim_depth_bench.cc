@@ -95,6 +95,7 @@ struct SimDepthResult {
   // and of those on the object.
   std::size_t speckle_pixels = 0, edge_pixels = 0, textureless_pixels = 0;
   long speckle_object_pixels = 0, edge_object_pixels = 0, textureless_object_pixels = 0;
+  long textureless_right_pixels = 0;  // of those on the object, within 1 px of the truth
 };
 
 // Resets the process's peak resident set size (Linux: "5" to
@@ -188,6 +189,18 @@ class SimDepthCommand : public BenchCommand {
                     "pipeline.match_gamma; 1 = the linear render)")
         ->check(CLI::Range(1.0, 4.0))
         ->capture_default_str();
+    sub->add_option("--min-texture-std", min_texture_std_,
+                    "The clean-up's texture filter: drop pixels whose 7x7 grey-level standard "
+                    "deviation is below this, outside the platter disc's image as on the station "
+                    "(pipeline.min_texture_std; 0 = off)")
+        ->check(CLI::Range(0.0, 255.0))
+        ->capture_default_str();
+    sub->add_option("--bracket", bracket_,
+                    "Also render the pair at this multiple of the exposure and match the merge "
+                    "(MergeExposures, gamma-encoded; as the station's scan.exposure_bracket or "
+                    "automatic bracketing's x8); 1 = one exposure")
+        ->check(CLI::Range(1.0, 64.0))
+        ->capture_default_str();
     sub->add_option("--save-images", save_images_dir_,
                     "Write the rectified pair and a map of the object's pixels to this folder "
                     "(left.png, right.png, pixels.png: green within 1 px of the truth, red "
@@ -215,13 +228,20 @@ class SimDepthCommand : public BenchCommand {
     std::string error;
     std::unique_ptr<sim::SimStation> station = sim::SimStation::Create(rig, &error);
     if (!station) return DataError(error);
+    std::unique_ptr<sim::SimStation> bracketed;
+    if (bracket_ != 1) {
+      sim::RigOptions longer = rig;
+      longer.exposure *= bracket_;
+      bracketed = sim::SimStation::Create(longer, &error);
+      if (!bracketed) return DataError("--bracket: " + error);
+    }
     std::unique_ptr<sim::Scene> scene = sim::Scene::Create(scene_options, &error);
     if (!scene) return DataError(error);
 
     const int previous_threads = cv::getNumThreads();
     cv::setNumThreads(threads_);
     SimDepthResult result;
-    const int code = Measure(*station, *scene, &result);
+    const int code = Measure(*station, bracketed.get(), *scene, &result);
     cv::setNumThreads(previous_threads);
     if (code != kExitOk) return code;
 
@@ -259,12 +279,26 @@ class SimDepthCommand : public BenchCommand {
     return kExitOk;
   }
 
-  int Measure(const sim::SimStation& station, const sim::Scene& scene,
-              SimDepthResult* result) const {
+  int Measure(const sim::SimStation& station, const sim::SimStation* bracketed,
+              const sim::Scene& scene, SimDepthResult* result) const {
     result->object = object_;
     const sim::StereoRender render = station.Render(scene);
     if (!render.IsUsable()) return DataError("render failed: " + render.message);
     result->render_ms = render.render_ms;
+    // --bracket: the pair as the station merges it (CaptureStage), gamma-encoded.
+    cv::Mat raw_left = render.left, raw_right = render.right;
+    if (bracketed) {
+      const sim::StereoRender longer = bracketed->Render(scene, 1000);
+      if (!longer.IsUsable()) return DataError("bracket render failed: " + longer.message);
+      result->render_ms += longer.render_ms;
+      std::string error;
+      const std::vector<double> t{1.0, bracket_};
+      if (!MergeExposures({render.left, longer.left}, t, ExposureMergeOptions{}, &raw_left,
+                          &error) ||
+          !MergeExposures({render.right, longer.right}, t, ExposureMergeOptions{}, &raw_right,
+                          &error))
+        return DataError("--bracket: " + error);
+    }
     result->dark_untextured_pct = DarkUntexturedSharePct(
         render.left,
         PlatterRegionMask(render.calibration, daemon::PipelineSettings{}.platter_radius_mm),
@@ -279,13 +313,13 @@ class SimDepthCommand : public BenchCommand {
                                 CV_32FC1, map_lx, map_ly);
     cv::initUndistortRectifyMap(c.right.camera_matrix, c.right.distortion, c.R2, c.P2, c.image_size,
                                 CV_32FC1, map_rx, map_ry);
-    cv::remap(render.left, left, map_lx, map_ly, cv::INTER_LINEAR, cv::BORDER_CONSTANT);
-    cv::remap(render.right, right, map_rx, map_ry, cv::INTER_LINEAR, cv::BORDER_CONSTANT);
+    cv::remap(raw_left, left, map_lx, map_ly, cv::INTER_LINEAR, cv::BORDER_CONSTANT);
+    cv::remap(raw_right, right, map_rx, map_ry, cv::INTER_LINEAR, cv::BORDER_CONSTANT);
 
     // The matcher's copy gamma-encoded as the station's (ViewProcessorOptions::
     // match_gamma); the texture filter judges the pair as rendered.
     cv::Mat match_left = left, match_right = right;
-    if (match_gamma_ != 1) {
+    if (match_gamma_ != 1 && !bracketed) {  // a merge is encoded already
       cv::Mat table(1, 256, CV_8U);
       for (int i = 0; i < 256; ++i)
         table.at<std::uint8_t>(i) =
@@ -372,12 +406,20 @@ class SimDepthCommand : public BenchCommand {
       result->edge_object_pixels = before - after;
       before = after;
       const cv::Mat textured =
-          TextureMask(left, ReprojectOptions{}.texture_window, station.min_texture_std);
+          TextureMask(left, ReprojectOptions{}.texture_window, min_texture_std_);
+      // Over the platter the station does not filter (ViewProcessor).
+      const cv::Mat over_platter =
+          RectifiedPlatterRegion(c, daemon::PipelineSettings{}.platter_radius_mm);
       for (int y = 0; y < disparity.rows; ++y) {
         float* d = disparity.ptr<float>(y);
         const std::uint8_t* t = textured.ptr<std::uint8_t>(y);
+        const std::uint8_t* m = mask.ptr<std::uint8_t>(y);
+        const float* d_true = render.rectified_disparity.ptr<float>(y);
         for (int x = 0; x < disparity.cols; ++x) {
-          if (t[x] || !IsValidDisparity(d[x])) continue;
+          if (t[x] || !IsValidDisparity(d[x]) ||
+              (!over_platter.empty() && over_platter.at<std::uint8_t>(y, x)))
+            continue;
+          if (m[x] && std::abs(d[x] - d_true[x]) <= 1.0f) ++result->textureless_right_pixels;
           d[x] = std::numeric_limits<float>::quiet_NaN();
           ++result->textureless_pixels;
         }
@@ -462,13 +504,15 @@ class SimDepthCommand : public BenchCommand {
   }
 
   void Print(const SimDepthResult& r) const {
+    char bracket[32] = "";
+    if (bracket_ != 1) std::snprintf(bracket, sizeof bracket, ", bracket x%g", bracket_);
     std::printf(
         "sim-depth: %s, seed %llu, %d thread(s), %dx%d, turntable %.0f deg, %s, %s, match gamma "
-        "%g%s\n",
+        "%g%s%s\n",
         r.object.c_str(), static_cast<unsigned long long>(seed_), threads_, r.width, r.height,
         kTurntableAngleRad * 180 / std::numbers::pi, fill_ ? "outliers filled" : "outliers invalid",
         raw_ ? "raw matcher output" : "the station's clean-up", match_gamma_,
-        projector_ ? ", projector" : "");
+        projector_ ? ", projector" : "", bracket);
     std::printf("  object pixels %ld, true disparity %.1f … %.1f px, searched [%d, %d)\n",
                 r.object_pixels, r.gt_disparity_min, r.gt_disparity_max, r.min_disparity,
                 r.min_disparity + r.num_disparities);
@@ -481,9 +525,9 @@ class SimDepthCommand : public BenchCommand {
     if (!raw_)
       std::printf(
           "  removed: speckles %zu  depth edges %zu  textureless %zu pixels "
-          "(on the object: %ld, %ld, %ld)\n",
+          "(on the object: %ld, %ld, %ld, of the last %ld within 1 px of the truth)\n",
           r.speckle_pixels, r.edge_pixels, r.textureless_pixels, r.speckle_object_pixels,
-          r.edge_object_pixels, r.textureless_object_pixels);
+          r.edge_object_pixels, r.textureless_object_pixels, r.textureless_right_pixels);
     std::printf(
         "  dark_untextured_pct %.2f (of the platter's pixels in the raw left image; the "
         "station brackets automatically from %.1f)\n",
@@ -509,6 +553,8 @@ class SimDepthCommand : public BenchCommand {
     root["projector"] = projector_;
     root["raw"] = raw_;
     root["match_gamma"] = match_gamma_;
+    root["bracket"] = bracket_;
+    root["min_texture_std"] = min_texture_std_;
     root["dark_untextured_pct"] = r.dark_untextured_pct;
     root["speckle_pixels"] = r.speckle_pixels;
     root["edge_pixels"] = r.edge_pixels;
@@ -516,6 +562,7 @@ class SimDepthCommand : public BenchCommand {
     root["speckle_object_pixels"] = r.speckle_object_pixels;
     root["edge_object_pixels"] = r.edge_object_pixels;
     root["textureless_object_pixels"] = r.textureless_object_pixels;
+    root["textureless_right_pixels"] = r.textureless_right_pixels;
     root["threads"] = threads_;
     root["width"] = r.width;
     root["height"] = r.height;
@@ -568,6 +615,8 @@ class SimDepthCommand : public BenchCommand {
   std::string json_path_;
   std::string save_images_dir_;
   double match_gamma_ = ViewProcessorOptions{}.match_gamma;
+  double bracket_ = 1;
+  double min_texture_std_ = ViewProcessorOptions{}.min_texture_std;
 };
 
 }  // namespace

@@ -228,6 +228,23 @@ TEST(Reproject, TextureFilterDropsFlatRegions) {
   EXPECT_GE(right, 40u * 40u - 40u * 6u);  // all but the image border rows/cols' edge effects
   EXPECT_EQ(Points(ReprojectToPoints(disparity, q, color)).size(), 80u * 40u);  // off by default
   ExpectInvalidInput(ReprojectToPoints(disparity, q, cv::Mat(), options));
+  // Exempt pixels stay whatever their texture (the station exempts what it
+  // sees over the platter): the flat half's top rows come back.
+  options.texture_exempt = cv::Mat::zeros(40, 80, CV_8UC1);
+  options.texture_exempt.rowRange(0, 10).setTo(255);
+  std::size_t exempt_left = 0, lower_left = 0;
+  for (const auto& p : Points(ReprojectToPoints(disparity, q, color, options))) {
+    if (p.x * f / p.z + cx >= 36.5) continue;
+    const double y = p.y * f / p.z + rig.cy;
+    (y < 9.5 ? exempt_left : lower_left)++;
+  }
+  EXPECT_EQ(exempt_left, 10u * 37u);
+  EXPECT_EQ(lower_left, 0u);
+  options.texture_exempt = cv::Mat::zeros(40, 79, CV_8UC1);  // not the disparity's size
+  ExpectInvalidInput(ReprojectToPoints(disparity, q, color, options));
+  options.texture_exempt = cv::Mat::zeros(40, 80, CV_32FC1);
+  ExpectInvalidInput(ReprojectToPoints(disparity, q, color, options));
+  options.texture_exempt = cv::Mat();
   options.texture_window = 4;
   ExpectInvalidInput(ReprojectToPoints(disparity, q, color, options));
 }

@@ -1224,6 +1224,52 @@ TEST(SimRender, DefaultRigCarvedBoxAtFullSize) {
 // never the black backdrop; the embroidery on dark cloth (seed 5151) is
 // bracketed, the carved box and the embroidery on light linen (seed 77) are
 // not. (1280x1024, craftscan-bench sim-depth: 7.73, 0.00 and 0.20 %.)
+// The texture filter's exemption (ViewProcessor): the platter disc in the
+// rectified left view holds the platter and the egg standing on it, and
+// none of the backdrop the filter exists for.
+TEST(SimStation, RectifiedPlatterRegionHoldsThePlatterAndTheObjectNeverTheBackdrop) {
+  auto station = MakeStation(SmallRig(640, 512));
+  ASSERT_TRUE(station);
+  const StereoCalibration& c = station->calibration();
+  SceneOptions options;
+  options.object.type = ObjectType::kEgg;
+  options.seed = 7;
+  auto scene = MakeScene(options);
+  ASSERT_TRUE(scene);
+  const StereoRender r = station->Render(*scene);
+  ASSERT_TRUE(r.IsUsable()) << r.message;
+  const cv::Mat region = RectifiedPlatterRegion(c, options.platter_radius_mm);
+  ASSERT_EQ(region.size(), c.image_size);
+  ASSERT_EQ(region.type(), CV_8UC1);
+  long inside[5] = {0, 0, 0, 0, 0}, total[5] = {0, 0, 0, 0, 0};
+  for (int y = 0; y < region.rows; ++y)
+    for (int x = 0; x < region.cols; ++x) {
+      const int label = r.rectified_labels.at<std::uint8_t>(y, x);
+      ASSERT_LT(label, 5);
+      ++total[label];
+      inside[label] += region.at<std::uint8_t>(y, x) != 0;
+    }
+  const auto pct = [&](SurfaceLabel l) {
+    const int k = static_cast<int>(l);
+    return total[k] > 0 ? 100.0 * inside[k] / total[k] : -1.0;
+  };
+  std::printf("inside the disc: platter %.2f %%, egg %.2f %%, backdrop and table %.3f %%\n",
+              pct(SurfaceLabel::kPlatter), pct(SurfaceLabel::kObject),
+              pct(SurfaceLabel::kBackground));
+  ASSERT_GT(total[static_cast<int>(SurfaceLabel::kBackground)], 10000);
+  // The platter's top is inside; its rim (the disc's 20 mm side) is not.
+  EXPECT_GT(pct(SurfaceLabel::kPlatter), 90.0);
+  EXPECT_GT(pct(SurfaceLabel::kObject), 99.0);
+  // Pixels on the outline, half platter and half backdrop, at most.
+  EXPECT_LT(pct(SurfaceLabel::kBackground), 0.5);
+  // A smaller disc holds less; no turntable axis or no radius, no region.
+  EXPECT_LT(cv::countNonZero(RectifiedPlatterRegion(c, 50)), cv::countNonZero(region));
+  StereoCalibration no_axis = c;
+  no_axis.turntable.valid = false;
+  EXPECT_TRUE(RectifiedPlatterRegion(no_axis, 150).empty());
+  EXPECT_TRUE(RectifiedPlatterRegion(c, 0).empty());
+}
+
 TEST(SimStation, AutoBracketingJudgesThePlatterNotTheBackdrop) {
   auto station = MakeStation(SmallRig(640, 512));
   ASSERT_TRUE(station);

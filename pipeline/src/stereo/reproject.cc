@@ -63,7 +63,9 @@ std::vector<ColoredPoint> ReprojectValid(const cv::Mat& disparity, const cv::Mat
     for (int x = 0; x < disparity.cols; ++x) {
       const float d = d_row[x];
       if (!IsValidDisparity(d) || !std::isfinite(d)) continue;
-      if (!texture_ok.empty() && texture_ok.at<std::uint8_t>(y, x) == 0) continue;
+      if (!texture_ok.empty() && texture_ok.at<std::uint8_t>(y, x) == 0 &&
+          (options.texture_exempt.empty() || options.texture_exempt.at<std::uint8_t>(y, x) == 0))
+        continue;
       const cv::Vec4d h = q * cv::Vec4d(x, y, d, 1.0);
       // W ≈ 0 is a point at infinity (zero disparity with equal principal
       // points); "≈" relative to the terms that make up W.
@@ -109,6 +111,10 @@ ReprojectResult ReprojectToPoints(const cv::Mat& disparity, const cv::Mat& Q, co
   if (!color.empty() &&
       (color.size() != disparity.size() || (color.type() != CV_8UC1 && color.type() != CV_8UC3))) {
     return InvalidInput("color must be empty or CV_8UC1/CV_8UC3 of the disparity's size");
+  }
+  if (!options.texture_exempt.empty() && (options.texture_exempt.size() != disparity.size() ||
+                                          options.texture_exempt.type() != CV_8UC1)) {
+    return InvalidInput("texture_exempt must be empty or CV_8UC1 of the disparity's size");
   }
   if (options.min_texture_std > 0 && color.empty()) {
     return InvalidInput("the texture filter needs the colour image");

@@ -145,6 +145,26 @@ std::size_t EraseNearDepthEdges(int radius_px, double jump_px, cv::Mat* disparit
   return erased;
 }
 
+cv::Mat RectifiedPlatterRegion(const StereoCalibration& c, double radius_mm) {
+  if (!c.turntable.valid || !(radius_mm > 0)) return cv::Mat();
+  const cv::Matx44d rig_from_turntable = TurntableFromRig(c.turntable).inv();
+  // Clamped far outside the image, so fillPoly's fixed point stays in range.
+  const double lim = 4.0 * std::max(c.image_size.width, c.image_size.height);
+  std::vector<cv::Point> outline;
+  for (int i = 0; i < 360; ++i) {
+    const double a = i * CV_PI / 180;
+    const cv::Vec4d p =
+        rig_from_turntable * cv::Vec4d(radius_mm * std::cos(a), radius_mm * std::sin(a), 0, 1);
+    if (!(p[2] > 1)) return cv::Mat();  // the disc reaches the camera plane
+    const cv::Vec3d l = c.P1 * cv::Vec4d(p[0], p[1], p[2], 1);
+    outline.emplace_back(static_cast<int>(std::lround(std::clamp(l[0] / l[2], -lim, lim))),
+                         static_cast<int>(std::lround(std::clamp(l[1] / l[2], -lim, lim))));
+  }
+  cv::Mat region = cv::Mat::zeros(c.image_size, CV_8UC1);
+  cv::fillPoly(region, std::vector<std::vector<cv::Point>>{outline}, cv::Scalar(255));
+  return region;
+}
+
 bool ViewProcessor::Init(const StereoCalibration& calibration, const ViewProcessorOptions& options,
                          std::string* error) {
   std::string why;
@@ -183,6 +203,13 @@ bool ViewProcessor::Init(const StereoCalibration& calibration, const ViewProcess
     d_min = std::min(d_min, d);
     d_max = std::max(d_max, d);
   }
+  // What the left camera sees over the platter disc (the platter's radius,
+  // else the volume's) is the platter or what stands on it, never the
+  // backdrop: the texture filter, there to drop the matcher's guesses on a
+  // textureless backdrop, leaves it alone. Over an object it mostly removed
+  // right pixels (dark paint, dark cloth; README 11.9).
+  over_platter_ = RectifiedPlatterRegion(
+      c, options.platter_radius_mm > 0 ? options.platter_radius_mm : options.volume.radius_mm);
   // Above a low object the cameras see the far side of the platter: the
   // band reaches down to its disparity there, else the matcher carries the
   // object's disparity into it (consistent in both images, so the
@@ -323,6 +350,7 @@ ProcessedView ViewProcessor::Process(const cv::Mat& left_raw, const cv::Mat& rig
     start = std::chrono::steady_clock::now();
     ReprojectOptions reproject;
     reproject.min_texture_std = options_.min_texture_std;
+    reproject.texture_exempt = over_platter_;
     const ReprojectResult reprojected = ReprojectToPoints(
         out.disparity, cv::Mat(rectifier_.calibration().Q), out.rectified_left, reproject);
     if (!reprojected.IsUsable()) {

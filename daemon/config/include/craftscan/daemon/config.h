@@ -63,7 +63,8 @@
 //     min_disparity: 0            px, −4096..4096
 //     num_disparities: 0          px, 0..4096; 0 = derive the band from the
 //                                 calibration and the working volume
-//     min_texture_std: 2.5        grey levels [0, 255]; 0 = off (ReprojectOptions)
+//     min_texture_std: 2.5        grey levels [0, 255]; 0 = off (ReprojectOptions);
+//                                 not over the platter (ViewProcessorOptions)
 //     match_gamma: 1              [1, 4] the matcher sees the pair gamma-encoded
 //                                 (2.2: satin sheen matches better, faint bright
 //                                 paint worse; ViewProcessorOptions::match_gamma)
@@ -227,7 +228,7 @@ struct PipelineSettings {
   int threads = 2;               // worker threads per stage, 1..256
   int min_disparity = 0;         // px, −4096..4096
   int num_disparities = 0;       // px, 0..4096; 0 = derive from calibration + volume
-  double min_texture_std = 2.5;  // grey levels, [0, 255]; 0 = off
+  double min_texture_std = 2.5;  // grey levels, [0, 255]; 0 = off (ViewProcessorOptions)
   // The matcher's copy of each pair gamma-encoded with this, [1, 4]; 1 =
   // as the cameras deliver it (ViewProcessorOptions::match_gamma: 2.2 for
   // textiles' sheen, at a cost on bright, weakly textured paint).

@@ -25,9 +25,15 @@ struct ReprojectOptions {
   // disparity lies outside the search band the guesses are consistent in both
   // views and survive the left-right check. On the simulated station the
   // dark cloth measures 0.6–1.1 (sensor noise), the objects ≥ 5 at 5 %
-  // (window 7): 2.5 removes the cloth and keeps the objects.
+  // (window 7): 2.5 removes the cloth, and with it dark paint the matcher
+  // got right (the station no longer uses it by default: ViewProcessorOptions).
   double min_texture_std = 0;
   int texture_window = 7;  // odd, ≥ 3
+  // Pixels where this is non-zero (CV_8UC1, the disparity's size; empty =
+  // none) are kept whatever their texture: the station exempts what it sees
+  // over the platter, which is the platter or the object, never the
+  // backdrop (ViewProcessor).
+  cv::Mat texture_exempt;
   bool IsValid(std::string* why) const;
 };
 

@@ -147,6 +147,61 @@ TEST(Conditioning, DropsFloatersAndTheNormalsFaceTheViewpoint) {
     ASSERT_EQ(a.coarse.normals[i], b.coarse.normals[i]);
 }
 
+// The platter band: below platter_band_mm, points whose normal is within
+// platter_normal_deg of the axis go (the platter, lifted by matching noise,
+// level or gently sloped as under an overhang); a wall's lowest millimetre
+// stays. Turntable frame = cloud frame; the volume starts at 0.5 mm.
+TEST(Conditioning, PlatterBandKeepsTheWallsBottomAndDropsSlopedPlatterNoise) {
+  PointCloud cloud;
+  // A vertical wall facing +x at x = 20 from the platter up to 30 mm.
+  for (double y = -20; y <= 20; y += 0.4)
+    for (double z = 0; z <= 30; z += 0.4)
+      cloud.points_mm.emplace_back(20.f, static_cast<float>(y), static_cast<float>(z));
+  // A ramp at 35° from level (its normal 35° from the axis) rising from the
+  // platter at x = 40 to 10 mm.
+  const double slope = std::tan(35 * M_PI / 180);
+  for (double y = -20; y <= 20; y += 0.4)
+    for (double x = 40; x <= 40 + 10 / slope; x += 0.4)
+      cloud.points_mm.emplace_back(static_cast<float>(x), static_cast<float>(y),
+                                   static_cast<float>((x - 40) * slope));
+  // Level platter noise 0.8 mm up.
+  for (double y = -20; y <= 20; y += 0.4)
+    for (double x = -30; x <= 0; x += 0.4)
+      cloud.points_mm.emplace_back(static_cast<float>(x), static_cast<float>(y), 0.8f);
+  ConditioningOptions options = Conditioning({200, 0, 150});
+  options.outlier_neighbors = 0;
+  options.crop.enabled = true;
+  options.crop.volume.min_height_mm = 0.5;
+  options.crop.platter_band_mm = 1.5;
+  options.crop.platter_normal_deg = 60;
+  auto count = [](const ViewCloud& v, auto&& in_region) {
+    int n = 0;
+    for (const cv::Vec3f& p : v.fine.points_mm) n += in_region(p) ? 1 : 0;
+    return n;
+  };
+  auto wall_low = [](const cv::Vec3f& p) { return p[0] > 19 && p[0] < 21 && p[2] < 1.5f; };
+  auto ramp_low = [](const cv::Vec3f& p) { return p[0] > 39 && p[2] < 1.5f; };
+  auto ramp_high = [](const cv::Vec3f& p) { return p[0] > 39 && p[2] > 2.f; };
+  auto level = [](const cv::Vec3f& p) { return p[0] < 1; };
+  const ViewCloud steep = ConditionCloud(cloud, options);
+  ASSERT_TRUE(steep.ok()) << steep.error;
+  EXPECT_GE(count(steep, wall_low), 30);  // 41 voxels of 1 mm along the wall's foot
+  EXPECT_EQ(count(steep, ramp_low), 0);
+  EXPECT_GE(count(steep, ramp_high), 300);
+  EXPECT_EQ(count(steep, level), 0);
+  for (const cv::Vec3f& p : steep.fine.points_mm) ASSERT_GE(p[2], 0.5f) << p;
+  // Level only within 30°: the ramp's foot stays, the level noise still goes.
+  options.crop.platter_normal_deg = 30;
+  const ViewCloud level_only = ConditionCloud(cloud, options);
+  ASSERT_TRUE(level_only.ok()) << level_only.error;
+  EXPECT_GE(count(level_only, ramp_low), 30);
+  EXPECT_EQ(count(level_only, level), 0);
+  EXPECT_GE(count(level_only, wall_low), 30);
+  // The band at the volume's bottom does nothing: the level noise stays.
+  options.crop.platter_band_mm = 0.5;
+  EXPECT_GE(count(ConditionCloud(cloud, options), level), 500);
+}
+
 TEST(Registration, DeterministicForAnyThreadCount) {
   const cv::Matx44d truth = Pose({0.05, 0.3, 0.1}, {8, 3, -6});
   Pair pair = MakePair(3, truth, 0.2);

@@ -504,6 +504,7 @@ ScanOptions ReconstructionOptions(const PipelineSettings& settings) {
   options.num_threads = settings.threads;
   options.volume = settings.volume;
   options.conditioning.crop.platter_band_mm = settings.platter_band_mm;
+  options.conditioning.crop.platter_normal_deg = settings.platter_normal_deg;
   options.mesh = settings.mesh;
   options.mesh_method = settings.mesh_method;
   options.free_space_check = settings.free_space_tolerance_mm > 0;

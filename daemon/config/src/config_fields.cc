@@ -463,6 +463,9 @@ std::vector<Field> MakeFields() {
   f.push_back(RealField("pipeline.platter_band_mm",
                         [](DaemonConfig& c) -> double& { return c.pipeline.platter_band_mm; },
                         {0, 1000}));
+  f.push_back(RealField("pipeline.platter_normal_deg",
+                        [](DaemonConfig& c) -> double& { return c.pipeline.platter_normal_deg; },
+                        {0, 90}));
   f.push_back(IntField(
       "pipeline.depth_edge_radius_px",
       [](DaemonConfig& c) -> int& { return c.pipeline.depth_edge_radius_px; }, 0, 5));

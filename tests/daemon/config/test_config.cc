@@ -73,6 +73,8 @@ pipeline:
   volume_radius_mm: 90
   volume_min_height_mm: 2
   volume_max_height_mm: 150
+  platter_band_mm: 3
+  platter_normal_deg: 45
   mesh: false
   mesh_method: implicit
 limits: {max_command_bytes: 4096, queue_capacity: 3}
@@ -139,7 +141,14 @@ deliverables: {rights: "© 2026 Musée d'Orsay: CC BY-NC 4.0"}
   const ScanOptions scan = ReconstructionOptions(c.pipeline);
   EXPECT_EQ(scan.num_threads, 4);
   EXPECT_DOUBLE_EQ(scan.volume.radius_mm, 90);
+  EXPECT_DOUBLE_EQ(scan.conditioning.crop.platter_band_mm, 3);
+  EXPECT_DOUBLE_EQ(scan.conditioning.crop.platter_normal_deg, 45);
   EXPECT_FALSE(scan.mesh);
+  // The defaults: a 0.5 mm bottom with the band above it active.
+  const ScanOptions defaults = ReconstructionOptions(PipelineSettings{});
+  EXPECT_DOUBLE_EQ(defaults.volume.min_height_mm, 0.5);
+  EXPECT_DOUBLE_EQ(defaults.conditioning.crop.platter_band_mm, 1.5);
+  EXPECT_DOUBLE_EQ(defaults.conditioning.crop.platter_normal_deg, 60);
   EXPECT_DOUBLE_EQ(ReprojectionOptions(c.pipeline).min_texture_std, 0);
 
   // The dump reads back to the same config.
@@ -297,8 +306,10 @@ INSTANTIATE_TEST_SUITE_P(
         BadValueCase{
             "pipeline: {volume_min_height_mm: -2000}\n",
             "pipeline.volume_min_height_mm: must be a number in [-1000, 10000], got '-2000'"},
-        BadValueCase{"pipeline: {volume_max_height_mm: 1}\n",
-                     "pipeline.volume_max_height_mm: must be above volume_min_height_mm (1.5)"},
+        BadValueCase{"pipeline: {volume_max_height_mm: 0.2}\n",
+                     "pipeline.volume_max_height_mm: must be above volume_min_height_mm (0.5)"},
+        BadValueCase{"pipeline: {platter_normal_deg: 91}\n",
+                     "pipeline.platter_normal_deg: must be a number in [0, 90], got '91'"},
         BadValueCase{"pipeline: {mesh: maybe}\n",
                      "pipeline.mesh: must be true or false, got 'maybe'"},
         BadValueCase{"pipeline: {mesh_method: marching}\n",

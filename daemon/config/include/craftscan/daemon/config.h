@@ -69,10 +69,11 @@
 //                                 (2.2: satin sheen matches better, faint bright
 //                                 paint worse; ViewProcessorOptions::match_gamma)
 //     volume_radius_mm: 120       (0, 10000] working volume around the axis
-//     volume_min_height_mm: 1.5   [−1000, 10000] above the platter
+//     volume_min_height_mm: 0.5   [−1000, 10000] above the platter
 //     volume_max_height_mm: 200   (min, 10000]
 //     platter_radius_mm: 150      [0, 10000] the band reaches its far edge
 //     platter_band_mm: 1.5        [0, 1000] level points below it are platter
+//     platter_normal_deg: 60      [0, 90] level: a normal within this of the axis
 //     free_space_tolerance_mm: 1  [0, 100]; 0 = no free-space check
 //     depth_edge_radius_px: 1     0..5 erosion at depth edges; 0 = off
 //     depth_edge_jump_px: 3       (0, 1000] what a depth edge is (px of disparity)
@@ -234,17 +235,26 @@ struct PipelineSettings {
   // textiles' sheen, at a cost on bright, weakly textured paint).
   double match_gamma = 1.0;
   // pipeline.volume_radius_mm (0, 10000], pipeline.volume_min_height_mm
-  // [−1000, 10000], pipeline.volume_max_height_mm (min, 10000]; mm.
-  WorkingVolume volume;
+  // [−1000, 10000], pipeline.volume_max_height_mm (min, 10000]; mm. The
+  // bottom is 0.5 mm, below the pipeline's own 1.5: with the platter band
+  // below (level and gently sloped points under 1.5 mm go) the walls'
+  // lowest millimetre stays (README 11.9: box height error 1.44 -> 0.4 mm).
+  WorkingVolume volume{.radius_mm = 120, .min_height_mm = 0.5, .max_height_mm = 200};
   // The turntable platter's radius (mm, [0, 10000]; 0 = not used): the
   // matcher's band reaches the platter's far edge, seen above low objects
   // (ViewProcessorOptions::platter_radius_mm).
   double platter_radius_mm = 150;
-  // Level points (normal within 30° of the axis) lower than this above the
-  // platter are the platter itself, lifted by matching noise, and dropped
-  // (mm, [0, 1000]; at or below volume_min_height_mm: off):
-  // VolumeCrop::platter_band_mm. Walls and relief below it are kept.
+  // Points lower than this above the platter whose normal is within
+  // platter_normal_deg of the axis are the platter itself, lifted by
+  // matching noise, and dropped (mm, [0, 1000]; at or below
+  // volume_min_height_mm: off): VolumeCrop::platter_band_mm. Walls (steeper
+  // than 90° - platter_normal_deg) and relief below it are kept.
   double platter_band_mm = 1.5;
+  // Degrees, [0, 90]: VolumeCrop::platter_normal_deg. 60 also takes the
+  // sloped noise under an overhang (an egg's underside, where the matcher
+  // lifts the shadowed platter), and keeps a vertical wall and a base that
+  // meets the platter at up to 30° from vertical.
+  double platter_normal_deg = 60;
   // Erosion at depth discontinuities (EraseNearDepthEdges): pixels within
   // depth_edge_radius_px (0..5; 0 = off) of a nearer surface, its disparity
   // more than depth_edge_jump_px ((0, 1000]) above theirs, are dropped.

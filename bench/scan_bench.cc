@@ -63,7 +63,7 @@
 // truth_seen.ply: the `seen` truth points on the grid (what truth_obb_mm
 // boxes), truth_visible.ply: the `visible` ones (what completeness counts),
 // and views.ply: every view's own cloud at its exact pose (what stereo alone
-// leaves, before fusion).
+// leaves, before fusion), view k of N coloured at hue 360°·k/N (view 0 red).
 // --turns 2: a second turn of as many views with the object laid in another
 // pose (--turn2-rotation-deg rx,ry,rz, the sim driver's object_rotation_deg;
 // default 90,0,0: on its side), each turn reconstructed up to its fused
@@ -99,6 +99,7 @@
 #include <nlohmann/json.hpp>
 #include <opencv2/core.hpp>
 #include <opencv2/core/utility.hpp>
+#include <opencv2/imgproc.hpp>
 
 #include "command.h"
 #include "craftscan/daemon/config.h"
@@ -608,9 +609,15 @@ class ScanCommand : public BenchCommand {
           100.0 / static_cast<double>(fused_d.size());
     }
     std::vector<cv::Vec3f> raw;
-    for (std::size_t k = 0; k < views.size(); ++k)
-      for (const cv::Vec3f& p : views[k].cloud_in_rig.points_mm)
+    std::vector<cv::Vec3b> raw_view_colors;  // views.ply: view k at hue 360°·k/N
+    for (std::size_t k = 0; k < views.size(); ++k) {
+      cv::Mat3b hsv(1, 1, cv::Vec3b(static_cast<uchar>(180 * k / views.size()), 255, 255)), rgb;
+      cv::cvtColor(hsv, rgb, cv::COLOR_HSV2RGB);
+      for (const cv::Vec3f& p : views[k].cloud_in_rig.points_mm) {
         raw.push_back(Apply(geometry[k].object_from_rig, p));
+        raw_view_colors.push_back(rgb(0, 0));
+      }
+    }
     const std::vector<double> raw_d = SurfaceDistances(truth, station, geometry, raw);
     fig.views_median = Quantile(raw_d, 0.5);
     fig.views_p95 = Quantile(raw_d, 0.95);
@@ -650,6 +657,7 @@ class ScanCommand : public BenchCommand {
         return DataError(why);
       PointCloud views_cloud, visible_cloud;
       views_cloud.points_mm = raw;
+      views_cloud.colors_rgb = raw_view_colors;
       visible_cloud.points_mm = grid;
       if (std::string why; !WriteOutCloud("views.ply", views_cloud, &why) ||
                            !WriteOutCloud("truth_visible.ply", visible_cloud, &why))

@@ -366,6 +366,80 @@ TEST(Fusion, PartsOnlyTheirOwnCameraFacedStayWithoutSupport) {
   EXPECT_CONTAINS(error, "hidden_view_incidence_deg");
 }
 
+// Points every 0.25 mm on the 6 × 2 mm rectangle at `center` spanned by
+// the unit vectors u (6 mm) and v (2 mm), normal n, appended to `cloud`.
+void AddPatch(const cv::Vec3d& center, const cv::Vec3d& u, const cv::Vec3d& v, const cv::Vec3d& n,
+              PointCloud* cloud) {
+  for (double a = -3; a <= 3; a += 0.25)
+    for (double b = -1; b <= 1; b += 0.25) AddPoint(center + a * u + b * v, n, cloud);
+}
+
+TEST(Fusion, UnderAnOverhangByThePlatterAFaceDownNeedsTwoViews) {
+  // The platter is z = 0. Facing down and outwards (37° from straight
+  // down), 0.9–2.1 mm above it: a skirt only view c made (the platter smeared up
+  // under an overhang) and a foot views a and b both saw. View c alone also
+  // saw a wall facing sideways at the same height and a face down at 6 mm
+  // (the underside of a handle): parts no other view saw, which stay.
+  const cv::Vec3d down_out(0.6, 0, -0.8), along(0, 1, 0), slope(0.8, 0, 0.6);
+  std::vector<PointCloud> clouds(3);
+  AddPatch({0, 0, 1.5}, along, slope, down_out, &clouds[2]);   // skirt
+  AddPatch({30, 0, 1.5}, along, slope, down_out, &clouds[0]);  // foot
+  AddPatch({30.1, 0.1, 1.5}, along, slope, down_out, &clouds[1]);
+  AddPatch({60, 0, 1.5}, along, {0, 0, 1}, {1, 0, 0}, &clouds[2]);  // wall
+  AddPatch({90, 0, 6}, along, slope, down_out, &clouds[2]);         // underside
+  const auto count_near = [](const PointCloud& cloud, double x) {
+    return std::count_if(cloud.points_mm.begin(), cloud.points_mm.end(),
+                         [x](const cv::Vec3f& p) { return std::abs(p[0] - x) < 5; });
+  };
+  FusionOptions options;
+  options.min_views = 2;
+  options.lone_view_radius_mm = 2.5;
+  std::string error;
+  FusionStats stats;
+  // Without the platter's rule, every part one view saw alone stays.
+  PointCloud fused = FuseClouds(clouds, options, &error, &stats);
+  ASSERT_FALSE(fused.empty()) << error;
+  const auto skirt = count_near(fused, 0);
+  EXPECT_GT(skirt, 30);
+  EXPECT_EQ(stats.platter_shadow_voxels, 0u);
+
+  options.platter_shadow_mm = 3;
+  options.platter = {0, 0, 1, 0};
+  fused = FuseClouds(clouds, options, &error, &stats);
+  ASSERT_FALSE(fused.empty()) << error;
+  EXPECT_EQ(count_near(fused, 0), 0);
+  EXPECT_EQ(stats.platter_shadow_voxels, static_cast<std::size_t>(skirt));
+  EXPECT_GT(count_near(fused, 30), 30);  // the foot
+  EXPECT_GT(count_near(fused, 60), 30);  // the wall
+  EXPECT_GT(count_near(fused, 90), 30);  // the underside, above the band
+  // The platter 5 mm lower (d = 5): everything is above the band again.
+  options.platter = {0, 0, 1, 5};
+  fused = FuseClouds(clouds, options, &error, &stats);
+  EXPECT_EQ(count_near(fused, 0), skirt);
+  // A narrower angle: the faces are 37° from straight down.
+  options.platter = {0, 0, 1, 0};
+  options.platter_shadow_normal_deg = 30;
+  fused = FuseClouds(clouds, options, &error, &stats);
+  EXPECT_EQ(count_near(fused, 0), skirt);
+  // An unknown platter: not applied.
+  options.platter_shadow_normal_deg = 60;
+  options.platter = {0, 0, 0, 0};
+  fused = FuseClouds(clouds, options, &error, &stats);
+  EXPECT_EQ(count_near(fused, 0), skirt);
+
+  options.platter_shadow_mm = -1;
+  EXPECT_FALSE(options.IsValid(&error));
+  EXPECT_CONTAINS(error, "platter_shadow_mm");
+  options.platter_shadow_mm = 3;
+  options.platter_shadow_normal_deg = 90;
+  EXPECT_FALSE(options.IsValid(&error));
+  EXPECT_CONTAINS(error, "platter_shadow_normal_deg");
+  options.platter_shadow_normal_deg = 60;
+  options.platter[3] = kNaN;
+  EXPECT_FALSE(options.IsValid(&error));
+  EXPECT_CONTAINS(error, "platter");
+}
+
 TEST(Fusion, SparseVoxelsAndNonFinitePointsAreDropped) {
   PointCloud cloud = NoisyPlane(0.25, 0.0, 0.05, +1, {10, 20, 30}, 3);
   const std::size_t plane_points = cloud.size();

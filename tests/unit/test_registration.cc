@@ -151,7 +151,7 @@ TEST(Conditioning, DropsFloatersAndTheNormalsFaceTheViewpoint) {
 // platter_normal_deg of the axis go (the platter, lifted by matching noise,
 // level or gently sloped as under an overhang); a wall's lowest millimetre
 // stays. Turntable frame = cloud frame; the volume starts at 0.5 mm.
-TEST(Conditioning, PlatterBandKeepsTheWallsBottomAndDropsSlopedPlatterNoise) {
+TEST(Conditioning, PlatterBandKeepsTheWallsAndFeetBottomAndDropsSlopedPlatterNoise) {
   PointCloud cloud;
   // A vertical wall facing +x at x = 20 from the platter up to 30 mm.
   for (double y = -20; y <= 20; y += 0.4)
@@ -168,6 +168,15 @@ TEST(Conditioning, PlatterBandKeepsTheWallsBottomAndDropsSlopedPlatterNoise) {
   for (double y = -20; y <= 20; y += 0.4)
     for (double x = -30; x <= 0; x += 0.4)
       cloud.points_mm.emplace_back(static_cast<float>(x), static_cast<float>(y), 0.8f);
+  // A foot curving in towards the platter at x = 60: it rises outwards,
+  // facing down, 55° from straight down (the camera, at 47° above it, still
+  // sees it).
+  const double foot = 55 * M_PI / 180;
+  for (double y = -20; y <= 20; y += 0.4)
+    for (double t = 0; t <= 6; t += 0.4)
+      cloud.points_mm.emplace_back(static_cast<float>(60 + std::cos(foot) * t),
+                                   static_cast<float>(y),
+                                   static_cast<float>(0.6 + std::sin(foot) * t));
   ConditioningOptions options = Conditioning({200, 0, 150});
   options.outlier_neighbors = 0;
   options.crop.enabled = true;
@@ -180,8 +189,9 @@ TEST(Conditioning, PlatterBandKeepsTheWallsBottomAndDropsSlopedPlatterNoise) {
     return n;
   };
   auto wall_low = [](const cv::Vec3f& p) { return p[0] > 19 && p[0] < 21 && p[2] < 1.5f; };
-  auto ramp_low = [](const cv::Vec3f& p) { return p[0] > 39 && p[2] < 1.5f; };
-  auto ramp_high = [](const cv::Vec3f& p) { return p[0] > 39 && p[2] > 2.f; };
+  auto ramp_low = [](const cv::Vec3f& p) { return p[0] > 39 && p[0] < 55 && p[2] < 1.5f; };
+  auto ramp_high = [](const cv::Vec3f& p) { return p[0] > 39 && p[0] < 55 && p[2] > 2.f; };
+  auto foot_low = [](const cv::Vec3f& p) { return p[0] > 59 && p[2] < 1.5f; };
   auto level = [](const cv::Vec3f& p) { return p[0] < 1; };
   const ViewCloud steep = ConditionCloud(cloud, options);
   ASSERT_TRUE(steep.ok()) << steep.error;
@@ -189,6 +199,7 @@ TEST(Conditioning, PlatterBandKeepsTheWallsBottomAndDropsSlopedPlatterNoise) {
   EXPECT_EQ(count(steep, ramp_low), 0);
   EXPECT_GE(count(steep, ramp_high), 300);
   EXPECT_EQ(count(steep, level), 0);
+  EXPECT_GE(count(steep, foot_low), 30);  // facing down: not the platter
   for (const cv::Vec3f& p : steep.fine.points_mm) ASSERT_GE(p[2], 0.5f) << p;
   // Level only within 30°: the ramp's foot stays, the level noise still goes.
   options.crop.platter_normal_deg = 30;

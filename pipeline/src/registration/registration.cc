@@ -449,8 +449,11 @@ ViewCloud ConditionCloud(const PointCloud& input, const ConditioningOptions& opt
   const int k = std::min<int>(options.normal_neighbors, static_cast<int>(fine.size()));
   EstimateNormals(&fine, fine, *surface, k, options.viewpoint_mm, options.num_threads);
   if (options.crop.enabled && options.crop.platter_band_mm > options.crop.volume.min_height_mm) {
-    // Level surface just above the platter: the platter itself, lifted by
-    // matching errors (a few px of disparity lift it by a millimetre or two).
+    // Level surface just above the platter, facing up (the normals face the
+    // camera): the platter itself, lifted by matching errors (a few px of
+    // disparity lift it by a millimetre or two). A surface facing down there
+    // is an object's foot curving in; the platter smeared up under an
+    // overhang also faces down, and fusion's platter_shadow_mm takes it.
     const double cos_level = std::cos(options.crop.platter_normal_deg * M_PI / 180.0);
     const cv::Matx33d R = T.get_minor<3, 3>(0, 0);
     PointCloud kept_level;
@@ -458,7 +461,7 @@ ViewCloud ConditionCloud(const PointCloud& input, const ConditioningOptions& opt
       const cv::Vec3f& p = fine.points_mm[i];
       const cv::Vec4d q = T * cv::Vec4d(p[0], p[1], p[2], 1);
       const cv::Vec3d n = R * cv::Vec3d(fine.normals[i]);
-      if (q[2] < options.crop.platter_band_mm && std::abs(n[2]) >= cos_level) {
+      if (q[2] < options.crop.platter_band_mm && n[2] >= cos_level) {
         ++view.cropped_points;
         continue;
       }

@@ -304,6 +304,17 @@ void KeepMultiViewVoxels(const FusionOptions& options, const std::vector<cv::Vec
   const bool hidden = options.hidden_view_incidence_deg > 0 && with_cameras;
   // Just under 90°: a camera in the tangent plane itself sees nothing.
   constexpr double kInFrontDeg = 89.99;
+  const cv::Vec3f up(static_cast<float>(options.platter[0]), static_cast<float>(options.platter[1]),
+                     static_cast<float>(options.platter[2]));
+  const bool shadow = options.platter_shadow_mm > 0 && cloud.HasNormals() && cv::norm(up) > 0.5;
+  const auto cos_down =
+      static_cast<float>(std::cos(options.platter_shadow_normal_deg * std::numbers::pi / 180));
+  // Faces the platter from just above it: no exception for lack of support.
+  const auto in_shadow = [&](std::size_t v) {
+    const cv::Vec3f& p = cloud.points_mm[v];
+    return p.dot(up) + options.platter[3] < options.platter_shadow_mm &&
+           cloud.normals[v].dot(up) <= -cos_down;
+  };
   std::vector<char> keep(keys.size(), 0);
   for (std::size_t v = 0; v < keys.size(); ++v) {
     std::uint64_t views = voxels->views[v];
@@ -356,6 +367,10 @@ void KeepMultiViewVoxels(const FusionOptions& options, const std::vector<cv::Vec
       }
     }
     keep[v] = std::popcount(views) >= options.min_views;
+    if (!keep[v] && shadow && in_shadow(v)) {
+      ++s->platter_shadow_voxels;
+      continue;
+    }
     if (!keep[v] && lone > 0) {
       const std::uint64_t around = ViewsAroundCell(cells, CellKey(keys[v], options.voxel_mm, lone));
       if ((around & ~voxels->views[v]) == 0) {
@@ -487,6 +502,12 @@ bool FusionOptions::IsValid(std::string* why) const {
     return Fail(why, "FusionOptions.min_normal_agreement must be within 0..1");
   if (!(min_cluster_fraction >= 0 && min_cluster_fraction <= 1))
     return Fail(why, "FusionOptions.min_cluster_fraction must be within 0..1");
+  if (!(platter_shadow_mm >= 0) || !std::isfinite(platter_shadow_mm))
+    return Fail(why, "FusionOptions.platter_shadow_mm must be finite and >= 0");
+  if (!(platter_shadow_normal_deg >= 0 && platter_shadow_normal_deg < 90))
+    return Fail(why, "FusionOptions.platter_shadow_normal_deg must be within [0, 90)");
+  for (int i = 0; i < 4; ++i)
+    if (!std::isfinite(platter[i])) return Fail(why, "FusionOptions.platter must be finite");
   if (!(cluster_gap_mm >= voxel_mm) || !std::isfinite(cluster_gap_mm))
     return Fail(why, "FusionOptions.cluster_gap_mm must be finite and >= voxel_mm");
   return true;

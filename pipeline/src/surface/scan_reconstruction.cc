@@ -317,11 +317,14 @@ ScanResult IncrementalScan::Impl::Finish() {
   std::vector<cv::Vec3d> centers(n);
   for (int k = 0; k < n; ++k)
     centers[k] = cv::Vec3d(out_from_view[k](0, 3), out_from_view[k](1, 3), out_from_view[k](2, 3));
+  // In the turntable frame the platter is z = 0.
+  FusionOptions fusion = options.fusion;
+  if (have_axis) fusion.platter = {0, 0, 1, 0};
   auto fuse = [&](const std::vector<PointCloud>& in_rig) {
     std::vector<PointCloud> clouds;
     clouds.reserve(n);
     for (int k = 0; k < n; ++k) clouds.push_back(TransformCloud(out_from_view[k], in_rig[k]));
-    return FuseClouds(clouds, options.fusion, &why, &result.fusion, &centers);
+    return FuseClouds(clouds, fusion, &why, &result.fusion, &centers);
   };
   std::vector<PointCloud> fine;
   fine.reserve(n);
@@ -497,6 +500,7 @@ std::string ScanReportJson(const ScanResult& result) {
                      {"lone_view_voxels_kept", f.lone_view_voxels},
                      {"sole_view_voxels_kept", f.sole_view_voxels},
                      {"hidden_view_voxels_kept", f.hidden_view_voxels},
+                     {"platter_shadow_voxels_dropped", f.platter_shadow_voxels},
                      {"small_cluster_voxels_dropped", f.small_cluster_voxels},
                      {"output_points", f.output_points}};
     if (result.quality.ok) {

@@ -72,8 +72,8 @@
 //     volume_min_height_mm: 0.5   [−1000, 10000] above the platter
 //     volume_max_height_mm: 200   (min, 10000]
 //     platter_radius_mm: 150      [0, 10000] the band reaches its far edge
-//     platter_band_mm: 1.5        [0, 1000] level points below it are platter
-//     platter_normal_deg: 60      [0, 90] level: a normal within this of the axis
+//     platter_band_mm: 1.5        [0, 1000] level points facing up below it are platter
+//     platter_normal_deg: 60      [0, 90] level: a normal within this of straight up
 //     free_space_tolerance_mm: 1  [0, 100]; 0 = no free-space check
 //     depth_edge_radius_px: 1     0..5 erosion at depth edges; 0 = off
 //     depth_edge_jump_px: 3       (0, 1000] what a depth edge is (px of disparity)
@@ -245,15 +245,17 @@ struct PipelineSettings {
   // (ViewProcessorOptions::platter_radius_mm).
   double platter_radius_mm = 150;
   // Points lower than this above the platter whose normal is within
-  // platter_normal_deg of the axis are the platter itself, lifted by
+  // platter_normal_deg of straight up are the platter itself, lifted by
   // matching noise, and dropped (mm, [0, 1000]; at or below
   // volume_min_height_mm: off): VolumeCrop::platter_band_mm. Walls (steeper
-  // than 90° - platter_normal_deg) and relief below it are kept.
+  // than 90° - platter_normal_deg), feet facing down and relief below it are
+  // kept.
   double platter_band_mm = 1.5;
-  // Degrees, [0, 90]: VolumeCrop::platter_normal_deg. 60 also takes the
-  // sloped noise under an overhang (an egg's underside, where the matcher
-  // lifts the shadowed platter), and keeps a vertical wall and a base that
-  // meets the platter at up to 30° from vertical.
+  // Degrees, [0, 90]: VolumeCrop::platter_normal_deg. 60 also takes sloped
+  // platter noise and keeps a vertical wall and a base that meets the
+  // platter at up to 30° from vertical. The noise under an overhang (an
+  // egg's underside, where the matcher lifts the shadowed platter) faces
+  // down: fusion's platter_shadow_mm (3 mm) takes it unless two views saw it.
   double platter_normal_deg = 60;
   // Erosion at depth discontinuities (EraseNearDepthEdges): pixels within
   // depth_edge_radius_px (0..5; 0 = off) of a nearer surface, its disparity

@@ -33,17 +33,20 @@ struct VolumeCrop {
   cv::Matx44d turntable_from_cloud = cv::Matx44d::eye();  // rigid
   WorkingVolume volume;
   // Platter removal beyond the crop: points below platter_band_mm whose
-  // normal is within platter_normal_deg of the axis (level surface just
-  // above the platter: the platter lifted by matching errors) are dropped.
-  // A band at or below min_height_mm disables it, as by default here. It
-  // must stay below the flattest object's top: a flat object (an
-  // embroidery, a print) is exactly such a level surface (craftscan-bench
-  // scan at 640x512: with a 6 mm band the embroidery kept 38 % of its
-  // surface, without it 94 %). The daemon's pipeline.platter_band_mm is 1.5
-  // mm over a 0.5 mm volume bottom with platter_normal_deg 60: the walls'
-  // lowest millimetre stays and the platter noise goes, level or sloped as
-  // under an egg's overhang (1280x1024, no projector: the box's height
-  // error 1.44 → 0.4 mm; README 11.9).
+  // normal (facing the camera) is within platter_normal_deg of the axis,
+  // pointing up (level surface just above the platter: the platter lifted by
+  // matching errors), are dropped. A surface facing down stays: the foot of
+  // a jug or a figure curving in towards the platter. A band at or below
+  // min_height_mm disables it, as by default here. It must stay below the
+  // flattest object's top: a flat object (an embroidery, a print) is
+  // exactly such a level surface (craftscan-bench scan at 640x512: with a
+  // 6 mm band the embroidery kept 38 % of its surface, without it 94 %).
+  // The daemon's pipeline.platter_band_mm is 1.5 mm over a 0.5 mm volume
+  // bottom with platter_normal_deg 60: the walls' lowest millimetre stays
+  // and the platter noise goes, level or sloped (1280x1024, no projector:
+  // the box's height error 1.44 → 0.4 mm; README 11.9). The platter smeared
+  // up under an overhang faces down; FusionOptions::platter_shadow_mm
+  // takes it.
   double platter_band_mm = 0;
   double platter_normal_deg = 30;
 

@@ -72,7 +72,9 @@ struct ScanOptions {
   // and the others obliquely and sparsely: the base of a box laid on its
   // side kept 82 % of its surface without it). Clusters under 5 % of the object's size
   // are dropped as floaters (FusionOptions::min_cluster_fraction). README 11.9 has what each
-  // bought.
+  // bought. Within 3 mm of the platter a voxel facing down needs two views
+  // with no exception (FusionOptions::platter_shadow_mm; in the turntable
+  // frame, so only with a turntable axis).
   FusionOptions fusion = [] {
     FusionOptions f;
     f.min_views = 2;
@@ -82,6 +84,7 @@ struct ScanOptions {
     f.sole_view_incidence_deg = 70;
     f.hidden_view_incidence_deg = 85;
     f.min_cluster_fraction = 0.05;
+    f.platter_shadow_mm = 3;
     return f;
   }();
   bool mesh = true;

@@ -360,6 +360,8 @@ void Reconstruction(Page& p, const Json& scan) {
               Count(*f, "lone_view_voxels_kept") + " with no other view's points near, " +
               Count(*f, "sole_view_voxels_kept") + " that only their own camera faced, " +
               Count(*f, "hidden_view_voxels_kept") + " that every other camera saw from behind; " +
+              Count(*f, "platter_shadow_voxels_dropped") +
+              " one view saw facing down by the platter dropped; " +
               Count(*f, "small_cluster_voxels_dropped") + " in detached clusters dropped");
   if (const Json* q = Find(scan, "quality")) {
     p.Row("Estimated floaters", Number(*q, "far_from_mesh_pct", 2) +

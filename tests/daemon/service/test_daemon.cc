@@ -259,6 +259,7 @@ TEST(Daemon, EmbroideryAndEggScanWithTheDefaultConfiguration) {
     // Fusion's counts: the voxels multi-view support dropped, and the fused
     // cloud as large as the kept voxels.
     EXPECT_GT(report["fusion"]["unsupported_voxels_dropped"].get<double>(), 0) << report.dump(2);
+    EXPECT_GE(report["fusion"].value("platter_shadow_voxels_dropped", -1.0), 0) << report.dump(2);
     EXPECT_EQ(report["fusion"]["output_points"].get<double>(),
               report["fused_points"].get<double>());
     std::printf(

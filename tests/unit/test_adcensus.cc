@@ -483,6 +483,86 @@ TEST(Scanline, UniformOffsetsEqualTheShiftedBand) {
   EXPECT_GT(cv::countNonZero(band_refined == band_refined), static_cast<int>(left.total() / 2));
 }
 
+// The scanline pass hands the uniqueness test each pixel's winning and
+// runner-up costs; they are what the volume it leaves gives, and the
+// refinement's labels and disparities do not depend on where they came from.
+// The runner-up itself: the least cost at least 2 from the winner among the
+// disparities held.
+TEST(Scanline, RunnerUpCostsAreTheVolumes) {
+  const cv::Mat left = RandomTexture(160, 96, 41);
+  cv::Mat gt;
+  const cv::Mat right = RenderRightView(left, 24, 0.04, 0, &gt);
+  ADCensusOptions o;
+  o.refinement.interpolate = false;
+  o.refinement.uniqueness = 0.05;
+  const Preprocessed pre = Preprocess(left, o.preprocess);
+  const int ndisp = 40;  // a padded stride of 48: the padding lanes are not held
+  for (int threads : {1, 2, 3}) {
+    const Parallel parallel(threads);
+    const auto cl = adcensus::CensusTransform(Grey(left), 9, 7, parallel);
+    const auto cr = adcensus::CensusTransform(Grey(right), 9, 7, parallel);
+    const Arms arms = adcensus::BuildArms(left, pre.gradient, pre.edges, o, parallel);
+    adcensus::CostVolume volume(left.cols, left.rows, ndisp);
+    const adcensus::CostComputer costs(left, right, cl, cr, 0, ndisp, 10, 30, 1.0);
+    cv::Mat l, r, runner_up;
+    adcensus::ScanlineOptimize(left, right, 0, o, parallel, nullptr, &costs, &volume, &l, &r,
+                               &runner_up);
+    ASSERT_EQ(runner_up.type(), CV_32SC2);
+    int checked = 0, with_runner_up = 0;
+    for (int y = 0; y < left.rows; ++y) {
+      for (int x = 0; x < left.cols; ++x) {
+        const adcensus::Cost* c = volume.at(y, x);
+        const int k = static_cast<int>(l.at<float>(y, x));
+        int brute = adcensus::kNoRunnerUp;
+        for (int j = 0; j < ndisp; ++j)
+          if (std::abs(j - k) >= 2) brute = std::min(brute, static_cast<int>(c[j]));
+        const cv::Vec2i given = runner_up.at<cv::Vec2i>(y, x);
+        ASSERT_EQ(given[0], c[k]) << y << "," << x;
+        ASSERT_EQ(given[1], brute) << y << "," << x;
+        ASSERT_EQ(adcensus::RunnerUpCost(c, ndisp, volume.stride(), k), brute);
+        ++checked;
+        with_runner_up += brute != adcensus::kNoRunnerUp;
+      }
+    }
+    EXPECT_EQ(checked, with_runner_up);
+    adcensus::RefineStats from_pass, from_volume;
+    const cv::Mat a = adcensus::Refine(l, r, volume, 0, left, arms, o.refinement, parallel,
+                                       &from_pass, &runner_up);
+    const cv::Mat b = adcensus::Refine(l, r, volume, 0, left, arms, o.refinement, parallel,
+                                       &from_volume, nullptr);
+    EXPECT_TRUE(SameOrBothNaN(a, b, 0));
+    EXPECT_EQ(from_pass.ambiguous_pct, from_volume.ambiguous_pct);
+    // The left-right check's labels against a brute-force search: a pixel
+    // failing it is a mismatch when some disparity j has r(x − j) = j.
+    int mismatched = 0, occluded = 0;
+    for (int y = 0; y < left.rows; ++y) {
+      for (int x = 0; x < left.cols; ++x) {
+        const float d = l.at<float>(y, x);
+        const int xr = x - static_cast<int>(d);
+        if (xr >= 0 && xr < left.cols && IsValidDisparity(r.at<float>(y, xr)) &&
+            std::abs(r.at<float>(y, xr) - d) <= o.refinement.lr_tolerance_px)
+          continue;
+        bool mismatch = false;
+        for (int j = 0; j < ndisp && !mismatch; ++j)
+          mismatch = x - j >= 0 && r.at<float>(y, x - j) == static_cast<float>(j);
+        ++(mismatch ? mismatched : occluded);
+      }
+    }
+    const double n = static_cast<double>(left.total());
+    EXPECT_EQ(from_pass.mismatch_pct, 100.0 * mismatched / n);
+    EXPECT_EQ(from_pass.occluded_pct, 100.0 * occluded / n);
+    EXPECT_GT(mismatched, 0);
+    EXPECT_GT(occluded, 0);
+    EXPECT_GT(from_pass.ambiguous_pct, 0.1);  // the test marks some pixels
+    EXPECT_GT(cv::countNonZero(a == a), static_cast<int>(left.total() / 2));
+  }
+  // A band of three held disparities around the winner leaves no runner-up.
+  const adcensus::Cost three[16] = {5,     1,     7,     16383, 16383, 16383, 16383, 16383,
+                                    16383, 16383, 16383, 16383, 16383, 16383, 16383, 16383};
+  EXPECT_EQ(adcensus::RunnerUpCost(three, 3, 16, 1), adcensus::kNoRunnerUp);
+  EXPECT_EQ(adcensus::RunnerUpCost(three, 3, 16, 0), 7);
+}
+
 // A textured plane with a nearer textured box in front of it, as a station
 // sees an object before its backdrop: d = 60 + slant on the plane, 150 on
 // the box. The right view is drawn from the left with the nearer surface

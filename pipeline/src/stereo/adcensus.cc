@@ -348,7 +348,11 @@ DisparityResult StereoMatcher::Compute(const cv::Mat& left, const cv::Mat& right
     const adcensus::CostComputer cost_computer(img_l, img_r, census_l, census_r, dmin, cost.ndisp(),
                                                options.lambda_ad, options.lambda_census,
                                                options.out_of_image_cost);
-    adcensus::ComputeCost(cost_computer, parallel, &cost);
+    // The station's matcher (scanline paths straight on the matching costs)
+    // computes them row by row as its paths need them, so here only the
+    // census transforms count as "cost".
+    const bool recompute = options.scanline_optimization && options.aggregation_iterations == 0;
+    if (!recompute) adcensus::ComputeCost(cost_computer, parallel, &cost);
     result.time_ms.cost = MsSince(t);
 
     t = Clock::now();
@@ -363,16 +367,18 @@ DisparityResult StereoMatcher::Compute(const cv::Mat& left, const cv::Mat& right
     // Scanline optimization (when on) is fused with the winner-take-all; its
     // time is counted as scanline.
     t = Clock::now();
-    cv::Mat left_index, right_index;
+    cv::Mat left_index, right_index, runner_up;
+    cv::Mat* const wants_runner_up =
+        options.refinement.enabled && options.refinement.uniqueness > 0 ? &runner_up : nullptr;
     const adcensus::CostVolume* final_cost = &cost;
-    if (options.scanline_optimization && options.aggregation_iterations == 0) {
-      // The costs are cheap to recompute row by row: the scanline sums
-      // overwrite them in place, one volume instead of two.
+    if (recompute) {
+      // The costs are cheap to compute row by row: the volume holds only
+      // the scanline sums.
       adcensus::ScanlineOptimize(img_l, img_r, dmin, options, parallel, nullptr, &cost_computer,
-                                 &cost, &left_index, &right_index);
+                                 &cost, &left_index, &right_index, wants_runner_up);
     } else if (options.scanline_optimization) {
       adcensus::ScanlineOptimize(img_l, img_r, dmin, options, parallel, &cost, nullptr,
-                                 &workspace_->scratch, &left_index, &right_index);
+                                 &workspace_->scratch, &left_index, &right_index, wants_runner_up);
       final_cost = &workspace_->scratch;
     }
     result.time_ms.scanline = MsSince(t);
@@ -384,7 +390,8 @@ DisparityResult StereoMatcher::Compute(const cv::Mat& left, const cv::Mat& right
     if (options.refinement.enabled) {
       adcensus::RefineStats stats;
       index = adcensus::Refine(left_index, right_index, *final_cost, dmin, img_l, arms,
-                               options.refinement, parallel, &stats);
+                               options.refinement, parallel, &stats,
+                               runner_up.empty() ? nullptr : &runner_up);
       result.occluded_pct = stats.occluded_pct;
       result.mismatch_pct = stats.mismatch_pct;
       result.ambiguous_pct = stats.ambiguous_pct;

@@ -11,10 +11,13 @@
 #include <hwy/highway.h>
 
 #include <algorithm>
+#include <atomic>
 #include <cmath>
 #include <cstring>
 #include <initializer_list>
 #include <limits>
+#include <memory>
+#include <thread>
 
 #include "adcensus_internal.h"
 
@@ -351,6 +354,33 @@ class RightWinners {
 
 }  // namespace
 
+namespace {
+
+inline int RunnerUp(const Cost* __restrict c, int n, int stride, int k) {
+  // j ∈ [0, k − 1) or [k + 2, n): is either run non-empty?
+  if (k - 1 <= 0 && k + 2 >= n) return kNoRunnerUp;
+  const CostTag d;
+  const int lanes = static_cast<int>(hn::Lanes(d));
+  // Excluded: k − 1 … k + 1 (k − 2 < j < k + 2) and j ≥ n (j > n − 1).
+  const auto below = hn::Set(d, static_cast<Cost>(k - 2));
+  const auto above = hn::Set(d, static_cast<Cost>(k + 2));
+  const auto last_held = hn::Set(d, static_cast<Cost>(n - 1));
+  const auto none = hn::Set(d, kMaxCost);
+  const auto step = hn::Set(d, static_cast<Cost>(lanes));
+  auto j = hn::Iota(d, 0);
+  auto best = none;
+  for (int i = 0; i < stride; i += lanes) {
+    const auto out = hn::Or(hn::And(hn::Gt(j, below), hn::Lt(j, above)), hn::Gt(j, last_held));
+    best = hn::Min(best, hn::IfThenElse(out, none, hn::LoadU(d, c + i)));
+    j = hn::Add(j, step);
+  }
+  return hn::GetLane(hn::MinOfLanes(d, best));
+}
+
+}  // namespace
+
+int RunnerUpCost(const Cost* c, int n, int stride, int k) { return RunnerUp(c, n, stride, k); }
+
 void WinnerTakeAll(const CostVolume& cost, int min_disparity, const Parallel& parallel,
                    cv::Mat* left_index, cv::Mat* right_index) {
   const int width = cost.width(), height = cost.height(), stride = cost.stride();
@@ -473,6 +503,15 @@ inline void AddSaturated(const Cost* __restrict add, int n, Cost* __restrict out
     hn::StoreU(hn::SaturatedAdd(hn::LoadU(d, out + k), hn::LoadU(d, add + k)), d, out + k);
 }
 
+// out[k] = saturate(a[k] + b[k]).
+inline void SumSaturated(const Cost* __restrict a, const Cost* __restrict b, int n,
+                         Cost* __restrict out) {
+  const CostTag d;
+  const int lanes = static_cast<int>(hn::Lanes(d));
+  for (int k = 0; k < n; k += lanes)
+    hn::StoreU(hn::SaturatedAdd(hn::LoadU(d, a + k), hn::LoadU(d, b + k)), d, out + k);
+}
+
 Cost ToPenalty(double value) {
   return static_cast<Cost>(std::clamp(std::lround(value * kCostScale), 0L, 16383L));
 }
@@ -482,7 +521,7 @@ Cost ToPenalty(double value) {
 void ScanlineOptimize(const cv::Mat& left, const cv::Mat& right, int min_disparity,
                       const ADCensusOptions& options, const Parallel& parallel,
                       const CostVolume* cost, const CostComputer* recompute, CostVolume* result,
-                      cv::Mat* left_index, cv::Mat* right_index) {
+                      cv::Mat* left_index, cv::Mat* right_index, cv::Mat* runner_up) {
   if (cost) {
     result->Reshape(cost->width(), cost->height(), cost->ndisp());
     result->CopyOffsetsFrom(*cost);
@@ -510,6 +549,135 @@ void ScanlineOptimize(const cv::Mat& left, const cv::Mat& right, int min_dispari
     return std::clamp(o - o_prev, -stride - 1, stride + 1);
   };
 
+  left_index->create(height, width, CV_32FC1);
+  right_index->create(height, width, CV_32FC1);
+  if (runner_up) runner_up->create(height, width, CV_32SC2);
+  const int held = in.ndisp();
+  // The winners of the final sum S(y, x) (`out`), pixels offered to the right
+  // view's winners in decreasing x or all in increasing x.
+  const auto finish = [&](int y, int x, int o, const Cost* out, float* l, bool decreasing_x,
+                          RightWinners* winners) {
+    const int k = ArgMin(out, stride);
+    l[x] = static_cast<float>(o + k);
+    if (runner_up) {
+      std::int32_t* u = runner_up->ptr<std::int32_t>(y) + 2 * x;
+      u[0] = out[k];
+      u[1] = RunnerUp(out, held, stride, k);
+    }
+    winners->Offer(x, out, decreasing_x, o);
+  };
+
+  // One step of row y's path along x (step 1: left→right, −1: right→left)
+  // at pixel x, the j-th of the path, with offset o and costs a: `cur` from
+  // `prev` (each a padded lane), *min the path's minimum, *prev_offset the
+  // previous pixel's offset.
+  const auto horizontal_step = [&](const std::uint8_t* row, int y, int x, int j, int step, int o,
+                                   const Cost* a, const Cost* prev, Cost* cur, Cost* min,
+                                   int* prev_offset) {
+    if (j == 0) {
+      *min = PathStart(a, stride, cur + pad);
+    } else {
+      const bool d1_big = ColourDiff(row + ch * x, row + ch * (x - step), ch) >= tau_so;
+      // Right-image pair (x_r, x_r − step): left→right uses hdiff(x_r),
+      // right→left uses hdiff(x_r + 1).
+      const int base_xr = x - min_disparity - o + (step > 0 ? 0 : 1);
+      *min = PathStep(a, prev + pad + shift(o, *prev_offset), *min, d1_big, hdiff.At(y, base_xr),
+                      pen, stride, cur + pad);
+    }
+    *prev_offset = o;
+  };
+
+  if (parallel.num_threads() <= 2) {
+    // Two sweeps over whole rows, at once on two threads (one after the
+    // other on one): top→bottom with left→right, bottom→top with
+    // right→left. Each gets C's rows in order (recomputed, or read once,
+    // sequentially) and keeps one row of vertical state per column in cache.
+    // The first sweep to reach a row writes its two paths' sum as S(y); the
+    // second adds its own as it goes, which completes S(y, x), and takes the
+    // winners. S is written and read once, in order, and C is never stored:
+    // the volume's traffic of the band passes below, which walk columns
+    // through DRAM, was most of their time. Saturating sums of non-negative
+    // costs do not depend on the order of the terms, so the result is the
+    // band passes' exactly. Rows: 0 untouched, 1 being written by the first
+    // sweep, 2 written.
+    std::unique_ptr<std::atomic<std::uint8_t>[]> state(new std::atomic<std::uint8_t>[height]);
+    for (int y = 0; y < height; ++y) state[y].store(0, std::memory_order_relaxed);
+    // Vertical state: stride costs per column between two sentinels; a
+    // column whose offset changed from the row before is read shifted
+    // through `shifted`, whose pads always hold sentinels.
+    const std::size_t vlane = stride + 2;
+    parallel.For(0, 2, [&](int s0, int s1) {
+      std::vector<Cost> costs(cost ? 0 : static_cast<std::size_t>(width) * stride);
+      std::vector<Cost> vprev(width * vlane, kMaxCost), vcur(width * vlane, kMaxCost);
+      std::vector<Cost> hprev(lane, kMaxCost), hcur(lane, kMaxCost), shifted(lane, kMaxCost);
+      std::vector<Cost> sum(stride);
+      std::vector<Cost> vmin(width);
+      std::vector<int> voffset(width);
+      CostComputer::Scratch scratch;
+      RightWinners winners(width, min_disparity, stride, span);
+      for (int sweep = s0; sweep < s1; ++sweep) {
+        const int ystep = sweep == 0 ? 1 : -1, xstep = ystep;
+        for (int i = 0, y = sweep == 0 ? 0 : height - 1; i < height; ++i, y += ystep) {
+          const std::uint8_t* row = left.ptr<std::uint8_t>(y);
+          const std::uint8_t* prow = i == 0 ? row : left.ptr<std::uint8_t>(y - ystep);
+          const std::int32_t* offsets = in.offset_row(y);
+          const Cost* c_row = cost ? cost->at(y, 0) : costs.data();
+          if (!cost) recompute->Row(y, &scratch, costs.data(), offsets);
+          std::uint8_t untouched = 0;
+          const bool first =
+              state[y].compare_exchange_strong(untouched, 1, std::memory_order_acq_rel);
+          // Second: the other sweep is writing the row (both are at the same
+          // row, where they cross) or has written it.
+          if (!first)
+            while (state[y].load(std::memory_order_acquire) != 2) std::this_thread::yield();
+          Cost* s_row = result->at(y, 0);
+          float* l = left_index->ptr<float>(y);
+          winners.Reset();
+          // Top→bottom pairs (y, y−1): vdiff row y; bottom→top: vdiff row y+1.
+          const int vy = sweep == 0 ? y : y + 1;
+          Cost hmin = 0;
+          int hoffset = 0;
+          for (int j = 0, x = sweep == 0 ? 0 : width - 1; j < width; ++j, x += xstep) {
+            const Cost* a = c_row + static_cast<std::size_t>(x) * stride;
+            const int o = offsets ? offsets[x] : 0;
+            Cost* vc = &vcur[x * vlane + 1];
+            if (i == 0) {
+              vmin[x] = PathStart(a, stride, vc);
+            } else {
+              const bool d1_big = ColourDiff(row + ch * x, prow + ch * x, ch) >= tau_so;
+              const Cost* vp = &vprev[x * vlane + 1];
+              if (o != voffset[x]) {
+                std::copy_n(vp, stride, &shifted[pad]);
+                vp = &shifted[pad + shift(o, voffset[x])];
+              }
+              vmin[x] = PathStep(a, vp, vmin[x], d1_big, vdiff.At(vy, x - min_disparity - o), pen,
+                                 stride, vc);
+            }
+            voffset[x] = o;
+            horizontal_step(row, y, x, j, xstep, o, a, hprev.data(), hcur.data(), &hmin, &hoffset);
+            Cost* out = s_row + static_cast<std::size_t>(x) * stride;
+            if (first) {
+              SumSaturated(vc, &hcur[pad], stride, out);
+            } else {
+              SumSaturated(vc, &hcur[pad], stride, sum.data());
+              AddSaturated(sum.data(), stride, out);
+              finish(y, x, o, out, l, sweep == 1, &winners);
+            }
+            std::swap(hprev, hcur);
+          }
+          std::swap(vprev, vcur);
+          if (first)
+            state[y].store(2, std::memory_order_release);
+          else
+            winners.Write(total, right_index->ptr<float>(y));
+        }
+      }
+    });
+    return;
+  }
+
+  // More threads: passes over the whole volume, split between them.
+  if (!cost) ComputeCost(*recompute, parallel, result);  // C, overwritten by S below
   // Pass 1: vertical paths over bands of columns, one row of state per
   // column. Top→bottom values go to a band buffer (height × band × stride);
   // bottom→top then reads C(y, x) and writes S(y, x) = L_tb + L_bt in its
@@ -561,8 +729,6 @@ void ScanlineOptimize(const cv::Mat& left, const cv::Mat& right, int min_dispari
   });
 
   // Pass 2: horizontal paths row by row, the sum and the winners.
-  left_index->create(height, width, CV_32FC1);
-  right_index->create(height, width, CV_32FC1);
   parallel.For(0, height, [&](int y0, int y1) {
     std::vector<Cost> prev(lane, kMaxCost), cur(lane, kMaxCost);
     std::vector<Cost> forward(static_cast<std::size_t>(width) * stride);  // L left→right
@@ -583,17 +749,8 @@ void ScanlineOptimize(const cv::Mat& left, const cv::Mat& right, int min_dispari
         for (int i = 0, x = x_start; i < width; ++i, x += step) {
           const Cost* a = c_row + static_cast<std::size_t>(x) * stride;
           const int o = offsets ? offsets[x] : 0;
-          if (i == 0) {
-            prev_min = PathStart(a, stride, &cur[pad]);
-          } else {
-            const bool d1_big = ColourDiff(row + ch * x, row + ch * (x - step), ch) >= tau_so;
-            // Right-image pair (x_r, x_r − step): left→right uses hdiff(x_r),
-            // right→left uses hdiff(x_r + 1).
-            const int base_xr = x - min_disparity - o + (dir == 0 ? 0 : 1);
-            prev_min = PathStep(a, &prev[pad + shift(o, prev_offset)], prev_min, d1_big,
-                                hdiff.At(y, base_xr), pen, stride, &cur[pad]);
-          }
-          prev_offset = o;
+          horizontal_step(row, y, x, i, step, o, a, prev.data(), cur.data(), &prev_min,
+                          &prev_offset);
           Cost* fwd = &forward[static_cast<std::size_t>(x) * stride];
           if (dir == 0) {
             std::copy_n(&cur[pad], stride, fwd);
@@ -601,8 +758,7 @@ void ScanlineOptimize(const cv::Mat& left, const cv::Mat& right, int min_dispari
             Cost* out = result->at(y, x);
             AddSaturated(fwd, stride, out);
             AddSaturated(&cur[pad], stride, out);
-            l[x] = static_cast<float>(o + ArgMin(out, stride));
-            winners.Offer(x, out, true, o);
+            finish(y, x, o, out, l, true, &winners);
           }
           std::swap(prev, cur);
         }

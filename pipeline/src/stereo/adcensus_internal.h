@@ -5,6 +5,7 @@
 #include <algorithm>
 #include <cstdint>
 #include <cstdlib>
+#include <limits>
 #include <memory>
 #include <new>
 #include <opencv2/core/mat.hpp>
@@ -176,16 +177,29 @@ int SupportSize(const Arms& arms, int y, int x, bool horizontal_first);
 
 // Four-direction scanline optimization (Mei et al.) fused with the
 // winner-take-all. The aggregated costs C come from `cost`, or, when `cost`
-// is nullptr, from *result itself, which then holds C on entry and is
-// overwritten (one volume instead of two), with `recompute` giving the rows
-// of C again. On return *result holds the sum of the four path costs (4× Mei's
+// is nullptr, from `recompute` row by row (the matching costs, never stored
+// as a volume; *result, shaped and offset by the caller, then only receives
+// the sums). On return *result holds the sum of the four path costs (4× Mei's
 // mean; the refinement reads it), and the integer disparity indices of the
 // left and right views are as WinnerTakeAll gives them. Penalties depend on
-// colour differences in both images. *result is reshaped as needed.
+// colour differences in both images. *result is reshaped as needed when
+// `cost` is given. With up to two threads it sweeps whole rows (two sweeps,
+// one per thread); with more, it passes over the volume in bands of columns
+// and then rows, split between all of them. Both give the same result.
+// With `runner_up` (may be null) it also gives each left pixel's winning and
+// runner-up costs (RunnerUpCost) while the sum is in cache (CV_32SC2), which
+// the refinement's uniqueness test would otherwise read from the volume again.
 void ScanlineOptimize(const cv::Mat& left, const cv::Mat& right, int min_disparity,
                       const ADCensusOptions& options, const Parallel& parallel,
                       const CostVolume* cost, const CostComputer* recompute, CostVolume* result,
-                      cv::Mat* left_index, cv::Mat* right_index);
+                      cv::Mat* left_index, cv::Mat* right_index, cv::Mat* runner_up = nullptr);
+
+// The uniqueness test's runner-up: the least of c[j] over the disparities a
+// pixel holds (j < n) at least 2 from its winner k (|j − k| ≥ 2; the winner's
+// neighbours are the same minimum, blurred), or kNoRunnerUp when there is
+// none. c holds `stride` costs (a multiple of 16).
+inline constexpr int kNoRunnerUp = std::numeric_limits<int>::max();
+int RunnerUpCost(const Cost* c, int n, int stride, int k);
 
 // Winner-take-all: integer disparity index (0 … ndisp−1, the first minimum)
 // per pixel of the left view, and of the right view through cost(y, x_r + d, d)
@@ -199,8 +213,11 @@ struct RefineStats {
 
 // Mei's refinement on disparity indices (CV_32FC1, values 0 … ndisp−1); the
 // result is a disparity index map with sub-pixel values and NaN where none.
+// `runner_up` (may be null): ScanlineOptimize's winning and runner-up costs
+// for the uniqueness test, the same as `cost` and RunnerUpCost would give.
 cv::Mat Refine(const cv::Mat& left_index, const cv::Mat& right_index, const CostVolume& cost,
                int min_disparity, const cv::Mat& left_image, const Arms& arms,
-               const RefinementOptions& options, const Parallel& parallel, RefineStats* stats);
+               const RefinementOptions& options, const Parallel& parallel, RefineStats* stats,
+               const cv::Mat* runner_up = nullptr);
 
 }  // namespace craftscan::adcensus

@@ -28,10 +28,23 @@ void DetectOutliers(const cv::Mat& left_index, const cv::Mat& right_index, int m
   const int width = left_index.cols;
   labels->create(left_index.size(), CV_8UC1);
   parallel.For(0, left_index.rows, [&](int y0, int y1) {
+    // The right pixels whose winner points back at left pixel x, as lists:
+    // right pixel x_r with integer index j points at x = x_r + d_min + j.
+    std::vector<int> head(width), next(width);
     for (int y = y0; y < y1; ++y) {
       const float* l = left_index.ptr<float>(y);
       const float* r = right_index.ptr<float>(y);
       std::uint8_t* out = labels->ptr<std::uint8_t>(y);
+      std::fill(head.begin(), head.end(), -1);
+      for (int xr = 0; xr < width; ++xr) {
+        // Only an integer index can equal a disparity index j (NaN fails too).
+        if (!(r[xr] >= 0.f && r[xr] < static_cast<float>(cost.total_ndisp()))) continue;
+        const int j = static_cast<int>(r[xr]);
+        const int x = xr + min_disparity + j;
+        if (static_cast<float>(j) != r[xr] || x < 0 || x >= width) continue;
+        next[xr] = head[x];
+        head[x] = xr;
+      }
       for (int x = 0; x < width; ++x) {
         const int k = static_cast<int>(l[x]);
         const int xr = x - min_disparity - k;
@@ -40,14 +53,15 @@ void DetectOutliers(const cv::Mat& left_index, const cv::Mat& right_index, int m
           out[x] = kReliable;
           continue;
         }
-        // A mismatch if some disparity on the epipolar line is consistent in
-        // the right view; otherwise the pixel is occluded there.
+        // A mismatch if some disparity j the pixel searched is consistent
+        // in the right view (r(x − d_min − j) = j); otherwise the pixel is
+        // occluded there.
         out[x] = kOccluded;
         const int j0 = cost.offset(y, x);
         const int j1 = cost.has_offsets() ? j0 + cost.ndisp() : cost.total_ndisp();
-        for (int j = j0; j < j1; ++j) {
-          const int xj = x - min_disparity - j;
-          if (xj >= 0 && xj < width && r[xj] == static_cast<float>(j)) {
+        for (int xj = head[x]; xj >= 0; xj = next[xj]) {
+          const int j = x - min_disparity - xj;
+          if (j >= j0 && j < j1) {
             out[x] = kMismatch;
             break;
           }
@@ -61,22 +75,32 @@ void DetectOutliers(const cv::Mat& left_index, const cv::Mat& right_index, int m
 // c[k] > (1 − uniqueness) · min over |j − k| ≥ 2 of c[j] (over the
 // disparities the pixel holds). The neighbours of the winner are excluded:
 // they are the same minimum, blurred.
+// The winning and runner-up costs (RunnerUpCost) come from `runner_up` when
+// given (the scanline pass's, taken while each pixel's sum was in cache),
+// else from `cost`.
 void MarkAmbiguous(const CostVolume& cost, const cv::Mat& left_index, double uniqueness,
-                   const Parallel& parallel, cv::Mat* labels) {
+                   const cv::Mat* runner_up, const Parallel& parallel, cv::Mat* labels) {
   const int ndisp = cost.ndisp();
   const float keep = static_cast<float>(1 - uniqueness);
   parallel.For(0, left_index.rows, [&](int y0, int y1) {
     for (int y = y0; y < y1; ++y) {
       const float* l = left_index.ptr<float>(y);
+      const std::int32_t* given = runner_up ? runner_up->ptr<std::int32_t>(y) : nullptr;
       std::uint8_t* lab = labels->ptr<std::uint8_t>(y);
       for (int x = 0; x < left_index.cols; ++x) {
         if (lab[x] != kReliable) continue;
-        const Cost* c = cost.at(y, x);
-        const int k = static_cast<int>(l[x]) - cost.offset(y, x);
-        float second = std::numeric_limits<float>::infinity();
-        for (int j = 0; j < k - 1; ++j) second = std::min(second, static_cast<float>(c[j]));
-        for (int j = k + 2; j < ndisp; ++j) second = std::min(second, static_cast<float>(c[j]));
-        if (c[k] > keep * second) lab[x] = kAmbiguous;
+        int winner, second;
+        if (given) {
+          winner = given[2 * x];
+          second = given[2 * x + 1];
+        } else {
+          const Cost* c = cost.at(y, x);
+          const int k = static_cast<int>(l[x]) - cost.offset(y, x);
+          winner = c[k];
+          second = RunnerUpCost(c, ndisp, cost.stride(), k);
+        }
+        if (second != kNoRunnerUp && static_cast<float>(winner) > keep * static_cast<float>(second))
+          lab[x] = kAmbiguous;
       }
     }
   });
@@ -465,7 +489,8 @@ void MedianFilter(int size, const Parallel& parallel, cv::Mat* disparity) {
 
 cv::Mat Refine(const cv::Mat& left_index, const cv::Mat& right_index, const CostVolume& cost,
                int min_disparity, const cv::Mat& left_image, const Arms& arms,
-               const RefinementOptions& options, const Parallel& parallel, RefineStats* stats) {
+               const RefinementOptions& options, const Parallel& parallel, RefineStats* stats,
+               const cv::Mat* runner_up) {
   cv::Mat labels;
   DetectOutliers(left_index, right_index, min_disparity, cost, options.lr_tolerance_px, parallel,
                  &labels);
@@ -475,7 +500,7 @@ cv::Mat Refine(const cv::Mat& left_index, const cv::Mat& right_index, const Cost
     stats->mismatch_pct = 100.0 * cv::countNonZero(labels == kMismatch) / n;
   }
   if (options.uniqueness > 0) {
-    MarkAmbiguous(cost, left_index, options.uniqueness, parallel, &labels);
+    MarkAmbiguous(cost, left_index, options.uniqueness, runner_up, parallel, &labels);
     if (stats)
       stats->ambiguous_pct =
           100.0 * cv::countNonZero(labels == kAmbiguous) / static_cast<double>(labels.total());

@@ -113,8 +113,9 @@ DisparityResult InvalidInput(std::string message) {
 
 struct StereoMatcher::Workspace {
   explicit Workspace(int num_threads) : parallel(num_threads) {}
-  Parallel parallel;                      // the arena lives as long as the matcher
-  adcensus::CostVolume cost, scratch;     // aggregated costs; scanline sums
+  Parallel parallel;                   // the arena lives as long as the matcher
+  adcensus::CostVolume cost, scratch;  // aggregated costs; scanline sums
+  std::vector<std::uint64_t> census_left, census_right;
   std::unique_ptr<StereoMatcher> coarse;  // coarse-to-fine's first pass
 };
 
@@ -338,10 +339,12 @@ DisparityResult StereoMatcher::Compute(const cv::Mat& left, const cv::Mat& right
     result.time_ms.preprocess = MsSince(t);
 
     t = Clock::now();
-    const auto census_l =
-        adcensus::CensusTransform(pl.grey, options.census_width, options.census_height, parallel);
-    const auto census_r =
-        adcensus::CensusTransform(pr.grey, options.census_width, options.census_height, parallel);
+    std::vector<std::uint64_t>& census_l = workspace_->census_left;
+    std::vector<std::uint64_t>& census_r = workspace_->census_right;
+    adcensus::CensusTransform(pl.grey, options.census_width, options.census_height, parallel,
+                              &census_l);
+    adcensus::CensusTransform(pr.grey, options.census_width, options.census_height, parallel,
+                              &census_r);
     adcensus::CostVolume& cost = workspace_->cost;
     cost.Reshape(left.cols, left.rows, coarse_to_fine ? lanes : ndisp);
     if (coarse_to_fine) cost.SetOffsets(std::move(offsets), ndisp);

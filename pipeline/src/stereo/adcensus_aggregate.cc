@@ -512,6 +512,17 @@ inline void SumSaturated(const Cost* __restrict a, const Cost* __restrict b, int
     hn::StoreU(hn::SaturatedAdd(hn::LoadU(d, a + k), hn::LoadU(d, b + k)), d, out + k);
 }
 
+// out[k] = saturate(out[k] + saturate(a[k] + b[k])).
+inline void AddSumSaturated(const Cost* __restrict a, const Cost* __restrict b, int n,
+                            Cost* __restrict out) {
+  const CostTag d;
+  const int lanes = static_cast<int>(hn::Lanes(d));
+  for (int k = 0; k < n; k += lanes) {
+    const auto sum = hn::SaturatedAdd(hn::LoadU(d, a + k), hn::LoadU(d, b + k));
+    hn::StoreU(hn::SaturatedAdd(hn::LoadU(d, out + k), sum), d, out + k);
+  }
+}
+
 Cost ToPenalty(double value) {
   return static_cast<Cost>(std::clamp(std::lround(value * kCostScale), 0L, 16383L));
 }
@@ -610,7 +621,6 @@ void ScanlineOptimize(const cv::Mat& left, const cv::Mat& right, int min_dispari
       std::vector<Cost> costs(cost ? 0 : static_cast<std::size_t>(width) * stride);
       std::vector<Cost> vprev(width * vlane, kMaxCost), vcur(width * vlane, kMaxCost);
       std::vector<Cost> hprev(lane, kMaxCost), hcur(lane, kMaxCost), shifted(lane, kMaxCost);
-      std::vector<Cost> sum(stride);
       std::vector<Cost> vmin(width);
       std::vector<int> voffset(width);
       CostComputer::Scratch scratch;
@@ -659,8 +669,7 @@ void ScanlineOptimize(const cv::Mat& left, const cv::Mat& right, int min_dispari
             if (first) {
               SumSaturated(vc, &hcur[pad], stride, out);
             } else {
-              SumSaturated(vc, &hcur[pad], stride, sum.data());
-              AddSaturated(sum.data(), stride, out);
+              AddSumSaturated(vc, &hcur[pad], stride, out);
               finish(y, x, o, out, l, sweep == 1, &winners);
             }
             std::swap(hprev, hcur);

@@ -47,12 +47,20 @@ void CostVolume::Reshape(int width, int height, int ndisp) {
 
 std::vector<std::uint64_t> CensusTransform(const cv::Mat& grey, int win_w, int win_h,
                                            const Parallel& parallel) {
+  std::vector<std::uint64_t> census;
+  CensusTransform(grey, win_w, win_h, parallel, &census);
+  return census;
+}
+
+void CensusTransform(const cv::Mat& grey, int win_w, int win_h, const Parallel& parallel,
+                     std::vector<std::uint64_t>* census_out) {
   CV_Assert(grey.type() == CV_8UC1 && win_w % 2 == 1 && win_h % 2 == 1 && win_w * win_h <= 65);
   const int rw = win_w / 2, rh = win_h / 2;
   cv::Mat padded;
   cv::copyMakeBorder(grey, padded, rh, rh, rw, rw, cv::BORDER_REPLICATE);
   const int width = grey.cols;
-  std::vector<std::uint64_t> census(grey.total());
+  std::vector<std::uint64_t>& census = *census_out;
+  census.resize(grey.total());  // every word is written below
   parallel.For(0, grey.rows, [&](int y0, int y1) {
     for (int y = y0; y < y1; ++y) {
       std::uint64_t* out = census.data() + static_cast<std::size_t>(y) * width;
@@ -70,7 +78,6 @@ std::vector<std::uint64_t> CensusTransform(const cv::Mat& grey, int win_w, int w
       }
     }
   });
-  return census;
 }
 
 namespace {

@@ -102,7 +102,10 @@ class CostVolume {
 
 // Census transform over a win_w × win_h window (≤ 65 positions; the centre is
 // skipped): bit k is set when neighbour k is darker than the centre. Borders
-// replicate. Returns one word per pixel, row-major.
+// replicate. One word per pixel, row-major, into *census (its memory reused
+// when large enough), or returned.
+void CensusTransform(const cv::Mat& grey, int win_w, int win_h, const Parallel& parallel,
+                     std::vector<std::uint64_t>* census);
 std::vector<std::uint64_t> CensusTransform(const cv::Mat& grey, int win_w, int win_h,
                                            const Parallel& parallel);
 

@@ -154,6 +154,40 @@ inline bool RegionChanged(const Arms& arms, const cv::Mat& changed_prefix, int y
   return false;
 }
 
+// Counts per row and block of kColumns columns, as 2D prefix sums, for an
+// upper bound on what a cross region holds: the rows of its vertical arm and
+// every block its longest horizontal arm (`reach`) can touch.
+class BlockCounts {
+ public:
+  static constexpr int kColumns = 32;
+  BlockCounts(int width, int height, int reach)
+      : width_(width),
+        blocks_((width + kColumns - 1) / kColumns),
+        reach_(reach),
+        sums_(static_cast<std::size_t>(height + 1) * (blocks_ + 1), 0) {}
+  int blocks() const { return blocks_; }
+  void Clear() { std::fill(sums_.begin(), sums_.end(), 0); }
+  // Before Accumulate: n more in row y, block b.
+  void Add(int y, int b, int n) { at(y + 1, b + 1) += n; }
+  void Accumulate() {
+    const int rows = static_cast<int>(sums_.size() / (blocks_ + 1));
+    for (int y = 1; y < rows; ++y)
+      for (int b = 1; b <= blocks_; ++b) at(y, b) += at(y - 1, b) + at(y, b - 1) - at(y - 1, b - 1);
+  }
+  // The count over rows [y0, y1) and the blocks within reach of column x.
+  int InReach(int y0, int y1, int x) const {
+    const int b0 = std::max(0, x - reach_) / kColumns;
+    const int b1 = std::min(width_ - 1, x + reach_) / kColumns + 1;
+    return at(y1, b1) - at(y0, b1) - at(y1, b0) + at(y0, b0);
+  }
+
+ private:
+  int& at(int row, int b) { return sums_[static_cast<std::size_t>(row) * (blocks_ + 1) + b]; }
+  int at(int row, int b) const { return sums_[static_cast<std::size_t>(row) * (blocks_ + 1) + b]; }
+  int width_, blocks_, reach_;
+  std::vector<int> sums_;
+};
+
 // Iterative region voting. Each unreliable pixel's histogram is the sum over
 // its vertical arm of the histograms of the horizontal segments (its
 // horizontal-first support region). Work goes column by column, down the
@@ -229,6 +263,26 @@ void RegionVoting(const Arms& arms, const CostVolume& cost, const RefinementOpti
     float disparity;
   };
   std::vector<std::vector<Vote1>> votes(static_cast<std::size_t>(width));
+  // Upper bounds first, from counts per row and block of columns: the last
+  // iteration's changes (none in reach: the region did not change) and the
+  // reliable pixels (too few in reach: too few in the region). Most pixels
+  // are settled by one of the two without walking their region's rows.
+  int reach = 0;  // the longest horizontal arm
+  for (std::size_t i = 0; i < arms.left.size(); ++i)
+    reach = std::max({reach, static_cast<int>(arms.left[i]), static_cast<int>(arms.right[i])});
+  BlockCounts changes(width, height, reach), reliable_in_reach(width, height, reach);
+  const auto count_reliable = [&] {
+    reliable_in_reach.Clear();
+    for (int y = 0; y < height; ++y) {
+      const int* rp = reliable_prefix.ptr<int>(y);
+      for (int b = 0; b < reliable_in_reach.blocks(); ++b)
+        reliable_in_reach.Add(
+            y, b,
+            rp[std::min(width, (b + 1) * BlockCounts::kColumns)] - rp[b * BlockCounts::kColumns]);
+    }
+    reliable_in_reach.Accumulate();
+  };
+  count_reliable();
   std::vector<int> dirty_rows, previous_dirty_rows;
   std::vector<std::uint8_t> row_is_dirty(static_cast<std::size_t>(height), 0);
   for (int it = 0; it < options.voting_iterations; ++it) {
@@ -247,9 +301,12 @@ void RegionVoting(const Arms& arms, const CostVolume& cost, const RefinementOpti
         for (int t = start[x]; t < start[x + 1]; ++t) {
           const int y = todo[static_cast<std::size_t>(t)];
           if (labels->at<std::uint8_t>(y, x) == kReliable) continue;  // voted before
-          if (it > 0 && !RegionChanged(arms, changed_prefix, y, x)) continue;
           const std::size_t i = arms.index(y, x);
           const int t_lo = y - arms.up[i], t_hi = y + arms.down[i] + 1;
+          if (it > 0 &&
+              (changes.InReach(t_lo, t_hi, x) == 0 || !RegionChanged(arms, changed_prefix, y, x)))
+            continue;
+          if (reliable_in_reach.InReach(t_lo, t_hi, x) <= options.tau_s) continue;
           // Too few reliable votes: no vote, and no need for the histogram.
           int reliable = 0;
           for (int v = t_lo; v < t_hi; ++v) {
@@ -287,6 +344,11 @@ void RegionVoting(const Arms& arms, const CostVolume& cost, const RefinementOpti
       }
     }
     if (dirty_rows.empty()) break;
+    changes.Clear();
+    for (int x = 0; x < width; ++x)
+      for (const Vote1& v : votes[static_cast<std::size_t>(x)])
+        changes.Add(v.y, x / BlockCounts::kColumns, 1);
+    changes.Accumulate();
     // changed_prefix: this iteration's changes only (the rows of the last
     // iteration's go back to zero).
     for (int y : previous_dirty_rows) {
@@ -305,6 +367,7 @@ void RegionVoting(const Arms& arms, const CostVolume& cost, const RefinementOpti
     });
     for (int y : dirty_rows) row_is_dirty[static_cast<std::size_t>(y)] = 0;
     previous_dirty_rows.swap(dirty_rows);
+    count_reliable();
   }
 }
 

@@ -80,6 +80,53 @@ TEST(Cost, MatchesMeiFormulaIncludingOutOfImageDisparities) {
   EXPECT_GT(checked_out_of_image, 0);
 }
 
+// Each ρ term rounded to 1/kCostScale on its own, then summed: the exact
+// fixed-point value, whichever way the row is computed (in-register look-ups
+// on AVX-512 when ρ_AD saturates by a sum of 255, the table otherwise).
+TEST(Cost, RowsAreTheFixedPointTermsExactlyForColourAndGreyAndAnyLambda) {
+  const cv::Mat colour_left = RandomTexture(77, 9, 5), colour_right = RandomTexture(77, 9, 6);
+  const Parallel parallel(2);
+  struct Case {
+    bool grey;
+    double lambda_ad;  // 10: saturates (in-register); 60 with colour: does not (table)
+    int min_disparity, ndisp;
+  };
+  for (const Case& c : {Case{false, 10, -5, 40}, Case{true, 10, -5, 40}, Case{false, 60, 3, 33},
+                        Case{true, 25, 0, 70}, Case{false, 10, -20, 97}}) {
+    const cv::Mat left = c.grey ? Grey(colour_left) : colour_left;
+    const cv::Mat right = c.grey ? Grey(colour_right) : colour_right;
+    const auto cl = adcensus::CensusTransform(Grey(colour_left), 9, 7, parallel);
+    const auto cr = adcensus::CensusTransform(Grey(colour_right), 9, 7, parallel);
+    adcensus::CostVolume cost(left.cols, left.rows, c.ndisp);
+    adcensus::ComputeCost(left, right, cl, cr, c.min_disparity, c.lambda_ad, 30, 1.25f, parallel,
+                          &cost);
+    const int ch = left.channels();
+    const auto fixed = [](double v) { return std::lround(v * adcensus::kCostScale); };
+    for (int y = 0; y < left.rows; ++y)
+      for (int x = 0; x < left.cols; ++x)
+        for (int k = 0; k < cost.stride(); ++k) {
+          const int xr = x - (c.min_disparity + k);
+          long expected;
+          if (k >= c.ndisp) {
+            expected = adcensus::CostVolume::kPadCost;
+          } else if (xr < 0 || xr >= left.cols) {
+            expected = fixed(1.25);
+          } else {
+            int sad = 0;
+            for (int q = 0; q < ch; ++q)
+              sad += std::abs(left.ptr<std::uint8_t>(y)[ch * x + q] -
+                              right.ptr<std::uint8_t>(y)[ch * xr + q]);
+            const int hamming = std::popcount(cl[y * left.cols + x] ^ cr[y * left.cols + xr]);
+            expected = fixed(1 - std::exp(-(static_cast<double>(sad) / ch) / c.lambda_ad)) +
+                       fixed(1 - std::exp(-hamming / 30.0));
+          }
+          ASSERT_EQ(cost.at(y, x)[k], expected)
+              << (c.grey ? "grey" : "colour") << " lambda_ad " << c.lambda_ad << " at " << x << ","
+              << y << " k " << k;
+        }
+  }
+}
+
 // --- cross arms -------------------------------------------------------------
 
 // method.md §5 read literally, one pixel and one direction at a time.

@@ -198,11 +198,11 @@ std::vector<std::int32_t> RangesFromCoarse(const cv::Mat& coarse, cv::Size size,
   }
   const double f = factor;
   const int lanes = o.lanes, last = ndisp - lanes;
-  std::vector<std::int32_t> offsets(static_cast<std::size_t>(size.area()));
-  for (int y = 0; y < size.height; ++y) {
-    const int cy = std::min(y / factor, coarse.rows - 1);
-    for (int x = 0; x < size.width; ++x) {
-      const int cx = std::min(x / factor, coarse.cols - 1);
+  // A pixel's offset depends only on its coarse pixel: each coarse pixel's
+  // is computed once, and the full rows are filled from them.
+  cv::Mat coarse_offset(coarse.size(), CV_32SC1);
+  for (int cy = 0; cy < coarse.rows; ++cy) {
+    for (int cx = 0; cx < coarse.cols; ++cx) {
       float a = lo.at<float>(cy, cx), b = hi.at<float>(cy, cx);
       if (!std::isfinite(a)) {
         a = wide_lo.at<float>(cy, cx);
@@ -220,9 +220,20 @@ std::vector<std::int32_t> RangesFromCoarse(const cv::Mat& coarse, cv::Size size,
         const double centre = IsValidDisparity(mine) ? mine * f : d_hi - o.margin_px - f;
         start = centre - lanes / 2.0;
       }
-      offsets[static_cast<std::size_t>(y) * size.width + x] =
+      coarse_offset.at<std::int32_t>(cy, cx) =
           std::clamp(static_cast<int>(std::lround(start)) - min_disparity, 0, last);
     }
+  }
+  std::vector<std::int32_t> offsets(static_cast<std::size_t>(size.area()));
+  for (int y = 0; y < size.height; ++y) {
+    std::int32_t* out = offsets.data() + static_cast<std::size_t>(y) * size.width;
+    const int cy = std::min(y / factor, coarse.rows - 1);
+    if (y > 0 && cy == std::min((y - 1) / factor, coarse.rows - 1)) {
+      std::copy_n(out - size.width, size.width, out);  // the same coarse row
+      continue;
+    }
+    const std::int32_t* row = coarse_offset.ptr<std::int32_t>(cy);
+    for (int x = 0; x < size.width; ++x) out[x] = row[std::min(x / factor, coarse.cols - 1)];
   }
   return offsets;
 }

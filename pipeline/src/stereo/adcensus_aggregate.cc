@@ -426,29 +426,53 @@ namespace {
 // contiguous and increasing in k.
 class RightDiffs {
  public:
-  RightDiffs(const cv::Mat& right, int min_disparity, int ndisp, bool vertical, int tau_so)
-      : width_(right.cols), xr_hi_(right.cols + std::abs(min_disparity) + 2) {
+  // Without `all_rows` the table holds one row, filled by Fill (each sweep
+  // of the scanline its own, as it goes).
+  RightDiffs(const cv::Mat& right, int min_disparity, int ndisp, bool vertical, int tau_so,
+             bool all_rows = true)
+      : right_(right),
+        vertical_(vertical),
+        tau_so_(tau_so),
+        width_(right.cols),
+        xr_hi_(right.cols + std::abs(min_disparity) + 2) {
     const int xr_lo = -std::abs(min_disparity) - ndisp - 2;  // ndisp: the span of lanes
     len_ = xr_hi_ - xr_lo + 1;
-    data_.assign(static_cast<std::size_t>(right.rows + 1) * len_, 0);
-    const int ch = right.channels();
-    for (int y = 0; y < right.rows; ++y) {
-      if (vertical && y == 0) continue;
-      const std::uint8_t* r = right.ptr<std::uint8_t>(y);
-      const std::uint8_t* prev = vertical ? right.ptr<std::uint8_t>(y - 1) : r;
-      Cost* out = &data_[static_cast<std::size_t>(y) * len_];
-      for (int xr = vertical ? 0 : 1; xr < width_; ++xr)
-        out[xr_hi_ - xr] =
-            ColourDiff(r + ch * xr, prev + ch * (vertical ? xr : xr - 1), ch) >= tau_so ? 1 : 0;
-    }
+    data_.assign(static_cast<std::size_t>(all_rows ? right.rows + 1 : 1) * len_, 0);
+    if (all_rows)
+      for (int y = 0; y < right.rows; ++y) FillRow(y, &data_[static_cast<std::size_t>(y) * len_]);
   }
-  // Row y (0 … rows; row `rows` is all zero), values for x_r = base − k.
+  // Row y (0 … rows; row `rows` is all zero), values for x_r = base − k,
+  // from the whole table.
   const Cost* At(int y, int base_xr) const {
     return &data_[static_cast<std::size_t>(y) * len_ + (xr_hi_ - base_xr)];
   }
+  // The one-row table: row y (0 … rows), values for x_r = base − k.
+  void Fill(int y) {
+    if (y == filled_) return;
+    if (y < right_.rows && !(vertical_ && y == 0)) {
+      FillRow(y, data_.data());
+    } else {
+      std::fill(data_.begin(), data_.end(), Cost{0});
+    }
+    filled_ = y;
+  }
+  const Cost* At(int base_xr) const { return &data_[xr_hi_ - base_xr]; }
 
  private:
-  int width_, xr_hi_, len_;
+  // Row y's flags (entries no x_r reaches stay as they are: zero).
+  void FillRow(int y, Cost* out) const {
+    if (vertical_ && y == 0) return;
+    const int ch = right_.channels();
+    const std::uint8_t* r = right_.ptr<std::uint8_t>(y);
+    const std::uint8_t* prev = vertical_ ? right_.ptr<std::uint8_t>(y - 1) : r;
+    for (int xr = vertical_ ? 0 : 1; xr < width_; ++xr)
+      out[xr_hi_ - xr] =
+          ColourDiff(r + ch * xr, prev + ch * (vertical_ ? xr : xr - 1), ch) >= tau_so_ ? 1 : 0;
+  }
+  const cv::Mat& right_;
+  bool vertical_;
+  int tau_so_, width_, xr_hi_, len_;
+  int filled_ = -1;
   std::vector<Cost> data_;  // 16-bit like the costs, so PathStep loads them at full width
 };
 
@@ -548,8 +572,6 @@ void ScanlineOptimize(const cv::Mat& left, const cv::Mat& right, int min_dispari
   const Penalties pen{
       {ToPenalty(options.pi1), ToPenalty(options.pi1 / 4), ToPenalty(options.pi1 / 10)},
       {ToPenalty(options.pi2), ToPenalty(options.pi2 / 4), ToPenalty(options.pi2 / 10)}};
-  const RightDiffs hdiff(right, min_disparity, span, false, tau_so);
-  const RightDiffs vdiff(right, min_disparity, span, true, tau_so);
   // One path's state with sentinels around it: one each side without
   // offsets; with offsets, enough that the previous pixel's lanes can be
   // read shifted to the current pixel's offset (by at most stride + 1, which
@@ -582,9 +604,11 @@ void ScanlineOptimize(const cv::Mat& left, const cv::Mat& right, int min_dispari
   // at pixel x, the j-th of the path, with offset o and costs a: `cur` from
   // `prev` (each a padded lane), *min the path's minimum, *prev_offset the
   // previous pixel's offset.
-  const auto horizontal_step = [&](const std::uint8_t* row, int y, int x, int j, int step, int o,
-                                   const Cost* a, const Cost* prev, Cost* cur, Cost* min,
-                                   int* prev_offset) {
+  // `h_flags`: row y's horizontal colour-difference flags (RightDiffs) at
+  // x_r = 0, those of x_r at h_flags − x_r.
+  const auto horizontal_step = [&](const std::uint8_t* row, const Cost* h_flags, int x, int j,
+                                   int step, int o, const Cost* a, const Cost* prev, Cost* cur,
+                                   Cost* min, int* prev_offset) {
     if (j == 0) {
       *min = PathStart(a, stride, cur + pad);
     } else {
@@ -592,8 +616,8 @@ void ScanlineOptimize(const cv::Mat& left, const cv::Mat& right, int min_dispari
       // Right-image pair (x_r, x_r − step): left→right uses hdiff(x_r),
       // right→left uses hdiff(x_r + 1).
       const int base_xr = x - min_disparity - o + (step > 0 ? 0 : 1);
-      *min = PathStep(a, prev + pad + shift(o, *prev_offset), *min, d1_big, hdiff.At(y, base_xr),
-                      pen, stride, cur + pad);
+      *min = PathStep(a, prev + pad + shift(o, *prev_offset), *min, d1_big, h_flags - base_xr, pen,
+                      stride, cur + pad);
     }
     *prev_offset = o;
   };
@@ -625,6 +649,9 @@ void ScanlineOptimize(const cv::Mat& left, const cv::Mat& right, int min_dispari
       std::vector<int> voffset(width);
       CostComputer::Scratch scratch;
       RightWinners winners(width, min_disparity, stride, span);
+      // Each sweep's colour-difference flags, row by row as it goes.
+      RightDiffs hdiff(right, min_disparity, span, false, tau_so, /*all_rows=*/false);
+      RightDiffs vdiff(right, min_disparity, span, true, tau_so, /*all_rows=*/false);
       for (int sweep = s0; sweep < s1; ++sweep) {
         const int ystep = sweep == 0 ? 1 : -1, xstep = ystep;
         for (int i = 0, y = sweep == 0 ? 0 : height - 1; i < height; ++i, y += ystep) {
@@ -645,6 +672,8 @@ void ScanlineOptimize(const cv::Mat& left, const cv::Mat& right, int min_dispari
           winners.Reset();
           // Top→bottom pairs (y, y−1): vdiff row y; bottom→top: vdiff row y+1.
           const int vy = sweep == 0 ? y : y + 1;
+          hdiff.Fill(y);
+          vdiff.Fill(vy);
           Cost hmin = 0;
           int hoffset = 0;
           for (int j = 0, x = sweep == 0 ? 0 : width - 1; j < width; ++j, x += xstep) {
@@ -660,11 +689,12 @@ void ScanlineOptimize(const cv::Mat& left, const cv::Mat& right, int min_dispari
                 std::copy_n(vp, stride, &shifted[pad]);
                 vp = &shifted[pad + shift(o, voffset[x])];
               }
-              vmin[x] = PathStep(a, vp, vmin[x], d1_big, vdiff.At(vy, x - min_disparity - o), pen,
+              vmin[x] = PathStep(a, vp, vmin[x], d1_big, vdiff.At(x - min_disparity - o), pen,
                                  stride, vc);
             }
             voffset[x] = o;
-            horizontal_step(row, y, x, j, xstep, o, a, hprev.data(), hcur.data(), &hmin, &hoffset);
+            horizontal_step(row, hdiff.At(0), x, j, xstep, o, a, hprev.data(), hcur.data(), &hmin,
+                            &hoffset);
             Cost* out = s_row + static_cast<std::size_t>(x) * stride;
             if (first) {
               SumSaturated(vc, &hcur[pad], stride, out);
@@ -687,6 +717,8 @@ void ScanlineOptimize(const cv::Mat& left, const cv::Mat& right, int min_dispari
 
   // More threads: passes over the whole volume, split between them.
   if (!cost) ComputeCost(*recompute, parallel, result);  // C, overwritten by S below
+  const RightDiffs hdiff(right, min_disparity, span, false, tau_so);
+  const RightDiffs vdiff(right, min_disparity, span, true, tau_so);
   // Pass 1: vertical paths over bands of columns, one row of state per
   // column. Top→bottom values go to a band buffer (height × band × stride);
   // bottom→top then reads C(y, x) and writes S(y, x) = L_tb + L_bt in its
@@ -758,7 +790,7 @@ void ScanlineOptimize(const cv::Mat& left, const cv::Mat& right, int min_dispari
         for (int i = 0, x = x_start; i < width; ++i, x += step) {
           const Cost* a = c_row + static_cast<std::size_t>(x) * stride;
           const int o = offsets ? offsets[x] : 0;
-          horizontal_step(row, y, x, i, step, o, a, prev.data(), cur.data(), &prev_min,
+          horizontal_step(row, hdiff.At(y, 0), x, i, step, o, a, prev.data(), cur.data(), &prev_min,
                           &prev_offset);
           Cost* fwd = &forward[static_cast<std::size_t>(x) * stride];
           if (dir == 0) {

@@ -2,11 +2,19 @@
 #include <hwy/highway.h>
 #include <sys/mman.h>
 
+#if defined(__AVX512BW__) && defined(__AVX512VPOPCNTDQ__)
+#include <immintrin.h>
+#define CRAFTSCAN_COST_PERMUTE 1
+#else
+#define CRAFTSCAN_COST_PERMUTE 0
+#endif
+
 #include <algorithm>
 #include <bit>
 #include <cmath>
 #include <cstdlib>
 #include <cstring>
+#include <limits>
 #include <new>
 #include <opencv2/core.hpp>
 
@@ -107,6 +115,41 @@ void CostRun(const std::int32_t* a, const std::int32_t* const* r, int channels,
   }
 }
 
+// What both ways of computing a row share. The right row reversed (j =
+// width − 1 − x_r) into *rev_census and *rev_colour (one plane per channel),
+// so that for a left pixel the candidates x_r = x − d_min − k are contiguous
+// and increasing in k; then each left pixel x: lanes(x, j0, k_lo, k_hi, out)
+// computes its valid lanes [k_lo, k_hi) (j0: j of k = 0, out: the pixel's
+// costs), and the lanes outside the image get `outside`, the padding
+// kPadCost.
+template <class Colour, class Lanes>
+void EachPixel(const cv::Mat& right, const std::uint64_t* census_right, int y, int min_disparity,
+               int ndisp, int stride, Cost outside, const std::int32_t* offsets,
+               std::vector<std::uint64_t>* rev_census, std::vector<Colour>* rev_colour, Cost* out,
+               Lanes lanes) {
+  const int width = right.cols, channels = right.channels();
+  rev_census->resize(width);
+  rev_colour->resize(static_cast<std::size_t>(channels) * width);
+  const std::uint8_t* pr = right.ptr<std::uint8_t>(y);
+  const std::uint64_t* cr = census_right + static_cast<std::size_t>(y) * width;
+  for (int j = 0; j < width; ++j) {
+    const int xr = width - 1 - j;
+    (*rev_census)[j] = cr[xr];
+    for (int c = 0; c < channels; ++c)
+      (*rev_colour)[static_cast<std::size_t>(c) * width + j] = pr[channels * xr + c];
+  }
+  for (int x = 0; x < width; ++x, out += stride) {
+    const int d0 = min_disparity + (offsets ? offsets[x] : 0);  // disparity of k = 0
+    // Valid k: 0 ≤ x − (d0 + k) < width.
+    const int k_lo = std::clamp(x - width + 1 - d0, 0, ndisp);
+    const int k_hi = std::max(k_lo, std::clamp(x - d0 + 1, 0, ndisp));
+    for (int k = 0; k < k_lo; ++k) out[k] = outside;
+    lanes(x, width - 1 - x + d0, k_lo, k_hi, out);
+    for (int k = k_hi; k < ndisp; ++k) out[k] = outside;
+    for (int k = ndisp; k < stride; ++k) out[k] = CostVolume::kPadCost;
+  }
+}
+
 // A cost on Mei's [0, 2] scale in fixed point.
 std::int32_t ToFixed(double cost) {
   return static_cast<std::int32_t>(std::lround(cost * kCostScale));
@@ -140,53 +183,110 @@ CostComputer::CostComputer(const cv::Mat& left, const cv::Mat& right,
     const std::int32_t census = ToFixed(1.0 - std::exp(-h / lambda_census));
     for (int s = 0; s < ad_size_; ++s)
       lut_[static_cast<std::size_t>(h) * ad_size_ + s] = ad[s] + census;
+    census16_[h] = static_cast<std::int16_t>(census);
   }
+  // In-register look-ups need ρ_AD to be constant from a sum of 255 on (it
+  // saturates at 1 from about 7.6 λ_AD per channel: 229 for colour with
+  // Mei's λ_AD of 10, 77 for grey) and every cost to fit 16 bits.
+  bool saturated = true;
+  for (int s = 0; s < ad_size_; ++s) {
+    if (s < 256) ad16_[s] = static_cast<std::int16_t>(ad[s]);
+    if (s > 255 && ad[s] != ad[255]) saturated = false;
+  }
+  permute_ = CRAFTSCAN_COST_PERMUTE && saturated && ad_size_ >= 256 &&
+             *std::max_element(lut_.begin(), lut_.end()) <= std::numeric_limits<Cost>::max();
 }
 
-void CostComputer::Row(int y, Scratch* scratch, Cost* out, const std::int32_t* offsets) const {
+#if CRAFTSCAN_COST_PERMUTE
+// Row() with both terms looked up in registers, 32 lanes at a time: ρ_census
+// from two vectors of 32 entries (one permute), ρ_AD of the clamped sum
+// from eight (four permutes and three blends). The table's one gather per
+// 16 lanes is bound by its 16 loads. Same values as the table's.
+void CostComputer::PermuteRow(int y, Scratch* scratch, Cost* out,
+                              const std::int32_t* offsets) const {
   const int width = left_.cols, channels = left_.channels();
-  const int ndisp = ndisp_, stride = stride_, min_disparity = min_disparity_;
-  // The right row reversed (j = width − 1 − x_r), so that for a left pixel
-  // the candidates x_r = x − d_min − k are contiguous and increasing in k.
-  scratch->rev_census.resize(width);
-  scratch->rev_colour.resize(static_cast<std::size_t>(channels) * width);
-  scratch->hamming.resize(ndisp + 16);
-  std::uint64_t* rev_census = scratch->rev_census.data();
-  std::int32_t* rev_colour = scratch->rev_colour.data();
+  const std::uint8_t* pl = left_.ptr<std::uint8_t>(y);
+  const std::uint64_t* cl = census_left_.data() + static_cast<std::size_t>(y) * width;
+  __m512i ad[8];
+  for (int t = 0; t < 8; ++t) ad[t] = _mm512_loadu_si512(ad16_ + 32 * t);
+  const __m512i census_lo = _mm512_loadu_si512(census16_);
+  const __m512i census_hi = _mm512_loadu_si512(census16_ + 32);
+  const __m512i census_64 = _mm512_set1_epi16(census16_[64]);
+  const __m512i h64 = _mm512_set1_epi16(64), bit6 = _mm512_set1_epi16(64);
+  const __m512i bit7 = _mm512_set1_epi16(128), top = _mm512_set1_epi16(255);
+  EachPixel(
+      right_, census_right_.data(), y, min_disparity_, ndisp_, stride_, outside_, offsets,
+      &scratch->rev_census, &scratch->rev_colour16, out,
+      [&](int x, int j0, int k_lo, int k_hi, Cost* o) {
+        const __m512i anchor = _mm512_set1_epi64(static_cast<long long>(cl[x]));
+        __m512i a[3];
+        const std::int16_t* r[3] = {};
+        for (int c = 0; c < channels; ++c) {
+          a[c] = _mm512_set1_epi16(pl[channels * x + c]);
+          r[c] = scratch->rev_colour16.data() + static_cast<std::size_t>(c) * width + j0;
+        }
+        const std::uint64_t* rc = scratch->rev_census.data() + j0;
+        for (int k = k_lo; k < k_hi; k += 32) {
+          const int n = std::min(32, k_hi - k);
+          const __mmask32 m = n == 32 ? ~__mmask32{0} : (__mmask32{1} << n) - 1;
+          // Hamming distances of four groups of 8, narrowed to 16 bits.
+          __m128i q[4];
+          for (int g = 0; g < 4; ++g) {
+            const auto mg = static_cast<__mmask8>(m >> (8 * g));
+            const __m512i w = _mm512_maskz_loadu_epi64(mg, rc + k + 8 * g);
+            q[g] = _mm512_cvtepi64_epi16(_mm512_popcnt_epi64(_mm512_xor_si512(w, anchor)));
+          }
+          const __m512i h =
+              _mm512_inserti64x4(_mm512_castsi256_si512(_mm256_inserti128_si256(
+                                     _mm256_castsi128_si256(q[0]), q[1], 1)),
+                                 _mm256_inserti128_si256(_mm256_castsi128_si256(q[2]), q[3], 1), 1);
+          __m512i sad = _mm512_setzero_si512();
+          for (int c = 0; c < channels; ++c)
+            sad = _mm512_add_epi16(sad, _mm512_abs_epi16(_mm512_sub_epi16(
+                                            a[c], _mm512_maskz_loadu_epi16(m, r[c] + k))));
+          const __m512i s = _mm512_min_epu16(sad, top);
+          const __mmask32 m6 = _mm512_test_epi16_mask(s, bit6);
+          const __mmask32 m7 = _mm512_test_epi16_mask(s, bit7);
+          const __m512i lo = _mm512_mask_blend_epi16(m6, _mm512_permutex2var_epi16(ad[0], s, ad[1]),
+                                                     _mm512_permutex2var_epi16(ad[2], s, ad[3]));
+          const __m512i hi = _mm512_mask_blend_epi16(m6, _mm512_permutex2var_epi16(ad[4], s, ad[5]),
+                                                     _mm512_permutex2var_epi16(ad[6], s, ad[7]));
+          const __m512i rho_census = _mm512_mask_blend_epi16(
+              _mm512_cmpeq_epi16_mask(h, h64), _mm512_permutex2var_epi16(census_lo, h, census_hi),
+              census_64);
+          _mm512_mask_storeu_epi16(
+              o + k, m, _mm512_add_epi16(_mm512_mask_blend_epi16(m7, lo, hi), rho_census));
+        }
+      });
+}
+#else
+void CostComputer::PermuteRow(int, Scratch*, Cost*, const std::int32_t*) const {}
+#endif
+
+void CostComputer::Row(int y, Scratch* scratch, Cost* out, const std::int32_t* offsets) const {
+  if (permute_) return PermuteRow(y, scratch, out, offsets);
+  const int width = left_.cols, channels = left_.channels();
+  scratch->hamming.resize(ndisp_ + 16);
   std::int32_t* hamming = scratch->hamming.data();
   const std::uint8_t* pl = left_.ptr<std::uint8_t>(y);
-  const std::uint8_t* pr = right_.ptr<std::uint8_t>(y);
   const std::uint64_t* cl = census_left_.data() + static_cast<std::size_t>(y) * width;
-  const std::uint64_t* cr = census_right_.data() + static_cast<std::size_t>(y) * width;
-  for (int j = 0; j < width; ++j) {
-    const int xr = width - 1 - j;
-    rev_census[j] = cr[xr];
-    for (int c = 0; c < channels; ++c)
-      rev_colour[static_cast<std::size_t>(c) * width + j] = pr[channels * xr + c];
-  }
-  for (int x = 0; x < width; ++x, out += stride) {
-    const int d0 = min_disparity + (offsets ? offsets[x] : 0);  // disparity of k = 0
-    // Valid k: 0 ≤ x − (d0 + k) < width.
-    const int k_lo = std::clamp(x - width + 1 - d0, 0, ndisp);
-    const int k_hi = std::max(k_lo, std::clamp(x - d0 + 1, 0, ndisp));
-    for (int k = 0; k < k_lo; ++k) out[k] = outside_;
-    const int j0 = width - 1 - x + d0;  // j of k = 0
-    // Hamming distances first (scalar popcount, independent iterations),
-    // then the table look-ups and sums as vectors.
-    const std::uint64_t anchor = cl[x];
-    const std::uint64_t* rc = rev_census + j0;
-    for (int k = k_lo; k < k_hi; ++k)
-      hamming[k] = static_cast<std::int32_t>(std::popcount(anchor ^ rc[k]));
-    std::int32_t a[3] = {};
-    const std::int32_t* r[3] = {};
-    for (int c = 0; c < channels; ++c) {
-      a[c] = pl[channels * x + c];
-      r[c] = rev_colour + static_cast<std::size_t>(c) * width + j0;
-    }
-    CostRun(a, r, channels, hamming, lut_.data(), ad_size_, k_lo, k_hi, out);
-    for (int k = k_hi; k < ndisp; ++k) out[k] = outside_;
-    for (int k = ndisp; k < stride; ++k) out[k] = CostVolume::kPadCost;
-  }
+  EachPixel(right_, census_right_.data(), y, min_disparity_, ndisp_, stride_, outside_, offsets,
+            &scratch->rev_census, &scratch->rev_colour, out,
+            [&](int x, int j0, int k_lo, int k_hi, Cost* o) {
+              // Hamming distances first (scalar popcount, independent
+              // iterations), then the table look-ups and sums as vectors.
+              const std::uint64_t anchor = cl[x];
+              const std::uint64_t* rc = scratch->rev_census.data() + j0;
+              for (int k = k_lo; k < k_hi; ++k)
+                hamming[k] = static_cast<std::int32_t>(std::popcount(anchor ^ rc[k]));
+              std::int32_t a[3] = {};
+              const std::int32_t* r[3] = {};
+              for (int c = 0; c < channels; ++c) {
+                a[c] = pl[channels * x + c];
+                r[c] = scratch->rev_colour.data() + static_cast<std::size_t>(c) * width + j0;
+              }
+              CostRun(a, r, channels, hamming, lut_.data(), ad_size_, k_lo, k_hi, o);
+            });
 }
 
 void ComputeCost(const cv::Mat& left, const cv::Mat& right,

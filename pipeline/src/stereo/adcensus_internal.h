@@ -122,6 +122,7 @@ class CostComputer {
   struct Scratch {  // per-thread working memory, sized on first use
     std::vector<std::uint64_t> rev_census;
     std::vector<std::int32_t> rev_colour, hamming;
+    std::vector<std::int16_t> rev_colour16;
   };
   CostComputer(const cv::Mat& left, const cv::Mat& right,
                const std::vector<std::uint64_t>& census_left,
@@ -141,6 +142,13 @@ class CostComputer {
   Cost outside_;
   int ad_size_;                    // entries of the AD table: 255 · channels + 1
   std::vector<std::int32_t> lut_;  // ρ_AD + ρ_census, [hamming][sum of differences]
+  // The same terms apart, for the in-register look-ups (PermuteRow): ρ_AD
+  // for sums 0 … 255 (it is constant from 255 on when permute_ is set) and
+  // ρ_census for Hamming distances 0 … 64.
+  std::int16_t ad16_[256] = {};
+  std::int16_t census16_[65] = {};
+  bool permute_ = false;
+  void PermuteRow(int y, Scratch* scratch, Cost* out, const std::int32_t* offsets) const;
 };
 
 // The whole volume, row by row in parallel (*cost shaped by the caller).

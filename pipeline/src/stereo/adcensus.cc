@@ -116,6 +116,7 @@ struct StereoMatcher::Workspace {
   Parallel parallel;                   // the arena lives as long as the matcher
   adcensus::CostVolume cost, scratch;  // aggregated costs; scanline sums
   std::vector<std::uint64_t> census_left, census_right;
+  adcensus::PassFactors pass_factors;     // the aggregation's
   std::unique_ptr<StereoMatcher> coarse;  // coarse-to-fine's first pass
 };
 
@@ -375,7 +376,8 @@ DisparityResult StereoMatcher::Compute(const cv::Mat& left, const cv::Mat& right
     result.time_ms.arms = MsSince(t);
 
     t = Clock::now();
-    adcensus::Aggregate(arms, options.aggregation_iterations, parallel, &cost);
+    adcensus::Aggregate(arms, options.aggregation_iterations, parallel, &cost,
+                        &workspace_->pass_factors);
     result.time_ms.aggregation = MsSince(t);
 
     // Scanline optimization (when on) is fused with the winner-take-all; its

@@ -94,7 +94,10 @@ void HorizontalPasses(const Arms& arms, std::initializer_list<Pass> passes,
                       const Parallel& parallel, CostVolume* cost) {
   const int width = cost->width(), stride = cost->stride();
   parallel.For(0, cost->height(), [&](int y0, int y1) {
-    std::vector<Prefix> prefix(static_cast<std::size_t>(width + 1) * stride);
+    // Per thread, kept between chunks and calls: a fresh buffer per chunk
+    // is a fresh mapping, page faults and zeroing each time.
+    thread_local std::vector<Prefix> prefix;
+    prefix.resize(static_cast<std::size_t>(width + 1) * stride);
     for (int y = y0; y < y1; ++y) {
       for (const Pass& pass : passes) {
         std::fill_n(prefix.data(), stride, 0);
@@ -122,8 +125,8 @@ void VerticalPasses(const Arms& arms, std::initializer_list<Pass> passes, const 
   const int width = cost->width(), height = cost->height(), stride = cost->stride();
   const int bands = (width + kColumnBand - 1) / kColumnBand;
   parallel.For(0, bands, [&](int b0, int b1) {
-    std::vector<Prefix> prefix;
-    std::vector<std::int32_t> data;
+    thread_local std::vector<Prefix> prefix;  // per thread, as above
+    thread_local std::vector<std::int32_t> data;
     for (int b = b0; b < b1; ++b) {
       const int x0 = b * kColumnBand, x1 = std::min(width, x0 + kColumnBand);
       const std::size_t band = static_cast<std::size_t>(x1 - x0) * stride;
@@ -166,16 +169,10 @@ void VerticalPasses(const Arms& arms, std::initializer_list<Pass> passes, const 
   });
 }
 
-// Per-pixel factors of the passes: arm segment lengths along each axis, their
-// inverses, and 1 / support size for each iteration order.
-struct PassFactors {
-  std::vector<std::int32_t> len_h, len_v;
-  std::vector<float> inv_len_h, inv_len_v, inv_support_h, inv_support_v;
-};
-
-PassFactors ComputePassFactors(const Arms& arms, bool need_vertical_first,
-                               const Parallel& parallel) {
-  PassFactors f;
+// Fills *f (its vectors resized, kept where large enough).
+void ComputePassFactors(const Arms& arms, bool need_vertical_first, const Parallel& parallel,
+                        PassFactors* out) {
+  PassFactors& f = *out;
   const int width = arms.width, height = arms.height;
   const std::size_t n = static_cast<std::size_t>(width) * height;
   f.len_h.resize(n);
@@ -198,7 +195,9 @@ PassFactors ComputePassFactors(const Arms& arms, bool need_vertical_first,
   // Support sizes (as SupportSize) from prefix sums of the segment lengths:
   // horizontal-first, len_h summed down each column over the vertical arm;
   // vertical-first, len_v summed along each row over the horizontal arm.
-  std::vector<std::int32_t> down_column(static_cast<std::size_t>(height + 1) * width, 0);
+  std::vector<std::int32_t>& down_column = f.down_column;
+  down_column.resize(static_cast<std::size_t>(height + 1) * width);
+  std::fill_n(down_column.begin(), width, 0);
   for (int y = 0; y < height; ++y)
     for (int x = 0; x < width; ++x)
       down_column[static_cast<std::size_t>(y + 1) * width + x] =
@@ -220,7 +219,6 @@ PassFactors ComputePassFactors(const Arms& arms, bool need_vertical_first,
       }
     }
   });
-  return f;
 }
 
 }  // namespace
@@ -242,9 +240,12 @@ int SupportSize(const Arms& arms, int y, int x, bool horizontal_first) {
   return n;
 }
 
-void Aggregate(const Arms& arms, int iterations, const Parallel& parallel, CostVolume* cost) {
+void Aggregate(const Arms& arms, int iterations, const Parallel& parallel, CostVolume* cost,
+               PassFactors* factors) {
   if (iterations <= 0) return;
-  const PassFactors f = ComputePassFactors(arms, iterations > 1, parallel);
+  PassFactors temporary;
+  PassFactors& f = factors ? *factors : temporary;
+  ComputePassFactors(arms, iterations > 1, parallel, &f);
   // Iteration i is horizontal-first for even i: H (segment means), then V
   // weighted by the horizontal lengths and scaled to the region mean; odd i
   // is the transpose. Consecutive passes along the same axis run fused:

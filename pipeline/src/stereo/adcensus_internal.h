@@ -177,10 +177,21 @@ Arms BuildArms(const cv::Mat& image, const cv::Mat& gradient, const cv::Mat& edg
 bool IsEdgePixel(const cv::Mat& gradient, const cv::Mat& edges, int y, int x,
                  const ImprovedArmOptions& options);
 
+// Per-pixel factors of the aggregation's passes (arm segment lengths along
+// each axis, their inverses, 1 / support size for each iteration order) and
+// their working memory; a matcher keeps one between calls (a fresh one is
+// megabytes of new pages to fault in and zero each call).
+struct PassFactors {
+  std::vector<std::int32_t> len_h, len_v, down_column;
+  std::vector<float> inv_len_h, inv_len_v, inv_support_h, inv_support_v;
+};
+
 // Cross-based aggregation, `iterations` passes alternating horizontal-first
 // (even) and vertical-first (odd); each result is normalized by the number of
 // pixels in the support region and rounded to the nearest integer cost.
-void Aggregate(const Arms& arms, int iterations, const Parallel& parallel, CostVolume* cost);
+// `factors`: working memory (may be null: a temporary one).
+void Aggregate(const Arms& arms, int iterations, const Parallel& parallel, CostVolume* cost,
+               PassFactors* factors = nullptr);
 
 // Support-region pixel count of (y, x) for horizontal-first (true) or
 // vertical-first aggregation.

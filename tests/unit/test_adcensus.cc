@@ -633,6 +633,105 @@ cv::Mat RenderTwoLayerRight(const cv::Mat& left, const cv::Rect& box, cv::Mat* g
   return right;
 }
 
+// Region voting as method.md states it, one pixel at a time: each
+// iteration, every unreliable pixel with more than tau_s reliable pixels in
+// its horizontal-first support region, whose most frequent disparity among
+// those it searched holds more than tau_h of them, takes that disparity (the
+// lowest on a tie) and becomes reliable; all of an iteration's votes are
+// written after it. The matcher's shortcuts (block bounds, running windows,
+// the bounds kept between iterations) must give the same disparities.
+cv::Mat ReferenceVoting(const cv::Mat& start, const Arms& arms, const adcensus::CostVolume& cost,
+                        const RefinementOptions& o) {
+  cv::Mat d = start.clone();
+  const int range = cost.has_offsets() ? cost.ndisp() : cost.total_ndisp();
+  for (int it = 0; it < o.voting_iterations; ++it) {
+    cv::Mat next = d.clone();
+    bool changed = false;
+    for (int y = 0; y < d.rows; ++y)
+      for (int x = 0; x < d.cols; ++x) {
+        if (IsValidDisparity(d.at<float>(y, x))) continue;
+        const std::size_t i = arms.index(y, x);
+        const int offset = cost.offset(y, x);
+        std::vector<int> histogram(static_cast<std::size_t>(range), 0);
+        int reliable = 0;
+        for (int v = y - arms.up[i]; v <= y + arms.down[i]; ++v) {
+          const std::size_t j = arms.index(v, x);
+          for (int u = x - arms.left[j]; u <= x + arms.right[j]; ++u) {
+            const float q = d.at<float>(v, u);
+            if (!IsValidDisparity(q)) continue;
+            ++reliable;
+            const int k = static_cast<int>(q) - offset;
+            if (k >= 0 && k < range) ++histogram[static_cast<std::size_t>(k)];
+          }
+        }
+        if (reliable <= o.tau_s) continue;
+        const auto most = std::max_element(histogram.begin(), histogram.end());
+        if (*most <= o.tau_h * reliable) continue;
+        next.at<float>(y, x) = static_cast<float>(offset + (most - histogram.begin()));
+        changed = true;
+      }
+    d = next;
+    if (!changed) break;
+  }
+  return d;
+}
+
+TEST(Refinement, RegionVotingEqualsTheRuleAppliedPixelByPixel) {
+  // Patches of one colour with faint noise: support regions of tens of
+  // pixels, enough to vote.
+  cv::Mat left, faint(90, 150, CV_8UC3);
+  cv::resize(RandomTexture(10, 6, 43), left, cv::Size(150, 90), 0, 0, cv::INTER_NEAREST);
+  cv::randu(faint, 0, 4);
+  left += faint;
+  cv::Mat gt;
+  cv::Mat right = RenderRightView(left, 14, 0.05, 0.02, &gt);
+  // Unmatched patches for the votes to fill: flat grey and noise.
+  cv::rectangle(right, cv::Rect(30, 20, 25, 30), cv::Scalar(128, 128, 128), cv::FILLED);
+  cv::Mat noise(40, 30, CV_8UC3);
+  cv::randu(noise, 0, 255);
+  noise.copyTo(right(cv::Rect(90, 45, 30, 40)));
+  ADCensusOptions o;
+  const Preprocessed pre = Preprocess(left, o.preprocess);
+  RefinementOptions only_voting = o.refinement;
+  only_voting.interpolate = only_voting.adjust_discontinuities = only_voting.subpixel = false;
+  only_voting.median_size = 0;
+  RefinementOptions no_voting = only_voting;
+  no_voting.voting_iterations = 0;
+  const int lanes = 32, total = 48;
+  for (const bool offsets : {false, true}) {
+    for (int threads : {1, 2}) {
+      const Parallel parallel(threads);
+      const auto cl = adcensus::CensusTransform(Grey(left), 9, 7, parallel);
+      const auto cr = adcensus::CensusTransform(Grey(right), 9, 7, parallel);
+      const Arms arms = adcensus::BuildArms(left, pre.gradient, pre.edges, o, parallel);
+      adcensus::CostVolume volume(left.cols, left.rows, offsets ? lanes : total);
+      if (offsets) {  // ranges that move along the image
+        std::vector<std::int32_t> offset(left.total());
+        for (int y = 0; y < left.rows; ++y)
+          for (int x = 0; x < left.cols; ++x)
+            offset[static_cast<std::size_t>(y) * left.cols + x] =
+                (x / 10 + y / 30) % (total - lanes + 1);
+        volume.SetOffsets(std::move(offset), total);
+      }
+      const adcensus::CostComputer costs(left, right, cl, cr, 0, volume.ndisp(), 10, 30, 1.0);
+      cv::Mat l, r;
+      adcensus::ScanlineOptimize(left, right, 0, o, parallel, nullptr, &costs, &volume, &l, &r,
+                                 nullptr);
+      const cv::Mat before =
+          adcensus::Refine(l, r, volume, 0, left, arms, no_voting, parallel, nullptr, nullptr);
+      const cv::Mat voted =
+          adcensus::Refine(l, r, volume, 0, left, arms, only_voting, parallel, nullptr, nullptr);
+      const cv::Mat expected = ReferenceVoting(before, arms, volume, only_voting);
+      const int unreliable = static_cast<int>(before.total()) - cv::countNonZero(before == before);
+      const int filled = cv::countNonZero(voted == voted) - cv::countNonZero(before == before);
+      EXPECT_GT(unreliable, 1000) << "offsets " << offsets;  // the patches failed to match
+      EXPECT_GT(filled, 300) << "offsets " << offsets;       // and voting filled part of them
+      EXPECT_TRUE(SameOrBothNaN(voted, expected, 0))
+          << "offsets " << offsets << " threads " << threads;
+    }
+  }
+}
+
 TEST(Matcher, CoarseToFineMatchesAsWellAsTheWholeBand) {
   const cv::Mat left = RandomTexture(640, 200, 34);
   const cv::Rect box(300, 50, 160, 100);

@@ -134,24 +134,27 @@ inline void SumPartials(const int* __restrict h, int nb, int n, int* __restrict 
 // Mei's vote on bins 0 … n−1 of one pixel's support-region histogram, given
 // the region's reliable pixel count `votes`: the winning bin, or −1 when the
 // vote is not decisive.
-inline int Vote(const int* histogram, int n, int votes, const RefinementOptions& options) {
+inline int Vote(const int* histogram, int n, int votes, const RefinementOptions& options,
+                int* largest = nullptr) {
   if (votes <= options.tau_s) return -1;
   int most = 0;  // a plain max reduction vectorizes; std::max_element does not
   for (int k = 0; k < n; ++k) most = std::max(most, histogram[k]);
+  if (largest) *largest = most;
   if (most <= options.tau_h * votes) return -1;
   return static_cast<int>(std::find(histogram, histogram + n, most) - histogram);
 }
 
-// Whether the horizontal-first support region of (y, x) holds a pixel
-// counted in `changed_prefix` (per row, prefix counts over x).
-inline bool RegionChanged(const Arms& arms, const cv::Mat& changed_prefix, int y, int x) {
+// How many pixels counted in `prefix` (per row, prefix counts over x) the
+// horizontal-first support region of (y, x) holds.
+inline int CountInRegion(const Arms& arms, const cv::Mat& prefix, int y, int x) {
   const std::size_t i = arms.index(y, x);
+  int n = 0;
   for (int v = y - arms.up[i]; v <= y + arms.down[i]; ++v) {
     const std::size_t j = arms.index(v, x);
-    const int* cp = changed_prefix.ptr<int>(v);
-    if (cp[x + arms.right[j] + 1] != cp[x - arms.left[j]]) return true;
+    const int* cp = prefix.ptr<int>(v);
+    n += cp[x + arms.right[j] + 1] - cp[x - arms.left[j]];
   }
-  return false;
+  return n;
 }
 
 // Counts per row and block of kColumns columns, as 2D prefix sums, for an
@@ -263,6 +266,16 @@ void RegionVoting(const Arms& arms, const CostVolume& cost, const RefinementOpti
     float disparity;
   };
   std::vector<std::vector<Vote1>> votes(static_cast<std::size_t>(width));
+  // What each unreliable pixel's last look at its region found, to settle it
+  // later without the histogram: the region's reliable pixels (exact; −1:
+  // not counted) and an upper bound on its histogram's largest bin (−1:
+  // none). Votes only make pixels reliable, so the `added` pixels that
+  // became reliable since raise the first by exactly `added` and any bin by
+  // at most that: when the vote failed by the bounds it still fails.
+  struct Known {
+    std::int16_t reliable = -1, most = -1;
+  };
+  std::vector<Known> known(todo.size());
   // Upper bounds first, from counts per row and block of columns: the last
   // iteration's changes (none in reach: the region did not change) and the
   // reliable pixels (too few in reach: too few in the region). Most pixels
@@ -303,18 +316,26 @@ void RegionVoting(const Arms& arms, const CostVolume& cost, const RefinementOpti
           if (labels->at<std::uint8_t>(y, x) == kReliable) continue;  // voted before
           const std::size_t i = arms.index(y, x);
           const int t_lo = y - arms.up[i], t_hi = y + arms.down[i] + 1;
-          if (it > 0 &&
-              (changes.InReach(t_lo, t_hi, x) == 0 || !RegionChanged(arms, changed_prefix, y, x)))
-            continue;
-          if (reliable_in_reach.InReach(t_lo, t_hi, x) <= options.tau_s) continue;
-          // Too few reliable votes: no vote, and no need for the histogram.
-          int reliable = 0;
-          for (int v = t_lo; v < t_hi; ++v) {
-            const std::size_t j = arms.index(v, x);
-            const int* rp = reliable_prefix.ptr<int>(v);
-            reliable += rp[x + arms.right[j] + 1] - rp[x - arms.left[j]];
+          Known& kn = known[static_cast<std::size_t>(t)];
+          if (it > 0) {
+            if (changes.InReach(t_lo, t_hi, x) == 0) continue;
+            const int added = CountInRegion(arms, changed_prefix, y, x);
+            if (added == 0) continue;  // the region did not change
+            if (kn.reliable >= 0) {
+              kn.reliable = static_cast<std::int16_t>(kn.reliable + added);
+              if (kn.most >= 0) kn.most = static_cast<std::int16_t>(kn.most + added);
+              if (kn.reliable <= options.tau_s) continue;
+              if (kn.most >= 0 && kn.most <= options.tau_h * kn.reliable) continue;
+            }
           }
-          if (reliable <= options.tau_s) continue;
+          int reliable = kn.reliable;
+          if (reliable < 0) {
+            if (reliable_in_reach.InReach(t_lo, t_hi, x) <= options.tau_s) continue;
+            // Too few reliable votes: no vote, and no need for the histogram.
+            reliable = CountInRegion(arms, reliable_prefix, y, x);
+            kn.reliable = static_cast<std::int16_t>(reliable);
+            if (reliable <= options.tau_s) continue;
+          }
           if (t_lo >= w_hi || t_hi <= w_lo) {  // no overlap: start afresh
             std::fill(partial.begin(), partial.end(), 0);
             w_lo = w_hi = t_lo;
@@ -325,7 +346,9 @@ void RegionVoting(const Arms& arms, const CostVolume& cost, const RefinementOpti
           for (; w_lo < t_lo; ++w_lo) add_row(w_lo, -1);
           const int offset = cost.offset(y, x);
           SumPartials(partial.data() + offset, nb, range, histogram.data());
-          const int k = Vote(histogram.data(), range, reliable, options);
+          int most = 0;
+          const int k = Vote(histogram.data(), range, reliable, options, &most);
+          kn.most = static_cast<std::int16_t>(most);
           if (k >= 0) column_votes.push_back({y, static_cast<float>(offset + k)});
         }
       }

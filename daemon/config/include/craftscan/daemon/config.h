@@ -65,9 +65,9 @@
 //                                 calibration and the working volume
 //     min_texture_std: 2.5        grey levels [0, 255]; 0 = off (ReprojectOptions);
 //                                 not over the platter (ViewProcessorOptions)
-//     match_gamma: 1              [1, 4] the matcher sees the pair gamma-encoded
-//                                 (2.2: satin sheen matches better, faint bright
-//                                 paint worse; ViewProcessorOptions::match_gamma)
+//     match_gamma: 2.2            [1, 4] the matcher sees the pair gamma-encoded
+//                                 as a bracketed merge is (1: as captured;
+//                                 ViewProcessorOptions::match_gamma)
 //     volume_radius_mm: 120       (0, 10000] working volume around the axis
 //     volume_min_height_mm: 0.5   [−1000, 10000] above the platter
 //     volume_max_height_mm: 200   (min, 10000]
@@ -231,9 +231,8 @@ struct PipelineSettings {
   int num_disparities = 0;       // px, 0..4096; 0 = derive from calibration + volume
   double min_texture_std = 2.5;  // grey levels, [0, 255]; 0 = off (ViewProcessorOptions)
   // The matcher's copy of each pair gamma-encoded with this, [1, 4]; 1 =
-  // as the cameras deliver it (ViewProcessorOptions::match_gamma: 2.2 for
-  // textiles' sheen, at a cost on bright, weakly textured paint).
-  double match_gamma = 1.0;
+  // as the cameras deliver it (ViewProcessorOptions::match_gamma).
+  double match_gamma = 2.2;
   // pipeline.volume_radius_mm (0, 10000], pipeline.volume_min_height_mm
   // [−1000, 10000], pipeline.volume_max_height_mm (min, 10000]; mm. The
   // bottom is 0.5 mm, below the pipeline's own 1.5: with the platter band

@@ -1,6 +1,7 @@
 // Registration and loop closure on synthetic surfaces with exact ground truth.
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
 #include <random>
 
@@ -145,6 +146,125 @@ TEST(Conditioning, DropsFloatersAndTheNormalsFaceTheViewpoint) {
   }
   for (std::size_t i = 0; i < a.coarse.size(); ++i)
     ASSERT_EQ(a.coarse.normals[i], b.coarse.normals[i]);
+}
+
+// Indices of the k nearest of `points` to q (q's own index included when
+// it is one of them), nearest first, by brute force with nanoflann's float
+// metric.
+std::vector<int> BruteNearest(const std::vector<cv::Vec3f>& points, const cv::Vec3f& q,
+                              std::size_t k) {
+  std::vector<std::pair<float, int>> d(points.size());
+  for (std::size_t i = 0; i < points.size(); ++i) {
+    const float dx = q[0] - points[i][0], dy = q[1] - points[i][1], dz = q[2] - points[i][2];
+    d[i] = {dx * dx + dy * dy + dz * dz, static_cast<int>(i)};
+  }
+  k = std::min(k, d.size());
+  std::partial_sort(d.begin(), d.begin() + static_cast<long>(k), d.end());
+  std::vector<int> out(k);
+  for (std::size_t j = 0; j < k; ++j) out[j] = d[j].second;
+  return out;
+}
+
+// The PCA normal of the points `at`, facing `viewpoint` from q.
+cv::Vec3d BruteNormal(const std::vector<cv::Vec3f>& points, const std::vector<int>& at,
+                      const cv::Vec3f& q, const cv::Vec3d& viewpoint) {
+  cv::Vec3d mean(0, 0, 0);
+  for (const int i : at) mean += cv::Vec3d(points[static_cast<std::size_t>(i)]);
+  mean /= static_cast<double>(at.size());
+  cv::Matx33d cov = cv::Matx33d::zeros();
+  for (const int i : at) {
+    const cv::Vec3d e = cv::Vec3d(points[static_cast<std::size_t>(i)]) - mean;
+    cov += e * e.t();
+  }
+  cv::Mat values, vectors;
+  cv::eigen(cv::Mat(cov), values, vectors);  // descending
+  cv::Vec3d n(vectors.at<double>(2, 0), vectors.at<double>(2, 1), vectors.at<double>(2, 2));
+  return n.dot(viewpoint - cv::Vec3d(q)) < 0 ? -n : n;
+}
+
+// Conditioning runs its outlier filter, the normals and the coarse normals
+// on one index of the voxel cloud, the filter's neighbour lists reused for
+// the normals. Against the rules by brute force on random points (no two
+// at equal distances): the outlier rule over all points, each survivor's
+// normal from its 15 nearest survivors, the platter band, each coarse
+// point's normal from its 15 nearest fine points. The filter's lists are
+// long enough (k 20) for most normals, and too short (k 4) for any, so that
+// the searches for more points serve them.
+TEST(Conditioning, SharedSearchesEqualTheRulesByBruteForce) {
+  PointCloud cloud;
+  std::mt19937 rng(29);
+  std::uniform_real_distribution<float> across(-25, 25), unit(0, 1);
+  std::normal_distribution<float> noise(0, 0.1f);
+  for (int i = 0; i < 5000; ++i) {
+    const float x = across(rng), y = across(rng);
+    cloud.points_mm.emplace_back(x, y, 4 + 3 * std::sin(x / 7) * std::cos(y / 5) + noise(rng));
+  }
+  for (int i = 0; i < 800; ++i)  // platter noise, 0.6–1.4 mm up
+    cloud.points_mm.emplace_back(across(rng) - 30, across(rng), 0.6f + 0.8f * unit(rng));
+  for (int c = 0; c < 30; ++c) {  // floaters in threes
+    const cv::Vec3f at(across(rng), across(rng), 15 + 10 * unit(rng));
+    for (int i = 0; i < 3; ++i) cloud.points_mm.push_back(at + cv::Vec3f(unit(rng), unit(rng), 0));
+  }
+  for (const int outlier_k : {20, 4}) {
+    SCOPED_TRACE(::testing::Message() << "outlier_neighbors " << outlier_k);
+    ConditioningOptions options = Conditioning({0, -300, 400});
+    options.fine_voxel_mm = 0;  // every point
+    options.outlier_neighbors = outlier_k;
+    options.crop.enabled = true;
+    options.crop.volume.min_height_mm = 0.5;
+    options.crop.platter_band_mm = 1.5;
+    options.crop.platter_normal_deg = 30;
+    const ViewCloud view = ConditionCloud(cloud, options);
+    ASSERT_TRUE(view.ok()) << view.error;
+
+    // The crop (its volume: above 0.5 mm), then the outlier rule.
+    std::vector<cv::Vec3f> cropped;
+    for (const cv::Vec3f& p : cloud.points_mm)
+      if (p[2] >= 0.5f) cropped.push_back(p);
+    std::vector<double> mean_distance(cropped.size());
+    for (std::size_t i = 0; i < cropped.size(); ++i) {
+      const std::vector<int> near =
+          BruteNearest(cropped, cropped[i], static_cast<std::size_t>(outlier_k) + 1);
+      double sum = 0;
+      for (std::size_t j = 1; j < near.size(); ++j)
+        sum += std::sqrt(
+            cv::norm(cropped[i] - cropped[static_cast<std::size_t>(near[j])], cv::NORM_L2SQR));
+      mean_distance[i] = static_cast<float>(sum / outlier_k);
+    }
+    double sum = 0, sq_sum = 0;
+    for (const double d : mean_distance) sum += d, sq_sum += d * d;
+    const double n = static_cast<double>(mean_distance.size());
+    const double threshold = sum / n + 2.0 * std::sqrt((sq_sum - sum * sum / n) / (n - 1));
+    std::vector<cv::Vec3f> inliers;
+    for (std::size_t i = 0; i < cropped.size(); ++i)
+      if (!(mean_distance[i] > threshold)) inliers.push_back(cropped[i]);
+    EXPECT_EQ(view.outlier_points, cropped.size() - inliers.size());
+    EXPECT_GE(view.outlier_points, 60u);  // the floaters at least (k 4: the threes)
+
+    // Normals of the inliers, then the platter band (level, below 1.5 mm).
+    std::vector<cv::Vec3f> fine;
+    std::vector<cv::Vec3d> fine_normals;
+    for (const cv::Vec3f& p : inliers) {
+      const cv::Vec3d normal =
+          BruteNormal(inliers, BruteNearest(inliers, p, 15), p, options.viewpoint_mm);
+      if (p[2] < 1.5f && normal[2] >= std::cos(30 * M_PI / 180)) continue;
+      fine.push_back(p);
+      fine_normals.push_back(normal);
+    }
+    ASSERT_EQ(view.fine.size(), fine.size());
+    ASSERT_LT(fine.size(), inliers.size() - 500);  // the platter noise went
+    for (std::size_t i = 0; i < fine.size(); ++i) {
+      ASSERT_EQ(view.fine.points_mm[i], fine[i]) << i;
+      ASSERT_GT(cv::Vec3d(view.fine.normals[i]).dot(fine_normals[i]), 0.9999) << i;
+    }
+    ASSERT_GT(view.coarse.size(), 100u);
+    for (std::size_t i = 0; i < view.coarse.size(); ++i) {
+      const cv::Vec3f& q = view.coarse.points_mm[i];
+      const cv::Vec3d normal =
+          BruteNormal(fine, BruteNearest(fine, q, 15), q, options.viewpoint_mm);
+      ASSERT_GT(cv::Vec3d(view.coarse.normals[i]).dot(normal), 0.9999) << i;
+    }
+  }
 }
 
 // The platter band: below platter_band_mm, points whose normal is within

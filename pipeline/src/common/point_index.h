@@ -37,6 +37,7 @@ class PointIndex {
     if (points_->empty() || k == 0) return 0;
     return tree_.knnSearch(q, k, index, dist2);
   }
+  const std::vector<cv::Vec3f>* points() const { return points_; }
   // nanoflann's dataset adaptor interface.
   std::size_t kdtree_get_point_count() const { return points_->size(); }
   float kdtree_get_pt(std::size_t i, std::size_t dim) const { return (*points_)[i][dim]; }

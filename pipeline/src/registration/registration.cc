@@ -104,38 +104,143 @@ PointCloud VoxelDownsample(const PointCloud& cloud, double voxel_mm) {
   return out;
 }
 
-// Unit normals of `cloud` from PCA over the k nearest points of `surface`,
-// oriented towards the viewpoint. Points without a usable normal get the
-// direction towards the viewpoint.
+// Nearest-neighbour searches over the points of a cloud that survive its
+// filters, on one index of the whole cloud: conditioning searches the voxel
+// cloud for its outlier filter, the normals and the coarse normals, and
+// building an index of the survivors after each filter cost as much as the
+// filter's own searches. Indices in and out are survivors' (their order in
+// the filtered cloud), except `self` below.
+//
+// The outlier filter's lists (each point's nearest points of the whole cloud,
+// itself first, nearest first) are kept: the first k survivors of a
+// survivor's list are its k nearest survivors, the same points in the same
+// order as a search of the survivors alone (but for points at exactly equal
+// distances, which either search may order differently). A list with fewer
+// than k survivors, and any other query, searches the index for more points
+// until k survivors are among them.
+class SurvivorNeighbours {
+ public:
+  explicit SurvivorNeighbours(const PointCloud& all) : index_(all), size_(all.size()) {
+    survivor_of_.resize(size_);
+    original_of_.resize(size_);
+    for (std::size_t i = 0; i < size_; ++i) survivor_of_[i] = original_of_[i] = static_cast<int>(i);
+  }
+
+  // Keeps each point's `count` nearest points (itself first) and their
+  // squared distances, searched on `threads` threads. Before any Keep.
+  void KeepLists(std::size_t count, int threads) {
+    list_size_ = std::min(count, size_);
+    lists_.resize(size_ * list_size_);
+    list_d2_.resize(size_ * list_size_);
+    const auto n = static_cast<long>(size_);
+    const auto& points = *index_.points();
+#pragma omp parallel for num_threads(std::max(1, threads)) schedule(static)
+    for (long i = 0; i < n; ++i) {
+      const std::size_t at = static_cast<std::size_t>(i) * list_size_;
+      index_.KNearest(points[static_cast<std::size_t>(i)].val, list_size_, &lists_[at],
+                      &list_d2_[at]);
+    }
+  }
+  std::size_t list_size() const { return list_size_; }
+  // Squared distances of point i's list (of the whole cloud: before any Keep).
+  const float* ListD2(std::size_t i) const { return &list_d2_[i * list_size_]; }
+
+  // Only these survivors (ascending survivor indices) survive from now on.
+  void Keep(const std::vector<int>& kept) {
+    std::vector<int> original(kept.size());
+    for (const int s : original_of_) survivor_of_[static_cast<std::size_t>(s)] = -1;
+    for (std::size_t t = 0; t < kept.size(); ++t) {
+      original[t] = original_of_[static_cast<std::size_t>(kept[t])];
+      survivor_of_[static_cast<std::size_t>(original[t])] = static_cast<int>(t);
+    }
+    original_of_ = std::move(original);
+  }
+  std::size_t survivors() const { return original_of_.size(); }
+
+  // Per-thread search buffers.
+  struct Scratch {
+    std::vector<std::uint32_t> index;
+    std::vector<float> d2;
+  };
+  // The k nearest survivors of q into out (survivor indices, nearest first);
+  // returns how many (fewer only when fewer survive). `self`: the survivor
+  // whose own position q is, to use its kept list; −1 for any other point.
+  std::size_t Find(const float* q, int self, std::size_t k, Scratch* scratch,
+                   std::uint32_t* out) const {
+    k = std::min(k, survivors());
+    if (k == 0) return 0;
+    std::size_t m = 0;
+    if (self >= 0 && list_size_ > 0) {
+      const std::size_t at =
+          static_cast<std::size_t>(original_of_[static_cast<std::size_t>(self)]) * list_size_;
+      for (std::size_t j = 0; j < list_size_ && m < k; ++j) {
+        const int s = survivor_of_[lists_[at + j]];
+        if (s >= 0) out[m++] = static_cast<std::uint32_t>(s);
+      }
+      if (m == k) return k;
+    }
+    // Searched: enough more than k points that the removed ones among them
+    // rarely leave fewer than k survivors, doubling until they do not.
+    std::size_t want = survivors() == size_ ? k : std::max(2 * k, k + 8);
+    for (;;) {
+      want = std::min(want, size_);
+      scratch->index.resize(want);
+      scratch->d2.resize(want);
+      const std::size_t found = index_.KNearest(q, want, scratch->index.data(), scratch->d2.data());
+      m = 0;
+      for (std::size_t j = 0; j < found && m < k; ++j) {
+        const int s = survivor_of_[scratch->index[j]];
+        if (s >= 0) out[m++] = static_cast<std::uint32_t>(s);
+      }
+      if (m == k || found < want || want == size_) return m;
+      want *= 2;
+    }
+  }
+
+ private:
+  PointIndex index_;
+  std::size_t size_;
+  std::vector<int> survivor_of_;  // per point of the whole cloud: its survivor index, or −1
+  std::vector<int> original_of_;  // per survivor: its index in the whole cloud
+  std::size_t list_size_ = 0;
+  std::vector<std::uint32_t> lists_;  // size_ × list_size_
+  std::vector<float> list_d2_;
+};
+
+// Unit normals of `cloud` from PCA over the k nearest survivors of
+// `neighbours` (`surface` holds the survivors, in order), oriented towards
+// the viewpoint. Points without a usable normal get the direction towards
+// the viewpoint. `surface_is_cloud`: cloud is the survivors themselves (their
+// kept neighbour lists are used).
 //
 // PCL's NormalEstimationOMP, step for step (its covariance, plane fit and
 // flip, on the same neighbours, nearest first), with the neighbours found by
 // nanoflann: PCL's FLANN search made normals take ~60 ms of a 20 k-point
 // scan's conditioning.
-void EstimateNormals(PointCloud* cloud, const PointCloud& surface,
+void EstimateNormals(PointCloud* cloud, const SurvivorNeighbours& neighbours, bool surface_is_cloud,
                      const pcl::PointCloud<pcl::PointXYZ>& pcl_surface, int k,
                      const cv::Vec3d& viewpoint, int threads) {
-  const PointIndex index(surface);
   const auto n = static_cast<long>(cloud->size());
   cloud->normals.resize(cloud->size());
   const float vx = static_cast<float>(viewpoint[0]), vy = static_cast<float>(viewpoint[1]),
               vz = static_cast<float>(viewpoint[2]);
 #pragma omp parallel num_threads(std::max(1, threads))
   {
+    SurvivorNeighbours::Scratch scratch;
     std::vector<std::uint32_t> found_index(static_cast<std::size_t>(k));
-    std::vector<float> found_d2(static_cast<std::size_t>(k));
-    pcl::Indices neighbours;
+    pcl::Indices found_neighbours;
     Eigen::Matrix3f covariance;
     Eigen::Vector4f centroid;
 #pragma omp for schedule(static)
     for (long i = 0; i < n; ++i) {
       const cv::Vec3f& p = cloud->points_mm[static_cast<std::size_t>(i)];
       const std::size_t found =
-          index.KNearest(p.val, static_cast<std::size_t>(k), found_index.data(), found_d2.data());
-      neighbours.assign(found_index.begin(), found_index.begin() + static_cast<long>(found));
+          neighbours.Find(p.val, surface_is_cloud ? static_cast<int>(i) : -1,
+                          static_cast<std::size_t>(k), &scratch, found_index.data());
+      found_neighbours.assign(found_index.begin(), found_index.begin() + static_cast<long>(found));
       float nx = std::numeric_limits<float>::quiet_NaN(), ny = nx, nz = nx, curvature = nx;
-      if (found >= 3 &&
-          pcl::computeMeanAndCovarianceMatrix(pcl_surface, neighbours, covariance, centroid) != 0) {
+      if (found >= 3 && pcl::computeMeanAndCovarianceMatrix(pcl_surface, found_neighbours,
+                                                            covariance, centroid) != 0) {
         pcl::solvePlaneParameters(covariance, nx, ny, nz, curvature);
         pcl::flipNormalTowardsViewpoint(pcl::PointXYZ(p[0], p[1], p[2]), vx, vy, vz, nx, ny, nz);
       }
@@ -155,25 +260,19 @@ void EstimateNormals(PointCloud* cloud, const PointCloud& surface,
 // rule: a point's mean distance to its k nearest neighbours (itself
 // excluded) must not exceed the mean of those over the cloud plus
 // `std_ratio` standard deviations. The searches run on nanoflann and on
-// `threads` threads: PCL's filter searches with FLANN on one thread and took
-// ~80 ms of a 20 k-point scan's conditioning. Needs more than k points.
-std::vector<int> StatisticalInliers(const PointCloud& cloud, int k, double std_ratio, int threads) {
-  const PointIndex index(cloud);
-  const auto n = static_cast<long>(cloud.size());
-  std::vector<float> distances(cloud.size());
-#pragma omp parallel num_threads(std::max(1, threads))
-  {
-    std::vector<std::uint32_t> found_index(static_cast<std::size_t>(k) + 1);
-    std::vector<float> found_d2(static_cast<std::size_t>(k) + 1);
-#pragma omp for schedule(static)
-    for (long i = 0; i < n; ++i) {
-      const std::size_t found =
-          index.KNearest(cloud.points_mm[static_cast<std::size_t>(i)].val,
-                         static_cast<std::size_t>(k) + 1, found_index.data(), found_d2.data());
-      double sum = 0;  // entry 0 is the point itself
-      for (std::size_t j = 1; j < found; ++j) sum += std::sqrt(found_d2[j]);
-      distances[static_cast<std::size_t>(i)] = static_cast<float>(sum / k);
-    }
+// `threads` threads (PCL's filter searches with FLANN on one thread and took
+// ~80 ms of a 20 k-point scan's conditioning), and their lists stay in
+// `neighbours` for the normals. Needs more than k points.
+std::vector<int> StatisticalInliers(SurvivorNeighbours* neighbours, int k, double std_ratio,
+                                    int threads) {
+  neighbours->KeepLists(static_cast<std::size_t>(k) + 1, threads);
+  const std::size_t n = neighbours->survivors();
+  std::vector<float> distances(n);
+  for (std::size_t i = 0; i < n; ++i) {
+    const float* d2 = neighbours->ListD2(i);
+    double sum = 0;  // entry 0 is the point itself
+    for (std::size_t j = 1; j < neighbours->list_size(); ++j) sum += std::sqrt(d2[j]);
+    distances[i] = static_cast<float>(sum / k);
   }
   double sum = 0, sq_sum = 0;
   for (const float d : distances) {
@@ -426,20 +525,30 @@ ViewCloud ConditionCloud(const PointCloud& input, const ConditioningOptions& opt
   }
   // Downsample first: statistical filtering of a dense stereo cloud is slow
   // and voxel averaging already halves the noise.
-  PointCloud fine = VoxelDownsample(kept, options.fine_voxel_mm);
-  if (options.outlier_neighbors > 0 &&
-      fine.size() > static_cast<std::size_t>(options.outlier_neighbors)) {
-    const std::vector<int> kept_indices = StatisticalInliers(
-        fine, options.outlier_neighbors, options.outlier_std_ratio, options.num_threads);
+  const PointCloud voxels = VoxelDownsample(kept, options.fine_voxel_mm);
+  SurvivorNeighbours neighbours(voxels);  // one index for every search below
+  PointCloud fine = voxels;
+  // The points of `fine` in `kept_indices` only (ascending), for the searches too.
+  const auto keep_only = [&](const std::vector<int>& kept_indices, bool with_normals) {
     PointCloud filtered;
     filtered.points_mm.reserve(kept_indices.size());
+    if (with_normals) filtered.normals.reserve(kept_indices.size());
     if (fine.HasColors()) filtered.colors_rgb.reserve(kept_indices.size());
-    for (int i : kept_indices) {
+    for (const int i : kept_indices) {
       filtered.points_mm.push_back(fine.points_mm[i]);
+      if (with_normals) filtered.normals.push_back(fine.normals[i]);
       if (fine.HasColors()) filtered.colors_rgb.push_back(fine.colors_rgb[i]);
     }
-    view.outlier_points = fine.size() - filtered.size();
+    neighbours.Keep(kept_indices);
     fine = std::move(filtered);
+  };
+  if (options.outlier_neighbors > 0 &&
+      fine.size() > static_cast<std::size_t>(options.outlier_neighbors)) {
+    const std::size_t before = fine.size();
+    keep_only(StatisticalInliers(&neighbours, options.outlier_neighbors, options.outlier_std_ratio,
+                                 options.num_threads),
+              /*with_normals=*/false);
+    view.outlier_points = before - fine.size();
   }
   if (fine.size() < 3) {
     view.error = "fewer than 3 points left after filtering";
@@ -447,7 +556,8 @@ ViewCloud ConditionCloud(const PointCloud& input, const ConditioningOptions& opt
   }
   auto surface = ToPclXyz(fine);
   const int k = std::min<int>(options.normal_neighbors, static_cast<int>(fine.size()));
-  EstimateNormals(&fine, fine, *surface, k, options.viewpoint_mm, options.num_threads);
+  EstimateNormals(&fine, neighbours, /*surface_is_cloud=*/true, *surface, k, options.viewpoint_mm,
+                  options.num_threads);
   if (options.crop.enabled && options.crop.platter_band_mm > options.crop.volume.min_height_mm) {
     // Level surface just above the platter, facing up (the normals face the
     // camera): the platter itself, lifted by matching errors (a few px of
@@ -456,7 +566,8 @@ ViewCloud ConditionCloud(const PointCloud& input, const ConditioningOptions& opt
     // overhang also faces down, and fusion's platter_shadow_mm takes it.
     const double cos_level = std::cos(options.crop.platter_normal_deg * M_PI / 180.0);
     const cv::Matx33d R = T.get_minor<3, 3>(0, 0);
-    PointCloud kept_level;
+    std::vector<int> off_platter;
+    off_platter.reserve(fine.size());
     for (std::size_t i = 0; i < fine.size(); ++i) {
       const cv::Vec3f& p = fine.points_mm[i];
       const cv::Vec4d q = T * cv::Vec4d(p[0], p[1], p[2], 1);
@@ -465,11 +576,9 @@ ViewCloud ConditionCloud(const PointCloud& input, const ConditioningOptions& opt
         ++view.cropped_points;
         continue;
       }
-      kept_level.points_mm.push_back(p);
-      kept_level.normals.push_back(fine.normals[i]);
-      if (fine.HasColors()) kept_level.colors_rgb.push_back(fine.colors_rgb[i]);
+      off_platter.push_back(static_cast<int>(i));
     }
-    fine = std::move(kept_level);
+    keep_only(off_platter, /*with_normals=*/true);
     if (fine.size() < 3) {
       view.error = "fewer than 3 points left after removing the platter";
       return view;
@@ -477,7 +586,9 @@ ViewCloud ConditionCloud(const PointCloud& input, const ConditioningOptions& opt
     surface = ToPclXyz(fine);
   }
   PointCloud coarse = VoxelDownsample(PointCloud{fine.points_mm, {}, {}}, options.coarse_voxel_mm);
-  EstimateNormals(&coarse, fine, *surface, k, options.viewpoint_mm, options.num_threads);
+  EstimateNormals(&coarse, neighbours, /*surface_is_cloud=*/false, *surface,
+                  std::min<int>(k, static_cast<int>(fine.size())), options.viewpoint_mm,
+                  options.num_threads);
   view.fine = std::move(fine);
   view.coarse = std::move(coarse);
   return view;

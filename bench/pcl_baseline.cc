@@ -99,6 +99,38 @@ FeatureCloud::Ptr Fpfh(const CloudT::Ptr& cloud, const PclBaselineOptions& optio
   return features;
 }
 
+}  // namespace
+
+std::vector<std::array<float, 33>> PclFpfh(const PointCloud& cloud_with_normals, double radius_mm,
+                                           int num_threads) {
+  auto cloud = std::make_shared<CloudT>();
+  cloud->resize(cloud_with_normals.size());
+  for (std::size_t i = 0; i < cloud_with_normals.size(); ++i) {
+    PointT& q = (*cloud)[i];
+    const cv::Vec3f& p = cloud_with_normals.points_mm[i];
+    const cv::Vec3f& n = cloud_with_normals.normals[i];
+    q.x = p[0], q.y = p[1], q.z = p[2];
+    q.normal_x = n[0], q.normal_y = n[1], q.normal_z = n[2];
+  }
+  // A sorted search (neighbours by distance), as craftscan's registration
+  // used it; FPFHEstimation's own default search is unsorted, and the
+  // weighting's float sums depend on the order.
+  FeatureCloud::Ptr features = std::make_shared<FeatureCloud>();
+  pcl::FPFHEstimationOMP<PointT, PointT, pcl::FPFHSignature33> estimation;
+  estimation.setNumberOfThreads(static_cast<unsigned>(num_threads));
+  estimation.setInputCloud(cloud);
+  estimation.setInputNormals(cloud);
+  estimation.setSearchMethod(std::make_shared<pcl::search::KdTree<PointT>>(/*sorted=*/true));
+  estimation.setRadiusSearch(radius_mm);
+  estimation.compute(*features);
+  std::vector<std::array<float, 33>> out(features->size());
+  for (std::size_t i = 0; i < features->size(); ++i)
+    std::copy_n((*features)[i].histogram, 33, out[i].begin());
+  return out;
+}
+
+namespace {
+
 cv::Matx44d ToMatx(const Eigen::Matrix4f& m) {
   cv::Matx44d out;
   for (int r = 0; r < 4; ++r) {

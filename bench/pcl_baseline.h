@@ -14,6 +14,7 @@
 // downsampling and normals, timed apart from the registration proper.
 #pragma once
 
+#include <array>
 #include <cstddef>
 #include <string>
 #include <vector>
@@ -72,6 +73,12 @@ struct PclBaselineResult {
   double time_ms = 0;     // coarse_ms + fine_ms
   double cpu_ms = 0;      // process CPU time (all threads) over coarse + fine
 };
+
+// PCL's FPFH (FPFHEstimationOMP, its own FLANN radius search) of a cloud with
+// normals, 33 bins per point (NaN where PCL computes none): what craftscan's
+// ComputeFpfh (registration.h) must equal.
+std::vector<std::array<float, 33>> PclFpfh(const PointCloud& cloud_with_normals, double radius_mm,
+                                           int num_threads);
 
 // Registers `source` onto `target` (both in mm, each in its own frame).
 // Never throws; a PCL failure or an empty cloud gives ok = false.

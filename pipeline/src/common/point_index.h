@@ -2,6 +2,7 @@
 // registration stages (implementation header, not part of the public API).
 #pragma once
 
+#include <algorithm>
 #include <cstdint>
 #include <vector>
 
@@ -36,6 +37,18 @@ class PointIndex {
   std::size_t KNearest(const float* q, std::size_t k, std::uint32_t* index, float* dist2) const {
     if (points_->empty() || k == 0) return 0;
     return tree_.knnSearch(q, k, index, dist2);
+  }
+  // The points strictly within sqrt(radius2) of q: indices and squared
+  // distances, by distance and then index (FLANN's order, as PCL's sorted
+  // radius searches return them).
+  void Within(const float* q, float radius2,
+              std::vector<std::pair<std::uint32_t, float>>* found) const {
+    found->clear();
+    if (points_->empty()) return;
+    tree_.radiusSearch(q, radius2, *found, nanoflann::SearchParams(32, 0.f, /*sorted=*/false));
+    std::sort(found->begin(), found->end(), [](const auto& a, const auto& b) {
+      return a.second < b.second || (a.second == b.second && a.first < b.first);
+    });
   }
   const std::vector<cv::Vec3f>* points() const { return points_; }
   // nanoflann's dataset adaptor interface.

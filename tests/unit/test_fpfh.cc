@@ -36,7 +36,6 @@ PointCloud BumpySurface(int points, unsigned seed) {
   return cloud;
 }
 
-
 TEST(Fpfh, EqualsPclsFpfhEstimationBitForBit) {
   const PointCloud cloud = BumpySurface(3000, 5);
   for (const double radius : {4.0, 9.0}) {

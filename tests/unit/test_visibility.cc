@@ -77,29 +77,38 @@ TEST(Visibility, FloatersInFreeSpaceGoAndTheSurfaceStays) {
   EXPECT_LT(stats.unsupported_points, surface / 5);
 }
 
-TEST(Visibility, MoreSupportThanContradictionKeepsThePoint) {
+// A point stays only when more views support it than contradict it (or none
+// contradicts it): a tie drops it.
+TEST(Visibility, MoreSupportThanContradictionKeepsThePointATieDropsIt) {
   const RectifiedCamera camera = Camera();
   const PointCloud plane = PlaneSeenBy(camera, 400);
-  PointCloud near_plane = PlaneSeenBy(camera, 390);  // a third view whose depth map is wrong
+  PointCloud near_plane = PlaneSeenBy(camera, 390);  // a view whose depth map is wrong
   PointCloud candidate;
   candidate.points_mm.emplace_back(0.f, 0.f, 390.f);
-  // Views 1 and 2 at the same place: view 1 sees the plane at 400 (the
-  // candidate is in its free space), view 2 agrees with the candidate.
-  std::vector<cv::Matx44d> poses = Poses();
-  poses.push_back(poses[1]);
-  VisibilityStats stats;
-  std::string error;
-  std::vector<PointCloud> kept =
-      RemoveFreeSpaceViolations({candidate, PointCloud{}, PointCloud{}}, {plane, plane, near_plane},
-                                poses, camera, {}, &stats, &error);
-  ASSERT_TRUE(error.empty()) << error;
-  EXPECT_EQ(kept[0].size(), 1u);  // one for, one against: kept
-  // Two views against, one for: dropped.
-  poses.push_back(poses[1]);
-  kept = RemoveFreeSpaceViolations({candidate, PointCloud{}, PointCloud{}, PointCloud{}},
-                                   {plane, plane, near_plane, plane}, poses, camera, {}, &stats,
-                                   &error);
-  EXPECT_EQ(kept[0].size(), 0u);
+  // Every other view at view 1's place: those that see the plane at 400
+  // (the candidate is in their free space) against, those that see 390 for.
+  const auto kept_with = [&](const std::vector<const PointCloud*>& others) {
+    std::vector<cv::Matx44d> poses = Poses();
+    poses.resize(1);
+    std::vector<PointCloud> candidates{candidate};
+    std::vector<PointCloud> seen{plane};
+    for (const PointCloud* other : others) {
+      poses.push_back(Poses()[1]);
+      candidates.emplace_back();
+      seen.push_back(*other);
+    }
+    VisibilityStats stats;
+    std::string error;
+    const std::vector<PointCloud> kept =
+        RemoveFreeSpaceViolations(candidates, seen, poses, camera, {}, &stats, &error);
+    EXPECT_TRUE(error.empty()) << error;
+    return kept[0].size();
+  };
+  EXPECT_EQ(kept_with({&near_plane}), 1u);                       // one for, none against
+  EXPECT_EQ(kept_with({&plane}), 0u);                            // one against
+  EXPECT_EQ(kept_with({&plane, &near_plane}), 0u);               // one for, one against: a tie
+  EXPECT_EQ(kept_with({&plane, &near_plane, &near_plane}), 1u);  // two for, one against
+  EXPECT_EQ(kept_with({&plane, &plane, &near_plane}), 0u);       // one for, two against
 }
 
 TEST(Visibility, AttributesFollowTheirPoints) {

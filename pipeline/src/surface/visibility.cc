@@ -141,7 +141,6 @@ bool VisibilityOptions::IsValid(std::string* why) const {
     return Fail(why, "tolerance_mm must be finite and > 0");
   if (window_radius_px < 0 || window_radius_px > 5)
     return Fail(why, "window_radius_px must be in 0..5");
-  if (min_contradictions < 1) return Fail(why, "min_contradictions must be >= 1");
   if (min_window_pixels < 1 ||
       min_window_pixels > (2 * window_radius_px + 1) * (2 * window_radius_px + 1))
     return Fail(why, "min_window_pixels must be in 1..(2 window_radius_px + 1)^2");
@@ -212,7 +211,10 @@ std::vector<PointCloud> RemoveFreeSpaceViolations(const std::vector<PointCloud>&
                     break;
                 }
               }
-              keep[static_cast<std::size_t>(k)] = against <= support;
+              // A tie goes against the point: a view that looked through
+              // it saw past it, while one that agrees may share its
+              // mismatch (views that see a periodic texture alike).
+              keep[static_cast<std::size_t>(k)] = against == 0 || against < support;
               lonely[static_cast<std::size_t>(k)] = support == 0;
             }
           },

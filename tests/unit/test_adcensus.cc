@@ -535,6 +535,22 @@ TEST(Scanline, UniformOffsetsEqualTheShiftedBand) {
 // refinement's labels and disparities do not depend on where they came from.
 // The runner-up itself: the least cost at least 2 from the winner among the
 // disparities held.
+// The left-right check, rule by rule: dL within the tolerance of the right
+// disparity where it lands, or between that one's and a neighbour's (within
+// the tolerance) when the two differ by at most 3 px (one slanted surface).
+bool PassesLeftRight(const float* r, int width, int xr, float dl, double tolerance) {
+  if (!IsValidDisparity(r[xr])) return false;
+  if (std::abs(r[xr] - dl) <= tolerance) return true;
+  for (int a : {xr - 1, xr}) {
+    if (a < 0 || a + 1 >= width || !IsValidDisparity(r[a]) || !IsValidDisparity(r[a + 1]) ||
+        std::abs(r[a + 1] - r[a]) > 3)
+      continue;
+    if (dl >= std::min(r[a], r[a + 1]) - tolerance && dl <= std::max(r[a], r[a + 1]) + tolerance)
+      return true;
+  }
+  return false;
+}
+
 TEST(Scanline, RunnerUpCostsAreTheVolumes) {
   const cv::Mat left = RandomTexture(160, 96, 41);
   cv::Mat gt;
@@ -586,8 +602,8 @@ TEST(Scanline, RunnerUpCostsAreTheVolumes) {
       for (int x = 0; x < left.cols; ++x) {
         const float d = l.at<float>(y, x);
         const int xr = x - static_cast<int>(d);
-        if (xr >= 0 && xr < left.cols && IsValidDisparity(r.at<float>(y, xr)) &&
-            std::abs(r.at<float>(y, xr) - d) <= o.refinement.lr_tolerance_px)
+        if (xr >= 0 && xr < left.cols &&
+            PassesLeftRight(r.ptr<float>(y), left.cols, xr, d, o.refinement.lr_tolerance_px))
           continue;
         bool mismatch = false;
         for (int j = 0; j < ndisp && !mismatch; ++j)
@@ -730,6 +746,63 @@ TEST(Refinement, RegionVotingEqualsTheRuleAppliedPixelByPixel) {
           << "offsets " << offsets << " threads " << threads;
     }
   }
+}
+
+// A surface turned steeply away from the right camera: the right view holds
+// it on r = 1 − g of the left's pixels. With exact (rounded) disparities in
+// both maps every left pixel is the same surface, yet where g > 2/3 the
+// disparity it lands on in the right map can be more than 1 px off its own
+// (the right map steps by g / r per pixel). The check passes those as long as
+// the right neighbours differ by at most 3 px (r ≥ 1/4), and still fails a
+// disparity between the two sides of a depth edge.
+TEST(Refinement, LeftRightCheckPassesASteepSlantButNotADepthEdge) {
+  const int width = 240, height = 6, ndisp = 200;
+  cv::Mat image = RandomTexture(width, height, 5);
+  ADCensusOptions o;
+  const Preprocessed pre = Preprocess(image, o.preprocess);
+  const Parallel parallel(1);
+  const Arms arms = adcensus::BuildArms(image, pre.gradient, pre.edges, o, parallel);
+  adcensus::CostVolume volume(width, height, ndisp);
+  RefinementOptions check_only = o.refinement;
+  check_only.voting_iterations = 0;
+  check_only.interpolate = check_only.adjust_discontinuities = check_only.subpixel = false;
+  check_only.median_size = 0;
+  const auto nan = std::numeric_limits<float>::quiet_NaN();
+  for (const double g : {0.3, 0.6, 0.7, 0.74}) {
+    // d(x) = 10 + g·x on the left; the right pixel x_r = x − d(x) sees the
+    // same point, so d_R(x_r) = d((x_r + 10) / (1 − g)).
+    cv::Mat l(height, width, CV_32F, cv::Scalar(nan)), r(height, width, CV_32F, cv::Scalar(nan));
+    int landed = 0, classic_fails = 0;
+    for (int y = 0; y < height; ++y)
+      for (int x = 0; x < width; ++x) {
+        l.at<float>(y, x) = static_cast<float>(std::lround(10 + g * x));
+        const double x_left = (x + 10) / (1 - g);
+        if (x_left < width) r.at<float>(y, x) = static_cast<float>(std::lround(10 + g * x_left));
+      }
+    for (int x = 0; x < width; ++x) {
+      const float d = l.at<float>(0, x);
+      const int xr = x - static_cast<int>(d);
+      if (xr < 0 || !IsValidDisparity(r.at<float>(0, xr))) continue;
+      ++landed;
+      classic_fails += std::abs(r.at<float>(0, xr) - d) > 1;
+    }
+    const cv::Mat out =
+        adcensus::Refine(l, r, volume, 0, image, arms, check_only, parallel, nullptr, nullptr);
+    EXPECT_EQ(cv::countNonZero(out == out), landed * height) << "g " << g;
+    if (g > 0.65) {  // where the old rule alone lost pixels
+      EXPECT_GT(classic_fails, landed / 10) << "g " << g;
+    }
+  }
+  // A depth edge in the right view (d 10, then 30): a left disparity of 20
+  // landing on it is between the two sides but consistent with neither.
+  cv::Mat l(height, width, CV_32F, cv::Scalar(20)), r(height, width, CV_32F);
+  r.colRange(0, 100).setTo(10);
+  r.colRange(100, width).setTo(30);
+  l.at<float>(0, 140) = 30;  // lands on the near side (x_r 110): consistent
+  const cv::Mat out =
+      adcensus::Refine(l, r, volume, 0, image, arms, check_only, parallel, nullptr, nullptr);
+  for (int x : {119, 120, 121}) EXPECT_NE(out.at<float>(0, x), out.at<float>(0, x)) << x;
+  EXPECT_EQ(out.at<float>(0, 140), 30.f);
 }
 
 TEST(Matcher, CoarseToFineMatchesAsWellAsTheWholeBand) {

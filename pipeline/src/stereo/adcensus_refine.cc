@@ -20,6 +20,30 @@ enum Label : std::uint8_t { kReliable = 0, kOccluded = 1, kMismatch = 2, kAmbigu
 
 constexpr float kNaN = std::numeric_limits<float>::quiet_NaN();
 
+// The left-right check on a slanted surface. Where a surface turns away
+// from the right camera more than from the left one, the right view holds
+// it on fewer pixels: dR steps by (1 − r) / r from one right pixel to the
+// next (r: the right's pixels per left pixel), and a left pixel's disparity
+// falls between two right pixels' values rather than within the tolerance
+// of the one it lands on. With exact disparities that happens once r < 1/3,
+// and sooner with a matcher's ±1 px (the box's side face seen at a grazing
+// angle, the egg's lower cap): a sampling effect, not a mismatch. So the check also passes when dL
+// lies, within the tolerance, between the disparities of the right pixel it lands on and a
+// neighbour, provided those two differ by at most kMaxRightSlopePx, i.e. they are one surface (r ≥
+// 1/4) and not the two sides of a depth edge.
+constexpr float kMaxRightSlopePx = 3.f;
+
+inline bool OnRightSlope(const float* r, int xr, int width, float dl, double tolerance) {
+  const float tol = static_cast<float>(tolerance);
+  for (int a = std::max(0, xr - 1); a <= std::min(xr, width - 2); ++a) {
+    const float r0 = r[a], r1 = r[a + 1];
+    if (!IsValidDisparity(r0) || !IsValidDisparity(r1) || std::abs(r1 - r0) > kMaxRightSlopePx)
+      continue;
+    if (dl >= std::min(r0, r1) - tol && dl <= std::max(r0, r1) + tol) return true;
+  }
+  return false;
+}
+
 // With per-pixel ranges (cost has offsets) the mismatch search covers the
 // disparities the pixel searched.
 void DetectOutliers(const cv::Mat& left_index, const cv::Mat& right_index, int min_disparity,
@@ -49,7 +73,7 @@ void DetectOutliers(const cv::Mat& left_index, const cv::Mat& right_index, int m
         const int k = static_cast<int>(l[x]);
         const int xr = x - min_disparity - k;
         if (xr >= 0 && xr < width && IsValidDisparity(r[xr]) &&
-            std::abs(r[xr] - l[x]) <= tolerance) {
+            (std::abs(r[xr] - l[x]) <= tolerance || OnRightSlope(r, xr, width, l[x], tolerance))) {
           out[x] = kReliable;
           continue;
         }

@@ -537,13 +537,13 @@ TEST(Scanline, UniformOffsetsEqualTheShiftedBand) {
 // disparities held.
 // The left-right check, rule by rule: dL within the tolerance of the right
 // disparity where it lands, or between that one's and a neighbour's (within
-// the tolerance) when the two differ by at most 3 px (one slanted surface).
+// the tolerance) when the two differ by 2 or 3 px (one steep surface).
 bool PassesLeftRight(const float* r, int width, int xr, float dl, double tolerance) {
   if (!IsValidDisparity(r[xr])) return false;
   if (std::abs(r[xr] - dl) <= tolerance) return true;
   for (int a : {xr - 1, xr}) {
     if (a < 0 || a + 1 >= width || !IsValidDisparity(r[a]) || !IsValidDisparity(r[a + 1]) ||
-        std::abs(r[a + 1] - r[a]) > 3)
+        std::abs(r[a + 1] - r[a]) < 2 || std::abs(r[a + 1] - r[a]) > 3)
       continue;
     if (dl >= std::min(r[a], r[a + 1]) - tolerance && dl <= std::max(r[a], r[a + 1]) + tolerance)
       return true;
@@ -752,9 +752,9 @@ TEST(Refinement, RegionVotingEqualsTheRuleAppliedPixelByPixel) {
 // it on r = 1 − g of the left's pixels. With exact (rounded) disparities in
 // both maps every left pixel is the same surface, yet where g > 2/3 the
 // disparity it lands on in the right map can be more than 1 px off its own
-// (the right map steps by g / r per pixel). The check passes those as long as
-// the right neighbours differ by at most 3 px (r ≥ 1/4), and still fails a
-// disparity between the two sides of a depth edge.
+// (the right map steps by g / r per pixel). The check passes those where
+// the right neighbours differ by 2 or 3 px (1/4 ≤ r ≤ 1/2), and still fails
+// a disparity between the two sides of a depth edge.
 TEST(Refinement, LeftRightCheckPassesASteepSlantButNotADepthEdge) {
   const int width = 240, height = 6, ndisp = 200;
   cv::Mat image = RandomTexture(width, height, 5);
@@ -799,10 +799,12 @@ TEST(Refinement, LeftRightCheckPassesASteepSlantButNotADepthEdge) {
   r.colRange(0, 100).setTo(10);
   r.colRange(100, width).setTo(30);
   l.at<float>(0, 140) = 30;  // lands on the near side (x_r 110): consistent
+  l.at<float>(0, 160) = 32;  // 2 px off a flat stretch (x_r 128): no slope excuses it
   const cv::Mat out =
       adcensus::Refine(l, r, volume, 0, image, arms, check_only, parallel, nullptr, nullptr);
   for (int x : {119, 120, 121}) EXPECT_NE(out.at<float>(0, x), out.at<float>(0, x)) << x;
   EXPECT_EQ(out.at<float>(0, 140), 30.f);
+  EXPECT_NE(out.at<float>(0, 160), out.at<float>(0, 160));
 }
 
 TEST(Matcher, CoarseToFineMatchesAsWellAsTheWholeBand) {

@@ -27,18 +27,23 @@ constexpr float kNaN = std::numeric_limits<float>::quiet_NaN();
 // falls between two right pixels' values rather than within the tolerance
 // of the one it lands on. With exact disparities that happens once r < 1/3,
 // and sooner with a matcher's ±1 px (the box's side face seen at a grazing
-// angle, the egg's lower cap): a sampling effect, not a mismatch. So the check also passes when dL
-// lies, within the tolerance, between the disparities of the right pixel it lands on and a
-// neighbour, provided those two differ by at most kMaxRightSlopePx, i.e. they are one surface (r ≥
-// 1/4) and not the two sides of a depth edge.
-constexpr float kMaxRightSlopePx = 3.f;
+// angle, the egg's lower cap): a sampling effect, not a mismatch. So where
+// the right pixel it lands on and a neighbour differ by kMinRightStepPx to
+// kMaxRightStepPx (r between 1/4 and 1/2: one steep surface, not the two
+// sides of a depth edge), the check also passes a left disparity between
+// their two values, within the tolerance. Gentler slopes (steps of 0 or
+// 1 px) keep the plain check: there it holds by geometry, and widening it
+// would only let noise through.
+constexpr float kMinRightStepPx = 2.f;
+constexpr float kMaxRightStepPx = 3.f;
 
 inline bool OnRightSlope(const float* r, int xr, int width, float dl, double tolerance) {
   const float tol = static_cast<float>(tolerance);
   for (int a = std::max(0, xr - 1); a <= std::min(xr, width - 2); ++a) {
     const float r0 = r[a], r1 = r[a + 1];
-    if (!IsValidDisparity(r0) || !IsValidDisparity(r1) || std::abs(r1 - r0) > kMaxRightSlopePx)
-      continue;
+    if (!IsValidDisparity(r0) || !IsValidDisparity(r1)) continue;
+    const float step = std::abs(r1 - r0);
+    if (step < kMinRightStepPx || step > kMaxRightStepPx) continue;
     if (dl >= std::min(r0, r1) - tol && dl <= std::max(r0, r1) + tol) return true;
   }
   return false;

@@ -59,6 +59,7 @@
 //                      conditioning and registration, then Finish)
 // --out also writes fused_error.ply: the fused cloud in the object frame
 // coloured by that distance (green ≤ 0.5 mm, yellow ≤ 1 mm, red beyond),
+// mesh_error.ply: the mesh's scored vertices (mesh_to_truth) coloured alike,
 // missed.ply: the visible surface's grid samples no fused point covers, and
 // truth_seen.ply: the `seen` truth points on the grid (what truth_obb_mm
 // boxes), truth_visible.ply: the `visible` ones (what completeness counts),
@@ -254,8 +255,8 @@ class ScanCommand : public BenchCommand {
     sub->add_option(
         "--out", out_dir_,
         "Write fused.ply, mesh.ply, mesh.obj, mesh.glb, report.json and report.html (with "
-        "previews/) into this folder (created), with fused_error.ply and missed.ply "
-        "(where outliers are and what completeness misses)");
+        "previews/) into this folder (created), with fused_error.ply, mesh_error.ply and "
+        "missed.ply (where outliers are and what completeness misses)");
     return sub;
   }
 
@@ -651,7 +652,8 @@ class ScanCommand : public BenchCommand {
       fig.box_edges = EdgeErrors(*r.box_measurement, scene.options().object.carved_box);
 
     if (!out_dir_.empty()) {
-      if (std::string why; !WriteErrorCloud(fused, fused_d, &why) ||
+      if (std::string why; !WriteErrorCloud("fused_error.ply", fused, fused_d, &why) ||
+                           !WriteErrorCloud("mesh_error.ply", vertices, mesh_d, &why) ||
                            !WriteMissedCloud(grid, covered, &why) ||
                            !WriteOutCloud("truth_seen.ply", truth_cloud, &why))
         return DataError(why);
@@ -700,11 +702,11 @@ class ScanCommand : public BenchCommand {
     return d;
   }
 
-  // fused_error.ply: the fused cloud in the object frame, coloured by its
-  // distance to the surface (green ≤ 0.5 mm, yellow ≤ 1 mm, red beyond):
-  // where the outliers are.
-  bool WriteErrorCloud(const std::vector<cv::Vec3f>& points, const std::vector<double>& d,
-                       std::string* why) const {
+  // fused_error.ply (mesh_error.ply): the fused cloud (the mesh's scored
+  // vertices) in the object frame, coloured by the distance to the surface
+  // (green ≤ 0.5 mm, yellow ≤ 1 mm, red beyond): where the outliers are.
+  bool WriteErrorCloud(const std::string& name, const std::vector<cv::Vec3f>& points,
+                       const std::vector<double>& d, std::string* why) const {
     PointCloud cloud;
     cloud.points_mm = points;
     cloud.colors_rgb.reserve(points.size());
@@ -712,7 +714,7 @@ class ScanCommand : public BenchCommand {
       cloud.colors_rgb.push_back(e <= 0.5       ? cv::Vec3b(40, 200, 40)
                                  : e <= kGateMm ? cv::Vec3b(230, 200, 0)
                                                 : cv::Vec3b(230, 30, 30));
-    return WriteOutCloud("fused_error.ply", cloud, why);
+    return WriteOutCloud(name, cloud, why);
   }
 
   // missed.ply: the visible surface's grid samples with no fused point

@@ -537,6 +537,51 @@ struct ImlsSum {
   }
 };
 
+// Running sums of an algebraic sphere fitted to the points and normals
+// around x (Guennebaud and Gross, "Algebraic point set surfaces", SIGGRAPH
+// 2007, the normal-constrained fit with β = 1), in coordinates centred on x.
+// Across a hole it carries the curvature of the surface around it, where
+// Kolluri's value blends the tangent planes of the rim (over a convex cap
+// they meet in a cone above the surface).
+struct ApssSum {
+  double w = 0, pn = 0, pp = 0;
+  cv::Vec3d p{0, 0, 0}, n{0, 0, 0};
+  // d = x − p_i (p_i relative to x is −d).
+  void Add(double weight, const cv::Vec3f& d, const cv::Vec3f& normal) {
+    const cv::Vec3d q(-d[0], -d[1], -d[2]), m(normal[0], normal[1], normal[2]);
+    w += weight;
+    p += weight * q;
+    n += weight * m;
+    pn += weight * q.dot(m);
+    pp += weight * q.dot(q);
+  }
+  // The signed distance from x to the fitted sphere (or plane), positive
+  // on the side the normals face; false when the fit is degenerate.
+  bool Distance(double scale, float* value) const {
+    if (!(w > 0)) return false;
+    const cv::Vec3d P = p / w, N = n / w;
+    const double spread = pp / w - P.dot(P);
+    if (!(spread > 1e-12 * scale * scale)) return false;
+    const double u4 = 0.5 * (pn / w - P.dot(N)) / spread;
+    const cv::Vec3d u = N - 2 * u4 * P;
+    const double u0 = -u.dot(P) - u4 * pp / w;
+    const double gradient = cv::norm(u);
+    double distance;
+    if (std::abs(u4) * scale < 1e-6 * gradient) {  // a plane
+      if (!(gradient > 0)) return false;
+      distance = u0 / gradient;
+    } else {
+      const cv::Vec3d c = -u / (2 * u4);
+      const double r2 = c.dot(c) - u0 / u4;
+      if (!(r2 > 0)) return false;
+      distance = (u4 > 0 ? 1 : -1) * (cv::norm(c) - std::sqrt(r2));
+    }
+    if (!std::isfinite(distance)) return false;
+    *value = static_cast<float>(distance);
+    return true;
+  }
+};
+
 // The signed distance of Kolluri's implicit moving least squares at the
 // grid vertices near the surface: f(x) = Σ w_i n_i·(x − p_i) / Σ w_i over the
 // points within the radius r, w_i = exp(−|x − p_i|² / (r/2)²), and the
@@ -546,7 +591,9 @@ struct ImlsSum {
 // edge of the data, and the surface is not extended past what the cameras
 // saw. (At the straight edge of evenly spread points the centroid lies 0.28 r
 // inside, the mean of a Gaussian of deviation r/√8 cut in half; in a hole
-// the points around x pull it back towards x.)
+// the points around x pull it back towards x.) With `sphere_fit` a defined
+// vertex takes instead its distance to the sphere fitted with the same
+// weights (ApssSum), where the fit is not degenerate.
 //
 // First the vertices within 1.75 cells of a point, at `radius`: each point
 // adds itself to the vertices around it (a scatter). Then, with
@@ -556,7 +603,7 @@ struct ImlsSum {
 // as the fill radius reaches.
 void EvaluateImls(const PoissonInput& in, const PointCloud& cloud,
                   const pcl::KdTreeFLANN<pcl::PointXYZ>& tree, double radius, double fill_radius,
-                  int min_support, double max_tangent_radii, Grid* g) {
+                  int min_support, double max_tangent_radii, bool sphere_fit, Grid* g) {
   const double h = g->h;
   const int n[3] = {g->nx, g->ny, g->nz};
   // The vertex range [lo, hi] within `reach` cells of p along each axis.
@@ -580,6 +627,7 @@ void EvaluateImls(const PoissonInput& in, const PointCloud& cloud,
         }
   }
   std::vector<ImlsSum> sums(static_cast<std::size_t>(slots));
+  std::vector<ApssSum> spheres(sphere_fit ? static_cast<std::size_t>(slots) : 0);
   const bool colors = cloud.HasColors();
   const auto colour = [&](std::size_t i) {
     return colors ? cv::Vec3f(cloud.colors_rgb[in.source_index[i]]) : cv::Vec3f();
@@ -596,15 +644,19 @@ void EvaluateImls(const PoissonInput& in, const PointCloud& cloud,
           if (k < 0) continue;
           const cv::Vec3f d = g->Position(x, y, z) - cv::Vec3f(p.x, p.y, p.z);
           const double d2 = d.dot(d);
-          if (d2 <= r2)
-            sums[static_cast<std::size_t>(k)].Add(static_cast<float>(std::exp(-d2 * inv_sigma2)),
-                                                  pn.dot(d), d, pn, pc);
+          if (d2 <= r2) {
+            const float weight = static_cast<float>(std::exp(-d2 * inv_sigma2));
+            sums[static_cast<std::size_t>(k)].Add(weight, pn.dot(d), d, pn, pc);
+            if (sphere_fit) spheres[static_cast<std::size_t>(k)].Add(weight, d, pn);
+          }
         }
   }
   g->value.assign(sums.size(), std::numeric_limits<float>::quiet_NaN());
   g->color.assign(sums.size(), cv::Vec3f(0, 0, 0));
   for (std::size_t k = 0; k < sums.size(); ++k)
-    sums[k].Value(min_support, max_tangent_radii * radius, &g->value[k], &g->color[k]);
+    if (sums[k].Value(min_support, max_tangent_radii * radius, &g->value[k], &g->color[k]) &&
+        sphere_fit)
+      spheres[k].Distance(radius, &g->value[k]);
   if (!(fill_radius > radius)) return;
 
   // The fill, ring by ring from the defined vertices near the surface (each
@@ -663,18 +715,22 @@ void EvaluateImls(const PoissonInput& in, const PointCloud& cloud,
         const int found =
             tree.radiusSearch(pcl::PointXYZ(q[0], q[1], q[2]), fill_radius, index, d2);
         ImlsSum sum;
+        ApssSum sphere;
         for (int j = 0; j < found; ++j) {
           const std::size_t i = static_cast<std::size_t>(index[static_cast<std::size_t>(j)]);
           const pcl::PointNormal& p = (*in.oriented)[i];
           const cv::Vec3f pn(p.normal_x, p.normal_y, p.normal_z);
           const cv::Vec3f d = q - cv::Vec3f(p.x, p.y, p.z);
-          sum.Add(static_cast<float>(std::exp(-d2[static_cast<std::size_t>(j)] * fill_inv_sigma2)),
-                  pn.dot(d), d, pn, colour(i));
+          const float weight =
+              static_cast<float>(std::exp(-d2[static_cast<std::size_t>(j)] * fill_inv_sigma2));
+          sum.Add(weight, pn.dot(d), d, pn, colour(i));
+          if (sphere_fit) sphere.Add(weight, d, pn);
         }
         // No tangent test here (at a hole's edge the points lie on one side
         // of x as at the data's edge): the points must surround x instead.
         cand.defined = sum.Value(min_support, 1e30, &cand.value, &cand.color) &&
                        Surrounded(in, q, sum.normal, index, found);
+        if (cand.defined && sphere_fit) sphere.Distance(fill_radius, &cand.value);
       }
     }
     std::vector<std::size_t> next;
@@ -839,7 +895,7 @@ MeshResult ImplicitMesh(const PointCloud& cloud, const ImplicitMeshOptions& opti
       g.h *= 1.25;
     }
     EvaluateImls(input, cloud, tree, radius, opt.fill_radii * radius, opt.min_support,
-                 opt.max_tangent_radii, &g);
+                 opt.max_tangent_radii, opt.sphere_fit, &g);
     const bool colors = options.colors && cloud.HasColors();
     MarchingCubesOnGrid(g, colors, &r.mesh);
     r.raw_vertices = r.mesh.vertices_mm.size();

@@ -114,6 +114,13 @@ struct ImplicitMeshOptions {
   // it is taken at this × the radius: holes up to about that wide close
   // from the surface around them. 0 (off) or (1, 10].
   double fill_radii = 2.0;
+  // A vertex's value: the distance to the algebraic sphere fitted to the
+  // points and normals within the radius (APSS, Guennebaud and Gross 2007),
+  // with the same weights, which follows the surface's curvature and carries
+  // it across a hole; false: Kolluri's value, which blends the tangent
+  // planes (over a hole in a convex cap they meet above it). The support and
+  // edge tests are Kolluri's either way.
+  bool sphere_fit = true;
   int min_support = 4;  // ≥ 1 points within the radius
   // A grid vertex whose neighbours' weighted centroid lies farther than this
   // × the radius from it along the surface is past the edge of the data:

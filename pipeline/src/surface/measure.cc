@@ -79,7 +79,8 @@ Matrix3d AxisRotation(int axis, double angle) {
 // Local search over rotations (about the box's own axes) minimising the
 // trimmed volume, with halving steps.
 Matrix3d MinimiseVolume(const std::vector<Vector3d>& pts, Matrix3d axes, double trim,
-                        std::vector<double>* buffer, double* volume) {
+                        std::vector<double>* buffer, double* volume,
+                        double min_step = 0.005 * kDeg) {
   // A tiny floor keeps flat (zero-thickness) inputs comparable.
   auto cost = [&](const Matrix3d& r) {
     const Extents e = TrimmedExtents(pts, r, trim, buffer);
@@ -87,7 +88,7 @@ Matrix3d MinimiseVolume(const std::vector<Vector3d>& pts, Matrix3d axes, double 
     return size.prod();
   };
   double best = cost(axes);
-  for (double step = 8 * kDeg; step > 0.005 * kDeg; step *= 0.5) {
+  for (double step = 8 * kDeg; step > min_step; step *= 0.5) {
     for (int round = 0; round < 40; ++round) {
       bool improved = false;
       for (int a = 0; a < 3; ++a) {
@@ -786,16 +787,38 @@ bool ComputeOrientedBox(const PointCloud& cloud, const OrientedBoxOptions& optio
     Matrix3d pca = eig.info() == Eigen::Success ? eig.eigenvectors() : Matrix3d::Identity();
     if (!pca.allFinite()) pca = Matrix3d::Identity();
     if (pca.determinant() < 0) pca.col(2) = -pca.col(2);
-    // PCA is ambiguous for symmetric shapes (a cube): try it and three turns
-    // of it by 45°, keep the smallest local minimum.
+    // The volume has several local minima: PCA is ambiguous for symmetric
+    // shapes (a cube), and an irregular figure whose two shorter sides are
+    // alike has boxes of nearly equal volume in different orientations (a
+    // search from PCA alone settled in different ones for a scan and its
+    // truth, their extents a millimetre apart). So the search starts from
+    // PCA turned by 0°, 30° and 60° about each of its axes (a box repeats
+    // every 90°), 27 starts, each searched on a subset of the points down to
+    // 0.5°; the three best then run to the end on all the search points.
     std::vector<double> buffer;
+    constexpr std::size_t kCoarsePoints = 2000;  // every k-th point: evenly over the cloud
+    std::vector<Vector3d> coarse;
+    const std::size_t stride = (search.size() + kCoarsePoints - 1) / kCoarsePoints;
+    for (std::size_t i = 0; i < search.size(); i += stride) coarse.push_back(search[i]);
+    std::vector<std::pair<double, Matrix3d>> starts;
+    for (int a = 0; a < 3; ++a)
+      for (int b = 0; b < 3; ++b)
+        for (int c = 0; c < 3; ++c) {
+          const Matrix3d initial = pca * AxisRotation(2, c * kPi / 6) *
+                                   AxisRotation(1, b * kPi / 6) * AxisRotation(0, a * kPi / 6);
+          double volume = 0;
+          const Matrix3d axes =
+              MinimiseVolume(coarse, initial, options.trim_fraction, &buffer, &volume, 0.5 * kDeg);
+          starts.emplace_back(volume, axes);
+        }
+    std::stable_sort(starts.begin(), starts.end(),
+                     [](const auto& x, const auto& y) { return x.first < y.first; });
     Matrix3d best_axes = pca;
     double best_volume = std::numeric_limits<double>::infinity();
-    for (int start = 0; start < 4; ++start) {
-      const Matrix3d initial = start == 0 ? pca : Matrix3d(pca * AxisRotation(start - 1, kPi / 4));
+    for (std::size_t k = 0; k < std::min<std::size_t>(3, starts.size()); ++k) {
       double volume = 0;
       const Matrix3d axes =
-          MinimiseVolume(search, initial, options.trim_fraction, &buffer, &volume);
+          MinimiseVolume(search, starts[k].second, options.trim_fraction, &buffer, &volume);
       if (volume < best_volume * (1 - 1e-9)) {
         best_volume = volume;
         best_axes = axes;

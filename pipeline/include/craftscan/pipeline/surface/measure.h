@@ -52,9 +52,10 @@ struct OrientedBox {
 // Computes a tight oriented box: axes from PCA, then refined by a local
 // search over rotations that minimises the volume of the trimmed extents (so
 // a box-shaped object gets axes along its faces even when PCA is ambiguous,
-// e.g. a cube). Non-finite points are ignored. Returns false with *error (may
-// be null) for invalid options or fewer than 4 finite points; *box is then
-// left unchanged. Never throws. Thread-safe.
+// e.g. a cube), started from 27 turns of the PCA axes (0°, 30°, 60° about
+// each) so that it settles in the smallest of several local minima. Non-finite points are ignored.
+// Returns false with *error (may be null) for invalid options or fewer than 4 finite points; *box
+// is then left unchanged. Never throws. Thread-safe.
 bool ComputeOrientedBox(const PointCloud& cloud, const OrientedBoxOptions& options,
                         OrientedBox* box, std::string* error);
 // Same with default options.

@@ -45,6 +45,10 @@ foreach(axis 0 1 2)
   string(JSON err GET "${text}" obb_error_mm ${axis})
   check_max(err MAX_OBB_ERROR_MM "|fused OBB - truth OBB| along axis ${axis} (mm)")
   check_max(err MAX_OBB_ERROR_MM_${axis} "|fused OBB - truth OBB| along axis ${axis} (mm)")
+  # The truth along the fused box's own axes: the cloud's error alone, even
+  # where two boxes of nearly equal volume lie in different orientations.
+  string(JSON same GET "${text}" obb_error_same_axes_mm ${axis})
+  check_max(same MAX_OBB_ERROR_MM "|fused OBB - truth along its axes| along axis ${axis} (mm)")
 endforeach()
 string(JSON edges ERROR_VARIABLE no_edges GET "${text}" box_edges_mm)
 if(NOT no_edges)

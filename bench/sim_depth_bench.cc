@@ -25,6 +25,9 @@
 //                                           camera also sees (Middlebury's "nonocc":
 //                                           no matcher can match the others)
 //   disp_err_median_px                      |d − d_true| over the same pixels
+//   disp_bias_px, depth_bias_mm             the mean of d − d_true and of Z − Z_true
+//                                           over those within 1 px of the truth (a
+//                                           matcher's systematic error, outliers aside)
 // and render_ms (both cameras + ground truth), match_ms (one matcher call,
 // on a new matcher: its first-touch page faults count), the matcher's own
 // stage times, and match_peak_rss_mb (the process's peak resident memory
@@ -82,6 +85,7 @@ struct SimDepthResult {
   long nonocc_pixels = 0, valid_nonocc_pixels = 0;  // object ∩ seen by the right camera
   double depth_err_median_mm = NAN, depth_err_p90_mm = NAN, disp_err_median_px = NAN;
   double disp_bad2_pct = NAN;  // valid object pixels more than 2 px off the true disparity
+  double disp_bias_px = NAN, depth_bias_mm = NAN;  // signed means within 1 px of the truth
   // The raw left image's share of dark pixels without texture on the
   // platter (DarkUntexturedSharePct): what the station's automatic
   // bracketing (scan.auto_bracket) decides by.
@@ -430,6 +434,8 @@ class SimDepthCommand : public BenchCommand {
     // Depth through Q on the object pixels.
     const cv::Matx44d& Q = c.Q;
     std::vector<double> depth_errors, disparity_errors;
+    double disparity_bias = 0, depth_bias = 0;
+    long bias_pixels = 0;
     for (int y = 0; y < mask.rows; ++y) {
       const std::uint8_t* m = mask.ptr<std::uint8_t>(y);
       const std::uint8_t* seen_right = render.rectified_visible_right.ptr<std::uint8_t>(y);
@@ -444,7 +450,16 @@ class SimDepthCommand : public BenchCommand {
         if (seen_right[x]) ++result->valid_nonocc_pixels;
         depth_errors.push_back(std::abs(p[2] / p[3] - z_true[x]));
         disparity_errors.push_back(std::abs(d[x] - d_true[x]));
+        if (std::abs(d[x] - d_true[x]) <= 1.0f) {
+          disparity_bias += d[x] - d_true[x];
+          depth_bias += p[2] / p[3] - z_true[x];
+          ++bias_pixels;
+        }
       }
+    }
+    if (bias_pixels > 0) {
+      result->disp_bias_px = disparity_bias / static_cast<double>(bias_pixels);
+      result->depth_bias_mm = depth_bias / static_cast<double>(bias_pixels);
     }
     result->valid_pixels = static_cast<long>(depth_errors.size());
     result->valid_pct = 100.0 * result->valid_pixels / result->object_pixels;
@@ -519,9 +534,9 @@ class SimDepthCommand : public BenchCommand {
     std::printf(
         "  depth_err_median_mm %.3f  depth_err_p90_mm %.3f  valid_pct %.1f  "
         "valid_nonocc_pct %.1f (of %ld pixels the right camera also sees)  "
-        "disp_err_median_px %.3f  disp_bad2_pct %.2f\n",
+        "disp_err_median_px %.3f  disp_bad2_pct %.2f  disp_bias_px %+.4f  depth_bias_mm %+.4f\n",
         r.depth_err_median_mm, r.depth_err_p90_mm, r.valid_pct, r.valid_nonocc_pct, r.nonocc_pixels,
-        r.disp_err_median_px, r.disp_bad2_pct);
+        r.disp_err_median_px, r.disp_bad2_pct, r.disp_bias_px, r.depth_bias_mm);
     if (!raw_)
       std::printf(
           "  removed: speckles %zu  depth edges %zu  textureless %zu pixels "
@@ -578,6 +593,8 @@ class SimDepthCommand : public BenchCommand {
     root["valid_nonocc_pct"] = ToJson(r.valid_nonocc_pct);
     root["nonocc_pixels"] = r.nonocc_pixels;
     root["disp_err_median_px"] = ToJson(r.disp_err_median_px);
+    root["disp_bias_px"] = ToJson(r.disp_bias_px);
+    root["depth_bias_mm"] = ToJson(r.depth_bias_mm);
     root["disp_bad2_pct"] = ToJson(r.disp_bad2_pct);
     root["render_ms"] = ToJson(r.render_ms);
     root["match_ms"] = ToJson(r.match_ms);

@@ -543,6 +543,73 @@ TEST(LoopClosure, TurntableAxisModelRemovesAccumulatedDrift) {
   EXPECT_NEAR(std::abs(r.angles_rad[3]), M_PI, 0.01);
 }
 
+// The tilt of an axis from the truth (deg, either sign).
+double AxisTiltDeg(const cv::Vec3d& a, const cv::Vec3d& truth) {
+  return std::acos(std::min(1.0, std::abs(cv::normalize(a).dot(cv::normalize(truth))))) * 180 /
+         M_PI;
+}
+
+// The worst angle between a view's pose and the truth over the ring.
+double WorstRotationDeg(const LoopClosureResult& r, const Ring& ring) {
+  double worst = 0;
+  for (std::size_t k = 0; k < ring.truth.size(); ++k)
+    worst = std::max(worst, RotationErrorDeg(r.view0_from_view[k], ring.truth[k]));
+  return worst;
+}
+
+TEST(LoopClosure, CalibratedAxisHoldsTheViewsWhereTheRegistrationsAgreeWithIt) {
+  const cv::Vec3d axis = cv::normalize(cv::Vec3d(0.05, -0.86, -0.5));
+  const cv::Vec3d point(3, 60, 400);
+  for (unsigned seed = 10; seed < 20; ++seed) {
+    const Ring ring = MakeRing(axis, point, seed, 0.0015, 0.08);
+    const LoopClosureResult fitted = CloseLoop(6, ring.edges, ring.chained, Samples(), {});
+    ASSERT_TRUE(fitted.IsUsable()) << fitted.message;
+    EXPECT_FALSE(fitted.calibrated_axis);
+    EXPECT_TRUE(std::isnan(fitted.axis_disagreement_deg));
+    // The calibration: the true axis, any point on it.
+    const LoopClosureResult r = CloseLoop(6, ring.edges, ring.chained, Samples(), {},
+                                          CalibratedAxis{-axis, point + 40 * axis});
+    ASSERT_TRUE(r.IsUsable()) << r.message;
+    EXPECT_EQ(r.model, LoopClosureResult::Model::kTurntableAxis);
+    EXPECT_TRUE(r.calibrated_axis) << "seed " << seed << ": " << r.axis_disagreement_deg << " deg, "
+                                   << r.axis_disagreement_mm << " mm";
+    // The fitted axis is off by the registrations' noise; the disagreement
+    // says by how much.
+    EXPECT_NEAR(r.axis_disagreement_deg, AxisTiltDeg(fitted.axis_direction, axis), 1e-6);
+    EXPECT_LT(AxisTiltDeg(r.axis_direction, axis), 1e-9);
+    EXPECT_LE(WorstRotationDeg(r, ring), WorstRotationDeg(fitted, ring) + 1e-9) << "seed " << seed;
+    std::printf(
+        "seed %u: fitted axis %.3f deg off, worst view %.3f deg; about the calibrated "
+        "axis %.3f deg\n",
+        seed, AxisTiltDeg(fitted.axis_direction, axis), WorstRotationDeg(fitted, ring),
+        WorstRotationDeg(r, ring));
+  }
+}
+
+TEST(LoopClosure, ACalibrationTheRegistrationsContradictIsNotUsed) {
+  const cv::Vec3d axis = cv::normalize(cv::Vec3d(0.05, -0.86, -0.5));
+  const cv::Vec3d point(3, 60, 400);
+  const Ring ring = MakeRing(axis, point, 4, 0.0015, 0.08);
+  // The turntable moved since it was calibrated: its old axis tilted by 2°,
+  // or 3 mm aside.
+  cv::Matx33d tilt;
+  cv::Rodrigues(cv::Vec3d(2 * M_PI / 180, 0, 0), tilt);
+  const cv::Vec3d aside = cv::normalize(axis.cross(cv::Vec3d(1, 0, 0))) * 3;
+  for (const CalibratedAxis& stale :
+       {CalibratedAxis{tilt * axis, point}, CalibratedAxis{axis, point + aside}}) {
+    const LoopClosureResult r = CloseLoop(6, ring.edges, ring.chained, Samples(), {}, stale);
+    ASSERT_TRUE(r.IsUsable()) << r.message;
+    EXPECT_EQ(r.model, LoopClosureResult::Model::kTurntableAxis);
+    EXPECT_FALSE(r.calibrated_axis);
+    EXPECT_TRUE(r.axis_disagreement_deg > 1.5 || r.axis_disagreement_mm > 2.5)
+        << r.axis_disagreement_deg << " deg, " << r.axis_disagreement_mm << " mm";
+    EXPECT_LT(AxisTiltDeg(r.axis_direction, axis), 0.3);  // the fitted axis, as without
+  }
+  LoopClosureOptions bad;
+  bad.max_axis_disagreement_deg = 0;
+  EXPECT_FALSE(CloseLoop(6, ring.edges, ring.chained, Samples(), bad).IsUsable());
+}
+
 TEST(LoopClosure, PoseGraphWhenTheObjectMoved) {
   // The object slips 3 mm sideways every other view: no single axis fits.
   const Ring ring = MakeRing(cv::Vec3d(0, -0.86, -0.5), cv::Vec3d(0, 60, 400), 2, 0.001, 0.05,

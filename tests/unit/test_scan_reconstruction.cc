@@ -9,6 +9,7 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <cstdio>
 #include <numbers>
 #include <random>
 #include <string>
@@ -156,6 +157,45 @@ TEST(ScanReconstruction, RegistrationsStrayingBeyondTheLimitAreRefused) {
         << refused.pairwise[k].message;
     EXPECT_LT(PoseErrorDeg(refused.view0_from_view[k], k * kStepRad), 1e-6) << "view " << k;
   }
+}
+
+TEST(ScanReconstruction, TheLoopTurnsAboutTheCalibratedAxisUnlessTheScanContradictsIt) {
+  // The calibration right: the loop closes about it.
+  const ScanResult r = ReconstructScan(Views(kStepRad), Axis(), Options());
+  ASSERT_TRUE(r.IsUsable()) << r.message;
+  ASSERT_TRUE(r.loop && r.loop->IsUsable());
+  EXPECT_TRUE(r.loop->calibrated_axis) << r.loop->axis_disagreement_deg << " deg";
+  EXPECT_LT(r.loop->axis_disagreement_deg, 0.5);
+  EXPECT_NE(r.message.find("loop closed (turntable_axis, about the calibrated axis)"),
+            std::string::npos)
+      << r.message;
+  for (int k = 1; k < kViews; ++k)
+    EXPECT_LT(PoseErrorDeg(r.view0_from_view[k], k * kStepRad), 0.1) << "view " << k;
+  EXPECT_NE(ScanReportJson(r).find("\"axis\": \"calibrated\""), std::string::npos);
+
+  // The turntable was knocked after calibration: its calibrated axis is
+  // 0.8° off the one it turns about. The registrations' own axis is used,
+  // and the message says to calibrate again.
+  TurntableAxis stale = Axis();
+  const double tilt = 0.8 * std::numbers::pi / 180;  // about the rig's x axis
+  stale.direction_in_rig = cv::Vec3d(0, -std::cos(tilt), -std::sin(tilt));
+  // The views as the true axis turned them, the frame from the stale one.
+  // The slide rule is off: it keeps the prior where ICP moves the pose by
+  // more than 0.3° for less than 0.02 of fitness, and a pose 1° off moves
+  // this box's points by under 0.4 mm, well inside the 2 mm fitness gate,
+  // so it would keep the stale motion and the loop would agree with it.
+  ScanOptions options = Options();
+  options.registration.prior_slide_deg = 0;
+  const ScanResult s = ReconstructScan(Views(kStepRad), stale, options);
+  ASSERT_TRUE(s.IsUsable()) << s.message;
+  ASSERT_TRUE(s.loop && s.loop->IsUsable());
+  EXPECT_FALSE(s.loop->calibrated_axis);
+  EXPECT_NEAR(s.loop->axis_disagreement_deg, 0.8, 0.15);
+  EXPECT_NE(s.message.find("from the calibrated one"), std::string::npos) << s.message;
+  EXPECT_NE(s.message.find("calibrate-turntable (run it again)"), std::string::npos) << s.message;
+  std::printf("stale calibration: %s\n", s.message.c_str());
+  for (int k = 1; k < kViews; ++k)
+    EXPECT_LT(PoseErrorDeg(s.view0_from_view[k], k * kStepRad), 0.1) << "view " << k;
 }
 
 TEST(ScanReconstruction, PriorDeviationLimitsAreValidated) {

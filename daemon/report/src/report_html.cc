@@ -325,6 +325,16 @@ void Registration(Page& p, const ReportInputs& in, const Json& scan) {
           Number(*loop, "open_loop_rot_deg", 3) + "&deg;, " + Number(*loop, "open_loop_rms_mm", 3) +
               " mm RMS");
     p.Row("Turntable-axis model fit", Number(*loop, "axis_rms_mm", 3) + " mm RMS");
+    if (!Text(*loop, "axis").empty()) {
+      const std::string apart = Number(*loop, "axis_disagreement_deg", 3) + "&deg; and " +
+                                Number(*loop, "axis_disagreement_mm", 2) + " mm";
+      p.Row("Turntable axis",
+            Text(*loop, "axis") == "calibrated"
+                ? "the calibrated one (the views' own fit is " + apart + " from it)"
+                : "<span class=\"bad\">fitted to the views: " + apart +
+                      " from the calibrated one; the turntable or the cameras may have moved "
+                      "since calibrate-turntable (run it again)</span>");
+    }
     p.Row("Closed residual",
           Number(*loop, "rms_mm", 3) + " mm RMS, " + Number(*loop, "max_mm", 3) + " mm max");
     if (const Json* dir = Find(*loop, "axis_direction"))

@@ -151,6 +151,8 @@ bool Solve(const Problem& p, int num_params, int max_iterations,
 bool LoopClosureOptions::IsValid(std::string* why) const {
   if (!(max_axis_rms_mm > 0)) return Fail(why, "max_axis_rms_mm must be > 0");
   if (max_iterations < 1) return Fail(why, "max_iterations must be ≥ 1");
+  if (!(max_axis_disagreement_deg > 0) || !(max_axis_disagreement_mm > 0))
+    return Fail(why, "max_axis_disagreement_deg and max_axis_disagreement_mm must be > 0");
   return true;
 }
 
@@ -209,10 +211,12 @@ std::string BuildProblem(int num_views, const std::vector<PoseEdge>& edges,
 // The turntable-axis model: every view a rotation about one axis. Starts
 // from the mean of the views' rotation axes (sign-aligned, weighted by their
 // angle up to 90°) and the least-squares point of t_k = (I − R_k)·c, then
-// fits axis, point and one angle per view k ≥ 1. Fills the result's axis
-// figures; returns the poses, empty when no axis could be fitted.
+// fits axis, point and one angle per view k ≥ 1; with `fixed`, the axis is
+// that one and only the angles are fitted. Fills the result's axis figures;
+// returns the poses, empty when no axis could be fitted.
 std::vector<Mat4> FitTurntableAxis(const Problem& p, const std::vector<Mat4>& initial,
-                                   const LoopClosureOptions& options, LoopClosureResult* result) {
+                                   const LoopClosureOptions& options, LoopClosureResult* result,
+                                   const CalibratedAxis* fixed = nullptr) {
   const int num_views = p.num_views;
   Eigen::Vector3d axis = Eigen::Vector3d::Zero();
   for (int k = 1; k < num_views; ++k) {
@@ -236,16 +240,29 @@ std::vector<Mat4> FitTurntableAxis(const Problem& p, const std::vector<Mat4>& in
   A.row(A.rows() - 1) = axis.transpose();
   b[b.size() - 1] = 0;
   Eigen::Vector3d center = A.colPivHouseholderQr().solve(b);
+  if (fixed) {
+    Eigen::Vector3d d(fixed->direction[0], fixed->direction[1], fixed->direction[2]);
+    if (!(d.norm() > 0)) return {};
+    d.normalize();
+    axis = d.dot(axis) >= 0 ? d : Eigen::Vector3d(-d);
+    center = Eigen::Vector3d(fixed->point_mm[0], fixed->point_mm[1], fixed->point_mm[2]);
+    for (int k = 1; k < num_views; ++k) {
+      const Eigen::AngleAxisd aa(Eigen::Matrix3d(initial[k].topLeftCorner<3, 3>()));
+      angles[k] = aa.axis().dot(axis) >= 0 ? aa.angle() : -aa.angle();
+    }
+  }
   // Local parametrisation: [u v] tilt the axis in its normal plane, [cu cv]
-  // move the point in that plane, then one angle per view k ≥ 1.
+  // move the point in that plane (neither with a fixed axis), then one
+  // angle per view k ≥ 1.
   Eigen::Vector3d e1 = axis.unitOrthogonal(), e2 = axis.cross(e1);
-  const int n = 4 + (num_views - 1);
+  const int axis_params = fixed ? 0 : 4;
+  const int n = axis_params + (num_views - 1);
   auto state_of = [&](const Vec& x, Eigen::Vector3d* a, Eigen::Vector3d* c,
                       std::vector<double>* th) {
-    *a = (axis + x[0] * e1 + x[1] * e2).normalized();
-    *c = center + x[2] * e1 + x[3] * e2;
+    *a = fixed ? axis : (axis + x[0] * e1 + x[1] * e2).normalized();
+    *c = fixed ? center : Eigen::Vector3d(center + x[2] * e1 + x[3] * e2);
     *th = angles;
-    for (int k = 1; k < num_views; ++k) (*th)[k] += x[3 + k];
+    for (int k = 1; k < num_views; ++k) (*th)[k] += x[axis_params - 1 + k];
   };
   auto poses_of = [&](const Vec& x) {
     Eigen::Vector3d a, c;
@@ -275,6 +292,24 @@ std::vector<Mat4> FitTurntableAxis(const Problem& p, const std::vector<Mat4>& in
   return poses;
 }
 
+// The result's fitted axis against `calibrated`: the angle between their
+// directions (deg, either sign) and the distance between the points of the
+// two lines nearest the samples' centroid (mm).
+void Disagreement(const LoopClosureResult& result, const CalibratedAxis& calibrated,
+                  const std::vector<Eigen::Vector3d>& samples, double* deg, double* mm) {
+  const auto vec = [](const cv::Vec3d& v) { return Eigen::Vector3d(v[0], v[1], v[2]); };
+  const Eigen::Vector3d a = vec(result.axis_direction).normalized();
+  const Eigen::Vector3d b = vec(calibrated.direction).normalized();
+  *deg = std::atan2(a.cross(b).norm(), std::abs(a.dot(b))) * 180 / M_PI;
+  Eigen::Vector3d centroid = Eigen::Vector3d::Zero();
+  for (const auto& s : samples) centroid += s;
+  centroid /= static_cast<double>(std::max<std::size_t>(1, samples.size()));
+  const auto foot = [&](const Eigen::Vector3d& point, const Eigen::Vector3d& direction) {
+    return Eigen::Vector3d(point + direction * direction.dot(centroid - point));
+  };
+  *mm = (foot(vec(result.axis_point_mm), a) - foot(vec(calibrated.point_mm), b)).norm();
+}
+
 // The pose graph: a free rigid update per view k ≥ 1. Returns false when it
 // does not converge.
 bool FitPoseGraph(const Problem& p, const LoopClosureOptions& options, std::vector<Mat4>* poses) {
@@ -293,7 +328,8 @@ bool FitPoseGraph(const Problem& p, const LoopClosureOptions& options, std::vect
 LoopClosureResult CloseLoop(int num_views, const std::vector<PoseEdge>& edges,
                             const std::vector<cv::Matx44d>& initial_view0_from_view,
                             const std::vector<cv::Vec3d>& sample_points_mm,
-                            const LoopClosureOptions& options) {
+                            const LoopClosureOptions& options,
+                            const std::optional<CalibratedAxis>& calibrated) {
   return NoThrow<LoopClosureResult>(
       "CloseLoop", LoopClosureResult::Status::kFailed, [&]() -> LoopClosureResult {
         LoopClosureResult result;
@@ -330,9 +366,25 @@ LoopClosureResult CloseLoop(int num_views, const std::vector<PoseEdge>& edges,
         double mx;
         Figures(p, initial, &result.open_loop_rms_mm, &mx);
 
-        const std::vector<Mat4> axis_poses = FitTurntableAxis(p, initial, options, &result);
+        std::vector<Mat4> axis_poses = FitTurntableAxis(p, initial, options, &result);
         const bool axis_ok = !axis_poses.empty();
         if (axis_ok && result.axis_rms_mm <= options.max_axis_rms_mm) {
+          if (calibrated) {
+            // The fitted axis against the calibrated one; where they agree,
+            // the calibrated one (known far more precisely) and the angles.
+            Disagreement(result, *calibrated, p.samples, &result.axis_disagreement_deg,
+                         &result.axis_disagreement_mm);
+            if (result.axis_disagreement_deg <= options.max_axis_disagreement_deg &&
+                result.axis_disagreement_mm <= options.max_axis_disagreement_mm) {
+              LoopClosureResult about = result;
+              std::vector<Mat4> poses = FitTurntableAxis(p, initial, options, &about, &*calibrated);
+              if (!poses.empty() && about.axis_rms_mm <= options.max_axis_rms_mm) {
+                result = about;
+                result.calibrated_axis = true;
+                axis_poses = std::move(poses);
+              }
+            }
+          }
           result.status = LoopClosureResult::Status::kOk;
           result.model = LoopClosureResult::Model::kTurntableAxis;
           for (const auto& T : axis_poses) result.view0_from_view.push_back(ToCv(T));

@@ -138,7 +138,18 @@ std::string ScanNotes(const ScanResult& result, bool closed_loop, bool meshed) {
     else if (!result.loop->IsUsable())
       notes = "loop closure failed: " + result.loop->message;
     else
-      notes = std::string("loop closed (") + ToString(result.loop->model) + ")";
+      notes = std::string("loop closed (") + ToString(result.loop->model) +
+              (result.loop->calibrated_axis ? ", about the calibrated axis" : "") + ")";
+    const LoopClosureResult& loop = *result.loop;
+    if (loop.IsUsable() && !loop.calibrated_axis && std::isfinite(loop.axis_disagreement_deg)) {
+      char text[240];
+      std::snprintf(text, sizeof(text),
+                    "; the views turned about an axis %.2f° and %.2f mm from the calibrated one: "
+                    "the turntable or the cameras may have moved since calibrate-turntable "
+                    "(run it again)",
+                    loop.axis_disagreement_deg, loop.axis_disagreement_mm);
+      notes += text;
+    }
   }
   for (std::size_t k = 1; k < result.turntable_pose.size(); ++k) {
     if (!result.turntable_pose[k]) continue;
@@ -300,8 +311,12 @@ ScanResult IncrementalScan::Impl::Finish() {
                        1.0});
     }
     edges.push_back({0, n - 1, result.closing->target_from_source, 1.0});
-    result.loop =
-        CloseLoop(n, edges, result.view0_from_view, BoxCorners(result.views[0].fine), options.loop);
+    // With a calibrated turntable, its axis (in the rig frame, which is
+    // view 0's frame) where the registrations agree with it.
+    std::optional<CalibratedAxis> calibrated;
+    if (have_axis) calibrated = CalibratedAxis{axis.direction_in_rig, axis.point_in_rig_mm};
+    result.loop = CloseLoop(n, edges, result.view0_from_view, BoxCorners(result.views[0].fine),
+                            options.loop, calibrated);
     if (result.loop->IsUsable()) result.view0_from_view = result.loop->view0_from_view;
   }
   result.loop_ms = MsSince(start);
@@ -473,6 +488,11 @@ std::string ScanReportJson(const ScanResult& result) {
       loop["axis_rms_mm"] = Num(l.axis_rms_mm);
       loop["rms_mm"] = Num(l.rms_mm);
       loop["max_mm"] = Num(l.max_mm);
+      if (std::isfinite(l.axis_disagreement_deg)) {
+        loop["axis"] = l.calibrated_axis ? "calibrated" : "fitted";
+        loop["axis_disagreement_deg"] = Num(l.axis_disagreement_deg);
+        loop["axis_disagreement_mm"] = Num(l.axis_disagreement_mm);
+      }
       if (l.model == LoopClosureResult::Model::kTurntableAxis) {
         loop["axis_direction"] = {l.axis_direction[0], l.axis_direction[1], l.axis_direction[2]};
         loop["axis_point_mm"] = {l.axis_point_mm[0], l.axis_point_mm[1], l.axis_point_mm[2]};

@@ -9,8 +9,18 @@
 // Both are nonlinear least squares over point residuals: for each edge
 // i → j, sample points p of view i must land where the measured
 // registration puts them, ‖T_j⁻¹·T_i·p − T_ij·p‖ (mm).
+//
+// With the turntable's calibrated axis (calibrate-turntable: a board's
+// corners over the whole turn), the axis the registrations fit is compared
+// with it; where they agree within the registrations' own precision the
+// views turn about the calibrated axis and only their angles are fitted.
+// Six pairwise registrations of an object determine the axis's direction to
+// about a tenth of a degree, and a turn fused about an axis tilted by that
+// is bent by it (README 11.11).
 #pragma once
 
+#include <limits>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -27,8 +37,21 @@ struct PoseEdge {
   double weight = 1;  // relative confidence (e.g. fitness); > 0
 };
 
+// A turntable axis measured by calibration, in the frame of view 0.
+struct CalibratedAxis {
+  cv::Vec3d direction{0, 0, 1};  // unit vector
+  cv::Vec3d point_mm{0, 0, 0};   // any point on the axis
+};
+
 struct LoopClosureOptions {
   double max_axis_rms_mm = 0.5;  // above: fall back to the pose graph
+  // With a calibrated axis: the axis the registrations fit may differ from
+  // it by up to this in direction (deg) and in position at the sample
+  // points' centroid (mm) for the calibrated axis to be used; beyond, the
+  // calibration no longer matches the turntable (it moved, or the
+  // calibration is stale) and the fitted axis is used. Both > 0.
+  double max_axis_disagreement_deg = 0.5;
+  double max_axis_disagreement_mm = 1.0;
   bool allow_pose_graph = true;
   int max_iterations = 50;  // Gauss–Newton / Levenberg–Marquardt iterations
   bool IsValid(std::string* why) const;
@@ -48,6 +71,13 @@ struct LoopClosureResult {
   cv::Vec3d axis_direction{0, 0, 1};
   cv::Vec3d axis_point_mm{0, 0, 0};
   std::vector<double> angles_rad;
+  // With a calibrated axis given: the axis the registrations fit, against
+  // it (direction in deg, position at the sample points' centroid in mm;
+  // NaN when no axis could be fitted), and whether the poses turn about the
+  // calibrated axis (the axis figures above are then the calibrated one's).
+  double axis_disagreement_deg = std::numeric_limits<double>::quiet_NaN();
+  double axis_disagreement_mm = std::numeric_limits<double>::quiet_NaN();
+  bool calibrated_axis = false;
 
   // Closure quality. Before: the chained pairwise poses around the ring
   // compose to this error (identity expected), as rotation (deg) and the RMS
@@ -68,10 +98,12 @@ struct LoopClosureResult {
 // typical view (e.g. the object's bounding box corners) used for the point
 // residuals; at least 3 not on one line. Fails with a reason on inconsistent
 // input. Never throws.
+// `calibrated` (optional): the turntable's calibrated axis (see above).
 LoopClosureResult CloseLoop(int num_views, const std::vector<PoseEdge>& edges,
                             const std::vector<cv::Matx44d>& initial_view0_from_view,
                             const std::vector<cv::Vec3d>& sample_points_mm,
-                            const LoopClosureOptions& options);
+                            const LoopClosureOptions& options,
+                            const std::optional<CalibratedAxis>& calibrated = std::nullopt);
 
 const char* ToString(LoopClosureResult::Model model);  // "none", "turntable_axis", "pose_graph"
 

@@ -98,6 +98,7 @@
 #include <numbers>
 #include <numeric>
 #include <optional>
+#include <sstream>
 #include <string>
 #include <vector>
 
@@ -524,6 +525,27 @@ class ScanCommand : public BenchCommand {
             (fs::path(save_turns_dir_) / (t == 0 ? "turn_a.json" : "turn_b.json")).string();
         if (Status s = WriteFileAtomically(path, ScanReportJson(turns[t].result)); !s.ok())
           return DataError("--save-turns: " + s.message());
+        // The turn's frame in the object frame, and the true surface its views saw
+        // (object frame), to score each turn on its own.
+        {
+          std::ostringstream m;
+          m.precision(17);
+          for (int r = 0; r < 4; ++r)
+            for (int c = 0; c < 4; ++c)
+              m << turns[t].object_from_result(r, c) << (c == 3 ? '\n' : ' ');
+          PointCloud seen_cloud;
+          seen_cloud.points_mm = turns[t].seen;
+          const std::string stem = t == 0 ? "turn_a" : "turn_b";
+          if (Status s = WriteFileAtomically(
+                  (fs::path(save_turns_dir_) / (stem + "_object_from_turn.txt")).string(), m.str());
+              !s.ok())
+            return DataError("--save-turns: " + s.message());
+          if (Status s = WriteFileAtomically(
+                  (fs::path(save_turns_dir_) / (stem + "_truth_seen.ply")).string(),
+                  EncodePly(seen_cloud, true));
+              !s.ok())
+            return DataError("--save-turns: " + s.message());
+        }
         // Each view's conditioned cloud (what fusion starts from), in the turn's frame.
         const ScanResult& tr = turns[t].result;
         const cv::Matx44d out_from_view0 = tr.turntable_from_view0.value_or(cv::Matx44d::eye());

@@ -10,6 +10,10 @@
 //                                     conditioning, registration, fusion)
 //   DIR/turn_a_viewK.ply, …          each view's conditioned cloud (what
 //                                     fusion starts from), in its turn's frame
+//   DIR/turn_a_object_from_turn.txt, … the turn's frame in the object's (16
+//                                     numbers, row-major: the truth of each turn)
+//   DIR/turn_a_truth_seen.ply, …      the true surface the turn's cameras saw,
+//                                     object frame
 #pragma once
 
 #include <string>

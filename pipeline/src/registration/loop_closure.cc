@@ -369,11 +369,30 @@ LoopClosureResult CloseLoop(int num_views, const std::vector<PoseEdge>& edges,
         std::vector<Mat4> axis_poses = FitTurntableAxis(p, initial, options, &result);
         const bool axis_ok = !axis_poses.empty();
         if (axis_ok && result.axis_rms_mm <= options.max_axis_rms_mm) {
+          const Problem* solved = &p;
+          // The registrations' own motions where a slid registration kept the
+          // turntable's (the calibration's) motion instead.
+          Problem own;
+          LoopClosureResult own_fit = result;
+          std::vector<Mat4> own_poses;
+          if (calibrated) {
+            std::vector<PoseEdge> registered = edges;
+            bool slid = false;
+            for (PoseEdge& e : registered)
+              if (e.registered_target_from_source) {
+                e.target_from_source = *e.registered_target_from_source;
+                slid = true;
+              }
+            if (slid && BuildProblem(num_views, registered, sample_points_mm, &own).empty()) {
+              own_poses = FitTurntableAxis(own, initial, options, &own_fit);
+              if (own_fit.axis_rms_mm > options.max_axis_rms_mm) own_poses.clear();
+            }
+          }
           if (calibrated) {
             // The fitted axis against the calibrated one; where they agree,
             // the calibrated one (known far more precisely) and the angles.
-            Disagreement(result, *calibrated, p.samples, &result.axis_disagreement_deg,
-                         &result.axis_disagreement_mm);
+            Disagreement(own_poses.empty() ? result : own_fit, *calibrated, p.samples,
+                         &result.axis_disagreement_deg, &result.axis_disagreement_mm);
             if (result.axis_disagreement_deg <= options.max_axis_disagreement_deg &&
                 result.axis_disagreement_mm <= options.max_axis_disagreement_mm) {
               LoopClosureResult about = result;
@@ -383,12 +402,19 @@ LoopClosureResult CloseLoop(int num_views, const std::vector<PoseEdge>& edges,
                 result.calibrated_axis = true;
                 axis_poses = std::move(poses);
               }
+            } else if (!own_poses.empty()) {
+              // The kept turntable motions are the contradicted calibration's.
+              own_fit.axis_disagreement_deg = result.axis_disagreement_deg;
+              own_fit.axis_disagreement_mm = result.axis_disagreement_mm;
+              result = own_fit;
+              axis_poses = std::move(own_poses);
+              solved = &own;
             }
           }
           result.status = LoopClosureResult::Status::kOk;
           result.model = LoopClosureResult::Model::kTurntableAxis;
           for (const auto& T : axis_poses) result.view0_from_view.push_back(ToCv(T));
-          Figures(p, axis_poses, &result.rms_mm, &result.max_mm);
+          Figures(*solved, axis_poses, &result.rms_mm, &result.max_mm);
           return result;
         }
         if (!options.allow_pose_graph) {

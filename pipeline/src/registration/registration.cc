@@ -1486,6 +1486,7 @@ RegistrationResult RegisterPair(const ViewCloud& source, const ViewCloud& target
               RotationErrorDeg(from_prior->target_from_source, at_prior.target_from_source);
           if (moved_deg > options.prior_slide_deg &&
               from_prior->fitness < at_prior.fitness + options.prior_slide_gain) {
+            fine.slid_target_from_source = from_prior->target_from_source;
             fine.target_from_source = at_prior.target_from_source;
             fine.fitness = at_prior.fitness;
             fine.rmse_mm = at_prior.rmse_mm;

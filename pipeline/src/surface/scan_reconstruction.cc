@@ -304,13 +304,16 @@ ScanResult IncrementalScan::Impl::Finish() {
   if (result.closing && result.closing->IsUsable()) {
     std::vector<PoseEdge> edges;
     for (int k = 1; k < n; ++k) {
-      edges.push_back({k, k - 1,
-                       result.turntable_pose[k]
-                           ? Prior(views[k].commanded_angle_rad, views[k - 1].commanded_angle_rad)
-                           : result.pairwise[k].target_from_source,
-                       1.0});
+      if (result.turntable_pose[k])
+        edges.push_back({k, k - 1,
+                         Prior(views[k].commanded_angle_rad, views[k - 1].commanded_angle_rad), 1.0,
+                         std::nullopt});
+      else
+        edges.push_back({k, k - 1, result.pairwise[k].target_from_source, 1.0,
+                         result.pairwise[k].slid_target_from_source});
     }
-    edges.push_back({0, n - 1, result.closing->target_from_source, 1.0});
+    edges.push_back({0, n - 1, result.closing->target_from_source, 1.0,
+                     result.closing->slid_target_from_source});
     // With a calibrated turntable, its axis (in the rig frame, which is
     // view 0's frame) where the registrations agree with it.
     std::optional<CalibratedAxis> calibrated;

@@ -16,7 +16,12 @@
 // views turn about the calibrated axis and only their angles are fitted.
 // Six pairwise registrations of an object determine the axis's direction to
 // about a tenth of a degree, and a turn fused about an axis tilted by that
-// is bent by it (README 11.11).
+// is bent by it (README 11.11). Edges whose registration slid and kept the
+// turntable's motion (PoseEdge::registered_target_from_source) enter that
+// comparison with the registration's own motion: the kept motion is the
+// calibration's, and with a stale calibration it would agree with it. Where
+// the registrations then contradict the calibration, the views turn about
+// the axis their own motions fit.
 #pragma once
 
 #include <limits>
@@ -35,6 +40,11 @@ struct PoseEdge {
   int target = 0;
   cv::Matx44d target_from_source = cv::Matx44d::eye();
   double weight = 1;  // relative confidence (e.g. fitness); > 0
+  // Where the registration itself put the source, when target_from_source
+  // is the turntable's motion kept instead (RegistrationResult::
+  // slid_target_from_source). Used only to check a calibrated axis against
+  // the registrations (see CloseLoop).
+  std::optional<cv::Matx44d> registered_target_from_source;
 };
 
 // A turntable axis measured by calibration, in the frame of view 0.

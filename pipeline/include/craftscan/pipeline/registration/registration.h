@@ -201,6 +201,13 @@ struct RegistrationResult {
   double time_ms = 0;               // whole call
   double coarse_ms = 0;             // RegisterPair: its coarse stage (features, matching, RANSAC)
   double fine_ms = 0;               // RegisterPair: its fine stage
+  // RegisterPair with a prior, when the prior pose was kept because fine
+  // registration slid away from it without fitting better
+  // (RegistrationOptions::prior_slide_deg): where fine registration put the
+  // source. The kept pose is the turntable's motion; loop closure checks the
+  // calibrated axis against the registrations' own motions, which a stale
+  // calibration's kept motion would otherwise hide.
+  std::optional<cv::Matx44d> slid_target_from_source;
 
   bool IsUsable() const { return status == Status::kOk; }
 };

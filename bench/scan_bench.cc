@@ -56,6 +56,9 @@
 //                      volume on an irregular figure)
 //   box_edges_mm       carved_box: the 12 measured edges against the true
 //                      width × depth × height: mean, std, max |error|
+//   truth_box_edges_mm the same measurement (MeasureBox, the scan's options)
+//                      on the true surface the cameras saw: the error the
+//                      measurement itself makes of the carved faces
 //   times_ms           render (all views), match_per_view_median (one view's
 //                      ViewProcessor::Process), register (all views' and the
 //                      closing edge's, incl. loop closure), fuse, mesh,
@@ -173,6 +176,7 @@ struct Figures {
   // The truth's trimmed extents along the fused box's own axes.
   cv::Vec3d truth_on_fused_axes{0, 0, 0};
   std::optional<cv::Vec3d> box_edges;  // mean, std, max |error|
+  std::optional<cv::Vec3d> truth_box_edges;  // the same measured on the true surface
 };
 
 struct Times {
@@ -693,6 +697,24 @@ class ScanCommand : public BenchCommand {
     if (scene.options().object.type == sim::ObjectType::kCarvedBox && r.box_measurement &&
         r.box_measurement->IsUsable())
       fig.box_edges = EdgeErrors(*r.box_measurement, scene.options().object.carved_box);
+    if (scene.options().object.type == sim::ObjectType::kCarvedBox && options.measure_box) {
+      // The same measurement on the true surface the cameras saw: what the
+      // measurement itself makes of the carved faces.
+      PointCloud truth_in_result;
+      const cv::Matx44d result_from_object = object_from_result.inv();
+      for (const cv::Vec3f& p : truth_cloud.points_mm)
+        truth_in_result.points_mm.push_back(Apply(result_from_object, p));
+      BoxMeasureOptions box = options.box;
+      if (r.turntable_from_view0 && !box.base_plane) {
+        Plane platter;
+        platter.normal = cv::Vec3d(0, 0, 1);
+        platter.offset_mm = 0;
+        platter.given = true;
+        box.base_plane = platter;
+      }
+      const BoxMeasurement m = MeasureBox(truth_in_result, box);
+      if (m.IsUsable()) fig.truth_box_edges = EdgeErrors(m, scene.options().object.carved_box);
+    }
 
     if (!out_dir_.empty()) {
       if (std::string why; !WriteErrorCloud("fused_error.ply", fused, fused_d, &why) ||
@@ -901,6 +923,10 @@ class ScanCommand : public BenchCommand {
       if (f->box_edges)
         std::printf("  box_edges_mm mean %+.3f std %.3f max %.3f\n", (*f->box_edges)[0],
                     (*f->box_edges)[1], (*f->box_edges)[2]);
+      if (f->truth_box_edges)
+        std::printf("  truth_box_edges_mm mean %+.3f std %.3f max %.3f\n",
+                    (*f->truth_box_edges)[0], (*f->truth_box_edges)[1],
+                    (*f->truth_box_edges)[2]);
     }
     std::printf(
         "  times_ms render %.0f match_per_view_median %.0f register %.0f fuse %.0f mesh %.0f "
@@ -1002,6 +1028,10 @@ class ScanCommand : public BenchCommand {
         root["box_edges_mm"] = {{"mean", Number((*f->box_edges)[0])},
                                 {"std", Number((*f->box_edges)[1])},
                                 {"max_abs", Number((*f->box_edges)[2])}};
+      if (f->truth_box_edges)
+        root["truth_box_edges_mm"] = {{"mean", Number((*f->truth_box_edges)[0])},
+                                      {"std", Number((*f->truth_box_edges)[1])},
+                                      {"max_abs", Number((*f->truth_box_edges)[2])}};
     }
     root["times_ms"] = {
         {"render", Number(t.render)}, {"match_per_view_median", Number(t.match_median)},

@@ -38,6 +38,10 @@ struct SyntheticBox {
   double noise_mm = 0.2;       // isotropic Gaussian σ on positions
   double cut_depth_mm = 2.0;   // pyramidal chip-cut pockets on the top and sides
   double cut_margin_mm = 4.0;  // pockets keep this far from the edges
+  double cut_pitch_mm = 12;    // pockets on this grid
+  // > 0: the pockets as a stereo matcher sees them, filled up to a flat
+  // bottom this deep with the face's normal (0: the true pockets).
+  double smoothed_cut_mm = 0;
   bool base = false;           // sample the base face too
   bool normals = true;         // provide (true) normals
   int platter_points = 3000;   // noisy platter ring around the box, z ≈ 0
@@ -47,12 +51,12 @@ struct SyntheticBox {
 };
 
 // Depth of the pockets at face coordinates (u, v) ∈ [0, U] × [0, V], and its
-// gradient: square pyramids of half-size 5 mm on a 12 mm grid inside the
-// margin.
+// gradient: square pyramids of half-size 5 mm on a cut_pitch_mm grid inside
+// the margin.
 double CutDepth(const SyntheticBox& box, double u, double v, double U, double V, double* du,
                 double* dv) {
   *du = *dv = 0;
-  const double half = 5, pitch = 12;
+  const double half = 5, pitch = box.cut_pitch_mm;
   const double lo_u = box.cut_margin_mm, hi_u = U - box.cut_margin_mm;
   const double lo_v = box.cut_margin_mm, hi_v = V - box.cut_margin_mm;
   if (u < lo_u || u > hi_u || v < lo_v || v > hi_v) return 0;
@@ -106,6 +110,10 @@ PointCloud MakeBox(const SyntheticBox& box) {
       const double u = uni(rng) * f.U, v = uni(rng) * f.V;
       double du = 0, dv = 0, depth = 0;
       if (f.carved && box.cut_depth_mm > 0) depth = CutDepth(box, u, v, f.U, f.V, &du, &dv);
+      if (box.smoothed_cut_mm > 0 && depth > box.smoothed_cut_mm) {
+        depth = box.smoothed_cut_mm;  // filled to a flat bottom
+        du = dv = 0;
+      }
       const cv::Vec3d p = f.origin + f.eu * u + f.ev * v - n * depth +
                           cv::Vec3d(noise(rng), noise(rng), noise(rng));
       cv::Vec3d normal = (f.eu - n * du).cross(f.ev - n * dv);
@@ -389,6 +397,38 @@ TEST(MeasureBox, CarvedBoxWithBasePlane) {
   // Face quality: the noise level, not the cuts.
   EXPECT_LT(m.face_rms_mm, 0.25);
   EXPECT_LT(m.max_orthogonality_error_deg, 0.5);
+}
+
+// The cameras smooth a chip-cut pocket into a shallow dish: its bottom lies
+// within the distance gate, with the face's normal, on the inner side only. The faces
+// are fitted to their outer layer; without that every edge comes out short.
+TEST(MeasureBox, SmoothedCarvingDoesNotPullTheFacesIn) {
+  for (unsigned seed : {3u, 4u, 5u}) {
+    SyntheticBox box = RotatedBox(seed);
+    box.noise_mm = 0.05;
+    box.smoothed_cut_mm = 0.4;
+    box.cut_pitch_mm = 18;  // most of each face flat
+    const PointCloud cloud = MakeBox(box);
+    BoxMeasureOptions options;
+    options.base_plane = PlatterInWorld(box.world_from_object);
+    const BoxMeasurement m = MeasureBox(cloud, options);
+    ASSERT_TRUE(m.IsUsable()) << Describe(m);
+    const EdgeErrors outer = ErrorsOf(m, box, false);
+    options.outer_layer_sigmas = 0;
+    const BoxMeasurement all = MeasureBox(cloud, options);
+    ASSERT_TRUE(all.IsUsable()) << Describe(all);
+    const EdgeErrors every = ErrorsOf(all, box, false);
+    std::printf("seed %u: edge errors [mm] outer layer mean %+.4f max %.4f; every inlier %+.4f %.4f\n",
+                seed, outer.mean, outer.max_abs, every.mean, every.max_abs);
+    EXPECT_LT(std::abs(outer.mean), 0.02) << "seed " << seed;
+    EXPECT_LT(outer.max_abs, 0.05) << "seed " << seed;
+    EXPECT_LT(every.mean, -0.05) << "seed " << seed << ": the dishes no longer pull the faces in";
+  }
+  BoxMeasureOptions bad;
+  bad.outer_layer_sigmas = 0.5;
+  const BoxMeasurement m = MeasureBox(MakeBox(SyntheticBox{}), bad);
+  EXPECT_FALSE(m.IsUsable());
+  EXPECT_CONTAINS(m.message, "outer_layer_sigmas");
 }
 
 // Without input normals they are estimated; same accuracy.

@@ -511,9 +511,35 @@ bool RefitFace(const Points& points, const std::vector<int>& active, const BoxMe
     inliers = Inliers(points, inliers, f.plane, o.plane_distance_mm, std::cos(gate_deg * kDeg));
   }
   if (inliers.size() < 3) return false;
-  f.inliers = std::move(inliers);
   FitPlane fitted = f.plane;
-  if (FitLeastSquares(points.p, f.inliers, &fitted)) f.plane = fitted;
+  if (FitLeastSquares(points.p, inliers, &fitted)) f.plane = fitted;
+  // The face's outer layer: relief below it that the cameras smoothed
+  // (a chip-cut groove matched as a shallow dish) lies within the distance
+  // gate with the face's normal, on the inner side only; noise lies on both.
+  // σ from the residuals on the outer side, a gate of outer_layer_sigmas·σ
+  // on both sides, refit; until the inliers no longer change.
+  for (int round = 0; o.outer_layer_sigmas > 0 && round < 10; ++round) {
+    double outer2 = 0;
+    std::size_t outer = 0;
+    for (int i : inliers) {
+      const double r = f.plane.Distance(points.p[static_cast<std::size_t>(i)]);
+      if (r > 0) {
+        outer2 += r * r;
+        ++outer;
+      }
+    }
+    if (outer < 3) break;
+    const double gate = o.outer_layer_sigmas * std::sqrt(outer2 / static_cast<double>(outer));
+    std::vector<int> kept;
+    for (int i : inliers)
+      if (std::abs(f.plane.Distance(points.p[static_cast<std::size_t>(i)])) <= gate)
+        kept.push_back(i);
+    if (kept.size() < 3 || kept.size() == inliers.size()) break;
+    inliers = std::move(kept);
+    fitted = f.plane;
+    if (FitLeastSquares(points.p, inliers, &fitted)) f.plane = fitted;
+  }
+  f.inliers = std::move(inliers);
   return true;
 }
 
@@ -709,6 +735,8 @@ bool OrientedBoxOptions::IsValid(std::string* why) const {
 }
 
 bool BoxMeasureOptions::IsValid(std::string* why) const {
+  if (!(outer_layer_sigmas == 0 || (outer_layer_sigmas >= 1 && outer_layer_sigmas <= 10)))
+    return Fail(why, "BoxMeasureOptions.outer_layer_sigmas must be 0 (off) or within [1, 10]");
   auto positive = [](double v) { return std::isfinite(v) && v > 0; };
   if (!positive(plane_distance_mm))
     return Fail(why, "BoxMeasureOptions.plane_distance_mm must be finite and > 0");

@@ -175,7 +175,7 @@ struct Figures {
   cv::Vec3d fused_obb{0, 0, 0}, truth_obb{0, 0, 0};
   // The truth's trimmed extents along the fused box's own axes.
   cv::Vec3d truth_on_fused_axes{0, 0, 0};
-  std::optional<cv::Vec3d> box_edges;  // mean, std, max |error|
+  std::optional<cv::Vec3d> box_edges;        // mean, std, max |error|
   std::optional<cv::Vec3d> truth_box_edges;  // the same measured on the true surface
 };
 
@@ -924,9 +924,8 @@ class ScanCommand : public BenchCommand {
         std::printf("  box_edges_mm mean %+.3f std %.3f max %.3f\n", (*f->box_edges)[0],
                     (*f->box_edges)[1], (*f->box_edges)[2]);
       if (f->truth_box_edges)
-        std::printf("  truth_box_edges_mm mean %+.3f std %.3f max %.3f\n",
-                    (*f->truth_box_edges)[0], (*f->truth_box_edges)[1],
-                    (*f->truth_box_edges)[2]);
+        std::printf("  truth_box_edges_mm mean %+.3f std %.3f max %.3f\n", (*f->truth_box_edges)[0],
+                    (*f->truth_box_edges)[1], (*f->truth_box_edges)[2]);
     }
     std::printf(
         "  times_ms render %.0f match_per_view_median %.0f register %.0f fuse %.0f mesh %.0f "

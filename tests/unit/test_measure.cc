@@ -42,10 +42,10 @@ struct SyntheticBox {
   // > 0: the pockets as a stereo matcher sees them, filled up to a flat
   // bottom this deep with the face's normal (0: the true pockets).
   double smoothed_cut_mm = 0;
-  bool base = false;           // sample the base face too
-  bool normals = true;         // provide (true) normals
-  int platter_points = 3000;   // noisy platter ring around the box, z ≈ 0
-  int outliers = 40;           // uniform junk around the box
+  bool base = false;          // sample the base face too
+  bool normals = true;        // provide (true) normals
+  int platter_points = 3000;  // noisy platter ring around the box, z ≈ 0
+  int outliers = 40;          // uniform junk around the box
   cv::Matx44d world_from_object = cv::Matx44d::eye();
   unsigned seed = 1;
 };
@@ -418,8 +418,9 @@ TEST(MeasureBox, SmoothedCarvingDoesNotPullTheFacesIn) {
     const BoxMeasurement all = MeasureBox(cloud, options);
     ASSERT_TRUE(all.IsUsable()) << Describe(all);
     const EdgeErrors every = ErrorsOf(all, box, false);
-    std::printf("seed %u: edge errors [mm] outer layer mean %+.4f max %.4f; every inlier %+.4f %.4f\n",
-                seed, outer.mean, outer.max_abs, every.mean, every.max_abs);
+    std::printf(
+        "seed %u: edge errors [mm] outer layer mean %+.4f max %.4f; every inlier %+.4f %.4f\n",
+        seed, outer.mean, outer.max_abs, every.mean, every.max_abs);
     EXPECT_LT(std::abs(outer.mean), 0.02) << "seed " << seed;
     EXPECT_LT(outer.max_abs, 0.05) << "seed " << seed;
     EXPECT_LT(every.mean, -0.05) << "seed " << seed << ": the dishes no longer pull the faces in";

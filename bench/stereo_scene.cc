@@ -215,6 +215,11 @@ StereoScene LoadOrThrow(const std::string& dir_text) {
   }
 
   scene.gt = LoadGroundTruth(reader);
+  {
+    std::string ext = reader.File("gt").extension().string();
+    for (char& c : ext) c = static_cast<char>(std::tolower(static_cast<unsigned char>(c)));
+    scene.gt_scale = ext == ".pfm" ? 0.0 : reader.Number("gt_scale");
+  }
   CheckSize(scene.gt, size, dir_text, "gt");
 
   if (reader.Has("mask_nonocc")) {

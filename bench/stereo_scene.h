@@ -16,6 +16,10 @@ struct StereoScene {
   cv::Mat left, right;    // CV_8UC3 (BGR) or CV_8UC1, same type and size
   cv::Mat gt;             // CV_32FC1 left disparity in px; NaN = no ground truth
   int ndisp = 0;          // px, > 0: disparities searched are 0 … ndisp − 1
+  // The PNG ground truth's scale (gt = PNG value / gt_scale); 0 for a PFM
+  // ground truth. Middlebury's v2 evaluation (the 2001/2003 scenes) scored
+  // uploads saved the same way: disparities rounded to 1 / gt_scale.
+  double gt_scale = 0;
   // CV_8UC1, 255 = pixel belongs to the region (other values, e.g. 128 =
   // occluded in 2014 masks, do not). mask_nonocc is never empty after loading
   // (without a "mask_nonocc" key: 255 wherever gt is valid); mask_all and

@@ -13,7 +13,9 @@
 //
 // time_ms is the median of K calls on one matcher object per scene (buffers
 // reused across calls, for both craftscan and SGBM); with K ≥ 3 the first
-// call's allocation does not count.
+// call's allocation does not count. AD-Census rows are followed by the
+// matcher's own stage times (DisparityResult::time_ms, each the median over
+// the K calls; JSON `stages_ms`).
 #include <algorithm>
 #include <chrono>
 #include <cmath>
@@ -51,6 +53,8 @@ struct MatchOutput {
   bool ok = false;
   std::string message;  // why not ok
   cv::Mat disparity;    // CV_32FC1, NaN = no estimate
+  // The matcher's own stage times (AD-Census), name and ms, in order.
+  std::vector<std::pair<std::string, double>> stages;
 };
 
 // A matcher under test. prepare() builds it for one scene (outside the
@@ -85,6 +89,10 @@ SceneRun PrepareADCensus(const StereoScene& scene, int num_threads, ArmRule arm_
     out.ok = result.IsUsable();
     out.message = result.message;
     out.disparity = std::move(result.disparity);
+    const DisparityResult::Timings& t = result.time_ms;
+    out.stages = {
+        {"preprocess", t.preprocess},   {"cost", t.cost},         {"arms", t.arms},
+        {"aggregation", t.aggregation}, {"scanline", t.scanline}, {"refinement", t.refinement}};
     return out;
   };
 }
@@ -143,6 +151,8 @@ struct MatcherResult {
   // figures published for those scenes, e.g. Mei et al.'s, are these).
   double bad1_v2 = std::numeric_limits<double>::quiet_NaN();
   double time_ms = 0;  // median over the repeats
+  // Per stage, the median over the repeats (AD-Census only).
+  std::vector<std::pair<std::string, double>> stages_ms;
 };
 
 struct SceneResult {
@@ -360,6 +370,7 @@ class StereoCommand : public BenchCommand {
       for (const Matcher& matcher : matchers) {
         MatchOutput output;
         std::vector<double> times_ms;
+        std::vector<std::vector<double>> stage_ms;  // [stage][repeat]
         SceneRun run;
         try {
           run = matcher.prepare(scene, threads_);
@@ -381,11 +392,16 @@ class StereoCommand : public BenchCommand {
                              "': " + (output.ok ? "wrong output size or type" : output.message));
           }
           times_ms.push_back(std::chrono::duration<double, std::milli>(stop - start).count());
+          stage_ms.resize(output.stages.size());
+          for (std::size_t i = 0; i < output.stages.size(); ++i)
+            stage_ms[i].push_back(output.stages[i].second);
         }
 
         MatcherResult r;
         r.matcher = matcher.name;
         r.time_ms = Median(times_ms);
+        for (std::size_t i = 0; i < output.stages.size() && i < stage_ms.size(); ++i)
+          r.stages_ms.emplace_back(output.stages[i].first, Median(stage_ms[i]));
         r.nonocc = EvaluateDisparity(output.disparity, scene.gt, scene.mask_nonocc);
         r.has_all_disc = scene.HasAllAndDiscMasks();
         if (r.has_all_disc) {
@@ -408,6 +424,12 @@ class StereoCommand : public BenchCommand {
                     r.has_all_disc ? Format(r.all.bad1, 2).c_str() : "-",
                     r.has_all_disc ? Format(r.disc.bad1, 2).c_str() : "-",
                     std::isfinite(r.bad1_v2) ? Format(r.bad1_v2, 2).c_str() : "-");
+        if (!r.stages_ms.empty()) {
+          std::printf("%-*s    stages (ms, median):", static_cast<int>(name_width), "");
+          for (const auto& [stage, ms] : r.stages_ms)
+            std::printf(" %s %s", stage.c_str(), Format(ms, 1).c_str());
+          std::printf("\n");
+        }
         std::fflush(stdout);
 
         if (!save_dir_.empty()) {
@@ -517,6 +539,11 @@ class StereoCommand : public BenchCommand {
         m["avgerr_nonocc"] = ToJson(r.nonocc.avgerr);
         m["density"] = ToJson(r.nonocc.density);
         m["time_ms"] = ToJson(r.time_ms);
+        if (!r.stages_ms.empty()) {
+          Json stages = Json::object();
+          for (const auto& [stage, ms] : r.stages_ms) stages[stage] = ToJson(ms);
+          m["stages_ms"] = std::move(stages);
+        }
         if (r.has_all_disc) {
           m["bad1_all"] = ToJson(r.all.bad1);
           m["bad1_disc"] = ToJson(r.disc.bad1);

@@ -118,15 +118,17 @@ void HorizontalPasses(const Arms& arms, std::initializer_list<Pass> passes,
 }
 
 // The vertical counterpart on bands of columns: the band is copied out once
-// (as int32, height × band × stride), every pass runs on the copy (prefix
-// sums down the band), and it is written back once.
+// (height × band × stride costs), every pass runs on the copy (prefix sums
+// down the band), and it is written back once. Every pass's output is a
+// weighted mean of costs, so it fits a cost: the copy stays 16-bit, and the
+// band and its prefix sums stay in L2.
 void VerticalPasses(const Arms& arms, std::initializer_list<Pass> passes, const Parallel& parallel,
                     CostVolume* cost) {
   const int width = cost->width(), height = cost->height(), stride = cost->stride();
   const int bands = (width + kColumnBand - 1) / kColumnBand;
   parallel.For(0, bands, [&](int b0, int b1) {
     thread_local std::vector<Prefix> prefix;  // per thread, as above
-    thread_local std::vector<std::int32_t> data;
+    thread_local std::vector<Cost> data;
     for (int b = b0; b < b1; ++b) {
       const int x0 = b * kColumnBand, x1 = std::min(width, x0 + kColumnBand);
       const std::size_t band = static_cast<std::size_t>(x1 - x0) * stride;
@@ -136,9 +138,7 @@ void VerticalPasses(const Arms& arms, std::initializer_list<Pass> passes, const 
         // Rows of a band lie one volume row apart: the hardware prefetcher
         // does not follow, so fetch a few rows ahead by hand.
         if (y + kPrefetchRows < height) PrefetchRun(*cost, y + kPrefetchRows, x0, x1 - x0);
-        const Cost* in = cost->at(y, x0);
-        std::int32_t* out = &data[y * band];
-        for (std::size_t k = 0; k < band; ++k) out[k] = in[k];
+        std::memcpy(&data[y * band], cost->at(y, x0), band * sizeof(Cost));
       }
       for (const Pass& pass : passes) {
         std::fill_n(prefix.data(), band, 0);
@@ -160,11 +160,8 @@ void VerticalPasses(const Arms& arms, std::initializer_list<Pass> passes, const 
           }
         }
       }
-      for (int y = 0; y < height; ++y) {
-        const std::int32_t* in = &data[y * band];
-        Cost* out = cost->at(y, x0);
-        for (std::size_t k = 0; k < band; ++k) out[k] = static_cast<Cost>(in[k]);
-      }
+      for (int y = 0; y < height; ++y)
+        std::memcpy(cost->at(y, x0), &data[y * band], band * sizeof(Cost));
     }
   });
 }

@@ -367,6 +367,44 @@ TEST(Matcher, SerialAndThreadedResultsAreIdentical) {
   }
 }
 
+// One matcher keeps its volumes and the refinement's maps between calls (a
+// station matches view after view): a call must not see what the last one
+// left there, whatever the scene, its size or the refinement (the
+// uniqueness test's runner-up costs, interpolation on and off).
+TEST(Matcher, AReusedMatcherGivesWhatAFreshOneGives) {
+  struct Case {
+    int width, height, disparity;
+    std::uint64_t seed;
+  };
+  const std::vector<Case> cases = {{180, 120, 15, 31}, {160, 100, 22, 32}, {180, 120, 9, 33}};
+  for (const int iterations : {4, 0}) {
+    for (const double uniqueness : {0.0, 0.2}) {
+      ADCensusOptions o;
+      o.num_disparities = 40;
+      o.num_threads = 2;
+      o.aggregation_iterations = iterations;
+      o.refinement.interpolate = iterations != 0;
+      o.refinement.uniqueness = uniqueness;
+      StereoMatcher reused(o);
+      for (const Case& c : cases) {
+        const cv::Mat left = RandomTexture(c.width, c.height, c.seed);
+        cv::Mat gt;
+        const cv::Mat right = RenderRightView(left, c.disparity, 0.04, 0, &gt);
+        const DisparityResult again = reused.Compute(left, right);
+        const DisparityResult fresh = ComputeDisparity(left, right, o);
+        ASSERT_TRUE(again.IsUsable() && fresh.IsUsable()) << again.message << fresh.message;
+        ASSERT_EQ(again.disparity.size(), fresh.disparity.size());
+        const std::size_t bytes = fresh.disparity.total() * sizeof(float);
+        EXPECT_EQ(0, std::memcmp(again.disparity.data, fresh.disparity.data, bytes))
+            << iterations << " " << uniqueness << " " << c.seed;
+        EXPECT_EQ(0, std::memcmp(again.disparity_right.data, fresh.disparity_right.data, bytes))
+            << iterations << " " << uniqueness << " " << c.seed;
+        EXPECT_LT(ScoreAgainst(again.disparity, gt, 5).bad1, 5.0);
+      }
+    }
+  }
+}
+
 TEST(Matcher, WithoutInterpolationOutliersAreMarkedInvalid) {
   const cv::Mat left = RandomTexture(160, 100, 25);
   cv::Mat gt;

@@ -116,8 +116,10 @@ struct StereoMatcher::Workspace {
   Parallel parallel;                   // the arena lives as long as the matcher
   adcensus::CostVolume cost, scratch;  // aggregated costs; scanline sums
   std::vector<std::uint64_t> census_left, census_right;
-  adcensus::PassFactors pass_factors;     // the aggregation's
-  std::unique_ptr<StereoMatcher> coarse;  // coarse-to-fine's first pass
+  adcensus::PassFactors pass_factors;          // the aggregation's
+  adcensus::RefineWorkspace refine;            // the refinement's maps
+  cv::Mat left_index, right_index, runner_up;  // the winners (CV_32FC1) and costs
+  std::unique_ptr<StereoMatcher> coarse;       // coarse-to-fine's first pass
 };
 
 namespace {
@@ -383,7 +385,9 @@ DisparityResult StereoMatcher::Compute(const cv::Mat& left, const cv::Mat& right
     // Scanline optimization (when on) is fused with the winner-take-all; its
     // time is counted as scanline.
     t = Clock::now();
-    cv::Mat left_index, right_index, runner_up;
+    cv::Mat& left_index = workspace_->left_index;
+    cv::Mat& right_index = workspace_->right_index;
+    cv::Mat& runner_up = workspace_->runner_up;
     cv::Mat* const wants_runner_up =
         options.refinement.enabled && options.refinement.uniqueness > 0 ? &runner_up : nullptr;
     const adcensus::CostVolume* final_cost = &cost;
@@ -405,9 +409,10 @@ DisparityResult StereoMatcher::Compute(const cv::Mat& left, const cv::Mat& right
     cv::Mat index;
     if (options.refinement.enabled) {
       adcensus::RefineStats stats;
-      index = adcensus::Refine(left_index, right_index, *final_cost, dmin, img_l, arms,
-                               options.refinement, parallel, &stats,
-                               runner_up.empty() ? nullptr : &runner_up);
+      index = adcensus::Refine(
+          left_index, right_index, *final_cost, dmin, img_l, arms, options.refinement, parallel,
+          &stats, wants_runner_up && options.scanline_optimization ? &runner_up : nullptr,
+          &workspace_->refine);
       result.occluded_pct = stats.occluded_pct;
       result.mismatch_pct = stats.mismatch_pct;
       result.ambiguous_pct = stats.ambiguous_pct;

@@ -233,13 +233,26 @@ struct RefineStats {
   double occluded_pct = 0, mismatch_pct = 0, ambiguous_pct = 0;
 };
 
+// The refinement's image-sized maps, kept between calls of one matcher:
+// fresh maps are fresh pages, and on this project's machine (a VM) a page
+// fault costs ~15 µs, ~630 of them a Middlebury scene (README 11.4).
+struct RefineWorkspace {
+  cv::Mat labels;                           // CV_8UC1
+  cv::Mat disparity, scratch;               // CV_32FC1: the map and the next step's output
+  cv::Mat bins;                             // region voting: CV_16SC1
+  cv::Mat reliable_prefix, changed_prefix;  // CV_32SC1, height × (width + 1)
+  cv::Mat changed_flag;                     // CV_8UC1
+};
+
 // Mei's refinement on disparity indices (CV_32FC1, values 0 … ndisp−1); the
 // result is a disparity index map with sub-pixel values and NaN where none.
 // `runner_up` (may be null): ScanlineOptimize's winning and runner-up costs
 // for the uniqueness test, the same as `cost` and RunnerUpCost would give.
+// `workspace` (may be null: a fresh one per call): the result is its
+// `disparity`, valid until the next call with the same workspace.
 cv::Mat Refine(const cv::Mat& left_index, const cv::Mat& right_index, const CostVolume& cost,
                int min_disparity, const cv::Mat& left_image, const Arms& arms,
                const RefinementOptions& options, const Parallel& parallel, RefineStats* stats,
-               const cv::Mat* runner_up = nullptr);
+               const cv::Mat* runner_up = nullptr, RefineWorkspace* workspace = nullptr);
 
 }  // namespace craftscan::adcensus

@@ -243,16 +243,19 @@ class BlockCounts {
 // only among the disparities it searched (the votes for others still count
 // in the total): one range of bins to sum and search instead of the band.
 void RegionVoting(const Arms& arms, const CostVolume& cost, const RefinementOptions& options,
-                  const Parallel& parallel, cv::Mat* disparity, cv::Mat* labels) {
+                  const Parallel& parallel, cv::Mat* disparity, cv::Mat* labels,
+                  RefineWorkspace* ws) {
   const int width = disparity->cols, height = disparity->rows;
   const int ndisp = cost.total_ndisp();
   const int range = cost.has_offsets() ? cost.ndisp() : ndisp;
   // bins: the disparity index of reliable pixels, ndisp for the others, so the
   // histogram loop needs no branch (bin ndisp collects the unreliable ones).
-  cv::Mat bins(disparity->size(), CV_16SC1);
+  cv::Mat& bins = ws->bins;
+  bins.create(disparity->size(), CV_16SC1);
   const int nb = ndisp + 1;  // bins per histogram
   // Per row, prefix counts over x of the reliable pixels.
-  cv::Mat reliable_prefix(height, width + 1, CV_32SC1);
+  cv::Mat& reliable_prefix = ws->reliable_prefix;
+  reliable_prefix.create(height, width + 1, CV_32SC1);
   const auto update_row = [&](int y) {
     const float* d = disparity->ptr<float>(y);
     const std::uint8_t* lab = labels->ptr<std::uint8_t>(y);
@@ -288,8 +291,12 @@ void RegionVoting(const Arms& arms, const CostVolume& cost, const RefinementOpti
   // A pixel whose vote failed keeps failing until a pixel of its region
   // changes: later iterations revisit only regions with a pixel the previous
   // iteration made reliable (changed_prefix: per row, prefix counts of those).
-  cv::Mat changed_prefix(height, width + 1, CV_32SC1, cv::Scalar(0));
-  cv::Mat changed_flag(height, width, CV_8UC1, cv::Scalar(0));
+  cv::Mat& changed_prefix = ws->changed_prefix;
+  changed_prefix.create(height, width + 1, CV_32SC1);
+  changed_prefix.setTo(0);
+  cv::Mat& changed_flag = ws->changed_flag;
+  changed_flag.create(height, width, CV_8UC1);
+  changed_flag.setTo(0);
   struct Vote1 {
     int y;
     float disparity;
@@ -424,7 +431,7 @@ void RegionVoting(const Arms& arms, const CostVolume& cost, const RefinementOpti
 }
 
 void Interpolate(const cv::Mat& image, const Parallel& parallel, cv::Mat* disparity,
-                 cv::Mat* labels) {
+                 cv::Mat* labels, cv::Mat* scratch) {
   constexpr int kDirections = 16;
   const int width = image.cols, height = image.rows, ch = image.channels();
   const int max_steps = std::max(width, height);
@@ -437,7 +444,8 @@ void Interpolate(const cv::Mat& image, const Parallel& parallel, cv::Mat* dispar
           cv::Point(static_cast<int>(std::lround(s * std::cos(a))),
                     static_cast<int>(std::lround(s * std::sin(a))));
   }
-  cv::Mat out = disparity->clone();
+  disparity->copyTo(*scratch);
+  cv::Mat& out = *scratch;
   parallel.For(0, height, [&](int y0, int y1) {
     for (int y = y0; y < y1; ++y) {
       const std::uint8_t* lab = labels->ptr<std::uint8_t>(y);
@@ -472,12 +480,14 @@ void Interpolate(const cv::Mat& image, const Parallel& parallel, cv::Mat* dispar
       }
     }
   });
-  *disparity = out;
+  cv::swap(*disparity, *scratch);
 }
 
-void AdjustDiscontinuities(const CostVolume& cost, const Parallel& parallel, cv::Mat* disparity) {
+void AdjustDiscontinuities(const CostVolume& cost, const Parallel& parallel, cv::Mat* disparity,
+                           cv::Mat* scratch) {
   const int width = disparity->cols;
-  cv::Mat out = disparity->clone();
+  disparity->copyTo(*scratch);
+  cv::Mat& out = *scratch;
   parallel.For(0, disparity->rows, [&](int y0, int y1) {
     for (int y = y0; y < y1; ++y) {
       const float* d = disparity->ptr<float>(y);
@@ -500,7 +510,7 @@ void AdjustDiscontinuities(const CostVolume& cost, const Parallel& parallel, cv:
       }
     }
   });
-  *disparity = out;
+  cv::swap(*disparity, *scratch);
 }
 
 void Subpixel(const CostVolume& cost, const Parallel& parallel, cv::Mat* disparity) {
@@ -564,15 +574,15 @@ void Median3x3Valid(const float* above, const float* row, const float* below, in
 
 // Median over the valid pixels of each window; NaN stays NaN. Without
 // invalid pixels this is exactly OpenCV's median filter, which is far faster.
-void MedianFilter(int size, const Parallel& parallel, cv::Mat* disparity) {
+void MedianFilter(int size, const Parallel& parallel, cv::Mat* disparity, cv::Mat* scratch) {
   if (cv::checkRange(*disparity, true)) {  // no NaN
-    cv::Mat out;
-    cv::medianBlur(*disparity, out, size);
-    *disparity = out;
+    cv::medianBlur(*disparity, *scratch, size);
+    cv::swap(*disparity, *scratch);
     return;
   }
   const int r = size / 2, width = disparity->cols, height = disparity->rows;
-  cv::Mat out = disparity->clone();
+  disparity->copyTo(*scratch);
+  cv::Mat& out = *scratch;
   parallel.For(0, height, [&](int y0, int y1) {
     std::vector<float> window;
     window.reserve(static_cast<std::size_t>(size) * size);
@@ -597,7 +607,7 @@ void MedianFilter(int size, const Parallel& parallel, cv::Mat* disparity) {
       }
     }
   });
-  *disparity = out;
+  cv::swap(*disparity, *scratch);
 }
 
 }  // namespace
@@ -605,8 +615,10 @@ void MedianFilter(int size, const Parallel& parallel, cv::Mat* disparity) {
 cv::Mat Refine(const cv::Mat& left_index, const cv::Mat& right_index, const CostVolume& cost,
                int min_disparity, const cv::Mat& left_image, const Arms& arms,
                const RefinementOptions& options, const Parallel& parallel, RefineStats* stats,
-               const cv::Mat* runner_up) {
-  cv::Mat labels;
+               const cv::Mat* runner_up, RefineWorkspace* workspace) {
+  RefineWorkspace own;
+  RefineWorkspace& ws = workspace ? *workspace : own;
+  cv::Mat& labels = ws.labels;
   DetectOutliers(left_index, right_index, min_disparity, cost, options.lr_tolerance_px, parallel,
                  &labels);
   if (stats) {
@@ -620,16 +632,18 @@ cv::Mat Refine(const cv::Mat& left_index, const cv::Mat& right_index, const Cost
       stats->ambiguous_pct =
           100.0 * cv::countNonZero(labels == kAmbiguous) / static_cast<double>(labels.total());
   }
-  cv::Mat disparity = left_index.clone();
-  RegionVoting(arms, cost, options, parallel, &disparity, &labels);
+  cv::Mat& disparity = ws.disparity;
+  left_index.copyTo(disparity);
+  RegionVoting(arms, cost, options, parallel, &disparity, &labels, &ws);
   if (options.interpolate) {
-    Interpolate(left_image, parallel, &disparity, &labels);
+    Interpolate(left_image, parallel, &disparity, &labels, &ws.scratch);
   } else {
     disparity.setTo(kNaN, labels != kReliable);
   }
-  if (options.adjust_discontinuities) AdjustDiscontinuities(cost, parallel, &disparity);
+  if (options.adjust_discontinuities)
+    AdjustDiscontinuities(cost, parallel, &disparity, &ws.scratch);
   if (options.subpixel) Subpixel(cost, parallel, &disparity);
-  if (options.median_size > 1) MedianFilter(options.median_size, parallel, &disparity);
+  if (options.median_size > 1) MedianFilter(options.median_size, parallel, &disparity, &ws.scratch);
   return disparity;
 }
 

@@ -435,14 +435,39 @@ void Interpolate(const cv::Mat& image, const Parallel& parallel, cv::Mat* dispar
   constexpr int kDirections = 16;
   const int width = image.cols, height = image.rows, ch = image.channels();
   const int max_steps = std::max(width, height);
-  // Integer offsets of every step along each direction, computed once.
+  const std::size_t lstep = labels->step;
+  // Integer offsets of every step along each direction, computed once, and
+  // the same as offsets into the label map.
   std::vector<cv::Point> steps(static_cast<std::size_t>(kDirections) * max_steps);
+  std::vector<std::ptrdiff_t> linear(steps.size(), 0);
   for (int i = 0; i < kDirections; ++i) {
     const double a = 2 * std::numbers::pi * i / kDirections;
-    for (int s = 1; s < max_steps; ++s)
-      steps[static_cast<std::size_t>(i) * max_steps + s] =
-          cv::Point(static_cast<int>(std::lround(s * std::cos(a))),
-                    static_cast<int>(std::lround(s * std::sin(a))));
+    for (int s = 1; s < max_steps; ++s) {
+      const std::size_t k = static_cast<std::size_t>(i) * max_steps + s;
+      steps[k] = cv::Point(static_cast<int>(std::lround(s * std::cos(a))),
+                           static_cast<int>(std::lround(s * std::sin(a))));
+      linear[k] =
+          static_cast<std::ptrdiff_t>(steps[k].y) * static_cast<std::ptrdiff_t>(lstep) + steps[k].x;
+    }
+  }
+  // The first step of each direction that leaves the image, per column and
+  // per row (a ray's offsets grow monotonically along each axis, so once
+  // outside it stays outside): a walk from (y, x) ends before
+  // min(leave_x[x], leave_y[y]).
+  std::vector<int> leave_x(static_cast<std::size_t>(kDirections) * width, max_steps);
+  std::vector<int> leave_y(static_cast<std::size_t>(kDirections) * height, max_steps);
+  const auto first_exits = [&](int i, int n, bool along_x, int* leave) {
+    const cv::Point* ray = &steps[static_cast<std::size_t>(i) * max_steps];
+    int low = 0, high = n - 1;  // positions not yet assigned: [low, high]
+    for (int s = 1; s < max_steps && low <= high; ++s) {
+      const int d = along_x ? ray[s].x : ray[s].y;
+      while (high >= low && high + d >= n) leave[high--] = s;
+      while (low <= high && low + d < 0) leave[low++] = s;
+    }
+  };
+  for (int i = 0; i < kDirections; ++i) {
+    first_exits(i, width, true, &leave_x[static_cast<std::size_t>(i) * width]);
+    first_exits(i, height, false, &leave_y[static_cast<std::size_t>(i) * height]);
   }
   disparity->copyTo(*scratch);
   cv::Mat& out = *scratch;
@@ -455,19 +480,21 @@ void Interpolate(const cv::Mat& image, const Parallel& parallel, cv::Mat* dispar
         float lowest = std::numeric_limits<float>::infinity(), most_similar = kNaN;
         int best_diff = std::numeric_limits<int>::max();
         for (int i = 0; i < kDirections; ++i) {
-          const cv::Point* ray = &steps[static_cast<std::size_t>(i) * max_steps];
-          for (int s = 1; s < max_steps; ++s) {
-            const int qx = x + ray[s].x, qy = y + ray[s].y;
-            if (qx < 0 || qy < 0 || qx >= width || qy >= height) break;
-            if (labels->at<std::uint8_t>(qy, qx) != kReliable) continue;
-            const float d = disparity->at<float>(qy, qx);
-            lowest = std::min(lowest, d);
-            const int diff = ColourDiff(colour, image.ptr<std::uint8_t>(qy) + ch * qx, ch);
-            if (diff < best_diff) {
-              best_diff = diff;
-              most_similar = d;
-            }
-            break;
+          const std::size_t base = static_cast<std::size_t>(i) * max_steps;
+          const std::ptrdiff_t* offset = &linear[base];
+          const int limit = std::min(leave_x[static_cast<std::size_t>(i) * width + x],
+                                     leave_y[static_cast<std::size_t>(i) * height + y]);
+          const std::uint8_t* at = lab + x;
+          int s = 1;
+          while (s < limit && at[offset[s]] != kReliable) ++s;
+          if (s >= limit) continue;  // left the image without a reliable pixel
+          const int qx = x + steps[base + s].x, qy = y + steps[base + s].y;
+          const float d = disparity->at<float>(qy, qx);
+          lowest = std::min(lowest, d);
+          const int diff = ColourDiff(colour, image.ptr<std::uint8_t>(qy) + ch * qx, ch);
+          if (diff < best_diff) {
+            best_diff = diff;
+            most_similar = d;
           }
         }
         if (best_diff == std::numeric_limits<int>::max()) {

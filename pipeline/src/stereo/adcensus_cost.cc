@@ -416,6 +416,14 @@ Arms BuildArms(const cv::Mat& image, const cv::Mat& gradient, const cv::Mat& edg
   }
   const int longest = std::max(weak.max_len, edge.max_len);
   const Planes planes = Split(image);
+  // vertical_diff row y = D_c(I(y), I(y − 1)) for y ≥ 1: the vertical arms'
+  // step test reads it for every anchor row whose arm passes row y.
+  std::vector<std::uint8_t> vertical_diff(static_cast<std::size_t>(width) * height, 0);
+  parallel.For(1, height, [&](int y0, int y1) {
+    for (int y = y0; y < y1; ++y)
+      RowColourDiff(planes, y, 0, y - 1, 0, width,
+                    vertical_diff.data() + static_cast<std::size_t>(y) * width);
+  });
 
   // Each direction is one loop over arm length L with an inner, branch-free
   // loop over x: a pixel's arm grows while it is still "active".
@@ -425,7 +433,7 @@ Arms BuildArms(const cv::Mat& image, const cv::Mat& gradient, const cv::Mat& edg
     lim.l2.resize(width);
     lim.tau.resize(width);
     lim.tau2.resize(width);
-    std::vector<std::uint8_t> active(width), d_anchor(width), d_prev(width);
+    std::vector<std::uint8_t> active(width), d_anchor(width);
     std::vector<std::uint8_t> prev_diff_h(width), grad_ok(width, 1);
     for (int y = y0; y < y1; ++y) {
       const float* g = improved ? gradient.ptr<float>(y) : nullptr;
@@ -469,13 +477,12 @@ Arms BuildArms(const cv::Mat& image, const cv::Mat& gradient, const cv::Mat& edg
           for (int x = x_hi; x < width; ++x) active[x] = 0;
           const int m = x_hi - x_lo;
           RowColourDiff(planes, qy, x_lo + dx, y, x_lo, m, d_anchor.data() + x_lo);
-          if (dir == 0) {
-            std::copy_n(prev_diff_h.data() + x_lo + dx, m, d_prev.data() + x_lo);
-          } else if (dir == 1) {  // D_c(q, q + 1) = prev_diff_h[q + 1]
-            std::copy_n(prev_diff_h.data() + x_lo + dx + 1, m, d_prev.data() + x_lo);
-          } else {
-            RowColourDiff(planes, qy, 0, dir == 2 ? qy - 1 : qy + 1, 0, width, d_prev.data());
-          }
+          // d_prev[x]: D_c(q, the pixel before q on the arm), q the arm pixel of anchor x.
+          const std::uint8_t* d_prev =
+              dir == 0   ? prev_diff_h.data() + dx
+              : dir == 1 ? prev_diff_h.data() + dx + 1  // D_c(q, q + 1) = prev_diff_h[q + 1]
+              : dir == 2 ? vertical_diff.data() + static_cast<std::size_t>(qy) * width
+                         : vertical_diff.data() + static_cast<std::size_t>(qy + 1) * width;
           if (improved)
             GradientWithin(gradient.ptr<float>(qy) + dx, g, beta1, x_lo, x_hi, grad_ok.data());
           const std::uint8_t ulen = static_cast<std::uint8_t>(len);

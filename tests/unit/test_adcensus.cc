@@ -405,6 +405,39 @@ TEST(Matcher, AReusedMatcherGivesWhatAFreshOneGives) {
   }
 }
 
+// The matcher writes its next maps into the last result's memory only once
+// the caller has dropped it: results a caller keeps stay as they were, and a
+// reused matcher's images (colour, grey, colour again, of one size) are
+// preprocessed in place without one image's maps leaking into the next.
+TEST(Matcher, ResultsACallerKeepsAreNotOverwrittenByLaterCalls) {
+  ADCensusOptions o;
+  o.num_disparities = 32;
+  o.num_threads = 2;
+  StereoMatcher reused(o);
+  std::vector<DisparityResult> kept;
+  std::vector<cv::Mat> copies, truths;
+  for (const std::uint64_t seed : {41, 42, 43, 44}) {
+    cv::Mat left = RandomTexture(170, 110, seed);
+    if (seed % 2 == 0) left = Grey(left);
+    cv::Mat gt;
+    const cv::Mat right = RenderRightView(left, 8 + static_cast<int>(seed % 4) * 5, 0.03, 0, &gt);
+    DisparityResult again = reused.Compute(left, right);
+    const DisparityResult fresh = ComputeDisparity(left, right, o);
+    ASSERT_TRUE(again.IsUsable() && fresh.IsUsable()) << again.message << fresh.message;
+    const std::size_t bytes = fresh.disparity.total() * sizeof(float);
+    EXPECT_EQ(0, std::memcmp(again.disparity.data, fresh.disparity.data, bytes)) << seed;
+    EXPECT_LT(ScoreAgainst(again.disparity, gt, 5).bad1, 5.0) << seed;
+    if (seed != 42) continue;  // 41, 43 and 44 are dropped: their memory serves again
+    copies.push_back(again.disparity.clone());
+    copies.push_back(again.disparity_right.clone());
+    kept.push_back(std::move(again));
+  }
+  ASSERT_EQ(kept.size(), 1u);
+  const std::size_t bytes = copies[0].total() * sizeof(float);  // NaN compares by its bits
+  EXPECT_EQ(0, std::memcmp(kept[0].disparity.data, copies[0].data, bytes));
+  EXPECT_EQ(0, std::memcmp(kept[0].disparity_right.data, copies[1].data, bytes));
+}
+
 TEST(Matcher, WithoutInterpolationOutliersAreMarkedInvalid) {
   const cv::Mat left = RandomTexture(160, 100, 25);
   cv::Mat gt;

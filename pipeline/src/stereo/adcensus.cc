@@ -116,13 +116,28 @@ struct StereoMatcher::Workspace {
   Parallel parallel;                   // the arena lives as long as the matcher
   adcensus::CostVolume cost, scratch;  // aggregated costs; scanline sums
   std::vector<std::uint64_t> census_left, census_right;
+  Preprocessed preprocessed_left, preprocessed_right;
+  PreprocessScratch preprocess_scratch;
+  adcensus::Arms arms;                         // and BuildArms's working memory
   adcensus::PassFactors pass_factors;          // the aggregation's
   adcensus::RefineWorkspace refine;            // the refinement's maps
   cv::Mat left_index, right_index, runner_up;  // the winners (CV_32FC1) and costs
   std::unique_ptr<StereoMatcher> coarse;       // coarse-to-fine's first pass
+  // The memory of the last result's two maps, written again by the next
+  // call once the caller has let go of them (Reusable).
+  cv::Mat disparity, disparity_right;
 };
 
 namespace {
+
+// *kept, to be written again when no one but the workspace holds its memory
+// any more (a caller that dropped the last result): a fresh map is
+// hundreds of new pages, each a page fault on first touch. Otherwise it is
+// let go and the caller's copy stays as it is.
+cv::Mat& Reusable(cv::Mat* kept) {
+  if (kept->u && CV_XADD(&kept->u->refcount, 0) > 1) kept->release();
+  return *kept;
+}
 
 // cv::erode (min) or cv::dilate (max) of a disparity map over a square
 // window, NaN ignored (NaN where the window holds no value).
@@ -343,9 +358,13 @@ DisparityResult StereoMatcher::Compute(const cv::Mat& left, const cv::Mat& right
       t = Clock::now();
     }
     result.searched_disparities = coarse_to_fine ? lanes : ndisp;
-    const Preprocessed pl = Preprocess(left, options.preprocess);
+    Preprocessed& pl = workspace_->preprocessed_left;
+    Preprocessed& pr = workspace_->preprocessed_right;
+    Preprocess(left, options.preprocess, PreprocessParts::kAll, &pl,
+               &workspace_->preprocess_scratch);
     // The right view feeds only the census and the colour costs.
-    const Preprocessed pr = Preprocess(right, options.preprocess, PreprocessParts::kEqualizedOnly);
+    Preprocess(right, options.preprocess, PreprocessParts::kEqualizedOnly, &pr,
+               &workspace_->preprocess_scratch);
     if (!pl.IsUsable()) return InvalidInput("left: " + pl.message);
     if (!pr.IsUsable()) return InvalidInput("right: " + pr.message);
     const cv::Mat& img_l = options.match_equalized ? pl.image : left;
@@ -373,8 +392,8 @@ DisparityResult StereoMatcher::Compute(const cv::Mat& left, const cv::Mat& right
     result.time_ms.cost = MsSince(t);
 
     t = Clock::now();
-    const adcensus::Arms arms =
-        adcensus::BuildArms(img_l, pl.gradient, pl.edges, options, parallel);
+    const adcensus::Arms& arms = workspace_->arms;
+    adcensus::BuildArms(img_l, pl.gradient, pl.edges, options, parallel, &workspace_->arms);
     result.time_ms.arms = MsSince(t);
 
     t = Clock::now();
@@ -421,8 +440,10 @@ DisparityResult StereoMatcher::Compute(const cv::Mat& left, const cv::Mat& right
     }
     if (coarse_to_fine) DropRangeEdges(cost, ndisp, &index);
     // Indices → disparities (NaN stays NaN).
-    index.convertTo(result.disparity, CV_32F, 1.0, dmin);
-    right_index.convertTo(result.disparity_right, CV_32F, 1.0, dmin);
+    index.convertTo(Reusable(&workspace_->disparity), CV_32F, 1.0, dmin);
+    right_index.convertTo(Reusable(&workspace_->disparity_right), CV_32F, 1.0, dmin);
+    result.disparity = workspace_->disparity;
+    result.disparity_right = workspace_->disparity_right;
     result.time_ms.refinement = MsSince(t);
 
     int valid = 0;

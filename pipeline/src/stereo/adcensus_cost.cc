@@ -318,17 +318,14 @@ struct ArmLimits {
 // The image as planes (one per channel) so that loops over x vectorize.
 struct Planes {
   int channels = 0, width = 0, height = 0;
-  std::vector<cv::Mat> plane;  // CV_8UC1 each
+  const std::vector<cv::Mat>& plane;  // CV_8UC1 each
   const std::uint8_t* row(int c, int y) const { return plane[c].ptr<std::uint8_t>(y); }
 };
 
-Planes Split(const cv::Mat& image) {
-  Planes p;
-  p.channels = image.channels();
-  p.width = image.cols;
-  p.height = image.rows;
-  cv::split(image, p.plane);
-  return p;
+// The image's planes, written into *memory.
+Planes Split(const cv::Mat& image, std::vector<cv::Mat>* memory) {
+  cv::split(image, *memory);
+  return Planes{image.channels(), image.cols, image.rows, *memory};
 }
 
 inline std::uint8_t AbsDiff(std::uint8_t a, std::uint8_t b) {
@@ -392,6 +389,13 @@ bool IsEdgePixel(const cv::Mat& gradient, const cv::Mat& edges, int y, int x,
 Arms BuildArms(const cv::Mat& image, const cv::Mat& gradient, const cv::Mat& edges,
                const ADCensusOptions& options, const Parallel& parallel) {
   Arms arms;
+  BuildArms(image, gradient, edges, options, parallel, &arms);
+  return arms;
+}
+
+void BuildArms(const cv::Mat& image, const cv::Mat& gradient, const cv::Mat& edges,
+               const ADCensusOptions& options, const Parallel& parallel, Arms* out) {
+  Arms& arms = *out;
   const int width = image.cols, height = image.rows;
   arms.width = width;
   arms.height = height;
@@ -415,10 +419,11 @@ Arms BuildArms(const cv::Mat& image, const cv::Mat& gradient, const cv::Mat& edg
     weak = edge = {o.l1_px, static_cast<double>(o.l2_px), o.tau1, o.tau2};
   }
   const int longest = std::max(weak.max_len, edge.max_len);
-  const Planes planes = Split(image);
+  const Planes planes = Split(image, &arms.planes);
   // vertical_diff row y = D_c(I(y), I(y − 1)) for y ≥ 1: the vertical arms'
   // step test reads it for every anchor row whose arm passes row y.
-  std::vector<std::uint8_t> vertical_diff(static_cast<std::size_t>(width) * height, 0);
+  std::vector<std::uint8_t>& vertical_diff = arms.vertical_diff;
+  vertical_diff.assign(static_cast<std::size_t>(width) * height, 0);
   parallel.For(1, height, [&](int y0, int y1) {
     for (int y = y0; y < y1; ++y)
       RowColourDiff(planes, y, 0, y - 1, 0, width,
@@ -501,7 +506,6 @@ Arms BuildArms(const cv::Mat& image, const cv::Mat& gradient, const cv::Mat& edg
       }
     }
   });
-  return arms;
 }
 
 }  // namespace craftscan::adcensus

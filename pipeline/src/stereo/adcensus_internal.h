@@ -165,6 +165,10 @@ struct Arms {
   int width = 0, height = 0;
   std::vector<std::uint8_t> left, right, up, down;
   std::size_t index(int y, int x) const { return static_cast<std::size_t>(y) * width + x; }
+  // BuildArms's working memory, kept for the next call: the image's planes
+  // and the colour differences between neighbouring rows.
+  std::vector<cv::Mat> planes;
+  std::vector<std::uint8_t> vertical_diff;
 };
 
 // Builds arms on `image` (CV_8UC1/CV_8UC3) with the classic rule, or with the
@@ -172,6 +176,9 @@ struct Arms {
 // empty) marks extra edge pixels for the improved rule.
 Arms BuildArms(const cv::Mat& image, const cv::Mat& gradient, const cv::Mat& edges,
                const ADCensusOptions& options, const Parallel& parallel);
+// The same into *arms, reusing its memory (a matcher's next call).
+void BuildArms(const cv::Mat& image, const cv::Mat& gradient, const cv::Mat& edges,
+               const ADCensusOptions& options, const Parallel& parallel, Arms* arms);
 
 // True when pixel (y, x) counts as an edge pixel under the improved rule.
 bool IsEdgePixel(const cv::Mat& gradient, const cv::Mat& edges, int y, int x,

@@ -637,6 +637,16 @@ void MedianFilter(int size, const Parallel& parallel, cv::Mat* disparity, cv::Ma
   cv::swap(*disparity, *scratch);
 }
 
+// Pixels labelled `label` (without the temporary mask `labels == label`).
+std::size_t CountLabel(const cv::Mat& labels, Label label) {
+  std::size_t n = 0;
+  for (int y = 0; y < labels.rows; ++y) {
+    const std::uint8_t* l = labels.ptr<std::uint8_t>(y);
+    for (int x = 0; x < labels.cols; ++x) n += l[x] == label ? 1 : 0;
+  }
+  return n;
+}
+
 }  // namespace
 
 cv::Mat Refine(const cv::Mat& left_index, const cv::Mat& right_index, const CostVolume& cost,
@@ -650,14 +660,14 @@ cv::Mat Refine(const cv::Mat& left_index, const cv::Mat& right_index, const Cost
                  &labels);
   if (stats) {
     const double n = static_cast<double>(labels.total());
-    stats->occluded_pct = 100.0 * cv::countNonZero(labels == kOccluded) / n;
-    stats->mismatch_pct = 100.0 * cv::countNonZero(labels == kMismatch) / n;
+    stats->occluded_pct = 100.0 * CountLabel(labels, kOccluded) / n;
+    stats->mismatch_pct = 100.0 * CountLabel(labels, kMismatch) / n;
   }
   if (options.uniqueness > 0) {
     MarkAmbiguous(cost, left_index, options.uniqueness, runner_up, parallel, &labels);
     if (stats)
       stats->ambiguous_pct =
-          100.0 * cv::countNonZero(labels == kAmbiguous) / static_cast<double>(labels.total());
+          100.0 * CountLabel(labels, kAmbiguous) / static_cast<double>(labels.total());
   }
   cv::Mat& disparity = ws.disparity;
   left_index.copyTo(disparity);

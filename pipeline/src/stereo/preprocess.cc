@@ -37,40 +37,46 @@ double Median8U(const cv::Mat& grey) {
   return 255;
 }
 
-// Preprocess on validated inputs; OpenCV may still throw (out of memory).
-Preprocessed PreprocessValid(const cv::Mat& image, const PreprocessOptions& options,
-                             PreprocessParts parts) {
-  Preprocessed out;
+// Preprocess on validated inputs into *out; OpenCV may still throw (out of
+// memory).
+void PreprocessValid(const cv::Mat& image, const PreprocessOptions& options, PreprocessParts parts,
+                     Preprocessed* result, PreprocessScratch* scratch) {
+  Preprocessed& out = *result;
   out.status = Preprocessed::Status::kOk;
+  out.message.clear();
+  out.canny_low = out.canny_high = 0;
+  // A grey call leaves `grey` sharing the image's memory: not to be written.
+  if (out.grey.data == out.image.data) out.grey.release();
   if (image.channels() == 1) {
     if (options.equalize) {
       cv::equalizeHist(image, out.image);
     } else {
-      out.image = image.clone();
+      image.copyTo(out.image);
     }
     out.grey = out.image;
   } else {
     if (options.equalize) {
-      cv::Mat ycrcb;
-      cv::cvtColor(image, ycrcb, cv::COLOR_BGR2YCrCb);
-      cv::Mat channels[3];
-      cv::split(ycrcb, channels);
-      cv::equalizeHist(channels[0], channels[0]);
-      cv::merge(channels, 3, ycrcb);
-      cv::cvtColor(ycrcb, out.image, cv::COLOR_YCrCb2BGR);
-      out.grey = channels[0];
+      cv::cvtColor(image, scratch->ycrcb, cv::COLOR_BGR2YCrCb);
+      cv::split(scratch->ycrcb, scratch->channels);
+      cv::equalizeHist(scratch->channels[0], scratch->channels[0]);
+      cv::merge(scratch->channels, 3, scratch->ycrcb);
+      cv::cvtColor(scratch->ycrcb, out.image, cv::COLOR_YCrCb2BGR);
+      scratch->channels[0].copyTo(out.grey);  // its own: the scratch serves the next image
     } else {
-      out.image = image.clone();
+      image.copyTo(out.image);
       cv::cvtColor(image, out.grey, cv::COLOR_BGR2GRAY);
     }
   }
 
-  if (parts == PreprocessParts::kEqualizedOnly) return out;
+  if (parts == PreprocessParts::kEqualizedOnly) {
+    out.gradient.release();
+    out.edges.release();
+    return;
+  }
 
-  cv::Mat gx, gy;
-  cv::Sobel(out.grey, gx, CV_32F, 1, 0, 3, 1, 0, cv::BORDER_REPLICATE);
-  cv::Sobel(out.grey, gy, CV_32F, 0, 1, 3, 1, 0, cv::BORDER_REPLICATE);
-  cv::magnitude(gx, gy, out.gradient);
+  cv::Sobel(out.grey, scratch->gx, CV_32F, 1, 0, 3, 1, 0, cv::BORDER_REPLICATE);
+  cv::Sobel(out.grey, scratch->gy, CV_32F, 0, 1, 3, 1, 0, cv::BORDER_REPLICATE);
+  cv::magnitude(scratch->gx, scratch->gy, out.gradient);
 
   // Thresholds from the median: the common "auto Canny" rule. A median of an
   // equalized image sits near 128, so this stays sensible for dark or bright
@@ -84,27 +90,34 @@ Preprocessed PreprocessValid(const cv::Mat& image, const PreprocessOptions& opti
     const int k = 2 * options.dilate_radius_px + 1;
     cv::dilate(out.edges, out.edges, cv::getStructuringElement(cv::MORPH_RECT, {k, k}));
   }
-  return out;
 }
 
 }  // namespace
 
+void Preprocess(const cv::Mat& image, const PreprocessOptions& options, PreprocessParts parts,
+                Preprocessed* out, PreprocessScratch* scratch) {
+  using Status = Preprocessed::Status;
+  const auto fail = [&](Status status, std::string message) {
+    *out = Failed<Preprocessed>(status, "Preprocess: " + std::move(message));
+  };
+  std::string why;
+  if (!options.IsValid(&why)) return fail(Status::kInvalidInput, why);
+  if (image.empty()) return fail(Status::kInvalidInput, "empty image");
+  if (image.type() != CV_8UC1 && image.type() != CV_8UC3)
+    return fail(Status::kInvalidInput, "image must be CV_8UC1 or CV_8UC3 (BGR)");
+  try {
+    PreprocessValid(image, options, parts, out, scratch);
+  } catch (const std::exception& e) {  // cv::Exception, std::bad_alloc
+    fail(Status::kFailed, e.what());
+  }
+}
+
 Preprocessed Preprocess(const cv::Mat& image, const PreprocessOptions& options,
                         PreprocessParts parts) {
-  using Status = Preprocessed::Status;
-  std::string why;
-  if (!options.IsValid(&why))
-    return Failed<Preprocessed>(Status::kInvalidInput, "Preprocess: " + why);
-  if (image.empty()) return Failed<Preprocessed>(Status::kInvalidInput, "Preprocess: empty image");
-  if (image.type() != CV_8UC1 && image.type() != CV_8UC3) {
-    return Failed<Preprocessed>(Status::kInvalidInput,
-                                "Preprocess: image must be CV_8UC1 or CV_8UC3 (BGR)");
-  }
-  try {
-    return PreprocessValid(image, options, parts);
-  } catch (const std::exception& e) {  // cv::Exception, std::bad_alloc
-    return Failed<Preprocessed>(Status::kFailed, std::string("Preprocess: ") + e.what());
-  }
+  Preprocessed out;
+  PreprocessScratch scratch;
+  Preprocess(image, options, parts, &out, &scratch);
+  return out;
 }
 
 }  // namespace craftscan

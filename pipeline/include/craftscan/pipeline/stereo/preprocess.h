@@ -47,4 +47,17 @@ enum class PreprocessParts { kAll, kEqualizedOnly };
 Preprocessed Preprocess(const cv::Mat& image, const PreprocessOptions& options,
                         PreprocessParts parts = PreprocessParts::kAll);
 
+// Intermediate images of Preprocess, kept by a caller that preprocesses
+// images of one size over and over (a matcher): fresh ones are new pages to
+// fault in on every call.
+struct PreprocessScratch {
+  cv::Mat ycrcb, channels[3], gx, gy;
+};
+
+// The same into *out, whose images (and *scratch's) are written in place
+// where their size and type already fit. `out` must not share memory with
+// `image`; earlier results taken from *out are overwritten.
+void Preprocess(const cv::Mat& image, const PreprocessOptions& options, PreprocessParts parts,
+                Preprocessed* out, PreprocessScratch* scratch);
+
 }  // namespace craftscan

@@ -242,8 +242,9 @@ class StereoCommand : public BenchCommand {
         ->check(CLI::Range(0.0, 0.99))
         ->capture_default_str();
     sub->add_option("--aggregation-iterations", settings_.aggregation_iterations,
-                    "AD-Census cross-based aggregation iterations (the paper's 4; the station "
-                    "runs pipeline.aggregation_iterations, default 0)")
+                    "AD-Census cross-based aggregation iterations (ADCensusOptions' 2, one of "
+                    "each order; the paper's 4; the station runs pipeline.aggregation_iterations, "
+                    "default 0)")
         ->check(CLI::Range(0, 16))
         ->capture_default_str();
     sub->add_option("--repeat", repeat_, "Runs per scene and matcher; time = median")

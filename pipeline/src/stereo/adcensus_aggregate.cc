@@ -9,6 +9,9 @@
 // value on its own), so results do not depend on how rows or bands are split
 // between threads.
 #include <hwy/highway.h>
+#if defined(__AVX2__)
+#include <immintrin.h>
+#endif
 
 #include <algorithm>
 #include <atomic>
@@ -29,6 +32,22 @@ namespace hn = hwy::HWY_NAMESPACE;
 using CostTag = hn::CappedTag<Cost, 16>;
 
 constexpr Cost kMaxCost = std::numeric_limits<Cost>::max();
+
+// The smallest lane of v, whose lanes are all ≥ 0. With AVX2 the two halves'
+// minimum goes through phminposuw (unsigned, the same order for
+// non-negative costs): three instructions instead of Highway's generic
+// shuffle-and-min ladder, which sits on the path's chain from one pixel to
+// the next.
+inline Cost MinLane(hn::Vec<CostTag> v) {
+#if defined(__AVX2__) && HWY_TARGET <= HWY_AVX2
+  if constexpr (sizeof(v.raw) == 32) {
+    const __m128i halves =
+        _mm_min_epu16(_mm256_castsi256_si128(v.raw), _mm256_extracti128_si256(v.raw, 1));
+    return static_cast<Cost>(_mm_cvtsi128_si32(_mm_minpos_epu16(halves)) & 0xFFFF);
+  }
+#endif
+  return hn::GetLane(hn::MinOfLanes(CostTag(), v));
+}
 
 // Columns per vertical-aggregation work item: small enough to balance two
 // threads, large enough that each row access is a long contiguous run.
@@ -290,8 +309,8 @@ inline int ArgMin(const Cost* __restrict c, int n) {
     k_vec = hn::Add(k_vec, step);
   }
   // Among lanes holding the minimum, the smallest index: the first minimum.
-  const auto at_min = hn::Eq(best, hn::MinOfLanes(d, best));
-  return hn::GetLane(hn::MinOfLanes(d, hn::IfThenElse(at_min, best_k, hn::Set(d, kMaxCost))));
+  const auto at_min = hn::Eq(best, hn::Set(d, MinLane(best)));
+  return MinLane(hn::IfThenElse(at_min, best_k, hn::Set(d, kMaxCost)));
 }
 
 // The right view's winners, gathered in the same pass over a row of the
@@ -372,7 +391,7 @@ inline int RunnerUp(const Cost* __restrict c, int n, int stride, int k) {
     best = hn::Min(best, hn::IfThenElse(out, none, hn::LoadU(d, c + i)));
     j = hn::Add(j, step);
   }
-  return hn::GetLane(hn::MinOfLanes(d, best));
+  return MinLane(best);
 }
 
 }  // namespace
@@ -508,7 +527,7 @@ inline Cost PathStep(const Cost* __restrict a, const Cost* __restrict prev, Cost
     hn::StoreU(v, d, out + k);
     vmin = hn::Min(vmin, v);
   }
-  return hn::GetLane(hn::MinOfLanes(d, vmin));
+  return MinLane(vmin);
 }
 
 // The first value of a path: the costs themselves.

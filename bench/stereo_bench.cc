@@ -71,6 +71,7 @@ struct Matcher {
 struct ADCensusSettings {
   double uniqueness = 0;  // RefinementOptions::uniqueness
   int aggregation_iterations = ADCensusOptions{}.aggregation_iterations;
+  double pi1 = ADCensusOptions{}.pi1, pi2 = ADCensusOptions{}.pi2;  // scanline penalties
 };
 
 SceneRun PrepareADCensus(const StereoScene& scene, int num_threads, ArmRule arm_rule,
@@ -82,6 +83,8 @@ SceneRun PrepareADCensus(const StereoScene& scene, int num_threads, ArmRule arm_
   options.arm_rule = arm_rule;
   options.refinement.uniqueness = settings.uniqueness;
   options.aggregation_iterations = settings.aggregation_iterations;
+  options.pi1 = settings.pi1;
+  options.pi2 = settings.pi2;
   auto matcher = std::make_shared<StereoMatcher>(options);
   return [matcher, &scene] {
     DisparityResult result = matcher->Compute(scene.left, scene.right);
@@ -246,6 +249,15 @@ class StereoCommand : public BenchCommand {
                     "each order; the paper's 4; the station runs pipeline.aggregation_iterations, "
                     "default 0)")
         ->check(CLI::Range(0, 16))
+        ->capture_default_str();
+    sub->add_option("--pi1", settings_.pi1,
+                    "AD-Census scanline penalty Π1 (ADCensusOptions::pi1; the station's is 0.5)")
+        ->check(CLI::Range(0.0, 100.0))
+        ->capture_default_str();
+    sub->add_option("--pi2", settings_.pi2,
+                    "AD-Census scanline penalty Π2, at least Π1 (ADCensusOptions::pi2; the "
+                    "station's is 6)")
+        ->check(CLI::Range(0.0, 100.0))
         ->capture_default_str();
     sub->add_option("--repeat", repeat_, "Runs per scene and matcher; time = median")
         ->check(CLI::Range(1, 1000))
@@ -525,6 +537,8 @@ class StereoCommand : public BenchCommand {
     root["threads"] = threads_;
     root["uniqueness"] = settings_.uniqueness;
     root["aggregation_iterations"] = settings_.aggregation_iterations;
+    root["pi1"] = settings_.pi1;
+    root["pi2"] = settings_.pi2;
     root["scenes"] = Json::array();
     for (const SceneResult& scene : results) {
       Json s;

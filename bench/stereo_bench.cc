@@ -269,6 +269,9 @@ class StereoCommand : public BenchCommand {
   }
 
   int Run() override {
+    if (settings_.pi1 > settings_.pi2)
+      return UsageError("--pi1 (" + std::to_string(settings_.pi1) + ") must not exceed --pi2 (" +
+                        std::to_string(settings_.pi2) + ")");
     std::vector<Matcher> matchers;
     if (int code = SelectMatchers(&matchers); code != kExitOk) return code;
     std::vector<std::string> dirs;

@@ -530,6 +530,23 @@ inline Cost PathStep(const Cost* __restrict a, const Cost* __restrict prev, Cost
   return MinLane(vmin);
 }
 
+// flags[x] = 1 where the colour difference D_c(a[x], b[x]) reaches tau, for
+// x in [0, n): one pass over two rows that vectorizes (the paths' steps read
+// the flags instead of comparing pixels one by one).
+void ColourFlags(const std::uint8_t* __restrict a, const std::uint8_t* __restrict b, int channels,
+                 int n, int tau, std::uint8_t* __restrict flags) {
+  if (channels == 3) {
+    for (int x = 0; x < n; ++x) {
+      const int d0 = std::abs(a[3 * x] - b[3 * x]), d1 = std::abs(a[3 * x + 1] - b[3 * x + 1]),
+                d2 = std::abs(a[3 * x + 2] - b[3 * x + 2]);
+      flags[x] = std::max(d0, std::max(d1, d2)) >= tau ? 1 : 0;
+    }
+  } else {
+    for (int x = 0; x < n; ++x)
+      flags[x] = ColourDiff(a + channels * x, b + channels * x, channels) >= tau ? 1 : 0;
+  }
+}
+
 // The first value of a path: the costs themselves.
 inline Cost PathStart(const Cost* __restrict a, int n, Cost* __restrict out) {
   std::copy_n(a, n, out);
@@ -623,13 +640,14 @@ void ScanlineOptimize(const cv::Mat& left, const cv::Mat& right, int min_dispari
   // previous pixel's offset.
   // `h_flags`: row y's horizontal colour-difference flags (RightDiffs) at
   // x_r = 0, those of x_r at h_flags − x_r.
-  const auto horizontal_step = [&](const std::uint8_t* row, const Cost* h_flags, int x, int j,
-                                   int step, int o, const Cost* a, const Cost* prev, Cost* cur,
-                                   Cost* min, int* prev_offset) {
+  // `d1_big`: whether the left image's colour difference between x and
+  // x − step reaches tau_so (unused at j = 0).
+  const auto horizontal_step = [&](bool d1_big, const Cost* h_flags, int x, int j, int step, int o,
+                                   const Cost* a, const Cost* prev, Cost* cur, Cost* min,
+                                   int* prev_offset) {
     if (j == 0) {
       *min = PathStart(a, stride, cur + pad);
     } else {
-      const bool d1_big = ColourDiff(row + ch * x, row + ch * (x - step), ch) >= tau_so;
       // Right-image pair (x_r, x_r − step): left→right uses hdiff(x_r),
       // right→left uses hdiff(x_r + 1).
       const int base_xr = x - min_disparity - o + (step > 0 ? 0 : 1);
@@ -664,6 +682,7 @@ void ScanlineOptimize(const cv::Mat& left, const cv::Mat& right, int min_dispari
       std::vector<Cost> hprev(lane, kMaxCost), hcur(lane, kMaxCost), shifted(lane, kMaxCost);
       std::vector<Cost> vmin(width);
       std::vector<int> voffset(width);
+      std::vector<std::uint8_t> v_big(width), h_big(width, 0);
       CostComputer::Scratch scratch;
       RightWinners winners(width, min_disparity, stride, span);
       // Each sweep's colour-difference flags, row by row as it goes.
@@ -691,6 +710,14 @@ void ScanlineOptimize(const cv::Mat& left, const cv::Mat& right, int min_dispari
           const int vy = sweep == 0 ? y : y + 1;
           hdiff.Fill(y);
           vdiff.Fill(vy);
+          // The left image's flags of the row: with the row before along the
+          // sweep, and with the pixel before along it (x − xstep).
+          ColourFlags(row, prow, ch, width, tau_so, v_big.data());
+          if (xstep > 0) {
+            ColourFlags(row + ch, row, ch, width - 1, tau_so, h_big.data() + 1);
+          } else {
+            ColourFlags(row, row + ch, ch, width - 1, tau_so, h_big.data());
+          }
           Cost hmin = 0;
           int hoffset = 0;
           for (int j = 0, x = sweep == 0 ? 0 : width - 1; j < width; ++j, x += xstep) {
@@ -700,7 +727,7 @@ void ScanlineOptimize(const cv::Mat& left, const cv::Mat& right, int min_dispari
             if (i == 0) {
               vmin[x] = PathStart(a, stride, vc);
             } else {
-              const bool d1_big = ColourDiff(row + ch * x, prow + ch * x, ch) >= tau_so;
+              const bool d1_big = v_big[x] != 0;
               const Cost* vp = &vprev[x * vlane + 1];
               if (o != voffset[x]) {
                 std::copy_n(vp, stride, &shifted[pad]);
@@ -710,8 +737,8 @@ void ScanlineOptimize(const cv::Mat& left, const cv::Mat& right, int min_dispari
                                  stride, vc);
             }
             voffset[x] = o;
-            horizontal_step(row, hdiff.At(0), x, j, xstep, o, a, hprev.data(), hcur.data(), &hmin,
-                            &hoffset);
+            horizontal_step(h_big[x] != 0, hdiff.At(0), x, j, xstep, o, a, hprev.data(),
+                            hcur.data(), &hmin, &hoffset);
             Cost* out = s_row + static_cast<std::size_t>(x) * stride;
             if (first) {
               SumSaturated(vc, &hcur[pad], stride, out);
@@ -807,8 +834,10 @@ void ScanlineOptimize(const cv::Mat& left, const cv::Mat& right, int min_dispari
         for (int i = 0, x = x_start; i < width; ++i, x += step) {
           const Cost* a = c_row + static_cast<std::size_t>(x) * stride;
           const int o = offsets ? offsets[x] : 0;
-          horizontal_step(row, hdiff.At(y, 0), x, i, step, o, a, prev.data(), cur.data(), &prev_min,
-                          &prev_offset);
+          const bool d1_big =
+              i > 0 && ColourDiff(row + ch * x, row + ch * (x - step), ch) >= tau_so;
+          horizontal_step(d1_big, hdiff.At(y, 0), x, i, step, o, a, prev.data(), cur.data(),
+                          &prev_min, &prev_offset);
           Cost* fwd = &forward[static_cast<std::size_t>(x) * stride];
           if (dir == 0) {
             std::copy_n(&cur[pad], stride, fwd);

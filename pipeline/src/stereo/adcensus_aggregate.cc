@@ -356,6 +356,38 @@ class RightWinners {
     }
   }
 
+  // out = saturate(out + saturate(a + b)), then as Offer with out as the
+  // costs; returns ArgMin(out) (the first minimum). One pass over the lanes
+  // while they are in registers, for the scanline's last sum.
+  int AddSumOffer(int x, const Cost* __restrict a, const Cost* __restrict b, Cost* __restrict out,
+                  bool decreasing_x, int offset) {
+    const CostTag d;
+    const int lanes = static_cast<int>(hn::Lanes(d));
+    Cost* __restrict best = &best_[width_ - 1 - x + min_disparity_ + offset + margin_];
+    Cost* __restrict best_k = &best_k_[width_ - 1 - x + min_disparity_ + offset + margin_];
+    auto k_vec = hn::Iota(d, offset);
+    auto index = hn::Iota(d, 0);
+    const auto step = hn::Set(d, static_cast<Cost>(lanes));
+    auto low = hn::Set(d, kMaxCost);
+    auto low_k = hn::Zero(d);
+    for (int k = 0; k < stride_; k += lanes) {
+      const auto sum = hn::SaturatedAdd(hn::LoadU(d, a + k), hn::LoadU(d, b + k));
+      const auto v = hn::SaturatedAdd(hn::LoadU(d, out + k), sum);
+      hn::StoreU(v, d, out + k);
+      const auto lower = hn::Lt(v, low);  // strict: each lane keeps its first minimum
+      low = hn::IfThenElse(lower, v, low);
+      low_k = hn::IfThenElse(lower, index, low_k);
+      index = hn::Add(index, step);
+      const auto bb = hn::LoadU(d, best + k);
+      const auto better = decreasing_x ? hn::Not(hn::Lt(bb, v)) : hn::Lt(v, bb);  // v ≤ b : v < b
+      hn::StoreU(hn::IfThenElse(better, v, bb), d, best + k);
+      hn::StoreU(hn::IfThenElse(better, k_vec, hn::LoadU(d, best_k + k)), d, best_k + k);
+      k_vec = hn::Add(k_vec, step);
+    }
+    const auto at_min = hn::Eq(low, hn::Set(d, MinLane(low)));
+    return MinLane(hn::IfThenElse(at_min, low_k, hn::Set(d, kMaxCost)));
+  }
+
   // Writes the winning index per right pixel (NaN where no real winner).
   void Write(int ndisp, float* r) const {
     for (int xr = 0; xr < width_; ++xr) {
@@ -570,17 +602,6 @@ inline void SumSaturated(const Cost* __restrict a, const Cost* __restrict b, int
     hn::StoreU(hn::SaturatedAdd(hn::LoadU(d, a + k), hn::LoadU(d, b + k)), d, out + k);
 }
 
-// out[k] = saturate(out[k] + saturate(a[k] + b[k])).
-inline void AddSumSaturated(const Cost* __restrict a, const Cost* __restrict b, int n,
-                            Cost* __restrict out) {
-  const CostTag d;
-  const int lanes = static_cast<int>(hn::Lanes(d));
-  for (int k = 0; k < n; k += lanes) {
-    const auto sum = hn::SaturatedAdd(hn::LoadU(d, a + k), hn::LoadU(d, b + k));
-    hn::StoreU(hn::SaturatedAdd(hn::LoadU(d, out + k), sum), d, out + k);
-  }
-}
-
 Cost ToPenalty(double value) {
   return static_cast<Cost>(std::clamp(std::lround(value * kCostScale), 0L, 16383L));
 }
@@ -743,8 +764,13 @@ void ScanlineOptimize(const cv::Mat& left, const cv::Mat& right, int min_dispari
             if (first) {
               SumSaturated(vc, &hcur[pad], stride, out);
             } else {
-              AddSumSaturated(vc, &hcur[pad], stride, out);
-              finish(y, x, o, out, l, sweep == 1, &winners);
+              const int k = winners.AddSumOffer(x, vc, &hcur[pad], out, sweep == 1, o);
+              l[x] = static_cast<float>(o + k);
+              if (runner_up) {
+                std::int32_t* u = runner_up->ptr<std::int32_t>(y) + 2 * x;
+                u[0] = out[k];
+                u[1] = RunnerUp(out, held, stride, k);
+              }
             }
             std::swap(hprev, hcur);
           }

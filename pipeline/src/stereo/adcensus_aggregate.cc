@@ -49,6 +49,16 @@ inline Cost MinLane(hn::Vec<CostTag> v) {
   return hn::GetLane(hn::MinOfLanes(CostTag(), v));
 }
 
+// The vector (first, first + 1, …): a constant vector plus one broadcast.
+// (Highway 1.0's Iota for 16-bit lanes builds it lane by lane through the
+// stack, and the winners' loops asked for one per pixel.)
+inline hn::Vec<CostTag> LaneIndex(int first) {
+  alignas(64) static constexpr Cost kIndex[16] = {0, 1, 2,  3,  4,  5,  6,  7,
+                                                  8, 9, 10, 11, 12, 13, 14, 15};
+  const CostTag d;
+  return hn::Add(hn::Load(d, kIndex), hn::Set(d, static_cast<Cost>(first)));
+}
+
 // Columns per vertical-aggregation work item: small enough to balance two
 // threads, large enough that each row access is a long contiguous run.
 constexpr int kColumnBand = 4;
@@ -299,7 +309,7 @@ inline int ArgMin(const Cost* __restrict c, int n) {
   const int lanes = static_cast<int>(hn::Lanes(d));
   auto best = hn::Set(d, kMaxCost);
   auto best_k = hn::Zero(d);
-  auto k_vec = hn::Iota(d, 0);
+  auto k_vec = LaneIndex(0);
   const auto step = hn::Set(d, static_cast<Cost>(lanes));
   for (int k = 0; k < n; k += lanes) {
     const auto v = hn::LoadU(d, c + k);
@@ -344,7 +354,7 @@ class RightWinners {
     const int lanes = static_cast<int>(hn::Lanes(d));
     Cost* __restrict best = &best_[width_ - 1 - x + min_disparity_ + offset + margin_];
     Cost* __restrict best_k = &best_k_[width_ - 1 - x + min_disparity_ + offset + margin_];
-    auto k_vec = hn::Iota(d, offset);
+    auto k_vec = LaneIndex(offset);
     const auto step = hn::Set(d, static_cast<Cost>(lanes));
     for (int k = 0; k < stride_; k += lanes) {
       const auto v = hn::LoadU(d, c + k);
@@ -365,8 +375,8 @@ class RightWinners {
     const int lanes = static_cast<int>(hn::Lanes(d));
     Cost* __restrict best = &best_[width_ - 1 - x + min_disparity_ + offset + margin_];
     Cost* __restrict best_k = &best_k_[width_ - 1 - x + min_disparity_ + offset + margin_];
-    auto k_vec = hn::Iota(d, offset);
-    auto index = hn::Iota(d, 0);
+    auto k_vec = LaneIndex(offset);
+    auto index = LaneIndex(0);
     const auto step = hn::Set(d, static_cast<Cost>(lanes));
     auto low = hn::Set(d, kMaxCost);
     auto low_k = hn::Zero(d);
@@ -416,7 +426,7 @@ inline int RunnerUp(const Cost* __restrict c, int n, int stride, int k) {
   const auto last_held = hn::Set(d, static_cast<Cost>(n - 1));
   const auto none = hn::Set(d, kMaxCost);
   const auto step = hn::Set(d, static_cast<Cost>(lanes));
-  auto j = hn::Iota(d, 0);
+  auto j = LaneIndex(0);
   auto best = none;
   for (int i = 0; i < stride; i += lanes) {
     const auto out = hn::Or(hn::And(hn::Gt(j, below), hn::Lt(j, above)), hn::Gt(j, last_held));

@@ -479,6 +479,23 @@ void WinnerTakeAll(const CostVolume& cost, int min_disparity, const Parallel& pa
 
 namespace {
 
+// flags[x] = 1 where the colour difference D_c(a[x], b[x]) reaches tau, for
+// x in [0, n): one pass over two rows that vectorizes (the paths' steps read
+// the flags instead of comparing pixels one by one).
+void ColourFlags(const std::uint8_t* __restrict a, const std::uint8_t* __restrict b, int channels,
+                 int n, int tau, std::uint8_t* __restrict flags) {
+  if (channels == 3) {
+    for (int x = 0; x < n; ++x) {
+      const int d0 = std::abs(a[3 * x] - b[3 * x]), d1 = std::abs(a[3 * x + 1] - b[3 * x + 1]),
+                d2 = std::abs(a[3 * x + 2] - b[3 * x + 2]);
+      flags[x] = std::max(d0, std::max(d1, d2)) >= tau ? 1 : 0;
+    }
+  } else {
+    for (int x = 0; x < n; ++x)
+      flags[x] = ColourDiff(a + channels * x, b + channels * x, channels) >= tau ? 1 : 0;
+  }
+}
+
 // Whether the colour difference of the right image between each pixel and its
 // predecessor along x (horizontal) or y (vertical) reaches tau_so (1 or 0), stored per row reversed
 // and padded so that for a left pixel x the values at x_r = x − d_min − k are
@@ -519,20 +536,23 @@ class RightDiffs {
 
  private:
   // Row y's flags (entries no x_r reaches stay as they are: zero).
-  void FillRow(int y, Cost* out) const {
+  void FillRow(int y, Cost* out) {
     if (vertical_ && y == 0) return;
     const int ch = right_.channels();
     const std::uint8_t* r = right_.ptr<std::uint8_t>(y);
     const std::uint8_t* prev = vertical_ ? right_.ptr<std::uint8_t>(y - 1) : r;
-    for (int xr = vertical_ ? 0 : 1; xr < width_; ++xr)
-      out[xr_hi_ - xr] =
-          ColourDiff(r + ch * xr, prev + ch * (vertical_ ? xr : xr - 1), ch) >= tau_so_ ? 1 : 0;
+    const int x0 = vertical_ ? 0 : 1;  // horizontally, x_r − 1 must exist
+    flags_.resize(width_);
+    ColourFlags(r + ch * x0, prev + ch * (vertical_ ? x0 : x0 - 1), ch, width_ - x0, tau_so_,
+                flags_.data());
+    for (int xr = x0; xr < width_; ++xr) out[xr_hi_ - xr] = flags_[xr - x0];
   }
   const cv::Mat& right_;
   bool vertical_;
   int tau_so_, width_, xr_hi_, len_;
   int filled_ = -1;
-  std::vector<Cost> data_;  // 16-bit like the costs, so PathStep loads them at full width
+  std::vector<Cost> data_;           // 16-bit like the costs, so PathStep loads them at full width
+  std::vector<std::uint8_t> flags_;  // one row's, in increasing x_r
 };
 
 struct Penalties {
@@ -570,23 +590,6 @@ inline Cost PathStep(const Cost* __restrict a, const Cost* __restrict prev, Cost
     vmin = hn::Min(vmin, v);
   }
   return MinLane(vmin);
-}
-
-// flags[x] = 1 where the colour difference D_c(a[x], b[x]) reaches tau, for
-// x in [0, n): one pass over two rows that vectorizes (the paths' steps read
-// the flags instead of comparing pixels one by one).
-void ColourFlags(const std::uint8_t* __restrict a, const std::uint8_t* __restrict b, int channels,
-                 int n, int tau, std::uint8_t* __restrict flags) {
-  if (channels == 3) {
-    for (int x = 0; x < n; ++x) {
-      const int d0 = std::abs(a[3 * x] - b[3 * x]), d1 = std::abs(a[3 * x + 1] - b[3 * x + 1]),
-                d2 = std::abs(a[3 * x + 2] - b[3 * x + 2]);
-      flags[x] = std::max(d0, std::max(d1, d2)) >= tau ? 1 : 0;
-    }
-  } else {
-    for (int x = 0; x < n; ++x)
-      flags[x] = ColourDiff(a + channels * x, b + channels * x, channels) >= tau ? 1 : 0;
-  }
 }
 
 // The first value of a path: the costs themselves.

@@ -337,17 +337,111 @@ struct RowLimits {
   std::vector<std::uint8_t> max_len, l2, tau, tau2;  // integer forms of the limits
 };
 
-// d = max over channels |a − b| for whole rows: out[x] = D_c(a[x + da], b[x + db]).
-void RowColourDiff(const Planes& p, int ya, int da, int yb, int db, int n, std::uint8_t* out) {
-  for (int c = 0; c < p.channels; ++c) {
-    const std::uint8_t* a = p.row(c, ya) + da;
-    const std::uint8_t* b = p.row(c, yb) + db;
-    if (c == 0) {
-      for (int x = 0; x < n; ++x) out[x] = AbsDiff(a[x], b[x]);
-    } else {
-      for (int x = 0; x < n; ++x) out[x] = std::max(out[x], AbsDiff(a[x], b[x]));
-    }
+// One step of arm growth for the anchors [x0, x1): an anchor still active
+// stays so while its arm pixel at length `len` passes every test (length,
+// colour to the anchor and to the previous arm pixel, the tighter colour
+// limit beyond l2, the gradient), and each active anchor's arm grows by one.
+// Returns whether any anchor is still active. Whole vectors, the last one
+// masked (the compiler's version ended in a scalar loop of up to 63 pixels,
+// as long as the rest, for every length of every row).
+bool GrowArms(std::uint8_t len, const RowLimits& lim, const std::uint8_t* __restrict d_anchor,
+              const std::uint8_t* __restrict d_prev, const std::uint8_t* __restrict grad_ok, int x0,
+              int x1, std::uint8_t* __restrict active, std::uint8_t* __restrict out) {
+  namespace hn = hwy::HWY_NAMESPACE;
+  const hn::ScalableTag<std::uint8_t> d;
+  const int lanes = static_cast<int>(hn::Lanes(d));
+  const auto vlen = hn::Set(d, len);
+  const auto zero = hn::Zero(d);
+  auto any = zero;
+  const auto step = [&](int x, auto load, auto store) {
+    const auto anchor = load(d_anchor + x);
+    const auto tau = load(lim.tau.data() + x);
+    const auto ok =
+        hn::And(hn::And(hn::And(hn::Lt(vlen, load(lim.max_len.data() + x)), hn::Lt(anchor, tau)),
+                        hn::And(hn::Lt(load(d_prev + x), tau), hn::Ne(load(grad_ok + x), zero))),
+                hn::Or(hn::Not(hn::Lt(load(lim.l2.data() + x), vlen)),
+                       hn::Lt(anchor, load(lim.tau2.data() + x))));
+    const auto a = hn::IfThenElseZero(ok, load(active + x));
+    store(a, active + x);
+    store(hn::Add(load(out + x), a), out + x);
+    any = hn::Or(any, a);
+  };
+  int x = x0;
+  for (; x + lanes <= x1; x += lanes)
+    step(
+        x, [&](const std::uint8_t* p) { return hn::LoadU(d, p); },
+        [&](hn::Vec<decltype(d)> v, std::uint8_t* p) { hn::StoreU(v, d, p); });
+#if HWY_TARGET <= HWY_AVX3
+  // AVX-512's masked loads and stores touch no byte outside the mask.
+  if (x < x1) {
+    const auto m = hn::FirstN(d, static_cast<std::size_t>(x1 - x));
+    step(
+        x, [&](const std::uint8_t* p) { return hn::MaskedLoad(m, d, p); },
+        [&](hn::Vec<decltype(d)> v, std::uint8_t* p) { hn::BlendedStore(v, m, d, p); });
   }
+  return !hn::AllTrue(d, hn::Eq(any, zero));
+#else
+  // Elsewhere they may read or write the whole vector: the tail pixel by pixel.
+  std::uint8_t any_tail = 0;
+  for (; x < x1; ++x) {
+    const std::uint8_t ok = static_cast<std::uint8_t>(
+        (len < lim.max_len[x]) & (d_anchor[x] < lim.tau[x]) & (d_prev[x] < lim.tau[x]) &
+        ((len <= lim.l2[x]) | (d_anchor[x] < lim.tau2[x])) & grad_ok[x]);
+    active[x] &= ok;
+    out[x] = static_cast<std::uint8_t>(out[x] + active[x]);
+    any_tail |= active[x];
+  }
+  return any_tail != 0 || !hn::AllTrue(d, hn::Eq(any, zero));
+#endif
+}
+
+// d = max over channels |a − b| for whole rows: out[x] = D_c(a[x + da], b[x + db]).
+// All channels in one pass of whole vectors, the last one masked where
+// AVX-512 allows (as GrowArms).
+void RowColourDiff(const Planes& p, int ya, int da, int yb, int db, int n, std::uint8_t* out) {
+  namespace hn = hwy::HWY_NAMESPACE;
+  const hn::ScalableTag<std::uint8_t> d;
+  const int lanes = static_cast<int>(hn::Lanes(d));
+  const int channels = p.channels;
+  const std::uint8_t* a[3];
+  const std::uint8_t* b[3];
+  for (int c = 0; c < channels && c < 3; ++c) {
+    a[c] = p.row(c, ya) + da;
+    b[c] = p.row(c, yb) + db;
+  }
+  if (channels > 3) {  // not an image this matcher takes; kept general
+    for (int c = 0; c < channels; ++c) {
+      const std::uint8_t* pa = p.row(c, ya) + da;
+      const std::uint8_t* pb = p.row(c, yb) + db;
+      for (int x = 0; x < n; ++x)
+        out[x] = c == 0 ? AbsDiff(pa[x], pb[x]) : std::max(out[x], AbsDiff(pa[x], pb[x]));
+    }
+    return;
+  }
+  const auto diff = [&](int x, auto load) {
+    auto m = hn::Zero(d);
+    for (int c = 0; c < channels; ++c) {
+      const auto va = load(a[c] + x), vb = load(b[c] + x);
+      m = hn::Max(m, hn::Or(hn::SaturatedSub(va, vb), hn::SaturatedSub(vb, va)));
+    }
+    return m;
+  };
+  int x = 0;
+  for (; x + lanes <= n; x += lanes)
+    hn::StoreU(diff(x, [&](const std::uint8_t* q) { return hn::LoadU(d, q); }), d, out + x);
+#if HWY_TARGET <= HWY_AVX3
+  if (x < n) {
+    const auto m = hn::FirstN(d, static_cast<std::size_t>(n - x));
+    hn::BlendedStore(diff(x, [&](const std::uint8_t* q) { return hn::MaskedLoad(m, d, q); }), m, d,
+                     out + x);
+  }
+#else
+  for (; x < n; ++x) {
+    std::uint8_t m = 0;
+    for (int c = 0; c < channels; ++c) m = std::max(m, AbsDiff(a[c][x], b[c][x]));
+    out[x] = m;
+  }
+#endif
 }
 
 // Integer thresholds: with integer colour differences, "d < tau" equals
@@ -490,18 +584,9 @@ void BuildArms(const cv::Mat& image, const cv::Mat& gradient, const cv::Mat& edg
                          : vertical_diff.data() + static_cast<std::size_t>(qy + 1) * width;
           if (improved)
             GradientWithin(gradient.ptr<float>(qy) + dx, g, beta1, x_lo, x_hi, grad_ok.data());
-          const std::uint8_t ulen = static_cast<std::uint8_t>(len);
-          std::uint8_t any = 0;
-          // Bitwise, branch-free: this loop vectorizes.
-          for (int x = x_lo; x < x_hi; ++x) {
-            const std::uint8_t ok = static_cast<std::uint8_t>(
-                (ulen < lim.max_len[x]) & (d_anchor[x] < lim.tau[x]) & (d_prev[x] < lim.tau[x]) &
-                ((ulen <= lim.l2[x]) | (d_anchor[x] < lim.tau2[x])) & grad_ok[x]);
-            active[x] &= ok;
-            out[x] = static_cast<std::uint8_t>(out[x] + active[x]);
-            any |= active[x];
-          }
-          if (!any) break;
+          if (!GrowArms(static_cast<std::uint8_t>(len), lim, d_anchor.data(), d_prev,
+                        grad_ok.data(), x_lo, x_hi, active.data(), out))
+            break;
         }
       }
     }

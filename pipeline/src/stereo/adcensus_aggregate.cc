@@ -104,16 +104,20 @@ template <class T>
 inline void AccumulateWeighted(const Prefix* __restrict prev, const T* __restrict add,
                                std::int32_t w, int n, Prefix* __restrict out) {
   const Prefix weight = static_cast<Prefix>(w);
-  for (int k = 0; k < n; ++k) out[k] = prev[k] + static_cast<Prefix>(add[k]) * weight;
+  // n is a multiple of 16 (the padded stride): blocks of 16 compile to whole
+  // vectors with no scalar remainder.
+  for (int k0 = 0; k0 < n; k0 += 16)
+    for (int k = k0; k < k0 + 16; ++k) out[k] = prev[k] + static_cast<Prefix>(add[k]) * weight;
 }
 
 // out[k] = round((hi[k] − lo[k]) · scale); sums are non-negative.
 template <class T>
 inline void WindowMean(const Prefix* __restrict hi, const Prefix* __restrict lo, float scale, int n,
                        T* __restrict out) {
-  for (int k = 0; k < n; ++k)
-    out[k] = static_cast<T>(static_cast<std::int32_t>(
-        static_cast<float>(static_cast<std::int32_t>(hi[k] - lo[k])) * scale + 0.5f));
+  for (int k0 = 0; k0 < n; k0 += 16)  // as above
+    for (int k = k0; k < k0 + 16; ++k)
+      out[k] = static_cast<T>(static_cast<std::int32_t>(
+          static_cast<float>(static_cast<std::int32_t>(hi[k] - lo[k])) * scale + 0.5f));
 }
 
 // Runs consecutive horizontal passes on each row while the row is in cache:

@@ -4,6 +4,8 @@
 //
 // Every step reads the previous step's maps and writes new ones, so results
 // never depend on the order in which threads visit pixels.
+#include <hwy/highway.h>
+
 #include <algorithm>
 #include <cmath>
 #include <limits>
@@ -471,42 +473,110 @@ void Interpolate(const cv::Mat& image, const Parallel& parallel, cv::Mat* dispar
   }
   disparity->copyTo(*scratch);
   cv::Mat& out = *scratch;
+  // Pixel (y, x) from the first step of each direction that meets a reliable
+  // pixel (found[i], 0 where the ray leaves the image first).
+  const auto settle = [&](int y, int x, const int* found) {
+    const std::uint8_t* colour = image.ptr<std::uint8_t>(y) + ch * x;
+    float lowest = std::numeric_limits<float>::infinity(), most_similar = kNaN;
+    int best_diff = std::numeric_limits<int>::max();
+    for (int i = 0; i < kDirections; ++i) {
+      if (found[i] == 0) continue;
+      const cv::Point& step = steps[static_cast<std::size_t>(i) * max_steps + found[i]];
+      const int qx = x + step.x, qy = y + step.y;
+      const float d = disparity->at<float>(qy, qx);
+      lowest = std::min(lowest, d);
+      const int diff = ColourDiff(colour, image.ptr<std::uint8_t>(qy) + ch * qx, ch);
+      if (diff < best_diff) {
+        best_diff = diff;
+        most_similar = d;
+      }
+    }
+    if (best_diff == std::numeric_limits<int>::max()) {
+      out.at<float>(y, x) = kNaN;  // no reliable pixel in any direction
+    } else {
+      // Occlusions take the background (lowest disparity); mismatches the
+      // neighbour that looks most alike.
+      out.at<float>(y, x) = labels->at<std::uint8_t>(y, x) == kOccluded ? lowest : most_similar;
+    }
+  };
+#if HWY_TARGET <= HWY_AVX3
+  // The walks of a run of pixels of one row, one direction at a time, in the
+  // lanes of a vector: step s reads the labels at the same offset from every
+  // pixel, one masked load for the run (AVX-512 touches no masked-off lane,
+  // so lanes whose ray has left the image read nothing). A run costs its
+  // longest walk rather than the sum of its walks, which in a wide occluded
+  // or unmatched region are all long.
+  namespace hn = hwy::HWY_NAMESPACE;
+  const hn::ScalableTag<std::uint16_t> d16;
+  const int lanes = static_cast<int>(hn::Lanes(d16));
+  cv::Mat labels16;
+  labels->convertTo(labels16, CV_16U);
+  const std::ptrdiff_t step16 = static_cast<std::ptrdiff_t>(labels16.step1());
+  std::vector<std::ptrdiff_t> linear16(steps.size(), 0);
+  for (std::size_t k = 0; k < steps.size(); ++k)
+    linear16[k] = static_cast<std::ptrdiff_t>(steps[k].y) * step16 + steps[k].x;
+  std::vector<std::uint16_t> leave_x16(leave_x.begin(), leave_x.end());
+  parallel.For(0, height, [&](int y0, int y1) {
+    std::vector<std::uint16_t> found16(static_cast<std::size_t>(kDirections) * lanes);
+    const auto zero = hn::Zero(d16);
+    for (int y = y0; y < y1; ++y) {
+      const std::uint16_t* row = labels16.ptr<std::uint16_t>(y);
+      for (int x0 = 0; x0 < width; x0 += lanes) {
+        const auto in_row = hn::FirstN(d16, static_cast<std::size_t>(std::min(lanes, width - x0)));
+        const auto unreliable =
+            hn::And(in_row, hn::Ne(hn::MaskedLoad(in_row, d16, row + x0), zero));
+        if (hn::AllFalse(d16, unreliable)) continue;
+        for (int i = 0; i < kDirections; ++i) {
+          const std::size_t base = static_cast<std::size_t>(i) * max_steps;
+          const auto limit = hn::Min(
+              hn::MaskedLoad(in_row, d16, &leave_x16[static_cast<std::size_t>(i) * width + x0]),
+              hn::Set(d16, static_cast<std::uint16_t>(
+                               leave_y[static_cast<std::size_t>(i) * height + y])));
+          auto found = zero;
+          auto active = unreliable;
+          for (int st = 1;; ++st) {
+            const auto vs = hn::Set(d16, static_cast<std::uint16_t>(st));
+            active = hn::And(active, hn::Lt(vs, limit));
+            if (hn::AllFalse(d16, active)) break;
+            const auto hit = hn::And(
+                active, hn::Eq(hn::MaskedLoad(active, d16, row + x0 + linear16[base + st]), zero));
+            found = hn::IfThenElse(hit, vs, found);
+            active = hn::AndNot(hit, active);
+          }
+          hn::StoreU(found, d16, &found16[static_cast<std::size_t>(i) * lanes]);
+        }
+        const std::uint8_t* lab = labels->ptr<std::uint8_t>(y);
+        for (int j = 0; j < lanes && x0 + j < width; ++j) {
+          if (lab[x0 + j] == kReliable) continue;
+          int found[kDirections];
+          for (int i = 0; i < kDirections; ++i)
+            found[i] = found16[static_cast<std::size_t>(i) * lanes + j];
+          settle(y, x0 + j, found);
+        }
+      }
+    }
+  });
+#else
   parallel.For(0, height, [&](int y0, int y1) {
     for (int y = y0; y < y1; ++y) {
       const std::uint8_t* lab = labels->ptr<std::uint8_t>(y);
       for (int x = 0; x < width; ++x) {
         if (lab[x] == kReliable) continue;
-        const std::uint8_t* colour = image.ptr<std::uint8_t>(y) + ch * x;
-        float lowest = std::numeric_limits<float>::infinity(), most_similar = kNaN;
-        int best_diff = std::numeric_limits<int>::max();
+        int found[kDirections];
         for (int i = 0; i < kDirections; ++i) {
-          const std::size_t base = static_cast<std::size_t>(i) * max_steps;
-          const std::ptrdiff_t* offset = &linear[base];
+          const std::ptrdiff_t* offset = &linear[static_cast<std::size_t>(i) * max_steps];
           const int limit = std::min(leave_x[static_cast<std::size_t>(i) * width + x],
                                      leave_y[static_cast<std::size_t>(i) * height + y]);
           const std::uint8_t* at = lab + x;
-          int s = 1;
-          while (s < limit && at[offset[s]] != kReliable) ++s;
-          if (s >= limit) continue;  // left the image without a reliable pixel
-          const int qx = x + steps[base + s].x, qy = y + steps[base + s].y;
-          const float d = disparity->at<float>(qy, qx);
-          lowest = std::min(lowest, d);
-          const int diff = ColourDiff(colour, image.ptr<std::uint8_t>(qy) + ch * qx, ch);
-          if (diff < best_diff) {
-            best_diff = diff;
-            most_similar = d;
-          }
+          int st = 1;
+          while (st < limit && at[offset[st]] != kReliable) ++st;
+          found[i] = st < limit ? st : 0;  // 0: left the image without a reliable pixel
         }
-        if (best_diff == std::numeric_limits<int>::max()) {
-          out.at<float>(y, x) = kNaN;  // no reliable pixel in any direction
-        } else {
-          // Occlusions take the background (lowest disparity); mismatches the
-          // neighbour that looks most alike.
-          out.at<float>(y, x) = lab[x] == kOccluded ? lowest : most_similar;
-        }
+        settle(y, x, found);
       }
     }
   });
+#endif
   cv::swap(*disparity, *scratch);
 }
 

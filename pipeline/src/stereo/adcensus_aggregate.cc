@@ -150,15 +150,16 @@ void HorizontalPasses(const Arms& arms, std::initializer_list<Pass> passes,
   });
 }
 
-// The vertical counterpart on bands of columns: the band is copied out once
-// (height × band × stride costs), every pass runs on the copy (prefix sums
-// down the band), and it is written back once. Every pass's output is a
+// The vertical counterpart on bands of columns: the first pass reads the
+// band from the volume, passes in between run on a copy (height × band ×
+// stride costs; prefix sums down the band), the last writes the volume. Every pass's output is a
 // weighted mean of costs, so it fits a cost: the copy stays 16-bit, and the
 // band and its prefix sums stay in L2.
 void VerticalPasses(const Arms& arms, std::initializer_list<Pass> passes, const Parallel& parallel,
                     CostVolume* cost) {
   const int width = cost->width(), height = cost->height(), stride = cost->stride();
   const int bands = (width + kColumnBand - 1) / kColumnBand;
+  const int num_passes = static_cast<int>(passes.size());
   parallel.For(0, bands, [&](int b0, int b1) {
     thread_local std::vector<Prefix> prefix;  // per thread, as above
     thread_local std::vector<Cost> data;
@@ -167,34 +168,36 @@ void VerticalPasses(const Arms& arms, std::initializer_list<Pass> passes, const 
       const std::size_t band = static_cast<std::size_t>(x1 - x0) * stride;
       prefix.resize((height + 1) * band);
       data.resize(height * band);
-      for (int y = 0; y < height; ++y) {
-        // Rows of a band lie one volume row apart: the hardware prefetcher
-        // does not follow, so fetch a few rows ahead by hand.
-        if (y + kPrefetchRows < height) PrefetchRun(*cost, y + kPrefetchRows, x0, x1 - x0);
-        std::memcpy(&data[y * band], cost->at(y, x0), band * sizeof(Cost));
-      }
+      // The first pass reads the band from the volume and the last writes
+      // it back there; the copy holds what passes in between.
+      int p = 0;
       for (const Pass& pass : passes) {
+        const bool from_volume = p == 0, to_volume = p + 1 == num_passes;
+        ++p;
         std::fill_n(prefix.data(), band, 0);
         for (int y = 0; y < height; ++y) {
+          // Rows of a band lie one volume row apart: the hardware prefetcher
+          // does not follow, so fetch a few rows ahead by hand.
+          if (from_volume && y + kPrefetchRows < height)
+            PrefetchRun(*cost, y + kPrefetchRows, x0, x1 - x0);
+          const Cost* in = from_volume ? cost->at(y, x0) : &data[y * band];
           for (int x = x0; x < x1; ++x) {
             const std::int32_t w = pass.weight ? (*pass.weight)[arms.index(y, x)] : 1;
             const std::size_t off = static_cast<std::size_t>(x - x0) * stride;
-            AccumulateWeighted(&prefix[y * band + off], &data[y * band + off], w, stride,
+            AccumulateWeighted(&prefix[y * band + off], in + off, w, stride,
                                &prefix[(y + 1) * band + off]);
           }
         }
         for (int y = 0; y < height; ++y) {
+          Cost* out = to_volume ? cost->at(y, x0) : &data[y * band];
           for (int x = x0; x < x1; ++x) {
             const std::size_t i = arms.index(y, x);
             const std::size_t off = static_cast<std::size_t>(x - x0) * stride;
             WindowMean(&prefix[(y + arms.down[i] + 1) * band + off],
-                       &prefix[(y - arms.up[i]) * band + off], (*pass.scale)[i], stride,
-                       &data[y * band + off]);
+                       &prefix[(y - arms.up[i]) * band + off], (*pass.scale)[i], stride, out + off);
           }
         }
       }
-      for (int y = 0; y < height; ++y)
-        std::memcpy(cost->at(y, x0), &data[y * band], band * sizeof(Cost));
     }
   });
 }

@@ -244,11 +244,12 @@ struct RefineStats {
 // fresh maps are fresh pages, and on this project's machine (a VM) a page
 // fault costs ~15 µs, ~630 of them a Middlebury scene (README 11.4).
 struct RefineWorkspace {
-  cv::Mat labels;                           // CV_8UC1
-  cv::Mat disparity, scratch;               // CV_32FC1: the map and the next step's output
-  cv::Mat bins;                             // region voting: CV_16SC1
-  cv::Mat reliable_prefix, changed_prefix;  // CV_32SC1, height × (width + 1)
-  cv::Mat changed_flag;                     // CV_8UC1
+  cv::Mat labels;                              // CV_8UC1
+  cv::Mat disparity, scratch;                  // CV_32FC1: the map and the next step's output
+  cv::Mat bins;                                // region voting: CV_16SC1
+  cv::Mat reliable_prefix, changed_prefix;     // CV_32SC1, height × (width + 1)
+  cv::Mat changed_flag;                        // CV_8UC1
+  std::vector<int> column_start, column_todo;  // region voting: unreliable pixels by column
 };
 
 // Mei's refinement on disparity indices (CV_32FC1, values 0 … ndisp−1); the

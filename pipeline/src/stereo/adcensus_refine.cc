@@ -208,6 +208,10 @@ class BlockCounts {
     for (int y = 1; y < rows; ++y)
       for (int b = 1; b <= blocks_; ++b) at(y, b) += at(y - 1, b) + at(y, b - 1) - at(y - 1, b - 1);
   }
+  // After Accumulate on both (same size): the counts of both together.
+  void AddAccumulated(const BlockCounts& other) {
+    for (std::size_t i = 0; i < sums_.size(); ++i) sums_[i] += other.sums_[i];
+  }
   // The count over rows [y0, y1) and the blocks within reach of column x.
   int InReach(int y0, int y1, int x) const {
     const int b0 = std::max(0, x - reach_) / kColumns;
@@ -274,22 +278,35 @@ void RegionVoting(const Arms& arms, const CostVolume& cost, const RefinementOpti
     for (int y = y0; y < y1; ++y) update_row(y);
   });
   // The rows of each column's unreliable pixels, column after column
-  // (column x: rows todo[start[x] … start[x + 1])).
-  std::vector<int> start(static_cast<std::size_t>(width) + 1, 0), todo;
-  for (int y = 0; y < height; ++y) {
-    const std::uint8_t* lab = labels->ptr<std::uint8_t>(y);
-    for (int x = 0; x < width; ++x) start[static_cast<std::size_t>(x) + 1] += lab[x] != kReliable;
-  }
+  // (column x: rows todo[start[x] … start[x + 1])); counted and listed on
+  // chunks of columns, each chunk down every row.
+  std::vector<int>& start = ws->column_start;
+  std::vector<int>& todo = ws->column_todo;
+  start.assign(static_cast<std::size_t>(width) + 1, 0);
+  constexpr int kColumnGrain = 64;
+  parallel.For(
+      0, width,
+      [&](int x0, int x1) {
+        int* count = start.data() + 1;
+        for (int y = 0; y < height; ++y) {
+          const std::uint8_t* lab = labels->ptr<std::uint8_t>(y);
+          for (int x = x0; x < x1; ++x) count[x] += lab[x] != kReliable;
+        }
+      },
+      kColumnGrain);
   for (int x = 0; x < width; ++x) start[x + 1] += start[x];
   todo.resize(static_cast<std::size_t>(start[width]));
-  {
-    std::vector<int> fill(start.begin(), start.end() - 1);
-    for (int y = 0; y < height; ++y) {
-      const std::uint8_t* lab = labels->ptr<std::uint8_t>(y);
-      for (int x = 0; x < width; ++x)
-        if (lab[x] != kReliable) todo[static_cast<std::size_t>(fill[x]++)] = y;
-    }
-  }
+  parallel.For(
+      0, width,
+      [&](int x0, int x1) {
+        std::vector<int> fill(start.begin() + x0, start.begin() + x1);
+        for (int y = 0; y < height; ++y) {
+          const std::uint8_t* lab = labels->ptr<std::uint8_t>(y);
+          for (int x = x0; x < x1; ++x)
+            if (lab[x] != kReliable) todo[static_cast<std::size_t>(fill[x - x0]++)] = y;
+        }
+      },
+      kColumnGrain);
   // A pixel whose vote failed keeps failing until a pixel of its region
   // changes: later iterations revisit only regions with a pixel the previous
   // iteration made reliable (changed_prefix: per row, prefix counts of those).
@@ -336,6 +353,7 @@ void RegionVoting(const Arms& arms, const CostVolume& cost, const RefinementOpti
   count_reliable();
   std::vector<int> dirty_rows, previous_dirty_rows;
   std::vector<std::uint8_t> row_is_dirty(static_cast<std::size_t>(height), 0);
+  std::vector<int> first_changed(static_cast<std::size_t>(height), 0);
   for (int it = 0; it < options.voting_iterations; ++it) {
     parallel.For(0, width, [&](int x0, int x1) {
       std::vector<int> histogram(range), partial(4 * static_cast<std::size_t>(nb));
@@ -391,7 +409,8 @@ void RegionVoting(const Arms& arms, const CostVolume& cost, const RefinementOpti
         }
       }
     });
-    // Write the votes; note the rows they touch.
+    // Write the votes; note the rows they touch, and in each the first
+    // column changed (columns go in order).
     dirty_rows.clear();
     for (int x = 0; x < width; ++x) {
       for (const Vote1& v : votes[static_cast<std::size_t>(x)]) {
@@ -400,6 +419,7 @@ void RegionVoting(const Arms& arms, const CostVolume& cost, const RefinementOpti
         changed_flag.at<std::uint8_t>(v.y, x) = 1;
         if (!row_is_dirty[static_cast<std::size_t>(v.y)]) {
           row_is_dirty[static_cast<std::size_t>(v.y)] = 1;
+          first_changed[static_cast<std::size_t>(v.y)] = x;
           dirty_rows.push_back(v.y);
         }
       }
@@ -416,19 +436,32 @@ void RegionVoting(const Arms& arms, const CostVolume& cost, const RefinementOpti
       int* cp = changed_prefix.ptr<int>(y);
       std::fill(cp, cp + width + 1, 0);
     }
+    // Only the changed pixels (now reliable) change: their bins, and every
+    // reliable prefix count from the first of them on, by the changed count
+    // before it (as update_row would recount them).
     parallel.For(0, static_cast<int>(dirty_rows.size()), [&](int r0, int r1) {
       for (int r = r0; r < r1; ++r) {
         const int y = dirty_rows[static_cast<std::size_t>(r)];
-        update_row(y);
+        const float* d = disparity->ptr<float>(y);
+        std::int16_t* b = bins.ptr<std::int16_t>(y);
+        int* rp = reliable_prefix.ptr<int>(y);
         std::uint8_t* flag = changed_flag.ptr<std::uint8_t>(y);
         int* cp = changed_prefix.ptr<int>(y);
-        for (int x = 0; x < width; ++x) cp[x + 1] = cp[x] + flag[x];
-        std::fill(flag, flag + width, 0);
+        int changed = 0;
+        for (int x = first_changed[static_cast<std::size_t>(y)]; x < width; ++x) {
+          if (flag[x]) {
+            b[x] = static_cast<std::int16_t>(static_cast<int>(d[x]));
+            flag[x] = 0;
+            ++changed;
+          }
+          cp[x + 1] = changed;
+          rp[x + 1] += changed;
+        }
       }
     });
     for (int y : dirty_rows) row_is_dirty[static_cast<std::size_t>(y)] = 0;
     previous_dirty_rows.swap(dirty_rows);
-    count_reliable();
+    reliable_in_reach.AddAccumulated(changes);
   }
 }
 

@@ -202,7 +202,10 @@ void VerticalPasses(const Arms& arms, std::initializer_list<Pass> passes, const 
   });
 }
 
-// Fills *f (its vectors resized, kept where large enough).
+// Fills *f (its vectors resized, kept where large enough). The loops run on
+// rows, marked free of dependences between iterations: the arms are bytes,
+// which may alias anything (GCC ignores restrict on local pointers), and
+// otherwise nothing here vectorizes (a scalar division per pixel and factor).
 void ComputePassFactors(const Arms& arms, bool need_vertical_first, const Parallel& parallel,
                         PassFactors* out) {
   PassFactors& f = *out;
@@ -214,14 +217,28 @@ void ComputePassFactors(const Arms& arms, bool need_vertical_first, const Parall
   f.inv_len_v.resize(n);
   f.inv_support_h.resize(n);
   if (need_vertical_first) f.inv_support_v.resize(n);
+  // The lambdas copy `width` into a local: a captured one is read through
+  // the closure, which every store through an int pointer might change, and
+  // the loops would not vectorize.
   parallel.For(0, height, [&](int y0, int y1) {
+    const int cols = width;
     for (int y = y0; y < y1; ++y) {
-      for (int x = 0; x < width; ++x) {
-        const std::size_t i = arms.index(y, x);
-        f.len_h[i] = arms.left[i] + arms.right[i] + 1;
-        f.len_v[i] = arms.up[i] + arms.down[i] + 1;
-        f.inv_len_h[i] = 1.f / static_cast<float>(f.len_h[i]);
-        f.inv_len_v[i] = 1.f / static_cast<float>(f.len_v[i]);
+      const std::size_t row = arms.index(y, 0);
+      const std::uint8_t* __restrict left = arms.left.data() + row;
+      const std::uint8_t* __restrict right = arms.right.data() + row;
+      const std::uint8_t* __restrict up = arms.up.data() + row;
+      const std::uint8_t* __restrict down = arms.down.data() + row;
+      std::int32_t* __restrict len_h = f.len_h.data() + row;
+      std::int32_t* __restrict len_v = f.len_v.data() + row;
+      float* __restrict inv_len_h = f.inv_len_h.data() + row;
+      float* __restrict inv_len_v = f.inv_len_v.data() + row;
+#pragma GCC ivdep
+      for (int x = 0; x < cols; ++x) {
+        const std::int32_t h = left[x] + right[x] + 1, v = up[x] + down[x] + 1;
+        len_h[x] = h;
+        len_v[x] = v;
+        inv_len_h[x] = 1.f / static_cast<float>(h);
+        inv_len_v[x] = 1.f / static_cast<float>(v);
       }
     }
   });
@@ -231,24 +248,40 @@ void ComputePassFactors(const Arms& arms, bool need_vertical_first, const Parall
   std::vector<std::int32_t>& down_column = f.down_column;
   down_column.resize(static_cast<std::size_t>(height + 1) * width);
   std::fill_n(down_column.begin(), width, 0);
-  for (int y = 0; y < height; ++y)
-    for (int x = 0; x < width; ++x)
-      down_column[static_cast<std::size_t>(y + 1) * width + x] =
-          down_column[static_cast<std::size_t>(y) * width + x] + f.len_h[arms.index(y, x)];
+  for (int y = 0; y < height; ++y) {
+    const std::int32_t* __restrict above = down_column.data() + static_cast<std::size_t>(y) * width;
+    const std::int32_t* __restrict len_h = f.len_h.data() + arms.index(y, 0);
+    std::int32_t* __restrict sum = down_column.data() + static_cast<std::size_t>(y + 1) * width;
+#pragma GCC ivdep
+    for (int x = 0; x < width; ++x) sum[x] = above[x] + len_h[x];
+  }
   parallel.For(0, height, [&](int y0, int y1) {
+    const int cols = width;
     std::vector<std::int32_t> along_row(width + 1, 0);
+    std::vector<std::int32_t> size_h(width);
     for (int y = y0; y < y1; ++y) {
-      if (need_vertical_first)
-        for (int x = 0; x < width; ++x) along_row[x + 1] = along_row[x] + f.len_v[arms.index(y, x)];
-      for (int x = 0; x < width; ++x) {
-        const std::size_t i = arms.index(y, x);
-        const int size_h = down_column[static_cast<std::size_t>(y + arms.down[i] + 1) * width + x] -
-                           down_column[static_cast<std::size_t>(y - arms.up[i]) * width + x];
-        f.inv_support_h[i] = 1.f / static_cast<float>(size_h);
-        if (need_vertical_first) {
-          const int size_v = along_row[x + arms.right[i] + 1] - along_row[x - arms.left[i]];
-          f.inv_support_v[i] = 1.f / static_cast<float>(size_v);
-        }
+      const std::size_t row = arms.index(y, 0);
+      const std::uint8_t* __restrict left = arms.left.data() + row;
+      const std::uint8_t* __restrict right = arms.right.data() + row;
+      const std::uint8_t* __restrict up = arms.up.data() + row;
+      const std::uint8_t* __restrict down = arms.down.data() + row;
+      const std::int32_t* __restrict columns = down_column.data();
+      std::int32_t* __restrict sizes = size_h.data();
+#pragma GCC ivdep
+      for (int x = 0; x < cols; ++x)
+        sizes[x] = columns[static_cast<std::size_t>(y + down[x] + 1) * cols + x] -
+                   columns[static_cast<std::size_t>(y - up[x]) * cols + x];
+      float* __restrict inv_h = f.inv_support_h.data() + row;
+#pragma GCC ivdep
+      for (int x = 0; x < cols; ++x) inv_h[x] = 1.f / static_cast<float>(sizes[x]);
+      if (need_vertical_first) {
+        const std::int32_t* __restrict len_v = f.len_v.data() + row;
+        std::int32_t* __restrict along = along_row.data();
+        for (int x = 0; x < cols; ++x) along[x + 1] = along[x] + len_v[x];
+        float* __restrict inv_v = f.inv_support_v.data() + row;
+#pragma GCC ivdep
+        for (int x = 0; x < cols; ++x)
+          inv_v[x] = 1.f / static_cast<float>(along[x + right[x] + 1] - along[x - left[x]]);
       }
     }
   });

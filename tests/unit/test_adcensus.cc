@@ -819,6 +819,49 @@ TEST(Refinement, RegionVotingEqualsTheRuleAppliedPixelByPixel) {
   }
 }
 
+// The refinement's last step, where holes stay holes (NaN: the station's
+// maps): each valid pixel the median of the valid pixels of its window, the
+// (n / 2)-th in order, as sorting each window gives it. Maps wider and
+// narrower than a vector, many equal values, a third of them NaN.
+TEST(Refinement, MedianOfTheValidPixelsEqualsSortingEachWindow) {
+  cv::RNG rng(4711);
+  for (const cv::Size size : {cv::Size(7, 5), cv::Size(53, 37), cv::Size(130, 41)}) {
+    cv::Mat map(size, CV_32FC1);
+    for (int y = 0; y < map.rows; ++y)
+      for (int x = 0; x < map.cols; ++x)
+        map.at<float>(y, x) = rng.uniform(0.0, 1.0) < 0.35
+                                  ? std::numeric_limits<float>::quiet_NaN()
+                                  : static_cast<float>(rng.uniform(0, 24)) * 0.5f;
+    for (const int window : {3, 5}) {
+      const int r = window / 2;
+      cv::Mat expected = map.clone();
+      for (int y = 0; y < map.rows; ++y)
+        for (int x = 0; x < map.cols; ++x) {
+          if (!IsValidDisparity(map.at<float>(y, x))) continue;
+          std::vector<float> values;
+          for (int v = std::max(0, y - r); v <= std::min(map.rows - 1, y + r); ++v)
+            for (int u = std::max(0, x - r); u <= std::min(map.cols - 1, x + r); ++u)
+              if (IsValidDisparity(map.at<float>(v, u))) values.push_back(map.at<float>(v, u));
+          std::sort(values.begin(), values.end());
+          expected.at<float>(y, x) = values[values.size() / 2];
+        }
+      for (const int threads : {1, 2}) {
+        cv::Mat filtered = map.clone(), scratch;
+        adcensus::MedianFilter(window, Parallel(threads), &filtered, &scratch);
+        int differing = 0;
+        for (int y = 0; y < map.rows; ++y)
+          for (int x = 0; x < map.cols; ++x) {
+            const float a = filtered.at<float>(y, x), b = expected.at<float>(y, x);
+            differing +=
+                IsValidDisparity(a) != IsValidDisparity(b) || (IsValidDisparity(a) && a != b) ? 1
+                                                                                              : 0;
+          }
+        EXPECT_EQ(differing, 0) << size << " window " << window << " threads " << threads;
+      }
+    }
+  }
+}
+
 // A surface turned steeply away from the right camera: the right view holds
 // it on r = 1 − g of the left's pixels. With exact (rounded) disparities in
 // both maps every left pixel is the same surface, yet where g > 2/3 the

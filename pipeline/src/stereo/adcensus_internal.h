@@ -244,13 +244,25 @@ struct RefineStats {
 // fresh maps are fresh pages, and on this project's machine (a VM) a page
 // fault costs ~15 µs, ~630 of them a Middlebury scene (README 11.4).
 struct RefineWorkspace {
-  cv::Mat labels;                              // CV_8UC1
-  cv::Mat disparity, scratch;                  // CV_32FC1: the map and the next step's output
-  cv::Mat bins;                                // region voting: CV_16SC1
-  cv::Mat reliable_prefix, changed_prefix;     // CV_32SC1, height × (width + 1)
-  cv::Mat changed_flag;                        // CV_8UC1
-  std::vector<int> column_start, column_todo;  // region voting: unreliable pixels by column
+  cv::Mat labels;                           // CV_8UC1
+  cv::Mat disparity, scratch;               // CV_32FC1: the map and the next step's output
+  cv::Mat bins;                             // region voting: CV_16SC1
+  cv::Mat reliable_prefix, changed_prefix;  // CV_32SC1, height × (width + 1)
+  cv::Mat changed_flag;                     // CV_8UC1
+  // Region voting: the unreliable pixels column by column, each with its row
+  // and the rows [lo, hi) of its vertical arm.
+  struct VotingPixel {
+    std::int32_t y, lo, hi;
+  };
+  std::vector<int> column_start;
+  std::vector<VotingPixel> column_todo;
 };
+
+// The last step of Mei's refinement: each valid pixel of *disparity
+// (CV_32FC1) becomes the median of the valid pixels of its size × size window
+// (the element count / 2 of them in order); NaN stays NaN. *scratch is
+// working memory.
+void MedianFilter(int size, const Parallel& parallel, cv::Mat* disparity, cv::Mat* scratch);
 
 // Mei's refinement on disparity indices (CV_32FC1, values 0 … ndisp−1); the
 // result is a disparity index map with sub-pixel values and NaN where none.

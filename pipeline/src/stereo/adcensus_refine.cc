@@ -175,18 +175,34 @@ inline int Vote(const int* histogram, int n, int votes, const RefinementOptions&
   return static_cast<int>(std::find(histogram, histogram + n, most) - histogram);
 }
 
-// How many pixels counted in `prefix` (per row, prefix counts over x) the
-// horizontal-first support region of (y, x) holds.
-inline int CountInRegion(const Arms& arms, const cv::Mat& prefix, int y, int x) {
-  const std::size_t i = arms.index(y, x);
-  int n = 0;
-  for (int v = y - arms.up[i]; v <= y + arms.down[i]; ++v) {
-    const std::size_t j = arms.index(v, x);
-    const int* cp = prefix.ptr<int>(v);
-    n += cp[x + arms.right[j] + 1] - cp[x - arms.left[j]];
-  }
-  return n;
+// How many pixels counted in `prefix` (per row, prefix counts over x) row v
+// of the horizontal-first support region of a pixel of column x holds (the
+// segment of v's own horizontal arms).
+inline int SegmentCount(const Arms& arms, const cv::Mat& prefix, int v, int x) {
+  const std::size_t j = arms.index(v, x);
+  const int* cp = prefix.ptr<int>(v);
+  return cp[x + arms.right[j] + 1] - cp[x - arms.left[j]];
 }
+
+// A sum over a window of rows [lo, hi) of one column, moved from one
+// region's rows to the next by the rows that enter and leave (started afresh
+// when the two do not overlap). Integer sums: the same as summing each
+// region's rows.
+struct RowWindow {
+  int lo = 0, hi = 0, sum = 0;
+  template <class RowValue>
+  int Count(int new_lo, int new_hi, const RowValue& row) {
+    if (new_lo >= hi || new_hi <= lo) {
+      sum = 0;
+      lo = hi = new_lo;
+    }
+    for (; hi < new_hi; ++hi) sum += row(hi);
+    for (; lo > new_lo; --lo) sum += row(lo - 1);
+    for (; hi > new_hi; --hi) sum -= row(hi - 1);
+    for (; lo < new_lo; ++lo) sum -= row(lo);
+    return sum;
+  }
+};
 
 // Counts per row and block of kColumns columns, as 2D prefix sums, for an
 // upper bound on what a cross region holds: the rows of its vertical arm and
@@ -277,11 +293,11 @@ void RegionVoting(const Arms& arms, const CostVolume& cost, const RefinementOpti
   parallel.For(0, height, [&](int y0, int y1) {
     for (int y = y0; y < y1; ++y) update_row(y);
   });
-  // The rows of each column's unreliable pixels, column after column
-  // (column x: rows todo[start[x] … start[x + 1])); counted and listed on
-  // chunks of columns, each chunk down every row.
+  // Each column's unreliable pixels, column after column (column x:
+  // todo[start[x] … start[x + 1])), with their vertical arms; counted and
+  // listed on chunks of columns, each chunk down every row.
   std::vector<int>& start = ws->column_start;
-  std::vector<int>& todo = ws->column_todo;
+  std::vector<RefineWorkspace::VotingPixel>& todo = ws->column_todo;
   start.assign(static_cast<std::size_t>(width) + 1, 0);
   constexpr int kColumnGrain = 64;
   parallel.For(
@@ -302,8 +318,12 @@ void RegionVoting(const Arms& arms, const CostVolume& cost, const RefinementOpti
         std::vector<int> fill(start.begin() + x0, start.begin() + x1);
         for (int y = 0; y < height; ++y) {
           const std::uint8_t* lab = labels->ptr<std::uint8_t>(y);
-          for (int x = x0; x < x1; ++x)
-            if (lab[x] != kReliable) todo[static_cast<std::size_t>(fill[x - x0]++)] = y;
+          for (int x = x0; x < x1; ++x) {
+            if (lab[x] == kReliable) continue;
+            const std::size_t i = arms.index(y, x);
+            todo[static_cast<std::size_t>(fill[x - x0]++)] = {y, y - arms.up[i],
+                                                              y + arms.down[i] + 1};
+          }
         }
       },
       kColumnGrain);
@@ -327,8 +347,10 @@ void RegionVoting(const Arms& arms, const CostVolume& cost, const RefinementOpti
   // none). Votes only make pixels reliable, so the `added` pixels that
   // became reliable since raise the first by exactly `added` and any bin by
   // at most that: when the vote failed by the bounds it still fails.
+  // `voted`: the pixel took a vote (it is reliable from the next iteration).
   struct Known {
     std::int16_t reliable = -1, most = -1;
+    bool voted = false;
   };
   std::vector<Known> known(todo.size());
   // Upper bounds first, from counts per row and block of columns: the last
@@ -367,15 +389,21 @@ void RegionVoting(const Arms& arms, const CostVolume& cost, const RefinementOpti
           const int u0 = x - arms.left[j], u1 = x + arms.right[j];
           CountBins(bins.ptr<std::int16_t>(v), u0, u1, delta, partial.data(), nb);
         };
+        // The region counts of the prefix counts likewise, each in a running
+        // window of its own: consecutive unreliable pixels share most rows.
+        RowWindow reliable_window, changed_window;
+        const auto reliable_in_row = [&](int v) {
+          return SegmentCount(arms, reliable_prefix, v, x);
+        };
+        const auto changed_in_row = [&](int v) { return SegmentCount(arms, changed_prefix, v, x); };
         for (int t = start[x]; t < start[x + 1]; ++t) {
-          const int y = todo[static_cast<std::size_t>(t)];
-          if (labels->at<std::uint8_t>(y, x) == kReliable) continue;  // voted before
-          const std::size_t i = arms.index(y, x);
-          const int t_lo = y - arms.up[i], t_hi = y + arms.down[i] + 1;
           Known& kn = known[static_cast<std::size_t>(t)];
+          if (kn.voted) continue;
+          const RefineWorkspace::VotingPixel& pixel = todo[static_cast<std::size_t>(t)];
+          const int y = pixel.y, t_lo = pixel.lo, t_hi = pixel.hi;
           if (it > 0) {
             if (changes.InReach(t_lo, t_hi, x) == 0) continue;
-            const int added = CountInRegion(arms, changed_prefix, y, x);
+            const int added = changed_window.Count(t_lo, t_hi, changed_in_row);
             if (added == 0) continue;  // the region did not change
             if (kn.reliable >= 0) {
               kn.reliable = static_cast<std::int16_t>(kn.reliable + added);
@@ -388,7 +416,7 @@ void RegionVoting(const Arms& arms, const CostVolume& cost, const RefinementOpti
           if (reliable < 0) {
             if (reliable_in_reach.InReach(t_lo, t_hi, x) <= options.tau_s) continue;
             // Too few reliable votes: no vote, and no need for the histogram.
-            reliable = CountInRegion(arms, reliable_prefix, y, x);
+            reliable = reliable_window.Count(t_lo, t_hi, reliable_in_row);
             kn.reliable = static_cast<std::int16_t>(reliable);
             if (reliable <= options.tau_s) continue;
           }
@@ -405,7 +433,10 @@ void RegionVoting(const Arms& arms, const CostVolume& cost, const RefinementOpti
           int most = 0;
           const int k = Vote(histogram.data(), range, reliable, options, &most);
           kn.most = static_cast<std::int16_t>(most);
-          if (k >= 0) column_votes.push_back({y, static_cast<float>(offset + k)});
+          if (k >= 0) {
+            column_votes.push_back({y, static_cast<float>(offset + k)});
+            kn.voted = true;
+          }
         }
       }
     });
@@ -663,6 +694,19 @@ void Subpixel(const CostVolume& cost, const Parallel& parallel, cv::Mat* dispari
   });
 }
 
+// Orders nine values (floats or vectors of them) with a 25-exchange sorting
+// network (checked on all 0/1 inputs); cas(a, b) leaves a ≤ b.
+template <class T, class Cas>
+inline void SortNine(T (&v)[9], const Cas& cas) {
+  cas(v[0], v[3]), cas(v[1], v[7]), cas(v[2], v[5]), cas(v[4], v[8]);
+  cas(v[0], v[7]), cas(v[2], v[4]), cas(v[3], v[8]), cas(v[5], v[6]);
+  cas(v[0], v[2]), cas(v[1], v[3]), cas(v[4], v[5]), cas(v[7], v[8]);
+  cas(v[1], v[4]), cas(v[3], v[6]), cas(v[5], v[7]);
+  cas(v[0], v[1]), cas(v[2], v[4]), cas(v[3], v[5]), cas(v[6], v[8]);
+  cas(v[2], v[3]), cas(v[4], v[5]), cas(v[6], v[7]);
+  cas(v[1], v[2]), cas(v[3], v[4]), cas(v[5], v[6]);
+}
+
 // The 3×3 median over the valid pixels for the interior pixels x0 … x1−1 of
 // `row` (with the rows above and below), written where the centre is valid.
 // Branch-free across x: invalid neighbours become +inf, a sorting network
@@ -676,6 +720,44 @@ void Median3x3Valid(const float* above, const float* row, const float* below, in
     a = lo;
     b = hi;
   };
+  // Whole vectors first: the same steps lane by lane (each exchange as
+  // the scalar one selects, so equal values, ±0 included, end up alike).
+  namespace hn = hwy::HWY_NAMESPACE;
+  const hn::ScalableTag<float> df;
+  using V = hn::Vec<decltype(df)>;
+  const int lanes = static_cast<int>(hn::Lanes(df));
+  const auto vinf = hn::Set(df, kInf), one = hn::Set(df, 1.f), half = hn::Set(df, 0.5f);
+  const auto vcas = [](V& a, V& b) {
+    const auto swap = hn::Lt(b, a);
+    const V lo = hn::IfThenElse(swap, b, a), hi = hn::IfThenElse(swap, a, b);
+    a = lo;
+    b = hi;
+  };
+  for (; x0 + lanes <= x1; x0 += lanes) {
+    const int x = x0;
+    const V c = hn::LoadU(df, row + x);
+    V v[9] = {hn::LoadU(df, above + x - 1),
+              hn::LoadU(df, above + x),
+              hn::LoadU(df, above + x + 1),
+              hn::LoadU(df, row + x - 1),
+              c,
+              hn::LoadU(df, row + x + 1),
+              hn::LoadU(df, below + x - 1),
+              hn::LoadU(df, below + x),
+              hn::LoadU(df, below + x + 1)};
+    V n = hn::Zero(df);  // valid values, counted in floats (exact up to 9)
+    for (V& e : v) {
+      const auto valid = hn::Eq(e, e);
+      n = hn::Add(n, hn::IfThenElseZero(valid, one));
+      e = hn::IfThenElse(valid, e, vinf);
+    }
+    SortNine(v, vcas);
+    const V mid = hn::Floor(hn::Mul(n, half));  // n / 2
+    V median = v[0];
+    for (int j = 1; j < 9; ++j)
+      median = hn::IfThenElse(hn::Eq(mid, hn::Set(df, static_cast<float>(j))), v[j], median);
+    hn::StoreU(hn::IfThenElse(hn::Eq(c, c), median, c), df, out + x);
+  }
   for (int x = x0; x < x1; ++x) {
     const float c = row[x];
     float v[9] = {above[x - 1], above[x],     above[x + 1], row[x - 1],  c,
@@ -686,15 +768,7 @@ void Median3x3Valid(const float* above, const float* row, const float* below, in
       n += valid ? 1 : 0;
       e = valid ? e : kInf;
     }
-    // A 25-exchange sorting network for nine values (checked on all 0/1
-    // inputs), then element n/2 picked without a branch.
-    cas(v[0], v[3]), cas(v[1], v[7]), cas(v[2], v[5]), cas(v[4], v[8]);
-    cas(v[0], v[7]), cas(v[2], v[4]), cas(v[3], v[8]), cas(v[5], v[6]);
-    cas(v[0], v[2]), cas(v[1], v[3]), cas(v[4], v[5]), cas(v[7], v[8]);
-    cas(v[1], v[4]), cas(v[3], v[6]), cas(v[5], v[7]);
-    cas(v[0], v[1]), cas(v[2], v[4]), cas(v[3], v[5]), cas(v[6], v[8]);
-    cas(v[2], v[3]), cas(v[4], v[5]), cas(v[6], v[7]);
-    cas(v[1], v[2]), cas(v[3], v[4]), cas(v[5], v[6]);
+    SortNine(v, cas);  // then element n/2 picked without a branch
     const int mid = n / 2;
     float median = v[0];
     for (int j = 1; j < 9; ++j) median = mid == j ? v[j] : median;
@@ -702,8 +776,10 @@ void Median3x3Valid(const float* above, const float* row, const float* below, in
   }
 }
 
-// Median over the valid pixels of each window; NaN stays NaN. Without
-// invalid pixels this is exactly OpenCV's median filter, which is far faster.
+}  // namespace
+
+// Without invalid pixels this is exactly OpenCV's median filter, which is
+// far faster.
 void MedianFilter(int size, const Parallel& parallel, cv::Mat* disparity, cv::Mat* scratch) {
   if (cv::checkRange(*disparity, true)) {  // no NaN
     cv::medianBlur(*disparity, *scratch, size);
@@ -739,6 +815,8 @@ void MedianFilter(int size, const Parallel& parallel, cv::Mat* disparity, cv::Ma
   });
   cv::swap(*disparity, *scratch);
 }
+
+namespace {
 
 // Pixels labelled `label` (without the temporary mask `labels == label`).
 std::size_t CountLabel(const cv::Mat& labels, Label label) {

@@ -244,18 +244,19 @@ struct RefineStats {
 // fresh maps are fresh pages, and on this project's machine (a VM) a page
 // fault costs ~15 µs, ~630 of them a Middlebury scene (README 11.4).
 struct RefineWorkspace {
-  cv::Mat labels;                           // CV_8UC1
-  cv::Mat disparity, scratch;               // CV_32FC1: the map and the next step's output
-  cv::Mat bins;                             // region voting: CV_16SC1
-  cv::Mat reliable_prefix, changed_prefix;  // CV_32SC1, height × (width + 1)
-  cv::Mat changed_flag;                     // CV_8UC1
-  // Region voting: the unreliable pixels column by column, each with its row
+  cv::Mat labels;              // CV_8UC1
+  cv::Mat disparity, scratch;  // CV_32FC1: the map and the next step's output
+  // Region voting: the bins (CV_16SC1), per row prefix counts over x (CV_32SC1,
+  // height × (width + 1)), the changed pixels (CV_8UC1) and the region sums
+  // down the columns (CV_32SC1, (height + 1) × width).
+  cv::Mat bins, reliable_prefix, changed_flag, region;
+  // Region voting: the unreliable pixels row by row, each with its column
   // and the rows [lo, hi) of its vertical arm.
   struct VotingPixel {
-    std::int32_t y, lo, hi;
+    std::int32_t x, lo, hi;
   };
-  std::vector<int> column_start;
-  std::vector<VotingPixel> column_todo;
+  std::vector<int> todo_start;
+  std::vector<VotingPixel> todo;
 };
 
 // The last step of Mei's refinement: each valid pixel of *disparity

@@ -184,82 +184,29 @@ inline int SegmentCount(const Arms& arms, const cv::Mat& prefix, int v, int x) {
   return cp[x + arms.right[j] + 1] - cp[x - arms.left[j]];
 }
 
-// A sum over a window of rows [lo, hi) of one column, moved from one
-// region's rows to the next by the rows that enter and leave (started afresh
-// when the two do not overlap). Integer sums: the same as summing each
-// region's rows.
-struct RowWindow {
-  int lo = 0, hi = 0, sum = 0;
-  template <class RowValue>
-  int Count(int new_lo, int new_hi, const RowValue& row) {
-    if (new_lo >= hi || new_hi <= lo) {
-      sum = 0;
-      lo = hi = new_lo;
-    }
-    for (; hi < new_hi; ++hi) sum += row(hi);
-    for (; lo > new_lo; --lo) sum += row(lo - 1);
-    for (; hi > new_hi; --hi) sum -= row(hi - 1);
-    for (; lo < new_lo; ++lo) sum -= row(lo);
-    return sum;
-  }
-};
-
-// Counts per row and block of kColumns columns, as 2D prefix sums, for an
-// upper bound on what a cross region holds: the rows of its vertical arm and
-// every block its longest horizontal arm (`reach`) can touch.
-class BlockCounts {
- public:
-  static constexpr int kColumns = 32;
-  BlockCounts(int width, int height, int reach)
-      : width_(width),
-        blocks_((width + kColumns - 1) / kColumns),
-        reach_(reach),
-        sums_(static_cast<std::size_t>(height + 1) * (blocks_ + 1), 0) {}
-  int blocks() const { return blocks_; }
-  void Clear() { std::fill(sums_.begin(), sums_.end(), 0); }
-  // Before Accumulate: n more in row y, block b.
-  void Add(int y, int b, int n) { at(y + 1, b + 1) += n; }
-  void Accumulate() {
-    const int rows = static_cast<int>(sums_.size() / (blocks_ + 1));
-    for (int y = 1; y < rows; ++y)
-      for (int b = 1; b <= blocks_; ++b) at(y, b) += at(y - 1, b) + at(y, b - 1) - at(y - 1, b - 1);
-  }
-  // After Accumulate on both (same size): the counts of both together.
-  void AddAccumulated(const BlockCounts& other) {
-    for (std::size_t i = 0; i < sums_.size(); ++i) sums_[i] += other.sums_[i];
-  }
-  // The count over rows [y0, y1) and the blocks within reach of column x.
-  int InReach(int y0, int y1, int x) const {
-    const int b0 = std::max(0, x - reach_) / kColumns;
-    const int b1 = std::min(width_ - 1, x + reach_) / kColumns + 1;
-    return at(y1, b1) - at(y0, b1) - at(y1, b0) + at(y0, b0);
-  }
-
- private:
-  int& at(int row, int b) { return sums_[static_cast<std::size_t>(row) * (blocks_ + 1) + b]; }
-  int at(int row, int b) const { return sums_[static_cast<std::size_t>(row) * (blocks_ + 1) + b]; }
-  int width_, blocks_, reach_;
-  std::vector<int> sums_;
-};
-
 // Iterative region voting. Each unreliable pixel's histogram is the sum over
 // its vertical arm of the histograms of the horizontal segments (its
-// horizontal-first support region). Work goes column by column, down the
-// column's unreliable pixels, with one running histogram of a window of rows:
-// moving from one pixel's vertical arm to the next adds the rows that enter
-// and removes those that leave (arms of neighbouring pixels overlap), instead
-// of counting each region from scratch. The counts are the same integers.
+// horizontal-first support region).
 //
-// Most unreliable pixels (large unmatched areas) have too few reliable
-// pixels in their region to vote at all. That count comes first, from per-row
-// prefix counts of the reliable pixels (one difference per row of the
-// region); only pixels that pass it update the running histogram.
+// Most unreliable pixels never get that far: a vote needs more than tau_s
+// reliable pixels in the region, and a region whose pixels did not change
+// since its vote failed fails again. Those counts are exact and cost two
+// loads a pixel: `region` holds, per column, prefix sums down the rows of
+// each row's segment count (the reliable pixels on the pixel's own
+// horizontal arms), so a region's count is region(hi, x) − region(lo, x).
+// Votes only make pixels reliable, so a region's count rises by exactly the
+// pixels that changed in it, and a bin by at most that: what a pixel's last
+// histogram found (its largest bin) bounds the next, and settles most
+// pixels whose region changed a little.
 //
-// Every iteration reads the maps as the previous one left them: the votes
-// are collected per column and written afterwards. The per-pixel state
-// (bins, the prefix counts) is updated only in the rows that changed, and
-// each column keeps the list of its unreliable pixels, so the later
-// iterations cost what they change, not the image.
+// Each iteration then (1) settles every unreliable pixel it can from the
+// counts, row by row, and lists the rest by column; (2) takes their
+// histograms column by column, down each column's list, in one running
+// histogram of a window of rows (moving from one pixel's vertical arm to the
+// next adds the rows that enter and removes those that leave, instead of
+// counting each region from scratch; the counts are the same integers);
+// (3) writes the votes, and updates the bins and the counts in the rows that
+// changed. Every iteration reads the maps as the previous one left them.
 //
 // With per-pixel ranges (cost has offsets) a pixel takes its region's vote
 // only among the disparities it searched (the votes for others still count
@@ -270,113 +217,152 @@ void RegionVoting(const Arms& arms, const CostVolume& cost, const RefinementOpti
   const int width = disparity->cols, height = disparity->rows;
   const int ndisp = cost.total_ndisp();
   const int range = cost.has_offsets() ? cost.ndisp() : ndisp;
+  if (options.voting_iterations <= 0) return;
   // bins: the disparity index of reliable pixels, ndisp for the others, so the
   // histogram loop needs no branch (bin ndisp collects the unreliable ones).
   cv::Mat& bins = ws->bins;
   bins.create(disparity->size(), CV_16SC1);
   const int nb = ndisp + 1;  // bins per histogram
-  // Per row, prefix counts over x of the reliable pixels.
-  cv::Mat& reliable_prefix = ws->reliable_prefix;
-  reliable_prefix.create(height, width + 1, CV_32SC1);
-  const auto update_row = [&](int y) {
-    const float* d = disparity->ptr<float>(y);
-    const std::uint8_t* lab = labels->ptr<std::uint8_t>(y);
-    std::int16_t* b = bins.ptr<std::int16_t>(y);
-    int* rp = reliable_prefix.ptr<int>(y);
-    rp[0] = 0;
-    for (int x = 0; x < width; ++x) {
-      const bool reliable = lab[x] == kReliable;
-      b[x] = static_cast<std::int16_t>(reliable ? static_cast<int>(d[x]) : ndisp);
-      rp[x + 1] = rp[x] + (reliable ? 1 : 0);
-    }
+  // Per row, prefix counts over x of the reliable pixels (then of the
+  // pixels each iteration changed, in its dirty rows).
+  cv::Mat& row_prefix = ws->reliable_prefix;
+  row_prefix.create(height, width + 1, CV_32SC1);
+  // region(v, x): over rows 0 … v − 1 of column x, the sum of each row's
+  // segment count. Row-parallel first (each row's segment counts in row
+  // v + 1), then summed down the columns on chunks of columns.
+  cv::Mat& region = ws->region;
+  region.create(height + 1, width, CV_32SC1);
+  constexpr int kColumnGrain = 64;
+  const auto segment = [&](int v, int x) {
+    const std::size_t j = arms.index(v, x);
+    const int* rp = row_prefix.ptr<int>(v);
+    return rp[x + arms.right[j] + 1] - rp[x - arms.left[j]];
   };
   parallel.For(0, height, [&](int y0, int y1) {
-    for (int y = y0; y < y1; ++y) update_row(y);
+    for (int y = y0; y < y1; ++y) {
+      const float* d = disparity->ptr<float>(y);
+      const std::uint8_t* lab = labels->ptr<std::uint8_t>(y);
+      std::int16_t* b = bins.ptr<std::int16_t>(y);
+      int* rp = row_prefix.ptr<int>(y);
+      rp[0] = 0;
+      for (int x = 0; x < width; ++x) {
+        const bool reliable = lab[x] == kReliable;
+        b[x] = static_cast<std::int16_t>(reliable ? static_cast<int>(d[x]) : ndisp);
+        rp[x + 1] = rp[x] + (reliable ? 1 : 0);
+      }
+      int* seg = region.ptr<int>(y + 1);
+      for (int x = 0; x < width; ++x) seg[x] = segment(y, x);
+    }
   });
-  // Each column's unreliable pixels, column after column (column x:
-  // todo[start[x] … start[x + 1])), with their vertical arms; counted and
-  // listed on chunks of columns, each chunk down every row.
-  std::vector<int>& start = ws->column_start;
-  std::vector<RefineWorkspace::VotingPixel>& todo = ws->column_todo;
-  start.assign(static_cast<std::size_t>(width) + 1, 0);
-  constexpr int kColumnGrain = 64;
+  std::fill_n(region.ptr<int>(0), width, 0);
   parallel.For(
       0, width,
       [&](int x0, int x1) {
-        int* count = start.data() + 1;
-        for (int y = 0; y < height; ++y) {
-          const std::uint8_t* lab = labels->ptr<std::uint8_t>(y);
-          for (int x = x0; x < x1; ++x) count[x] += lab[x] != kReliable;
+        for (int v = 1; v <= height; ++v) {
+          const int* above = region.ptr<int>(v - 1);
+          int* row = region.ptr<int>(v);
+          for (int x = x0; x < x1; ++x) row[x] += above[x];
         }
       },
       kColumnGrain);
-  for (int x = 0; x < width; ++x) start[x + 1] += start[x];
-  todo.resize(static_cast<std::size_t>(start[width]));
-  parallel.For(
-      0, width,
-      [&](int x0, int x1) {
-        std::vector<int> fill(start.begin() + x0, start.begin() + x1);
-        for (int y = 0; y < height; ++y) {
-          const std::uint8_t* lab = labels->ptr<std::uint8_t>(y);
-          for (int x = x0; x < x1; ++x) {
-            if (lab[x] == kReliable) continue;
-            const std::size_t i = arms.index(y, x);
-            todo[static_cast<std::size_t>(fill[x - x0]++)] = {y, y - arms.up[i],
-                                                              y + arms.down[i] + 1};
-          }
-        }
-      },
-      kColumnGrain);
-  // A pixel whose vote failed keeps failing until a pixel of its region
-  // changes: later iterations revisit only regions with a pixel the previous
-  // iteration made reliable (changed_prefix: per row, prefix counts of those).
-  cv::Mat& changed_prefix = ws->changed_prefix;
-  changed_prefix.create(height, width + 1, CV_32SC1);
-  changed_prefix.setTo(0);
-  cv::Mat& changed_flag = ws->changed_flag;
-  changed_flag.create(height, width, CV_8UC1);
-  changed_flag.setTo(0);
-  struct Vote1 {
-    int y;
-    float disparity;
-  };
-  std::vector<std::vector<Vote1>> votes(static_cast<std::size_t>(width));
-  // What each unreliable pixel's last look at its region found, to settle it
-  // later without the histogram: the region's reliable pixels (exact; −1:
-  // not counted) and an upper bound on its histogram's largest bin (−1:
-  // none). Votes only make pixels reliable, so the `added` pixels that
-  // became reliable since raise the first by exactly `added` and any bin by
-  // at most that: when the vote failed by the bounds it still fails.
-  // `voted`: the pixel took a vote (it is reliable from the next iteration).
+  // The unreliable pixels row by row (row y: todo[row_start[y] …
+  // row_start[y + 1])), with their vertical arms.
+  std::vector<int>& row_start = ws->todo_start;
+  std::vector<RefineWorkspace::VotingPixel>& todo = ws->todo;
+  row_start.assign(static_cast<std::size_t>(height) + 1, 0);
+  parallel.For(0, height, [&](int y0, int y1) {
+    for (int y = y0; y < y1; ++y) {
+      const std::uint8_t* lab = labels->ptr<std::uint8_t>(y);
+      int n = 0;
+      for (int x = 0; x < width; ++x) n += lab[x] != kReliable ? 1 : 0;
+      row_start[y + 1] = n;
+    }
+  });
+  for (int y = 0; y < height; ++y) row_start[y + 1] += row_start[y];
+  todo.resize(static_cast<std::size_t>(row_start[height]));
+  parallel.For(0, height, [&](int y0, int y1) {
+    for (int y = y0; y < y1; ++y) {
+      const std::uint8_t* lab = labels->ptr<std::uint8_t>(y);
+      std::size_t t = static_cast<std::size_t>(row_start[y]);
+      for (int x = 0; x < width; ++x) {
+        if (lab[x] == kReliable) continue;
+        const std::size_t i = arms.index(y, x);
+        todo[t++] = {x, y - arms.up[i], y + arms.down[i] + 1};
+      }
+    }
+  });
+  // What each unreliable pixel's last look found: its region's reliable
+  // pixels (−1: never counted) and an upper bound on its histogram's
+  // largest bin (−1: no histogram yet); `voted`: it took a vote (it is
+  // reliable from the next iteration).
   struct Known {
     std::int16_t reliable = -1, most = -1;
     bool voted = false;
   };
   std::vector<Known> known(todo.size());
-  // Upper bounds first, from counts per row and block of columns: the last
-  // iteration's changes (none in reach: the region did not change) and the
-  // reliable pixels (too few in reach: too few in the region). Most pixels
-  // are settled by one of the two without walking their region's rows.
-  int reach = 0;  // the longest horizontal arm
-  for (std::size_t i = 0; i < arms.left.size(); ++i)
-    reach = std::max({reach, static_cast<int>(arms.left[i]), static_cast<int>(arms.right[i])});
-  BlockCounts changes(width, height, reach), reliable_in_reach(width, height, reach);
-  const auto count_reliable = [&] {
-    reliable_in_reach.Clear();
-    for (int y = 0; y < height; ++y) {
-      const int* rp = reliable_prefix.ptr<int>(y);
-      for (int b = 0; b < reliable_in_reach.blocks(); ++b)
-        reliable_in_reach.Add(
-            y, b,
-            rp[std::min(width, (b + 1) * BlockCounts::kColumns)] - rp[b * BlockCounts::kColumns]);
-    }
-    reliable_in_reach.Accumulate();
+  // The pixels left for a histogram, from blocks of rows, then by column.
+  struct Pending {
+    int t, y, lo, hi, reliable;
   };
-  count_reliable();
-  std::vector<int> dirty_rows, previous_dirty_rows;
+  constexpr int kRowBlock = 16;
+  const int row_blocks = (height + kRowBlock - 1) / kRowBlock;
+  std::vector<std::vector<Pending>> block_pending(static_cast<std::size_t>(row_blocks));
+  std::vector<int> column_start(static_cast<std::size_t>(width) + 1);
+  std::vector<Pending> pending;
+  struct Vote1 {
+    int y;
+    float disparity;
+  };
+  std::vector<std::vector<Vote1>> votes(static_cast<std::size_t>(width));
+  cv::Mat& changed_flag = ws->changed_flag;
+  changed_flag.create(height, width, CV_8UC1);
+  changed_flag.setTo(0);
+  std::vector<int> dirty_rows;
   std::vector<std::uint8_t> row_is_dirty(static_cast<std::size_t>(height), 0);
   std::vector<int> first_changed(static_cast<std::size_t>(height), 0);
   for (int it = 0; it < options.voting_iterations; ++it) {
+    // (1) Settle what the counts settle; list the rest.
+    parallel.For(0, row_blocks, [&](int b0, int b1) {
+      for (int b = b0; b < b1; ++b) {
+        std::vector<Pending>& out = block_pending[static_cast<std::size_t>(b)];
+        out.clear();
+        for (int y = b * kRowBlock; y < std::min(height, (b + 1) * kRowBlock); ++y) {
+          for (int t = row_start[y]; t < row_start[y + 1]; ++t) {
+            Known& kn = known[static_cast<std::size_t>(t)];
+            if (kn.voted) continue;
+            const RefineWorkspace::VotingPixel& p = todo[static_cast<std::size_t>(t)];
+            const int reliable = region.at<int>(p.hi, p.x) - region.at<int>(p.lo, p.x);
+            if (kn.reliable >= 0) {
+              const int added = reliable - kn.reliable;
+              if (added == 0) continue;  // the region did not change: it fails again
+              if (kn.most >= 0) kn.most = static_cast<std::int16_t>(kn.most + added);
+            }
+            kn.reliable = static_cast<std::int16_t>(reliable);
+            if (reliable <= options.tau_s) continue;                            // too few votes
+            if (kn.most >= 0 && kn.most <= options.tau_h * reliable) continue;  // not decisive
+            out.push_back({t, y, p.lo, p.hi, reliable});
+          }
+        }
+      }
+    });
+    // By column, each column's rows in order.
+    std::fill(column_start.begin(), column_start.end(), 0);
+    std::size_t n_pending = 0;
+    for (const std::vector<Pending>& block : block_pending) {
+      for (const Pending& q : block)
+        ++column_start[static_cast<std::size_t>(todo[static_cast<std::size_t>(q.t)].x) + 1];
+      n_pending += block.size();
+    }
+    for (int x = 0; x < width; ++x) column_start[x + 1] += column_start[x];
+    pending.resize(n_pending);
+    {
+      std::vector<int> fill(column_start.begin(), column_start.end() - 1);
+      for (const std::vector<Pending>& block : block_pending)
+        for (const Pending& q : block)
+          pending[static_cast<std::size_t>(
+              fill[static_cast<std::size_t>(todo[static_cast<std::size_t>(q.t)].x)]++)] = q;
+    }
+    // (2) The histograms, column by column.
     parallel.For(0, width, [&](int x0, int x1) {
       std::vector<int> histogram(range), partial(4 * static_cast<std::size_t>(nb));
       for (int x = x0; x < x1; ++x) {
@@ -389,58 +375,30 @@ void RegionVoting(const Arms& arms, const CostVolume& cost, const RefinementOpti
           const int u0 = x - arms.left[j], u1 = x + arms.right[j];
           CountBins(bins.ptr<std::int16_t>(v), u0, u1, delta, partial.data(), nb);
         };
-        // The region counts of the prefix counts likewise, each in a running
-        // window of its own: consecutive unreliable pixels share most rows.
-        RowWindow reliable_window, changed_window;
-        const auto reliable_in_row = [&](int v) {
-          return SegmentCount(arms, reliable_prefix, v, x);
-        };
-        const auto changed_in_row = [&](int v) { return SegmentCount(arms, changed_prefix, v, x); };
-        for (int t = start[x]; t < start[x + 1]; ++t) {
-          Known& kn = known[static_cast<std::size_t>(t)];
-          if (kn.voted) continue;
-          const RefineWorkspace::VotingPixel& pixel = todo[static_cast<std::size_t>(t)];
-          const int y = pixel.y, t_lo = pixel.lo, t_hi = pixel.hi;
-          if (it > 0) {
-            if (changes.InReach(t_lo, t_hi, x) == 0) continue;
-            const int added = changed_window.Count(t_lo, t_hi, changed_in_row);
-            if (added == 0) continue;  // the region did not change
-            if (kn.reliable >= 0) {
-              kn.reliable = static_cast<std::int16_t>(kn.reliable + added);
-              if (kn.most >= 0) kn.most = static_cast<std::int16_t>(kn.most + added);
-              if (kn.reliable <= options.tau_s) continue;
-              if (kn.most >= 0 && kn.most <= options.tau_h * kn.reliable) continue;
-            }
-          }
-          int reliable = kn.reliable;
-          if (reliable < 0) {
-            if (reliable_in_reach.InReach(t_lo, t_hi, x) <= options.tau_s) continue;
-            // Too few reliable votes: no vote, and no need for the histogram.
-            reliable = reliable_window.Count(t_lo, t_hi, reliable_in_row);
-            kn.reliable = static_cast<std::int16_t>(reliable);
-            if (reliable <= options.tau_s) continue;
-          }
-          if (t_lo >= w_hi || t_hi <= w_lo) {  // no overlap: start afresh
+        for (int q = column_start[x]; q < column_start[x + 1]; ++q) {
+          const Pending& p = pending[static_cast<std::size_t>(q)];
+          if (p.lo >= w_hi || p.hi <= w_lo) {  // no overlap: start afresh
             std::fill(partial.begin(), partial.end(), 0);
-            w_lo = w_hi = t_lo;
+            w_lo = w_hi = p.lo;
           }
-          for (; w_hi < t_hi; ++w_hi) add_row(w_hi, 1);
-          for (; w_lo > t_lo; --w_lo) add_row(w_lo - 1, 1);
-          for (; w_hi > t_hi; --w_hi) add_row(w_hi - 1, -1);
-          for (; w_lo < t_lo; ++w_lo) add_row(w_lo, -1);
-          const int offset = cost.offset(y, x);
+          for (; w_hi < p.hi; ++w_hi) add_row(w_hi, 1);
+          for (; w_lo > p.lo; --w_lo) add_row(w_lo - 1, 1);
+          for (; w_hi > p.hi; --w_hi) add_row(w_hi - 1, -1);
+          for (; w_lo < p.lo; ++w_lo) add_row(w_lo, -1);
+          const int offset = cost.offset(p.y, x);
           SumPartials(partial.data() + offset, nb, range, histogram.data());
           int most = 0;
-          const int k = Vote(histogram.data(), range, reliable, options, &most);
+          const int k = Vote(histogram.data(), range, p.reliable, options, &most);
+          Known& kn = known[static_cast<std::size_t>(p.t)];
           kn.most = static_cast<std::int16_t>(most);
           if (k >= 0) {
-            column_votes.push_back({y, static_cast<float>(offset + k)});
+            column_votes.push_back({p.y, static_cast<float>(offset + k)});
             kn.voted = true;
           }
         }
       }
     });
-    // Write the votes; note the rows they touch, and in each the first
+    // (3) Write the votes; note the rows they touch, and in each the first
     // column changed (columns go in order).
     dirty_rows.clear();
     for (int x = 0; x < width; ++x) {
@@ -456,43 +414,50 @@ void RegionVoting(const Arms& arms, const CostVolume& cost, const RefinementOpti
       }
     }
     if (dirty_rows.empty()) break;
-    changes.Clear();
-    for (int x = 0; x < width; ++x)
-      for (const Vote1& v : votes[static_cast<std::size_t>(x)])
-        changes.Add(v.y, x / BlockCounts::kColumns, 1);
-    changes.Accumulate();
-    // changed_prefix: this iteration's changes only (the rows of the last
-    // iteration's go back to zero).
-    for (int y : previous_dirty_rows) {
-      int* cp = changed_prefix.ptr<int>(y);
-      std::fill(cp, cp + width + 1, 0);
-    }
-    // Only the changed pixels (now reliable) change: their bins, and every
-    // reliable prefix count from the first of them on, by the changed count
-    // before it (as update_row would recount them).
-    parallel.For(0, static_cast<int>(dirty_rows.size()), [&](int r0, int r1) {
-      for (int r = r0; r < r1; ++r) {
-        const int y = dirty_rows[static_cast<std::size_t>(r)];
-        const float* d = disparity->ptr<float>(y);
-        std::int16_t* b = bins.ptr<std::int16_t>(y);
-        int* rp = reliable_prefix.ptr<int>(y);
-        std::uint8_t* flag = changed_flag.ptr<std::uint8_t>(y);
-        int* cp = changed_prefix.ptr<int>(y);
-        int changed = 0;
-        for (int x = first_changed[static_cast<std::size_t>(y)]; x < width; ++x) {
-          if (flag[x]) {
-            b[x] = static_cast<std::int16_t>(static_cast<int>(d[x]));
-            flag[x] = 0;
-            ++changed;
+    if (it + 1 < options.voting_iterations) {
+      // The changed pixels' bins; the dirty rows' prefix counts of them
+      // (row_prefix now counts the changes there); then every region sum
+      // below the first dirty row gains the changes' segment counts above.
+      parallel.For(0, static_cast<int>(dirty_rows.size()), [&](int r0, int r1) {
+        for (int r = r0; r < r1; ++r) {
+          const int y = dirty_rows[static_cast<std::size_t>(r)];
+          const float* d = disparity->ptr<float>(y);
+          std::int16_t* b = bins.ptr<std::int16_t>(y);
+          std::uint8_t* flag = changed_flag.ptr<std::uint8_t>(y);
+          int* cp = row_prefix.ptr<int>(y);
+          const int first = first_changed[static_cast<std::size_t>(y)];
+          std::fill(cp, cp + first + 1, 0);
+          int changed = 0;
+          for (int x = first; x < width; ++x) {
+            if (flag[x]) {
+              b[x] = static_cast<std::int16_t>(static_cast<int>(d[x]));
+              flag[x] = 0;
+              ++changed;
+            }
+            cp[x + 1] = changed;
           }
-          cp[x + 1] = changed;
-          rp[x + 1] += changed;
         }
+      });
+      const int top = *std::min_element(dirty_rows.begin(), dirty_rows.end());
+      parallel.For(
+          0, width,
+          [&](int x0, int x1) {
+            std::vector<int> gained(static_cast<std::size_t>(x1 - x0), 0);
+            for (int v = top; v < height; ++v) {
+              if (row_is_dirty[static_cast<std::size_t>(v)])
+                for (int x = x0; x < x1; ++x) gained[x - x0] += segment(v, x);
+              int* row = region.ptr<int>(v + 1);
+              for (int x = x0; x < x1; ++x) row[x] += gained[x - x0];
+            }
+          },
+          kColumnGrain);
+    } else {
+      for (int y : dirty_rows) {
+        std::uint8_t* flag = changed_flag.ptr<std::uint8_t>(y);
+        std::fill(flag, flag + width, 0);
       }
-    });
+    }
     for (int y : dirty_rows) row_is_dirty[static_cast<std::size_t>(y)] = 0;
-    previous_dirty_rows.swap(dirty_rows);
-    reliable_in_reach.AddAccumulated(changes);
   }
 }
 

@@ -622,7 +622,7 @@ bool PassesLeftRight(const float* r, int width, int xr, float dl, double toleran
   return false;
 }
 
-TEST(Scanline, RunnerUpCostsAreTheVolumes) {
+TEST(Scanline, RunnerUpCostsAndWinnerSumsAreTheVolumes) {
   const cv::Mat left = RandomTexture(160, 96, 41);
   cv::Mat gt;
   const cv::Mat right = RenderRightView(left, 24, 0.04, 0, &gt);
@@ -638,10 +638,11 @@ TEST(Scanline, RunnerUpCostsAreTheVolumes) {
     const Arms arms = adcensus::BuildArms(left, pre.gradient, pre.edges, o, parallel);
     adcensus::CostVolume volume(left.cols, left.rows, ndisp);
     const adcensus::CostComputer costs(left, right, cl, cr, 0, ndisp, 10, 30, 1.0);
-    cv::Mat l, r, runner_up;
+    cv::Mat l, r, runner_up, winner_sums;
     adcensus::ScanlineOptimize(left, right, 0, o, parallel, nullptr, &costs, &volume, &l, &r,
-                               &runner_up);
+                               &runner_up, &winner_sums);
     ASSERT_EQ(runner_up.type(), CV_32SC2);
+    ASSERT_EQ(winner_sums.type(), CV_16SC3);
     int checked = 0, with_runner_up = 0;
     for (int y = 0; y < left.rows; ++y) {
       for (int x = 0; x < left.cols; ++x) {
@@ -654,6 +655,10 @@ TEST(Scanline, RunnerUpCostsAreTheVolumes) {
         ASSERT_EQ(given[0], c[k]) << y << "," << x;
         ASSERT_EQ(given[1], brute) << y << "," << x;
         ASSERT_EQ(adcensus::RunnerUpCost(c, ndisp, volume.stride(), k), brute);
+        const cv::Vec3s sums = winner_sums.at<cv::Vec3s>(y, x);
+        ASSERT_EQ(sums[0], k > 0 ? c[k - 1] : 0) << y << "," << x;
+        ASSERT_EQ(sums[1], c[k]) << y << "," << x;
+        ASSERT_EQ(sums[2], c[k + 1]) << y << "," << x;  // k + 1 < 40 < the stride
         ++checked;
         with_runner_up += brute != adcensus::kNoRunnerUp;
       }
@@ -666,6 +671,19 @@ TEST(Scanline, RunnerUpCostsAreTheVolumes) {
                                        &from_volume, nullptr);
     EXPECT_TRUE(SameOrBothNaN(a, b, 0));
     EXPECT_EQ(from_pass.ambiguous_pct, from_volume.ambiguous_pct);
+    // The sub-pixel step from the kept sums: the same values to the bit.
+    const cv::Mat kept = adcensus::Refine(l, r, volume, 0, left, arms, o.refinement, parallel,
+                                          nullptr, &runner_up, nullptr, &winner_sums)
+                             .clone();
+    ASSERT_EQ(kept.size(), a.size());
+    EXPECT_EQ(std::memcmp(kept.data, a.data, a.total() * a.elemSize()), 0);
+    int fractional = 0;  // the step moved them
+    for (int y = 0; y < kept.rows; ++y)
+      for (int x = 0; x < kept.cols; ++x) {
+        const float v = kept.at<float>(y, x);
+        fractional += IsValidDisparity(v) && v != std::floor(v) ? 1 : 0;
+      }
+    EXPECT_GT(fractional, static_cast<int>(kept.total() / 4));
     // The left-right check's labels against a brute-force search: a pixel
     // failing it is a mismatch when some disparity j has r(x − j) = j.
     int mismatched = 0, occluded = 0;

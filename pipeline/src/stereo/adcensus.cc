@@ -122,6 +122,7 @@ struct StereoMatcher::Workspace {
   adcensus::PassFactors pass_factors;          // the aggregation's
   adcensus::RefineWorkspace refine;            // the refinement's maps
   cv::Mat left_index, right_index, runner_up;  // the winners (CV_32FC1) and costs
+  cv::Mat winner_sums;                         // the sums around them (CV_16SC3)
   std::unique_ptr<StereoMatcher> coarse;       // coarse-to-fine's first pass
   // The memory of the last result's two maps, written again by the next
   // call once the caller has let go of them (Reusable).
@@ -409,15 +410,21 @@ DisparityResult StereoMatcher::Compute(const cv::Mat& left, const cv::Mat& right
     cv::Mat& runner_up = workspace_->runner_up;
     cv::Mat* const wants_runner_up =
         options.refinement.enabled && options.refinement.uniqueness > 0 ? &runner_up : nullptr;
+    cv::Mat* const wants_winner_sums =
+        options.refinement.enabled && options.refinement.subpixel && options.scanline_optimization
+            ? &workspace_->winner_sums
+            : nullptr;
     const adcensus::CostVolume* final_cost = &cost;
     if (recompute) {
       // The costs are cheap to compute row by row: the volume holds only
       // the scanline sums.
       adcensus::ScanlineOptimize(img_l, img_r, dmin, options, parallel, nullptr, &cost_computer,
-                                 &cost, &left_index, &right_index, wants_runner_up);
+                                 &cost, &left_index, &right_index, wants_runner_up,
+                                 wants_winner_sums);
     } else if (options.scanline_optimization) {
       adcensus::ScanlineOptimize(img_l, img_r, dmin, options, parallel, &cost, nullptr,
-                                 &workspace_->scratch, &left_index, &right_index, wants_runner_up);
+                                 &workspace_->scratch, &left_index, &right_index, wants_runner_up,
+                                 wants_winner_sums);
       final_cost = &workspace_->scratch;
     }
     result.time_ms.scanline = MsSince(t);
@@ -431,7 +438,7 @@ DisparityResult StereoMatcher::Compute(const cv::Mat& left, const cv::Mat& right
       index = adcensus::Refine(
           left_index, right_index, *final_cost, dmin, img_l, arms, options.refinement, parallel,
           &stats, wants_runner_up && options.scanline_optimization ? &runner_up : nullptr,
-          &workspace_->refine);
+          &workspace_->refine, wants_winner_sums);
       result.occluded_pct = stats.occluded_pct;
       result.mismatch_pct = stats.mismatch_pct;
       result.ambiguous_pct = stats.ambiguous_pct;

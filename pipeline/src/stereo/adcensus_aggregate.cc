@@ -664,7 +664,8 @@ Cost ToPenalty(double value) {
 void ScanlineOptimize(const cv::Mat& left, const cv::Mat& right, int min_disparity,
                       const ADCensusOptions& options, const Parallel& parallel,
                       const CostVolume* cost, const CostComputer* recompute, CostVolume* result,
-                      cv::Mat* left_index, cv::Mat* right_index, cv::Mat* runner_up) {
+                      cv::Mat* left_index, cv::Mat* right_index, cv::Mat* runner_up,
+                      cv::Mat* winner_sums) {
   if (cost) {
     result->Reshape(cost->width(), cost->height(), cost->ndisp());
     result->CopyOffsetsFrom(*cost);
@@ -693,18 +694,29 @@ void ScanlineOptimize(const cv::Mat& left, const cv::Mat& right, int min_dispari
   left_index->create(height, width, CV_32FC1);
   right_index->create(height, width, CV_32FC1);
   if (runner_up) runner_up->create(height, width, CV_32SC2);
+  if (winner_sums) winner_sums->create(height, width, CV_16SC3);
   const int held = in.ndisp();
+  // What the refinement reads of a winner's sum while it is in cache.
+  const auto keep = [&](int y, int x, const Cost* out, int k) {
+    if (runner_up) {
+      std::int32_t* u = runner_up->ptr<std::int32_t>(y) + 2 * x;
+      u[0] = out[k];
+      u[1] = RunnerUp(out, held, stride, k);
+    }
+    if (winner_sums) {
+      Cost* w = winner_sums->ptr<Cost>(y) + 3 * x;
+      w[0] = k > 0 ? out[k - 1] : Cost{0};
+      w[1] = out[k];
+      w[2] = k + 1 < stride ? out[k + 1] : Cost{0};
+    }
+  };
   // The winners of the final sum S(y, x) (`out`), pixels offered to the right
   // view's winners in decreasing x or all in increasing x.
   const auto finish = [&](int y, int x, int o, const Cost* out, float* l, bool decreasing_x,
                           RightWinners* winners) {
     const int k = ArgMin(out, stride);
     l[x] = static_cast<float>(o + k);
-    if (runner_up) {
-      std::int32_t* u = runner_up->ptr<std::int32_t>(y) + 2 * x;
-      u[0] = out[k];
-      u[1] = RunnerUp(out, held, stride, k);
-    }
+    keep(y, x, out, k);
     winners->Offer(x, out, decreasing_x, o);
   };
 
@@ -819,11 +831,7 @@ void ScanlineOptimize(const cv::Mat& left, const cv::Mat& right, int min_dispari
             } else {
               const int k = winners.AddSumOffer(x, vc, &hcur[pad], out, sweep == 1, o);
               l[x] = static_cast<float>(o + k);
-              if (runner_up) {
-                std::int32_t* u = runner_up->ptr<std::int32_t>(y) + 2 * x;
-                u[0] = out[k];
-                u[1] = RunnerUp(out, held, stride, k);
-              }
+              keep(y, x, out, k);
             }
             std::swap(hprev, hcur);
           }

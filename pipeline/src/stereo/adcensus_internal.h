@@ -218,10 +218,14 @@ int SupportSize(const Arms& arms, int y, int x, bool horizontal_first);
 // With `runner_up` (may be null) it also gives each left pixel's winning and
 // runner-up costs (RunnerUpCost) while the sum is in cache (CV_32SC2), which
 // the refinement's uniqueness test would otherwise read from the volume again.
+// With `winner_sums` (may be null) likewise the final sums at the winning
+// lane and its two neighbours, S(k − 1), S(k), S(k + 1) (CV_16SC3; 0 where a
+// neighbour lies outside the lanes), for the sub-pixel step.
 void ScanlineOptimize(const cv::Mat& left, const cv::Mat& right, int min_disparity,
                       const ADCensusOptions& options, const Parallel& parallel,
                       const CostVolume* cost, const CostComputer* recompute, CostVolume* result,
-                      cv::Mat* left_index, cv::Mat* right_index, cv::Mat* runner_up = nullptr);
+                      cv::Mat* left_index, cv::Mat* right_index, cv::Mat* runner_up = nullptr,
+                      cv::Mat* winner_sums = nullptr);
 
 // The uniqueness test's runner-up: the least of c[j] over the disparities a
 // pixel holds (j < n) at least 2 from its winner k (|j − k| ≥ 2; the winner's
@@ -257,6 +261,27 @@ struct RefineWorkspace {
   };
   std::vector<int> todo_start;
   std::vector<VotingPixel> todo;
+  // What each one's last look found: its region's reliable pixels (−1: never
+  // counted) and an upper bound on its histogram's largest bin (−1: no
+  // histogram yet); `voted`: it took a vote (reliable from the next
+  // iteration).
+  struct VotingState {
+    std::int16_t reliable = -1, most = -1;
+    bool voted = false;
+  };
+  std::vector<VotingState> known;
+  // Those left for a histogram (todo index, row, arm, reliable count), from
+  // blocks of rows, then by column; the votes by column.
+  struct VotingPending {
+    int t, y, lo, hi, reliable;
+  };
+  std::vector<std::vector<VotingPending>> block_pending;
+  std::vector<VotingPending> pending;
+  struct Vote {
+    int y;
+    float disparity;
+  };
+  std::vector<std::vector<Vote>> votes;
 };
 
 // The last step of Mei's refinement: each valid pixel of *disparity
@@ -271,9 +296,13 @@ void MedianFilter(int size, const Parallel& parallel, cv::Mat* disparity, cv::Ma
 // for the uniqueness test, the same as `cost` and RunnerUpCost would give.
 // `workspace` (may be null: a fresh one per call): the result is its
 // `disparity`, valid until the next call with the same workspace.
+// `winner_sums` (may be null): ScanlineOptimize's sums around each left
+// pixel's winner; the sub-pixel step reads them instead of the volume where
+// the refined disparity is still the winner.
 cv::Mat Refine(const cv::Mat& left_index, const cv::Mat& right_index, const CostVolume& cost,
                int min_disparity, const cv::Mat& left_image, const Arms& arms,
                const RefinementOptions& options, const Parallel& parallel, RefineStats* stats,
-               const cv::Mat* runner_up = nullptr, RefineWorkspace* workspace = nullptr);
+               const cv::Mat* runner_up = nullptr, RefineWorkspace* workspace = nullptr,
+               const cv::Mat* winner_sums = nullptr);
 
 }  // namespace craftscan::adcensus

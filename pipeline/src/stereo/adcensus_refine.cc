@@ -291,29 +291,20 @@ void RegionVoting(const Arms& arms, const CostVolume& cost, const RefinementOpti
       }
     }
   });
-  // What each unreliable pixel's last look found: its region's reliable
-  // pixels (−1: never counted) and an upper bound on its histogram's
-  // largest bin (−1: no histogram yet); `voted`: it took a vote (it is
-  // reliable from the next iteration).
-  struct Known {
-    std::int16_t reliable = -1, most = -1;
-    bool voted = false;
-  };
-  std::vector<Known> known(todo.size());
-  // The pixels left for a histogram, from blocks of rows, then by column.
-  struct Pending {
-    int t, y, lo, hi, reliable;
-  };
+  // The workspace keeps these between calls: fresh ones each call would be
+  // fresh pages (README 11.4).
+  std::vector<RefineWorkspace::VotingState>& known = ws->known;
+  known.assign(todo.size(), {});
+  using Pending = RefineWorkspace::VotingPending;
+  using Vote1 = RefineWorkspace::Vote;
   constexpr int kRowBlock = 16;
   const int row_blocks = (height + kRowBlock - 1) / kRowBlock;
-  std::vector<std::vector<Pending>> block_pending(static_cast<std::size_t>(row_blocks));
+  std::vector<std::vector<Pending>>& block_pending = ws->block_pending;
+  block_pending.resize(static_cast<std::size_t>(row_blocks));
   std::vector<int> column_start(static_cast<std::size_t>(width) + 1);
-  std::vector<Pending> pending;
-  struct Vote1 {
-    int y;
-    float disparity;
-  };
-  std::vector<std::vector<Vote1>> votes(static_cast<std::size_t>(width));
+  std::vector<Pending>& pending = ws->pending;
+  std::vector<std::vector<Vote1>>& votes = ws->votes;
+  votes.resize(static_cast<std::size_t>(width));
   cv::Mat& changed_flag = ws->changed_flag;
   changed_flag.create(height, width, CV_8UC1);
   changed_flag.setTo(0);
@@ -328,7 +319,7 @@ void RegionVoting(const Arms& arms, const CostVolume& cost, const RefinementOpti
         out.clear();
         for (int y = b * kRowBlock; y < std::min(height, (b + 1) * kRowBlock); ++y) {
           for (int t = row_start[y]; t < row_start[y + 1]; ++t) {
-            Known& kn = known[static_cast<std::size_t>(t)];
+            RefineWorkspace::VotingState& kn = known[static_cast<std::size_t>(t)];
             if (kn.voted) continue;
             const RefineWorkspace::VotingPixel& p = todo[static_cast<std::size_t>(t)];
             const int reliable = region.at<int>(p.hi, p.x) - region.at<int>(p.lo, p.x);
@@ -389,7 +380,7 @@ void RegionVoting(const Arms& arms, const CostVolume& cost, const RefinementOpti
           SumPartials(partial.data() + offset, nb, range, histogram.data());
           int most = 0;
           const int k = Vote(histogram.data(), range, p.reliable, options, &most);
-          Known& kn = known[static_cast<std::size_t>(p.t)];
+          RefineWorkspace::VotingState& kn = known[static_cast<std::size_t>(p.t)];
           kn.most = static_cast<std::int16_t>(most);
           if (k >= 0) {
             column_votes.push_back({p.y, static_cast<float>(offset + k)});
@@ -639,20 +630,34 @@ void AdjustDiscontinuities(const CostVolume& cost, const Parallel& parallel, cv:
   cv::swap(*disparity, *scratch);
 }
 
-void Subpixel(const CostVolume& cost, const Parallel& parallel, cv::Mat* disparity) {
+// `winner_sums` (may be null): the volume's values around each pixel's
+// winner (`winners`: the winner-take-all's indices), read instead of the
+// volume where the disparity is still the winner: the volume is far larger
+// than the caches, and a pixel's read of it is a miss.
+void Subpixel(const CostVolume& cost, const cv::Mat& winners, const cv::Mat* winner_sums,
+              const Parallel& parallel, cv::Mat* disparity) {
   const int ndisp = cost.ndisp();
   parallel.For(0, disparity->rows, [&](int y0, int y1) {
     for (int y = y0; y < y1; ++y) {
       float* d = disparity->ptr<float>(y);
+      const float* won = winners.ptr<float>(y);
+      const Cost* sums = winner_sums ? winner_sums->ptr<Cost>(y) : nullptr;
       for (int x = 0; x < disparity->cols; ++x) {
         if (!IsValidDisparity(d[x])) continue;
         const int offset = cost.offset(y, x);
         const int k = static_cast<int>(d[x]) - offset;
         if (k <= 0 || k >= ndisp - 1) continue;
-        const Cost* c = cost.at(y, x);
-        const int denom = c[k - 1] + c[k + 1] - 2 * c[k];  // integer costs: > 0 or flat
+        int before, at, after;  // the sums at k − 1, k, k + 1
+        if (sums && static_cast<int>(won[x]) == k + offset) {
+          const Cost* w = sums + 3 * x;
+          before = w[0], at = w[1], after = w[2];
+        } else {
+          const Cost* c = cost.at(y, x);
+          before = c[k - 1], at = c[k], after = c[k + 1];
+        }
+        const int denom = before + after - 2 * at;  // integer costs: > 0 or flat
         if (denom <= 0) continue;
-        const float shift = static_cast<float>(c[k - 1] - c[k + 1]) / static_cast<float>(2 * denom);
+        const float shift = static_cast<float>(before - after) / static_cast<float>(2 * denom);
         d[x] = static_cast<float>(k + offset) + std::clamp(shift, -0.5f, 0.5f);
       }
     }
@@ -798,7 +803,7 @@ std::size_t CountLabel(const cv::Mat& labels, Label label) {
 cv::Mat Refine(const cv::Mat& left_index, const cv::Mat& right_index, const CostVolume& cost,
                int min_disparity, const cv::Mat& left_image, const Arms& arms,
                const RefinementOptions& options, const Parallel& parallel, RefineStats* stats,
-               const cv::Mat* runner_up, RefineWorkspace* workspace) {
+               const cv::Mat* runner_up, RefineWorkspace* workspace, const cv::Mat* winner_sums) {
   RefineWorkspace own;
   RefineWorkspace& ws = workspace ? *workspace : own;
   cv::Mat& labels = ws.labels;
@@ -825,7 +830,7 @@ cv::Mat Refine(const cv::Mat& left_index, const cv::Mat& right_index, const Cost
   }
   if (options.adjust_discontinuities)
     AdjustDiscontinuities(cost, parallel, &disparity, &ws.scratch);
-  if (options.subpixel) Subpixel(cost, parallel, &disparity);
+  if (options.subpixel) Subpixel(cost, left_index, winner_sums, parallel, &disparity);
   if (options.median_size > 1) MedianFilter(options.median_size, parallel, &disparity, &ws.scratch);
   return disparity;
 }

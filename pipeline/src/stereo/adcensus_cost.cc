@@ -534,11 +534,16 @@ void BuildArms(const cv::Mat& image, const cv::Mat& gradient, const cv::Mat& edg
     lim.tau2.resize(width);
     std::vector<std::uint8_t> active(width), d_anchor(width);
     std::vector<std::uint8_t> prev_diff_h(width), grad_ok(width, 1);
+    const double beta_max = options.improved.beta_max;
+    const bool canny = options.improved.canny_edges_are_edges && !edges.empty();
     for (int y = y0; y < y1; ++y) {
       const float* g = improved ? gradient.ptr<float>(y) : nullptr;
+      const std::uint8_t* e = improved && canny ? edges.ptr<std::uint8_t>(y) : nullptr;
       for (int x = 0; x < width; ++x) {
-        const ArmLimits& l =
-            improved && IsEdgePixel(gradient, edges, y, x, options.improved) ? edge : weak;
+        // IsEdgePixel, on the row's pointers.
+        const bool is_edge =
+            improved && (static_cast<double>(g[x]) >= beta_max || (e && e[x] != 0));
+        const ArmLimits& l = is_edge ? edge : weak;
         lim.max_len[x] = static_cast<std::uint8_t>(std::min(l.max_len, 255));
         lim.l2[x] = FloorU8(l.l2);
         lim.tau[x] = CeilU8(l.tau);

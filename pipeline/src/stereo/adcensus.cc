@@ -388,8 +388,11 @@ DisparityResult StereoMatcher::Compute(const cv::Mat& left, const cv::Mat& right
     // The station's matcher (scanline paths straight on the matching costs)
     // computes them row by row as its paths need them, so here only the
     // census transforms count as "cost".
+    // With aggregation the costs are computed as its first pass takes them
+    // (its time is counted as aggregation).
     const bool recompute = options.scanline_optimization && options.aggregation_iterations == 0;
-    if (!recompute) adcensus::ComputeCost(cost_computer, parallel, &cost);
+    const bool fused = !recompute && options.aggregation_iterations > 0;
+    if (!recompute && !fused) adcensus::ComputeCost(cost_computer, parallel, &cost);
     result.time_ms.cost = MsSince(t);
 
     t = Clock::now();
@@ -399,7 +402,7 @@ DisparityResult StereoMatcher::Compute(const cv::Mat& left, const cv::Mat& right
 
     t = Clock::now();
     adcensus::Aggregate(arms, options.aggregation_iterations, parallel, &cost,
-                        &workspace_->pass_factors);
+                        &workspace_->pass_factors, fused ? &cost_computer : nullptr);
     result.time_ms.aggregation = MsSince(t);
 
     // Scanline optimization (when on) is fused with the winner-take-all; its

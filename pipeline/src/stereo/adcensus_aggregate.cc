@@ -122,22 +122,34 @@ inline void WindowMean(const Prefix* __restrict hi, const Prefix* __restrict lo,
 
 // Runs consecutive horizontal passes on each row while the row is in cache:
 // one read and one write of the volume however many passes there are.
+// With `source`, the first pass takes each row's matching costs from it
+// (computed into a row buffer) instead of reading them from the volume.
 // Working memory per thread: a prefix-sum row, (width + 1) × stride uint32.
 void HorizontalPasses(const Arms& arms, std::initializer_list<Pass> passes,
-                      const Parallel& parallel, CostVolume* cost) {
+                      const Parallel& parallel, CostVolume* cost,
+                      const CostComputer* source = nullptr) {
   const int width = cost->width(), stride = cost->stride();
   parallel.For(0, cost->height(), [&](int y0, int y1) {
     // Per thread, kept between chunks and calls: a fresh buffer per chunk
     // is a fresh mapping, page faults and zeroing each time.
     thread_local std::vector<Prefix> prefix;
+    thread_local std::vector<Cost> costs;
+    thread_local CostComputer::Scratch scratch;
     prefix.resize(static_cast<std::size_t>(width + 1) * stride);
+    if (source) costs.resize(static_cast<std::size_t>(width) * stride);
     for (int y = y0; y < y1; ++y) {
+      const Cost* in = cost->at(y, 0);
+      if (source) {
+        source->Row(y, &scratch, costs.data(), cost->offset_row(y));
+        in = costs.data();
+      }
       for (const Pass& pass : passes) {
         std::fill_n(prefix.data(), stride, 0);
         for (int x = 0; x < width; ++x) {
           const std::int32_t w = pass.weight ? (*pass.weight)[arms.index(y, x)] : 1;
-          AccumulateWeighted(&prefix[static_cast<std::size_t>(x) * stride], cost->at(y, x), w,
-                             stride, &prefix[static_cast<std::size_t>(x + 1) * stride]);
+          AccumulateWeighted(&prefix[static_cast<std::size_t>(x) * stride],
+                             in + static_cast<std::size_t>(x) * stride, w, stride,
+                             &prefix[static_cast<std::size_t>(x + 1) * stride]);
         }
         for (int x = 0; x < width; ++x) {
           const std::size_t i = arms.index(y, x);
@@ -145,6 +157,7 @@ void HorizontalPasses(const Arms& arms, std::initializer_list<Pass> passes,
                      &prefix[static_cast<std::size_t>(x - arms.left[i]) * stride], (*pass.scale)[i],
                      stride, cost->at(y, x));
         }
+        in = cost->at(y, 0);  // the next pass reads this one's output
       }
     }
   });
@@ -307,8 +320,11 @@ int SupportSize(const Arms& arms, int y, int x, bool horizontal_first) {
 }
 
 void Aggregate(const Arms& arms, int iterations, const Parallel& parallel, CostVolume* cost,
-               PassFactors* factors) {
-  if (iterations <= 0) return;
+               PassFactors* factors, const CostComputer* source) {
+  if (iterations <= 0) {
+    if (source) ComputeCost(*source, parallel, cost);
+    return;
+  }
   PassFactors temporary;
   PassFactors& f = factors ? *factors : temporary;
   ComputePassFactors(arms, iterations > 1, parallel, &f);
@@ -318,7 +334,7 @@ void Aggregate(const Arms& arms, int iterations, const Parallel& parallel, CostV
   // H | V V | H H | V V | H for 4 iterations.
   const Pass h_start{nullptr, &f.inv_len_h}, v_start{nullptr, &f.inv_len_v};
   const Pass v_end{&f.len_h, &f.inv_support_h}, h_end{&f.len_v, &f.inv_support_v};
-  HorizontalPasses(arms, {h_start}, parallel, cost);
+  HorizontalPasses(arms, {h_start}, parallel, cost, source);
   for (int it = 0; it < iterations; ++it) {
     const bool last = it + 1 == iterations;
     if (it % 2 == 0) {

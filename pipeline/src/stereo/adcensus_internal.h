@@ -197,8 +197,13 @@ struct PassFactors {
 // (even) and vertical-first (odd); each result is normalized by the number of
 // pixels in the support region and rounded to the nearest integer cost.
 // `factors`: working memory (may be null: a temporary one).
+// With `source`, the matching costs are not read from *cost but computed row
+// by row by `source` as the first (horizontal) pass takes them, while each
+// row is in cache: the volume is written once, with the pass's output, and
+// never holds the raw costs. The result is the same as ComputeCost then
+// Aggregate.
 void Aggregate(const Arms& arms, int iterations, const Parallel& parallel, CostVolume* cost,
-               PassFactors* factors = nullptr);
+               PassFactors* factors = nullptr, const CostComputer* source = nullptr);
 
 // Support-region pixel count of (y, x) for horizontal-first (true) or
 // vertical-first aggregation.

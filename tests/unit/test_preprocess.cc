@@ -65,6 +65,35 @@ TEST(Preprocess, EqualizedOnlySkipsGradientAndEdges) {
   EXPECT_FALSE(all.edges.empty());
 }
 
+// The grey parts give the same grey, gradient and edges as everything, for
+// grey and colour inputs, with and without equalization, and no image.
+TEST(Preprocess, GreyPartsEqualTheWholeWithoutTheImage) {
+  const cv::Mat grey = testing::RandomTexture(64, 48, 7, 1);
+  cv::Mat colour;
+  cv::merge(std::vector<cv::Mat>{testing::RandomTexture(64, 48, 8, 1), grey,
+                                 testing::RandomTexture(64, 48, 9, 1)},
+            colour);
+  for (const cv::Mat& img : {grey, colour}) {
+    for (const bool equalize : {true, false}) {
+      PreprocessOptions o;
+      o.equalize = equalize;
+      const Preprocessed all = Preprocess(img, o);
+      const Preprocessed edges = Preprocess(img, o, PreprocessParts::kGreyAndEdges);
+      const Preprocessed only = Preprocess(img, o, PreprocessParts::kGreyOnly);
+      ASSERT_TRUE(edges.IsUsable() && only.IsUsable()) << edges.message << only.message;
+      EXPECT_EQ(cv::norm(all.grey, edges.grey, cv::NORM_INF), 0);
+      EXPECT_EQ(cv::norm(all.grey, only.grey, cv::NORM_INF), 0);
+      EXPECT_EQ(cv::norm(all.gradient, edges.gradient, cv::NORM_INF), 0);
+      EXPECT_EQ(cv::norm(all.edges, edges.edges, cv::NORM_INF), 0);
+      EXPECT_EQ(all.canny_low, edges.canny_low);
+      EXPECT_TRUE(edges.image.empty());
+      EXPECT_TRUE(only.image.empty());
+      EXPECT_TRUE(only.edges.empty());
+      EXPECT_TRUE(only.gradient.empty());
+    }
+  }
+}
+
 // The inputs that used to throw std::invalid_argument: a failed result that
 // says why, never an exception.
 TEST(Preprocess, BadInputFailsWithTheReason) {

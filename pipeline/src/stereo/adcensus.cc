@@ -117,7 +117,7 @@ struct StereoMatcher::Workspace {
   adcensus::CostVolume cost, scratch;  // aggregated costs; scanline sums
   std::vector<std::uint64_t> census_left, census_right;
   Preprocessed preprocessed_left, preprocessed_right;
-  PreprocessScratch preprocess_scratch;
+  PreprocessScratch preprocess_scratch, preprocess_scratch_right;
   adcensus::Arms arms;                         // and BuildArms's working memory
   adcensus::PassFactors pass_factors;          // the aggregation's
   adcensus::RefineWorkspace refine;            // the refinement's maps
@@ -361,11 +361,24 @@ DisparityResult StereoMatcher::Compute(const cv::Mat& left, const cv::Mat& right
     result.searched_disparities = coarse_to_fine ? lanes : ndisp;
     Preprocessed& pl = workspace_->preprocessed_left;
     Preprocessed& pr = workspace_->preprocessed_right;
-    Preprocess(left, options.preprocess, PreprocessParts::kAll, &pl,
-               &workspace_->preprocess_scratch);
-    // The right view feeds only the census and the colour costs.
-    Preprocess(right, options.preprocess, PreprocessParts::kEqualizedOnly, &pr,
-               &workspace_->preprocess_scratch);
+    // The right view feeds only the census and the colour costs; the
+    // equalized colour images only a matcher that matches them. The two
+    // views at once (OpenCV's calls on a small image are mostly serial).
+    const bool colour = options.match_equalized;
+    const PreprocessParts left_parts =
+        colour ? PreprocessParts::kAll : PreprocessParts::kGreyAndEdges;
+    const PreprocessParts right_parts =
+        colour ? PreprocessParts::kEqualizedOnly : PreprocessParts::kGreyOnly;
+    parallel.For(0, 2, [&](int v0, int v1) {
+      for (int v = v0; v < v1; ++v) {
+        if (v == 0) {
+          Preprocess(left, options.preprocess, left_parts, &pl, &workspace_->preprocess_scratch);
+        } else {
+          Preprocess(right, options.preprocess, right_parts, &pr,
+                     &workspace_->preprocess_scratch_right);
+        }
+      }
+    });
     if (!pl.IsUsable()) return InvalidInput("left: " + pl.message);
     if (!pr.IsUsable()) return InvalidInput("right: " + pr.message);
     const cv::Mat& img_l = options.match_equalized ? pl.image : left;

@@ -47,7 +47,26 @@ void PreprocessValid(const cv::Mat& image, const PreprocessOptions& options, Pre
   out.canny_low = out.canny_high = 0;
   // A grey call leaves `grey` sharing the image's memory: not to be written.
   if (out.grey.data == out.image.data) out.grey.release();
-  if (image.channels() == 1) {
+  const bool want_image =
+      parts == PreprocessParts::kAll || parts == PreprocessParts::kEqualizedOnly;
+  if (!want_image) {
+    out.image.release();
+    if (image.channels() == 1) {
+      if (options.equalize) {
+        cv::equalizeHist(image, out.grey);
+      } else {
+        image.copyTo(out.grey);
+      }
+    } else if (options.equalize) {
+      // Y of YCrCb, as below (the same weights as COLOR_BGR2GRAY, but kept
+      // as the colour path computes it).
+      cv::cvtColor(image, scratch->ycrcb, cv::COLOR_BGR2YCrCb);
+      cv::extractChannel(scratch->ycrcb, scratch->channels[0], 0);
+      cv::equalizeHist(scratch->channels[0], out.grey);
+    } else {
+      cv::cvtColor(image, out.grey, cv::COLOR_BGR2GRAY);
+    }
+  } else if (image.channels() == 1) {
     if (options.equalize) {
       cv::equalizeHist(image, out.image);
     } else {
@@ -68,7 +87,7 @@ void PreprocessValid(const cv::Mat& image, const PreprocessOptions& options, Pre
     }
   }
 
-  if (parts == PreprocessParts::kEqualizedOnly) {
+  if (parts == PreprocessParts::kEqualizedOnly || parts == PreprocessParts::kGreyOnly) {
     out.gradient.release();
     out.edges.release();
     return;

@@ -36,11 +36,14 @@ struct Preprocessed {
 };
 
 // What to compute: everything, or only the equalized images (the right view
-// of a stereo pair needs no gradient or edge map).
-enum class PreprocessParts { kAll, kEqualizedOnly };
+// of a stereo pair needs no gradient or edge map); the *Grey* parts leave
+// out the equalized image of the input's type (`image`), which a matcher
+// that matches the raw colours never reads.
+enum class PreprocessParts { kAll, kEqualizedOnly, kGreyAndEdges, kGreyOnly };
 
 // Preprocesses one 8-bit grey (CV_8UC1) or BGR (CV_8UC3) image. With
-// kEqualizedOnly, `gradient` and `edges` stay empty and the thresholds 0.
+// kEqualizedOnly or kGreyOnly, `gradient` and `edges` stay empty and the
+// thresholds 0; with kGreyAndEdges or kGreyOnly, `image` stays empty.
 // Fails (kInvalidInput, the message says why) for an empty image, another
 // type, or invalid options; kFailed if OpenCV reports an error. Never throws.
 // Thread-safe (no shared state).

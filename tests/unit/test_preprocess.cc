@@ -94,6 +94,26 @@ TEST(Preprocess, GreyPartsEqualTheWholeWithoutTheImage) {
   }
 }
 
+// The edges taken after the grey image are the edges of the whole; an
+// unusable result gets a reason, not edges.
+TEST(Preprocess, EdgesAfterTheGreyImageEqualTheWhole) {
+  const cv::Mat img = testing::RandomTexture(80, 60, 11);
+  const Preprocessed all = Preprocess(img, {});
+  Preprocessed part = Preprocess(img, {}, PreprocessParts::kGreyOnly);
+  PreprocessScratch scratch;
+  PreprocessEdges({}, &part, &scratch);
+  ASSERT_TRUE(part.IsUsable()) << part.message;
+  EXPECT_EQ(cv::norm(all.gradient, part.gradient, cv::NORM_INF), 0);
+  EXPECT_EQ(cv::norm(all.edges, part.edges, cv::NORM_INF), 0);
+  EXPECT_EQ(all.canny_high, part.canny_high);
+  EXPECT_GT(cv::countNonZero(part.edges), 0);
+
+  Preprocessed failed = Preprocess(cv::Mat(), {});
+  PreprocessEdges({}, &failed, &scratch);
+  EXPECT_EQ(failed.status, Preprocessed::Status::kInvalidInput);
+  EXPECT_NE(failed.message.find("no usable grey image"), std::string::npos) << failed.message;
+}
+
 // The inputs that used to throw std::invalid_argument: a failed result that
 // says why, never an exception.
 TEST(Preprocess, BadInputFailsWithTheReason) {

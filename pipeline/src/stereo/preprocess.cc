@@ -37,6 +37,8 @@ double Median8U(const cv::Mat& grey) {
   return 255;
 }
 
+void EdgesValid(const PreprocessOptions& options, Preprocessed* result, PreprocessScratch* scratch);
+
 // Preprocess on validated inputs into *out; OpenCV may still throw (out of
 // memory).
 void PreprocessValid(const cv::Mat& image, const PreprocessOptions& options, PreprocessParts parts,
@@ -92,7 +94,14 @@ void PreprocessValid(const cv::Mat& image, const PreprocessOptions& options, Pre
     out.edges.release();
     return;
   }
+  EdgesValid(options, result, scratch);
+}
 
+// The gradient and edges of out->grey, on validated inputs; OpenCV may
+// still throw.
+void EdgesValid(const PreprocessOptions& options, Preprocessed* result,
+                PreprocessScratch* scratch) {
+  Preprocessed& out = *result;
   cv::Sobel(out.grey, scratch->gx, CV_32F, 1, 0, 3, 1, 0, cv::BORDER_REPLICATE);
   cv::Sobel(out.grey, scratch->gy, CV_32F, 0, 1, 3, 1, 0, cv::BORDER_REPLICATE);
   cv::magnitude(scratch->gx, scratch->gy, out.gradient);
@@ -128,6 +137,22 @@ void Preprocess(const cv::Mat& image, const PreprocessOptions& options, Preproce
     PreprocessValid(image, options, parts, out, scratch);
   } catch (const std::exception& e) {  // cv::Exception, std::bad_alloc
     fail(Status::kFailed, e.what());
+  }
+}
+
+void PreprocessEdges(const PreprocessOptions& options, Preprocessed* out,
+                     PreprocessScratch* scratch) {
+  const auto fail = [&](Preprocessed::Status status, std::string message) {
+    *out = Failed<Preprocessed>(status, "PreprocessEdges: " + std::move(message));
+  };
+  std::string why;
+  if (!options.IsValid(&why)) return fail(Preprocessed::Status::kInvalidInput, why);
+  if (!out->IsUsable() || out->grey.empty() || out->grey.type() != CV_8UC1)
+    return fail(Preprocessed::Status::kInvalidInput, "no usable grey image to take edges of");
+  try {
+    EdgesValid(options, out, scratch);
+  } catch (const std::exception& e) {  // cv::Exception, std::bad_alloc
+    fail(Preprocessed::Status::kFailed, e.what());
   }
 }
 

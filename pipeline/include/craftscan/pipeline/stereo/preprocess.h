@@ -63,4 +63,13 @@ struct PreprocessScratch {
 void Preprocess(const cv::Mat& image, const PreprocessOptions& options, PreprocessParts parts,
                 Preprocessed* out, PreprocessScratch* scratch);
 
+// The gradient and the edge map of out->grey, with its thresholds: what
+// kAll and kGreyAndEdges add to kEqualizedOnly and kGreyOnly, for a caller
+// that wants the grey image first (a matcher computes its census transforms
+// while these run). `out` must be a usable result of Preprocess; on an
+// unusable one, or if OpenCV fails, `out` becomes a failed result that says
+// why. Never throws.
+void PreprocessEdges(const PreprocessOptions& options, Preprocessed* out,
+                     PreprocessScratch* scratch);
+
 }  // namespace craftscan

@@ -8,9 +8,13 @@
 #include <CLI/CLI.hpp>
 
 #include "command.h"
+#include "craftscan/pipeline/common/memory_policy.h"
 
 int main(int argc, char** argv) {
   using namespace craftscan::bench;
+  // Matching reuses its freed buffers rather than fault them in afresh
+  // (memory_policy.h): as craftscand and craftscan-worker do.
+  craftscan::KeepFreedMemory();
   CLI::App app{"craftscan benchmarks on shared data (Middlebury stereo, calibration, bunny, ...)",
                "craftscan-bench"};
   app.require_subcommand(1);

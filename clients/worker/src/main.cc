@@ -26,6 +26,7 @@
 #include <CLI/CLI.hpp>
 
 #include "craftscan/daemon/notify.h"
+#include "craftscan/pipeline/common/memory_policy.h"
 #include "craftscan/worker/worker.h"
 #include "worker_config.h"
 
@@ -107,6 +108,9 @@ class WatchdogPinger {
 }  // namespace
 
 int main(int argc, char** argv) {
+  // Scans are reconstructed one after another: keep freed buffers
+  // (memory_policy.h).
+  craftscan::KeepFreedMemory();
   CLI::App app{"craftscan-worker: reconstructs scans for the stations of a site (over DDS)"};
   std::string config_path = "/etc/craftscan/craftscan-worker.yaml";
   bool print_config = false, check_config = false;

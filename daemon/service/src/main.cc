@@ -13,8 +13,11 @@
 
 #include "craftscan/daemon/config.h"
 #include "craftscan/daemon/daemon.h"
+#include "craftscan/pipeline/common/memory_policy.h"
 
 int main(int argc, char** argv) {
+  // Views are matched over and over: keep freed buffers (memory_policy.h).
+  craftscan::KeepFreedMemory();
   CLI::App app{"craftscand: the craftscan station daemon (cameras, turntable, pipeline, DDS)"};
   std::string config_path = "/etc/craftscan/craftscand.yaml";
   bool print_config = false, check_config = false;

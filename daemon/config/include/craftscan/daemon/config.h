@@ -84,7 +84,7 @@
 //     speckle_max_area_pct: 0.004 [0, 1] % of the image: smaller patches go; 0 = off
 //     speckle_range_px: 2         (0, 64] a patch's neighbours differ by at most this
 //     mesh: true                  a mesh after fusion
-//     mesh_method: poisson        poisson or implicit (MeshMethod)
+//     mesh_method: implicit       implicit or poisson (MeshMethod)
 //     measure_box: true           also measure the object as a box (edges, faces)
 //   limits:
 //     max_command_bytes: 65536    1024..16777216 (serialized DDS command)
@@ -276,9 +276,10 @@ struct PipelineSettings {
   // agreement, [0, 100]; 0 = off): VisibilityOptions::tolerance_mm.
   double free_space_tolerance_mm = 1.0;
   bool mesh = true;  // a mesh after fusion
-  // Poisson's surface (trimmed by support) or the implicit one (IMLS and
-  // marching cubes, only where the points are): ScanOptions::mesh_method.
-  MeshMethod mesh_method = MeshMethod::kPoisson;
+  // The implicit surface (algebraic spheres fitted over a grid, marching
+  // cubes, only where the points are) or Poisson's (trimmed by support):
+  // ScanOptions::mesh_method.
+  MeshMethod mesh_method = MeshMethod::kImplicit;
   // Measure the object as a box (faces, edges, vertices) besides its
   // oriented bounding box; objects that are not boxes report why not.
   bool measure_box = true;

@@ -88,7 +88,10 @@ struct ScanOptions {
     return f;
   }();
   bool mesh = true;
-  MeshMethod mesh_method = MeshMethod::kPoisson;
+  // The implicit surface by default: as close to the truth as Poisson's on
+  // the scans of README 11.10, a few times faster, and nothing invented
+  // where no point is.
+  MeshMethod mesh_method = MeshMethod::kImplicit;
   // Mesh fragments under 5 % of the largest component are removed.
   PoissonOptions poisson = [] {
     PoissonOptions p;

@@ -622,10 +622,13 @@ void EvaluateImls(const PoissonInput& in, const PointCloud& cloud,
     for (int z = lo[2]; z <= hi[2]; ++z)
       for (int y = lo[1]; y <= hi[1]; ++y)
         for (int x = lo[0]; x <= hi[0]; ++x) {
-          std::int32_t& k = g->slot[g->Index(x, y, z)];
-          if (k < 0) k = slots++;
+          g->slot[g->Index(x, y, z)] = 0;
         }
   }
+  // Numbered in the grid's order, so that neighbouring vertices' sums lie
+  // near each other in memory.
+  for (std::int32_t& k : g->slot)
+    if (k == 0) k = slots++;
   std::vector<ImlsSum> sums(static_cast<std::size_t>(slots));
   std::vector<ApssSum> spheres(sphere_fit ? static_cast<std::size_t>(slots) : 0);
   const bool colors = cloud.HasColors();
@@ -633,23 +636,68 @@ void EvaluateImls(const PoissonInput& in, const PointCloud& cloud,
     return colors ? cv::Vec3f(cloud.colors_rgb[in.source_index[i]]) : cv::Vec3f();
   };
   const double r2 = radius * radius, inv_sigma2 = 4.0 / r2;
+  const double reach = radius / h;
+  // The scatter on OpenMP's threads: the points in slabs across the grid's
+  // longest axis, each more than twice the reach thick, so that two slabs
+  // of one parity touch no vertex in common; the even slabs at once, then
+  // the odd ones. Each vertex adds its points in the same order whatever
+  // the number of threads.
+  const int slab = 2 * static_cast<int>(std::ceil(reach)) + 1;
+  const int axis = static_cast<int>(std::max_element(n, n + 3) - n);
+  std::vector<std::vector<std::uint32_t>> by_slab(static_cast<std::size_t>(n[axis] / slab + 1));
   for (std::size_t i = 0; i < in.positions->size(); ++i) {
+    const double c = ((*in.positions)[i].data[axis] - g->origin[axis]) / h;
+    const int s =
+        std::clamp(static_cast<int>(std::floor(c / slab)), 0, static_cast<int>(by_slab.size()) - 1);
+    by_slab[static_cast<std::size_t>(s)].push_back(static_cast<std::uint32_t>(i));
+  }
+  // Within a slab in the grid's order too: consecutive points update
+  // mostly the same vertices.
+  const auto cell = [&](std::uint32_t i) {
+    const pcl::PointXYZ& p = (*in.positions)[i];
+    return g->Index(static_cast<int>((p.x - g->origin[0]) / h),
+                    static_cast<int>((p.y - g->origin[1]) / h),
+                    static_cast<int>((p.z - g->origin[2]) / h));
+  };
+  for (std::vector<std::uint32_t>& points : by_slab)
+    std::stable_sort(points.begin(), points.end(),
+                     [&](std::uint32_t a, std::uint32_t b) { return cell(a) < cell(b); });
+  const auto scatter = [&](std::size_t i) {
     const pcl::PointNormal& p = (*in.oriented)[i];
     const cv::Vec3f pn(p.normal_x, p.normal_y, p.normal_z), pc = colour(i);
-    range((*in.positions)[i], radius / h, lo, hi);
-    for (int z = lo[2]; z <= hi[2]; ++z)
-      for (int y = lo[1]; y <= hi[1]; ++y)
-        for (int x = lo[0]; x <= hi[0]; ++x) {
-          const std::int32_t k = g->slot[g->Index(x, y, z)];
+    int lo[3], hi[3];
+    range((*in.positions)[i], reach, lo, hi);
+    // Only the vertices within the radius: per row, the x range of the
+    // sphere's chord.
+    for (int z = lo[2]; z <= hi[2]; ++z) {
+      const float dz = g->Position(0, 0, z)[2] - p.z;
+      for (int y = lo[1]; y <= hi[1]; ++y) {
+        const float dy = g->Position(0, y, 0)[1] - p.y;
+        const double rest = r2 - (static_cast<double>(dy) * dy + static_cast<double>(dz) * dz);
+        if (rest < 0) continue;
+        const double chord = std::sqrt(rest), c = (p.x - g->origin[0]) / h;
+        const int x0 = std::max(lo[0], static_cast<int>(std::ceil(c - chord / h)) - 1);
+        const int x1 = std::min(hi[0], static_cast<int>(std::floor(c + chord / h)) + 1);
+        const std::int32_t* row = &g->slot[g->Index(0, y, z)];
+        for (int x = x0; x <= x1; ++x) {
+          const std::int32_t k = row[x];
           if (k < 0) continue;
-          const cv::Vec3f d = g->Position(x, y, z) - cv::Vec3f(p.x, p.y, p.z);
+          const cv::Vec3f d(g->Position(x, 0, 0)[0] - p.x, dy, dz);
           const double d2 = d.dot(d);
           if (d2 <= r2) {
-            const float weight = static_cast<float>(std::exp(-d2 * inv_sigma2));
+            const float weight = std::exp(static_cast<float>(-d2 * inv_sigma2));
             sums[static_cast<std::size_t>(k)].Add(weight, pn.dot(d), d, pn, pc);
             if (sphere_fit) spheres[static_cast<std::size_t>(k)].Add(weight, d, pn);
           }
         }
+      }
+    }
+  };
+  const auto slabs = static_cast<long>(by_slab.size());
+  for (long parity = 0; parity < 2; ++parity) {
+#pragma omp parallel for schedule(dynamic, 1)
+    for (long s = parity; s < slabs; s += 2)
+      for (std::uint32_t i : by_slab[static_cast<std::size_t>(s)]) scatter(i);
   }
   g->value.assign(sums.size(), std::numeric_limits<float>::quiet_NaN());
   g->color.assign(sums.size(), cv::Vec3f(0, 0, 0));
@@ -695,6 +743,21 @@ void EvaluateImls(const PoissonInput& in, const PointCloud& cloud,
           if (c[a] + dir < 0 || c[a] + dir >= n[a]) continue;
           const std::size_t u = dir < 0 ? v - stride[a] : v + stride[a];
           if (tried[u]) continue;
+          // Not where the value, extrapolated from v and the vertex behind
+          // it, is more than two cells from the surface: such a vertex is
+          // no corner of a cell the surface crosses (those lie within √3
+          // cells of it) and would not carry the fill on. Another
+          // neighbour may still make it a candidate.
+          if (c[a] - dir >= 0 && c[a] - dir < n[a]) {
+            const std::int32_t kv = g->slot[v];
+            const std::int32_t kw = g->slot[dir < 0 ? v + stride[a] : v - stride[a]];
+            if (kw >= 0) {
+              const float behind = g->value[static_cast<std::size_t>(kw)];
+              if (!std::isnan(behind) &&
+                  std::abs(2 * g->value[static_cast<std::size_t>(kv)] - behind) > 2 * h)
+                continue;
+            }
+          }
           tried[u] = 1;
           const std::int32_t k = g->slot[u];
           if (k >= 0 && !std::isnan(g->value[static_cast<std::size_t>(k)])) continue;

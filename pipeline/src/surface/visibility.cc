@@ -8,6 +8,8 @@
 #include <optional>
 #include <unordered_set>
 
+#include <opencv2/imgproc.hpp>
+
 #include "common/parallel.h"
 #include "craftscan/pipeline/common/pose.h"
 #include "craftscan/pipeline/common/status.h"
@@ -49,11 +51,14 @@ class CellSet {
 };
 
 // The nearest depth each pixel of the camera saw (z-buffer of `seen`, in the
-// camera's frame), +inf where it saw nothing. With `confirmed` (and
-// `world_from_view`), only what lies on the confirmed surface counts.
-cv::Mat DepthMap(const PointCloud& seen, const RectifiedCamera& camera, const CellSet* confirmed,
-                 const cv::Matx44d& world_from_view) {
-  cv::Mat depth(camera.size, CV_32FC1, cv::Scalar(kNone));
+// camera's frame), +inf where it saw nothing, into *depth (its buffer
+// reused). With `confirmed` (and `world_from_view`), only what lies on the
+// confirmed surface counts.
+void DepthMap(const PointCloud& seen, const RectifiedCamera& camera, const CellSet* confirmed,
+              const cv::Matx44d& world_from_view, cv::Mat* depth_map) {
+  depth_map->create(camera.size, CV_32FC1);
+  depth_map->setTo(cv::Scalar(kNone));
+  cv::Mat& depth = *depth_map;
   for (const cv::Vec3f& p : seen.points_mm) {
     if (!(p[2] > 0) || !std::isfinite(p[0]) || !std::isfinite(p[1])) continue;
     if (confirmed) {
@@ -67,13 +72,35 @@ cv::Mat DepthMap(const PointCloud& seen, const RectifiedCamera& camera, const Ce
     float& z = depth.at<float>(static_cast<int>(y), static_cast<int>(x));
     z = std::min(z, p[2]);
   }
-  return depth;
 }
 
 enum class Verdict { kNoInformation, kSupported, kContradicted };
 
+// One view's depth map with, per pixel, the nearest and farthest depth and
+// the number of depths in the window around it (options.window_radius_px):
+// most points are judged from these alone, without reading the window.
+// Buffers are reused from view to view (fresh pages cost more than the
+// filters).
+struct ViewDepth {
+  cv::Mat depth, nearest, farthest, count;  // CV_32FC1 each
+  cv::Mat seen, scratch;
+
+  void Summarise(int r) {
+    const cv::Mat kernel =
+        cv::getStructuringElement(cv::MORPH_RECT, cv::Size(2 * r + 1, 2 * r + 1));
+    cv::erode(depth, nearest, kernel);  // +inf (nothing seen) never wins a minimum
+    cv::compare(depth, kNone, seen, cv::CMP_NE);
+    depth.copyTo(scratch);
+    scratch.setTo(-kNone, ~seen);
+    cv::dilate(scratch, farthest, kernel);
+    seen.convertTo(scratch, CV_32F, 1.0 / 255);
+    cv::boxFilter(scratch, count, CV_32F, cv::Size(2 * r + 1, 2 * r + 1), cv::Point(-1, -1),
+                  /*normalize=*/false);
+  }
+};
+
 // What view j's depth map says of a point at `p` in j's rig frame.
-Verdict Judge(const cv::Vec3d& p, const cv::Mat& depth, const RectifiedCamera& camera,
+Verdict Judge(const cv::Vec3d& p, const ViewDepth& view, const RectifiedCamera& camera,
               const VisibilityOptions& options) {
   if (!(p[2] > 0)) return Verdict::kNoInformation;
   const long x = std::lround(camera.fx * p[0] / p[2] + camera.cx);
@@ -81,21 +108,26 @@ Verdict Judge(const cv::Vec3d& p, const cv::Mat& depth, const RectifiedCamera& c
   const int r = options.window_radius_px;
   if (x < r || y < r || x >= camera.size.width - r || y >= camera.size.height - r)
     return Verdict::kNoInformation;
-  int valid = 0;
-  float z_min = kNone, z_max = -kNone;
-  for (long yy = y - r; yy <= y + r; ++yy) {
-    const float* row = depth.ptr<float>(static_cast<int>(yy));
-    for (long xx = x - r; xx <= x + r; ++xx) {
-      const float z = row[xx];
-      if (z == kNone) continue;
-      ++valid;
-      if (std::abs(z - p[2]) <= options.tolerance_mm) return Verdict::kSupported;
-      z_min = std::min(z_min, z);
-      z_max = std::max(z_max, z);
+  const int px = static_cast<int>(x), py = static_cast<int>(y);
+  const float count = view.count.at<float>(py, px);
+  if (count < 0.5f) return Verdict::kNoInformation;
+  float z_min = view.nearest.at<float>(py, px);
+  float z_max = view.farthest.at<float>(py, px);
+  if (!(z_min > p[2] + options.tolerance_mm)) {
+    // Some depth of the window is not behind the point: if one lies within
+    // the tolerance it supports the point, else the point is in front of
+    // nothing it could be seen through.
+    if (z_max < p[2] - options.tolerance_mm) return Verdict::kNoInformation;
+    for (long yy = y - r; yy <= y + r; ++yy) {
+      const float* row = view.depth.ptr<float>(static_cast<int>(yy));
+      for (long xx = x - r; xx <= x + r; ++xx) {
+        const float z = row[xx];
+        if (z != kNone && std::abs(z - p[2]) <= options.tolerance_mm) return Verdict::kSupported;
+      }
     }
-  }
-  if (valid < options.min_window_pixels || !(z_min > p[2] + options.tolerance_mm))
     return Verdict::kNoInformation;
+  }
+  if (count < options.min_window_pixels - 0.5f) return Verdict::kNoInformation;
   // A surface the view saw at a grazing angle, or across one of its own
   // depth edges, was measured badly there: it contradicts nothing.
   const double span_mm =
@@ -176,54 +208,72 @@ std::vector<PointCloud> RemoveFreeSpaceViolations(const std::vector<PointCloud>&
     const Parallel parallel(options.num_threads);
     std::optional<CellSet> cells;
     if (confirmed) cells.emplace(*confirmed, options.tolerance_mm / 2);
-    std::vector<cv::Mat> depth(n);
-    parallel.For(0, static_cast<int>(n), [&](int b, int e) {
-      for (int j = b; j < e; ++j)
-        depth[j] = DepthMap(seen[j], camera, cells ? &*cells : nullptr, view0_from_view[j]);
-    });
     std::vector<cv::Matx44d> view_from_view0(n);
     for (std::size_t j = 0; j < n; ++j) view_from_view0[j] = InvertRigid(view0_from_view[j]);
+
+    // View by view (a few depth maps in memory at a time, not one per
+    // view), each candidate point's supporting and contradicting views
+    // counted.
+    std::vector<std::vector<std::uint8_t>> support(n), against(n);
+    for (std::size_t i = 0; i < n; ++i) {
+      support[i].assign(candidates[i].size(), 0);
+      against[i].assign(candidates[i].size(), 0);
+    }
+    const std::size_t batch = static_cast<std::size_t>(std::max(1, options.num_threads));
+    std::vector<ViewDepth> views(batch);
+    for (std::size_t first = 0; first < n; first += batch) {
+      const std::size_t last = std::min(n, first + batch);
+      parallel.For(static_cast<int>(first), static_cast<int>(last), [&](int b, int e) {
+        for (int j = b; j < e; ++j) {
+          ViewDepth& view = views[static_cast<std::size_t>(j) - first];
+          DepthMap(seen[j], camera, cells ? &*cells : nullptr, view0_from_view[j], &view.depth);
+          view.Summarise(options.window_radius_px);
+        }
+      });
+      for (std::size_t i = 0; i < n; ++i) {
+        const PointCloud& cloud = candidates[i];
+        parallel.For(
+            0, static_cast<int>(cloud.size()),
+            [&](int b, int e) {
+              for (std::size_t j = first; j < last; ++j) {
+                if (j == i) continue;
+                const cv::Matx44d j_from_i = view_from_view0[j] * view0_from_view[i];
+                for (int k = b; k < e; ++k) {
+                  const cv::Vec3f& q = cloud.points_mm[static_cast<std::size_t>(k)];
+                  const cv::Vec4d p = j_from_i * cv::Vec4d(q[0], q[1], q[2], 1);
+                  switch (Judge(cv::Vec3d(p[0], p[1], p[2]), views[j - first], camera, options)) {
+                    case Verdict::kSupported:
+                      ++support[i][static_cast<std::size_t>(k)];
+                      break;
+                    case Verdict::kContradicted:
+                      ++against[i][static_cast<std::size_t>(k)];
+                      break;
+                    case Verdict::kNoInformation:
+                      break;
+                  }
+                }
+              }
+            },
+            1024);
+      }
+    }
 
     std::vector<PointCloud> out(n);
     s.removed_per_view.assign(n, 0);
     for (std::size_t i = 0; i < n; ++i) {
       const PointCloud& cloud = candidates[i];
-      std::vector<cv::Matx44d> j_from_i(n);
-      for (std::size_t j = 0; j < n; ++j) j_from_i[j] = view_from_view0[j] * view0_from_view[i];
-      std::vector<char> keep(cloud.size(), 1), lonely(cloud.size(), 0);
-      parallel.For(
-          0, static_cast<int>(cloud.size()),
-          [&](int b, int e) {
-            for (int k = b; k < e; ++k) {
-              const cv::Vec3f& q = cloud.points_mm[static_cast<std::size_t>(k)];
-              int support = 0, against = 0;
-              for (std::size_t j = 0; j < n; ++j) {
-                if (j == i) continue;
-                const cv::Vec4d p = j_from_i[j] * cv::Vec4d(q[0], q[1], q[2], 1);
-                switch (Judge(cv::Vec3d(p[0], p[1], p[2]), depth[j], camera, options)) {
-                  case Verdict::kSupported:
-                    ++support;
-                    break;
-                  case Verdict::kContradicted:
-                    ++against;
-                    break;
-                  case Verdict::kNoInformation:
-                    break;
-                }
-              }
-              // A tie goes against the point: a view that looked through
-              // it saw past it, while one that agrees may share its
-              // mismatch (views that see a periodic texture alike).
-              keep[static_cast<std::size_t>(k)] = against == 0 || against < support;
-              lonely[static_cast<std::size_t>(k)] = support == 0;
-            }
-          },
-          1024);
+      // A tie goes against the point: a view that looked through it saw
+      // past it, while one that agrees may share its mismatch (views that
+      // see a periodic texture alike).
+      std::vector<char> keep(cloud.size(), 1);
+      for (std::size_t k = 0; k < cloud.size(); ++k) {
+        keep[k] = against[i][k] == 0 || against[i][k] < support[i][k];
+        s.unsupported_points += keep[k] && support[i][k] == 0;
+      }
       out[i] = Subset(cloud, keep);
       s.checked_points += cloud.size();
       s.removed_per_view[i] = cloud.size() - out[i].size();
       s.removed_points += s.removed_per_view[i];
-      for (std::size_t k = 0; k < cloud.size(); ++k) s.unsupported_points += keep[k] && lonely[k];
     }
     return out;
   } catch (const std::exception& e) {

@@ -31,6 +31,7 @@ class CellSet {
   }
   bool Near(const cv::Vec3d& p) const {
     const long x = Cell(p[0]), y = Cell(p[1]), z = Cell(p[2]);
+    if (cells_.count(Key(x, y, z))) return true;  // most often
     for (long dz = -1; dz <= 1; ++dz)
       for (long dy = -1; dy <= 1; ++dy)
         for (long dx = -1; dx <= 1; ++dx)
@@ -61,16 +62,17 @@ void DepthMap(const PointCloud& seen, const RectifiedCamera& camera, const CellS
   cv::Mat& depth = *depth_map;
   for (const cv::Vec3f& p : seen.points_mm) {
     if (!(p[2] > 0) || !std::isfinite(p[0]) || !std::isfinite(p[1])) continue;
-    if (confirmed) {
-      const cv::Vec4d w = world_from_view * cv::Vec4d(p[0], p[1], p[2], 1);
-      if (!confirmed->Near(cv::Vec3d(w[0], w[1], w[2]))) continue;
-    }
     const double u = camera.fx * p[0] / p[2] + camera.cx;
     const double v = camera.fy * p[1] / p[2] + camera.cy;
     const long x = std::lround(u), y = std::lround(v);
     if (x < 0 || y < 0 || x >= camera.size.width || y >= camera.size.height) continue;
     float& z = depth.at<float>(static_cast<int>(y), static_cast<int>(x));
-    z = std::min(z, p[2]);
+    if (!(p[2] < z)) continue;  // no nearer than what the pixel holds
+    if (confirmed) {
+      const cv::Vec4d w = world_from_view * cv::Vec4d(p[0], p[1], p[2], 1);
+      if (!confirmed->Near(cv::Vec3d(w[0], w[1], w[2]))) continue;
+    }
+    z = p[2];
   }
 }
 

@@ -32,6 +32,23 @@ class PointIndex {
     *dist2 = d2;
     return true;
   }
+  // The nearest point strictly nearer than sqrt(max_dist2), if any: the
+  // same point Nearest finds whenever that one is within the bound (the
+  // tree is walked in the same order; branches beyond the bound are not),
+  // so a gated query costs less where nothing is near.
+  bool NearestWithin(const Eigen::Vector3f& q, float max_dist2, int* index, float* dist2) const {
+    if (points_->empty()) return false;
+    std::uint32_t i = 0;
+    float d2 = 0;
+    nanoflann::KNNResultSet<float, std::uint32_t> result(1);
+    result.init(&i, &d2);
+    d2 = max_dist2;  // the worst distance kept: the bound
+    tree_.findNeighbors(result, q.data(), nanoflann::SearchParams());
+    if (result.size() != 1) return false;
+    *index = static_cast<int>(i);
+    *dist2 = d2;
+    return true;
+  }
   // The k nearest points of q (fewer when the cloud has fewer), nearest
   // first: their indices and squared distances; returns how many.
   std::size_t KNearest(const float* q, std::size_t k, std::uint32_t* index, float* dist2) const {

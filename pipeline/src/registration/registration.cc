@@ -315,16 +315,19 @@ Overlap MeasureOverlap(const PointCloud& source, const PointIndex& target,
   const Eigen::Matrix3f R = target_from_source.topLeftCorner<3, 3>().cast<float>();
   const Eigen::Vector3f t = target_from_source.topRightCorner<3, 1>().cast<float>();
   std::vector<float> d2(source.size(), std::numeric_limits<float>::infinity());
+  const double gate2 = gate_mm * gate_mm;
+  // Only distances within the gate count: the search stops beyond it.
+  const float bound2 =
+      std::nextafter(static_cast<float>(gate2), std::numeric_limits<float>::infinity());
   ParallelFor(source.size(), threads, [&](std::size_t b, std::size_t e) {
     for (std::size_t i = b; i < e; ++i) {
       int idx;
       float dd;
-      if (target.Nearest(R * V(source.points_mm[i]) + t, &idx, &dd)) d2[i] = dd;
+      if (target.NearestWithin(R * V(source.points_mm[i]) + t, bound2, &idx, &dd)) d2[i] = dd;
     }
   });
   Overlap o;
   double sum = 0;
-  const double gate2 = gate_mm * gate_mm;
   for (float dd : d2) {
     if (dd <= gate2) {
       ++o.inliers;
@@ -1039,7 +1042,8 @@ const PointCloud& StridedSource(const PointCloud& fine, int max_points, PointClo
 struct FinePair {
   float d2 = -1;  // squared distance (mm²); < 0: rejected
   int target = -1;
-  float b = 1;  // overlap weight
+  float b = 1;       // overlap weight
+  int nearest = -1;  // the last search's nearest target point, accepted or not
 };
 
 // The nearest target point of every source point under the pose (R, t),
@@ -1057,14 +1061,27 @@ void FindCorrespondences(const PointCloud& s, const ViewCloud& target,
   const Eigen::Matrix3f R = T.topLeftCorner<3, 3>().cast<float>();
   const Eigen::Vector3f tt = T.topRightCorner<3, 1>().cast<float>();
   const float gate2 = static_cast<float>(gate * gate);
+  const float bound_gate2 = std::nextafter(gate2, std::numeric_limits<float>::infinity());
   ParallelFor(s.size(), threads, [&](std::size_t b, std::size_t e) {
     for (std::size_t i = b; i < e; ++i) {
       FinePair& pr = (*pairs)[i];
       pr.d2 = -1;
       const Eigen::Vector3f p = R * V(s.points_mm[i]) + tt;
+      // The search is bounded just above the gate (a pair at exactly the
+      // gate is kept; anything found beyond it is refused below), and above
+      // the distance to the last iteration's nearest point, which the small
+      // step since rarely changes: the same nearest point is found (the
+      // tree is walked in the same order), with fewer branches opened.
+      float bound2 = bound_gate2;
+      if (pr.nearest >= 0) {
+        const Eigen::Vector3f d = p - V(t.points_mm[static_cast<std::size_t>(pr.nearest)]);
+        bound2 = std::min(bound2, d.squaredNorm() * (1 + 1e-5f) + 1e-12f);
+      }
       int idx;
       float d2;
-      if (!target_index.Nearest(p, &idx, &d2) || d2 > gate2) continue;
+      if (!target_index.NearestWithin(p, bound2, &idx, &d2)) continue;
+      pr.nearest = idx;
+      if (d2 > gate2) continue;
       const Eigen::Vector3f n = R * V(s.normals[i]);
       if (n.dot(V(t.normals[idx])) < cos_max) continue;
       const Eigen::Vector3f to_view = view_t.cast<float>() - p;

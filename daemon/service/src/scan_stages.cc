@@ -298,6 +298,9 @@ ReconstructOutcome ReconstructStage::Run(BoundedQueue<MatchedView>& in) {
       waiting[static_cast<std::size_t>(next)].reset();
     }
   }
+  // From the last view on: for a remote job that includes the wait for the
+  // worker's part after its last view.
+  const auto start = std::chrono::steady_clock::now();
   feed.Close();
   if (offering.joinable()) offering.join();
   if (context_.Stopping()) {
@@ -316,7 +319,6 @@ ReconstructOutcome ReconstructStage::Run(BoundedQueue<MatchedView>& in) {
     out.status = StageOutcome::Storage(set, "");
     return out;
   }
-  const auto start = std::chrono::steady_clock::now();
   ScanResult r;
   if (remote) {
     if (handed.status == RemoteJobOutcome::Status::kCancelled) {

@@ -552,6 +552,11 @@ FetchResult StationClient::Fetch(const FetchRequest& request) {
 
     FileAssembler assembler(request.out_dir);
     bool have_reply = false, seen_chunk = false, started_late = false;
+    // A `get` the station never saw (it had not matched this client's
+    // writer yet) is sent again under the same id after 1, 2, 4, ... s, as
+    // Call does; the station runs it once (ReplyMemory).
+    auto resend_after = std::chrono::milliseconds(1000);
+    auto resend_at = Clock::now() + resend_after;
     auto last_data = Clock::now();
     auto replied_at = last_data;
     dds::Sample<dds::msg::SessionFile> sample;
@@ -593,6 +598,12 @@ FetchResult StationClient::Fetch(const FetchRequest& request) {
           return finish(FetchStatus::kUnreachable, "station '" + d.options.station +
                                                        "' sent no reply to 'get' within " +
                                                        Seconds(request.timeout) + " s");
+        } else if (Clock::now() >= resend_at) {
+          std::string ignored;  // a failed repeat is like a lost one
+          d.Write(id, "get", args.dump(), request.token.empty() ? d.options.token : request.token,
+                  &ignored);
+          resend_after *= 2;
+          resend_at = Clock::now() + resend_after;
         }
       }
       if (have_reply && assembler.Complete()) break;

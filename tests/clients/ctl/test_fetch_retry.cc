@@ -1,13 +1,15 @@
 // StationClient::Fetch against a scripted station on loopback DDS: a
 // transfer whose first chunks went by before the station's file writer
 // matched the client's reader (discovery runs both ways on its own) is asked
-// for again; a gap in the middle still fails with its reason.
+// for again; a `get` the station never saw is sent again under its id; a gap
+// in the middle still fails with its reason.
 #include <gtest/gtest.h>
 
 #include <atomic>
 #include <chrono>
 #include <filesystem>
 #include <functional>
+#include <mutex>
 #include <string>
 #include <thread>
 #include <vector>
@@ -33,8 +35,11 @@ constexpr std::size_t kChunk = 4096;
 class ScriptedStation {
  public:
   ScriptedStation(std::string station, std::string payload,
-                  std::function<bool(int, std::uint64_t)> skip)
-      : station_(std::move(station)), payload_(std::move(payload)), skip_(std::move(skip)) {
+                  std::function<bool(int, std::uint64_t)> skip, int unseen_commands = 0)
+      : station_(std::move(station)),
+        payload_(std::move(payload)),
+        skip_(std::move(skip)),
+        unseen_commands_(unseen_commands) {
     participant_ = ::craftscan::testing::MakeTestParticipant();
     std::string error;
     commands_ =
@@ -51,6 +56,11 @@ class ScriptedStation {
     if (thread_.joinable()) thread_.join();
   }
   int gets() const { return gets_; }
+  // The request id of every command taken, those ignored included.
+  std::vector<std::string> ids() const {
+    std::lock_guard lock(mutex_);
+    return ids_;
+  }
 
  private:
   void Serve() {
@@ -59,8 +69,17 @@ class ScriptedStation {
     while (!stop_) {
       if (commands_->Take(milliseconds(50), &command, &error) != dds::TakeStatus::kOk) continue;
       if (dds::View(command->verb) != "get") continue;
-      const int n = ++gets_;
       const std::string id(dds::View(command->request_id));
+      {
+        std::lock_guard lock(mutex_);
+        ids_.push_back(id);
+      }
+      // As if its reader had not matched the client's writer yet.
+      if (unseen_commands_ > 0) {
+        --unseen_commands_;
+        continue;
+      }
+      const int n = ++gets_;
       nlohmann::json file = {
           {"name", "mesh.glb"}, {"size", payload_.size()}, {"fnv1a64", Hex64(Fnv1a64(payload_))}};
       dds::Outgoing<dds::msg::Reply> reply;
@@ -97,6 +116,9 @@ class ScriptedStation {
 
   std::string station_, payload_;
   std::function<bool(int, std::uint64_t)> skip_;
+  int unseen_commands_;
+  mutable std::mutex mutex_;
+  std::vector<std::string> ids_;
   std::shared_ptr<dds::Participant> participant_;
   std::unique_ptr<dds::Reader<dds::msg::Command>> commands_;
   std::unique_ptr<dds::Writer<dds::msg::Reply>> replies_;
@@ -160,6 +182,27 @@ TEST_F(FetchRetry, ATransferOfWhichNoChunkCameIsAskedForAgain) {
   ASSERT_EQ(got.status, FetchStatus::kOk) << got.message;
   EXPECT_EQ(got.retries, 1);
   EXPECT_EQ(fake.gets(), 2);
+  EXPECT_TRUE(ReadOut() == payload_) << "the fetched file differs from the station's";
+}
+
+TEST_F(FetchRetry, AGetTheStationNeverSawIsSentAgainUnderItsId) {
+  const std::string station = ::craftscan::testing::UniqueStation("fr");
+  // The station's command reader misses the first two sends of the get.
+  ScriptedStation fake(
+      station, payload_, [](int, std::uint64_t) { return false; }, 2);
+  const auto start = std::chrono::steady_clock::now();
+  const FetchResult got = Fetch(station);
+  const double seconds =
+      std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  ASSERT_EQ(got.status, FetchStatus::kOk) << got.message;
+  EXPECT_EQ(got.retries, 0);  // one transfer: the same get, sent again
+  EXPECT_EQ(fake.gets(), 1);
+  const std::vector<std::string> ids = fake.ids();
+  ASSERT_EQ(ids.size(), 3u);
+  EXPECT_EQ(ids[0], ids[1]);
+  EXPECT_EQ(ids[1], ids[2]);
+  // Sent again after 1 s and 2 s more, not after the 20 s timeout.
+  EXPECT_LT(seconds, 10.0);
   EXPECT_TRUE(ReadOut() == payload_) << "the fetched file differs from the station's";
 }
 

@@ -13,6 +13,7 @@
 #include "craftscan/daemon/session_store.h"
 #include "craftscan/pipeline/calib/calibration.h"
 #include "craftscan/pipeline/common/ply.h"
+#include "craftscan/pipeline/surface/mesh.h"
 #include "craftscan/pipeline/surface/scan_reconstruction.h"
 #include "craftscan/pipeline/surface/visibility.h"
 #include "file_util.h"
@@ -23,7 +24,8 @@ namespace craftscan::testing {
 // The fused cloud the station makes from the session's stored views, with
 // its own pipeline settings (the daemon's config file).
 inline std::string LocalFusedPly(const std::string& config_path, const std::string& data_dir,
-                                 const std::string& session_id, int threads) {
+                                 const std::string& session_id, int threads,
+                                 std::string* mesh_obj = nullptr) {
   std::string error;
   daemon::DaemonConfig config;
   EXPECT_TRUE(daemon::ParseDaemonConfig(ReadFile(config_path), {}, &config, &error)) << error;
@@ -47,6 +49,7 @@ inline std::string LocalFusedPly(const std::string& config_path, const std::stri
   scan.camera = RectifiedLeftCamera(calibration);
   const ScanResult r = ReconstructScan(views, calibration.turntable, scan);
   EXPECT_TRUE(r.IsUsable()) << r.message;
+  if (mesh_obj) *mesh_obj = EncodeMeshObj(r.mesh.mesh);
   return EncodePly(r.fused, true);
 }
 

@@ -129,9 +129,16 @@ TEST(RemoteJobs, AScanReconstructedByAWorkerIsTheModelTheStationWouldHaveMade) {
   const std::string dir = station.fixture.data_dir() + "/sessions/" + session;
   const std::string stored = ReadFile(dir + "/fused.ply");
   ASSERT_FALSE(stored.empty());
+  std::string local_obj;
   EXPECT_TRUE(stored == LocalFusedPly(station.fixture.root() + "/craftscand.yaml",
-                                      station.fixture.data_dir(), session, TestThreads()))
+                                      station.fixture.data_dir(), session, TestThreads(),
+                                      &local_obj))
       << "the worker's fused.ply differs from a local reconstruction of the same views";
+  // mesh.obj does not travel (half the bytes back): the station writes it
+  // from the worker's mesh.ply, the same bytes as its own.
+  ASSERT_FALSE(local_obj.empty());
+  EXPECT_TRUE(ReadFile(dir + "/mesh.obj") == local_obj)
+      << "the station's mesh.obj differs from a local reconstruction's";
   for (const char* name : {"mesh.ply", "mesh.glb", "report.json", "report.html"})
     EXPECT_FALSE(ReadFile(dir + "/" + name).empty()) << name;
   const json report = json::parse(ReadFile(dir + "/report.json"), nullptr, false);

@@ -481,6 +481,7 @@ class Loop {
       return ReadPfm(view_file(index, "disparity.pfm"), disparity, nullptr);
     };
     if (params.value("report", false)) c.report = daemon::MakeReportFiles;
+    c.mesh_obj = false;  // the station writes it from mesh.ply: half the bytes back
     c.log = [this](drivers::LogLevel level, std::string_view message) {
       Log(static_cast<int>(level), std::string(message));
     };

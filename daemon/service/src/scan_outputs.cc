@@ -7,6 +7,7 @@
 #include "craftscan/daemon/report.h"
 #include "craftscan/pipeline/common/atomic_file.h"
 #include "craftscan/pipeline/common/ply.h"
+#include "craftscan/pipeline/common/triangle_mesh.h"
 #include "craftscan/pipeline/surface/mesh.h"
 
 namespace craftscan::daemon {
@@ -105,7 +106,7 @@ ScanOutputs MakeScanOutputs(const ScanResult& r, const std::string& report_json,
   out.files.push_back({"fused.ply", EncodePly(r.fused, true), true});
   if (mesh) {
     out.files.push_back({"mesh.ply", EncodeMeshPly(r.mesh.mesh, true), true});
-    out.files.push_back({"mesh.obj", EncodeMeshObj(r.mesh.mesh), true});
+    if (context.mesh_obj) out.files.push_back({"mesh.obj", EncodeMeshObj(r.mesh.mesh), true});
     if (std::string glb = EncodeModel(report_json, r, context); !glb.empty())
       out.files.push_back({"mesh.glb", std::move(glb), true});
   }
@@ -122,6 +123,23 @@ ScanOutputs MakeScanOutputs(const ScanResult& r, const std::string& report_json,
   if (report.is_object() && report.contains("measurement"))
     out.result["measurement"] = report["measurement"];
   return out;
+}
+
+StageOutcome StoreMeshObjFromPly(Session& session) {
+  const Manifest manifest = session.manifest();
+  if (!manifest.outputs.count("mesh.ply") || manifest.outputs.count("mesh.obj"))
+    return StageOutcome::Ok();
+  TriangleMesh mesh;
+  std::string why;
+  // Unreadable as stored (a disk error, or a worker's mesh.ply that passed
+  // its checksum but is no mesh): resumable, as a resume makes the model again.
+  if (!ReadMeshPly(session.dir() + "/mesh.ply", &mesh, &why))
+    return StageOutcome::Error(ErrorCode::kIoError, "mesh.obj from mesh.ply: " + why, true);
+  const std::string obj = EncodeMeshObj(mesh);
+  const Status stored = session.StoreOutputWith(
+      "mesh.obj", [&obj](const std::string& path) { return WriteFileAtomically(path, obj); });
+  if (!stored.ok()) return StageOutcome::Storage(stored, "outputs: ");
+  return StageOutcome::Ok();
 }
 
 StageOutcome StoreScanOutputs(Session& session, const ScanOutputs& outputs, const LogFn& log) {

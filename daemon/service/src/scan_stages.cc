@@ -529,6 +529,11 @@ void ReconstructStage::StoreRemote(const RemoteJobOutcome& handed, double recons
     out->status = stored;
     return;
   }
+  // A worker leaves mesh.obj out (ScanOutputContext::mesh_obj).
+  if (StageOutcome stored = StoreMeshObjFromPly(session); !stored.ok()) {
+    out->status = stored;
+    return;
+  }
   PointCloud fused;
   std::string why;
   if (context_.sink && ReadPly(session.dir() + "/fused.ply", &fused, &why))

@@ -37,6 +37,11 @@ struct ScanOutputContext {
   // A view's disparity map (px), for the report's pictures; may be empty.
   std::function<bool(int view, cv::Mat* disparity_px)> load_disparity;
   ReportWriter report;  // may be empty: no report pages
+  // false: mesh.obj is left out. A worker sends its outputs without it (the
+  // text OBJ is about half of a job's bytes) and the station writes it from
+  // the mesh.ply it received (StoreMeshObjFromPly), the same bytes as its
+  // own would be: PLY holds the mesh's floats and colours exactly.
+  bool mesh_obj = true;
   ProgressFn progress;  // may be empty
   LogFn log;            // may be empty
 };
@@ -64,6 +69,12 @@ ScanOutputContext SessionOutputContext(const Session& session,
 // left out. Never throws.
 ScanOutputs MakeScanOutputs(const ScanResult& r, const std::string& report_json,
                             const ScanOutputContext& context);
+
+// When `session` has a mesh.ply output and no mesh.obj: reads mesh.ply back
+// and stores the OBJ that MakeScanOutputs would have made of the same mesh
+// (atomically; a failure is a Storage outcome, resumable). Otherwise does
+// nothing.
+StageOutcome StoreMeshObjFromPly(Session& session);
 
 // Stores `outputs` in `session`, each atomically: a required file that
 // cannot be stored → Storage outcome (resumable); a report page is logged.

@@ -80,53 +80,13 @@ class MeshShape : public Primitive {
 
   bool Intersect(const V3& o, const V3& d, double t_min, double t_max,
                  LocalHit* hit) const override {
-    if (nodes_.empty()) return false;
-    const V3 inv(1 / d.x, 1 / d.y, 1 / d.z);
-    int stack[128];
-    int top = 0;
-    stack[top++] = 0;
-    bool found = false;
-    while (top > 0) {
-      const Node& node = nodes_[static_cast<std::size_t>(stack[--top])];
-      double enter;
-      if (!HitBox(node.box, o, inv, t_min, t_max, &enter)) continue;
-      if (node.count > 0) {
-        for (int i = node.first; i < node.first + node.count; ++i) {
-          const int tri = order_[static_cast<std::size_t>(i)];
-          double t, u, v;
-          if (HitTriangle(tri, o, d, &t, &u, &v) && t > t_min && t < t_max) {
-            t_max = t;
-            hit->t = t;
-            hit->part = tri;
-            hit->u = u;
-            hit->v = v;
-            found = true;
-          }
-        }
-        continue;
-      }
-      // Visit the nearer child first (pushed last).
-      const int left = node.first, right = node.first + 1;
-      double el = 1e300, er = 1e300;
-      const bool hl = HitBox(nodes_[static_cast<std::size_t>(left)].box, o, inv, t_min, t_max, &el);
-      const bool hr =
-          HitBox(nodes_[static_cast<std::size_t>(right)].box, o, inv, t_min, t_max, &er);
-      if (hl && hr) {
-        if (el < er) {
-          stack[top++] = right;
-          stack[top++] = left;
-        } else {
-          stack[top++] = left;
-          stack[top++] = right;
-        }
-      } else if (hl) {
-        stack[top++] = left;
-      } else if (hr) {
-        stack[top++] = right;
-      }
-    }
-    if (found) hit->p = o + d * hit->t;
-    return found;
+    return Walk<false>(o, d, t_min, t_max, hit);
+  }
+
+  // Any triangle hit in (t_min, t_max) ends the walk (a shadow ray).
+  bool Occludes(const V3& o, const V3& d, double t_min, double t_max) const override {
+    LocalHit hit;
+    return Walk<true>(o, d, t_min, t_max, &hit);
   }
 
   double MinAlong(const V3& n) const override {
@@ -229,6 +189,60 @@ class MeshShape : public Primitive {
     centroids_.shrink_to_fit();
     boxes_.clear();
     boxes_.shrink_to_fit();
+  }
+
+  // The BVH walk, nearer child first: the nearest hit, or with kAnyHit the
+  // first one found (*hit then holds only its t).
+  template <bool kAnyHit>
+  bool Walk(const V3& o, const V3& d, double t_min, double t_max, LocalHit* hit) const {
+    if (nodes_.empty()) return false;
+    const V3 inv(1 / d.x, 1 / d.y, 1 / d.z);
+    int stack[128];
+    int top = 0;
+    stack[top++] = 0;
+    bool found = false;
+    while (top > 0) {
+      const Node& node = nodes_[static_cast<std::size_t>(stack[--top])];
+      double enter;
+      if (!HitBox(node.box, o, inv, t_min, t_max, &enter)) continue;
+      if (node.count > 0) {
+        for (int i = node.first; i < node.first + node.count; ++i) {
+          const int tri = order_[static_cast<std::size_t>(i)];
+          double t, u, v;
+          if (HitTriangle(tri, o, d, &t, &u, &v) && t > t_min && t < t_max) {
+            t_max = t;
+            hit->t = t;
+            if constexpr (kAnyHit) return true;
+            hit->part = tri;
+            hit->u = u;
+            hit->v = v;
+            found = true;
+          }
+        }
+        continue;
+      }
+      // Visit the nearer child first (pushed last).
+      const int left = node.first, right = node.first + 1;
+      double el = 1e300, er = 1e300;
+      const bool hl = HitBox(nodes_[static_cast<std::size_t>(left)].box, o, inv, t_min, t_max, &el);
+      const bool hr =
+          HitBox(nodes_[static_cast<std::size_t>(right)].box, o, inv, t_min, t_max, &er);
+      if (hl && hr) {
+        if (el < er) {
+          stack[top++] = right;
+          stack[top++] = left;
+        } else {
+          stack[top++] = left;
+          stack[top++] = right;
+        }
+      } else if (hl) {
+        stack[top++] = left;
+      } else if (hr) {
+        stack[top++] = right;
+      }
+    }
+    if (found) hit->p = o + d * hit->t;
+    return found;
   }
 
   void BuildNode(int node_index, int begin, int end, int depth) {

@@ -31,44 +31,26 @@ class MarchedSolid : public Primitive {
 
   bool Intersect(const V3& o, const V3& d, double t_min, double t_max,
                  LocalHit* hit) const override {
-    double t0 = t_min, t1 = t_max;
-    for (int a = 0; a < 3; ++a) {
-      const double oa = o[a], da = d[a];
-      if (da == 0) {
-        if (oa < lo_[a] || oa > hi_[a]) return false;
-        continue;
-      }
-      double ta = (lo_[a] - oa) / da, tb = (hi_[a] - oa) / da;
-      if (ta > tb) std::swap(ta, tb);
-      t0 = std::max(t0, ta);
-      t1 = std::min(t1, tb);
-      if (t0 > t1) return false;
+    Crossing c;
+    switch (March(o, d, t_min, t_max, &c)) {
+      case Marched::kMiss:
+        return false;
+      case Marched::kAtEntry:
+        hit->t = c.t_in;
+        break;
+      case Marched::kCrossed:
+        hit->t = Refine(o, d, c.t_out, c.f_out, c.t_in, c.f_in, c.length);
+        break;
     }
-    const double length = Norm(d);
-    const double lipschitz = RayLipschitz(d / length);
-    double t = t0;
-    double f = Field(o + d * t);
-    if (f >= 0) {  // on the bounding box's surface (an uncut face) or starting inside
-      if (!(t > t_min)) return false;
-      hit->t = t;
-      hit->p = o + d * t;
-      return true;
-    }
-    for (int step = 0; step < kMaxSteps; ++step) {
-      double tn = t + std::max(-f / lipschitz, min_step_mm_) / length;
-      const bool last = tn >= t1;
-      if (last) tn = t1;
-      const double fn = Field(o + d * tn);
-      if (fn >= 0) {
-        hit->t = Refine(o, d, t, f, tn, fn, length);
-        hit->p = o + d * hit->t;
-        return true;
-      }
-      if (last) return false;
-      t = tn;
-      f = fn;
-    }
-    return false;
+    hit->p = o + d * hit->t;
+    return true;
+  }
+
+  // Whether the ray crosses the surface in (t_min, t_max): the same march
+  // as Intersect, without refining where (a shadow ray needs no more).
+  bool Occludes(const V3& o, const V3& d, double t_min, double t_max) const override {
+    Crossing c;
+    return March(o, d, t_min, t_max, &c) != Marched::kMiss;
   }
 
  protected:
@@ -89,6 +71,52 @@ class MarchedSolid : public Primitive {
 
  private:
   static constexpr int kMaxSteps = 20000;
+
+  enum class Marched { kMiss, kAtEntry, kCrossed };
+  // kAtEntry: F ≥ 0 where the ray enters the bounding box, at t_in;
+  // kCrossed: F < 0 at t_out and ≥ 0 at t_in (with the values f_out, f_in).
+  struct Crossing {
+    double t_out = 0, f_out = 0, t_in = 0, f_in = 0, length = 0;
+  };
+
+  Marched March(const V3& o, const V3& d, double t_min, double t_max, Crossing* c) const {
+    double t0 = t_min, t1 = t_max;
+    for (int a = 0; a < 3; ++a) {
+      const double oa = o[a], da = d[a];
+      if (da == 0) {
+        if (oa < lo_[a] || oa > hi_[a]) return Marched::kMiss;
+        continue;
+      }
+      double ta = (lo_[a] - oa) / da, tb = (hi_[a] - oa) / da;
+      if (ta > tb) std::swap(ta, tb);
+      t0 = std::max(t0, ta);
+      t1 = std::min(t1, tb);
+      if (t0 > t1) return Marched::kMiss;
+    }
+    const double length = Norm(d);
+    const double lipschitz = RayLipschitz(d / length);
+    double t = t0;
+    double f = Field(o + d * t);
+    if (f >= 0) {  // on the bounding box's surface (an uncut face) or starting inside
+      if (!(t > t_min)) return Marched::kMiss;
+      c->t_in = t;
+      return Marched::kAtEntry;
+    }
+    for (int step = 0; step < kMaxSteps; ++step) {
+      double tn = t + std::max(-f / lipschitz, min_step_mm_) / length;
+      const bool last = tn >= t1;
+      if (last) tn = t1;
+      const double fn = Field(o + d * tn);
+      if (fn >= 0) {
+        *c = {t, f, tn, fn, length};
+        return Marched::kCrossed;
+      }
+      if (last) return Marched::kMiss;
+      t = tn;
+      f = fn;
+    }
+    return Marched::kMiss;
+  }
 
   // Illinois regula falsi between t_out (F < 0) and t_in (F ≥ 0); returns a
   // point with F ≥ 0 within 1e-7 mm of the crossing.

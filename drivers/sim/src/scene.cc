@@ -123,8 +123,7 @@ bool Scene::Impl::Occluded(const V3& o, const V3& d, double t_min, double t_max)
   for (const auto& p : primitives) {
     if (p->label() == SurfaceLabel::kBackground) continue;  // nothing lies behind them
     const V3 lo = p->local_from_world.Apply(o), ld = p->local_from_world.Rotate(d);
-    LocalHit local;
-    if (p->Intersect(lo, ld, t_min, t_max, &local)) return true;
+    if (p->Occludes(lo, ld, t_min, t_max)) return true;
   }
   return false;
 }

@@ -29,6 +29,12 @@ class Primitive {
   // Nearest hit with t in (t_min, t_max) of the local ray o + t·d.
   virtual bool Intersect(const V3& o, const V3& d, double t_min, double t_max,
                          LocalHit* hit) const = 0;
+  // Whether some hit has t in (t_min, t_max): what Intersect returns, for a
+  // shadow ray, which needs no nearest hit (overridden where that is less work).
+  virtual bool Occludes(const V3& o, const V3& d, double t_min, double t_max) const {
+    LocalHit hit;
+    return Intersect(o, d, t_min, t_max, &hit);
+  }
   // Outward unit normal (local frame) and albedo (BGR, [0, 1]) at a hit.
   virtual void Surface(const LocalHit& hit, V3* normal, V3* albedo) const = 0;
 

@@ -29,7 +29,8 @@ TriangleMesh OddMesh() {
                       {101.00001f, 0.3333333f, -7.25f},
                       {-0.0f, 55.5555f, 1.0f / 3.0f},
                       {12.0f, 13.0f, 1e7f / 3.0f}};
-  for (const cv::Vec3f& v : mesh.vertices_mm) mesh.normals.push_back(cv::normalize(v + cv::Vec3f(1, 2, 3)));
+  for (const cv::Vec3f& v : mesh.vertices_mm)
+    mesh.normals.push_back(cv::normalize(v + cv::Vec3f(1, 2, 3)));
   mesh.colors_rgb = {{0, 1, 2}, {255, 128, 7}, {33, 66, 99}, {254, 253, 252}};
   mesh.faces = {{0, 1, 2}, {0, 3, 1}, {1, 3, 2}, {2, 3, 0}};
   return mesh;
@@ -42,7 +43,8 @@ TEST_F(ScanOutputFiles, TheObjWrittenFromAWorkersMeshPlyIsTheStationsOwnByteForB
   ASSERT_NE(session, nullptr);
   const TriangleMesh mesh = OddMesh();
   std::string error;
-  ASSERT_TRUE(::craftscan::testing::Ok(session->StoreOutput("mesh.ply", EncodeMeshPly(mesh, true)), &error))
+  ASSERT_TRUE(
+      ::craftscan::testing::Ok(session->StoreOutput("mesh.ply", EncodeMeshPly(mesh, true)), &error))
       << error;
   const StageOutcome outcome = StoreMeshObjFromPly(*session);
   ASSERT_TRUE(outcome.ok()) << outcome.message;
@@ -56,9 +58,8 @@ TEST_F(ScanOutputFiles, AnUnreadableMeshPlyIsAResumableErrorNamingIt) {
   auto session = NewCapturing("box");
   ASSERT_NE(session, nullptr);
   std::string error;
-  ASSERT_TRUE(
-      ::craftscan::testing::Ok(session->StoreOutput("mesh.ply", "ply\nformat ascii 1.0\nelement vertex 3\n"),
-                  &error))
+  ASSERT_TRUE(::craftscan::testing::Ok(
+      session->StoreOutput("mesh.ply", "ply\nformat ascii 1.0\nelement vertex 3\n"), &error))
       << error;
   const StageOutcome outcome = StoreMeshObjFromPly(*session);
   EXPECT_FALSE(outcome.ok());
@@ -77,9 +78,11 @@ TEST_F(ScanOutputFiles, WithoutMeshPlyOrWithItsObjNothingIsWritten) {
   // A station's own outputs (or an older worker's) carry mesh.obj: kept as it is.
   const TriangleMesh mesh = OddMesh();
   std::string error;
-  ASSERT_TRUE(::craftscan::testing::Ok(session->StoreOutput("mesh.ply", EncodeMeshPly(mesh, true)), &error))
+  ASSERT_TRUE(
+      ::craftscan::testing::Ok(session->StoreOutput("mesh.ply", EncodeMeshPly(mesh, true)), &error))
       << error;
-  ASSERT_TRUE(::craftscan::testing::Ok(session->StoreOutput("mesh.obj", "# kept\n"), &error)) << error;
+  ASSERT_TRUE(::craftscan::testing::Ok(session->StoreOutput("mesh.obj", "# kept\n"), &error))
+      << error;
   EXPECT_TRUE(StoreMeshObjFromPly(*session).ok());
   EXPECT_EQ(ReadAll(session->dir() + "/mesh.obj"), "# kept\n");
 }

@@ -3,7 +3,8 @@
 // axis-aligned bounding box; rays are marched with conservative steps
 // (sphere tracing, never shorter than a minimum step) and the crossing is
 // refined to 1e-7 mm. Images and ground truth use the same intersection, so
-// the ground truth is exactly what is rendered.
+// the ground truth is exactly what is rendered. A shadow ray (Occludes) is
+// marched the same way and not refined: it only asks whether it crosses.
 #include <algorithm>
 #include <array>
 #include <cmath>

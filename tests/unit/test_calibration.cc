@@ -678,6 +678,23 @@ TEST_F(CalibrationFileErrors, EmptyTruncatedAndGarbage) {
   EXPECT_NE(other.find("'format'"), std::string::npos) << other;
 }
 
+// OpenCV 4.6's YAML reader loops forever where text follows the first
+// top-level collection and a '-' comes where it looks for the next "---"
+// (found by tests/fuzz). A line at column 0 that is not a key of the file's
+// map is refused before OpenCV parses anything; without that check this test
+// never returns.
+TEST_F(CalibrationFileErrors, ALineAtColumnZeroThatIsNotAKeyIsRefusedBeforeParsing) {
+  for (const std::string& text :
+       {std::string("%YAML:1.0\n  -A\n0 --\nx\n"), std::string("%YAML:1.0\n  --A\n0 ---\nx\n"),
+        text_ + "- 1\n", text_ + "0 --\n"}) {
+    const std::string error = LoadError(text);
+    EXPECT_NE(error.find("not a key of the file's map"), std::string::npos) << text << error;
+  }
+  // What SaveCalibration writes passes the check: keys at column 0,
+  // everything else indented, and comments.
+  EXPECT_TRUE(LoadError(text_ + "# a comment\n").empty()) << LoadError(text_ + "# a comment\n");
+}
+
 TEST_F(CalibrationFileErrors, MissingKeyIsNamed) {
   for (const std::string key :
        {"Q", "R1", "P2", "T", "left", "image_width", "board", "turntable", "format_version"}) {

@@ -3,6 +3,7 @@
 #include <sys/stat.h>
 #include <unistd.h>
 
+#include <cctype>
 #include <cerrno>
 #include <cmath>
 #include <cstring>
@@ -63,11 +64,27 @@ void WriteReport(cv::FileStorage& fs, const CalibrationReport& r) {
   fs << "}";
 }
 
-// OpenCV's YAML reader (4.6) loops forever on some stream structures, e.g.
-// "%YAML:1.0\n---YAML:1.0\n---\n- 1\n" (found by tests/fuzz). A calibration
-// file is one document as SaveCalibration writes it: a "%" directive only on
-// the first line, and at most one "---" line with nothing after the marker.
-// Files of other shapes are refused before OpenCV sees them.
+// OpenCV's YAML reader (4.6) loops forever when text follows the first
+// top-level collection and the next character after the three it skips (as
+// a "---") is a '-' that does not start "---": its search for the next
+// document neither advances nor fails there. Found twice by tests/fuzz:
+// "%YAML:1.0\n---YAML:1.0\n---\n- 1\n" and "%YAML:1.0\n  -A\n0 --\nx\n". A
+// calibration file is one document as SaveCalibration writes it: a "%"
+// directive only on the first line, at most one "---" line with nothing
+// after the marker, and one map at column 0, so every other line that
+// starts at column 0 is one of its keys ("name:"); nested values are
+// indented. Then that map runs to the end of the file and OpenCV never
+// looks for a second document. Files of other shapes are refused before
+// OpenCV sees them.
+bool IsRootKeyLine(std::string_view line) {
+  std::size_t i = 0;
+  while (i < line.size() &&
+         (std::isalnum(static_cast<unsigned char>(line[i])) != 0 || line[i] == '_'))
+    ++i;
+  if (i == 0 || i >= line.size() || line[i] != ':') return false;
+  return i + 1 == line.size() || line[i + 1] == ' ' || line[i + 1] == '\r';
+}
+
 bool HasOneDocumentShape(const std::string& text, std::string* why) {
   int markers = 0;
   std::size_t line_number = 0;
@@ -89,6 +106,11 @@ bool HasOneDocumentShape(const std::string& text, std::string* why) {
         *why = "line " + std::to_string(line_number) + ": text after the document marker '---'";
         return false;
       }
+    } else if (line_number != 1 && !line.empty() && line[0] != ' ' && line[0] != '\r' &&
+               line[0] != '#' && !IsRootKeyLine(line)) {
+      *why = "line " + std::to_string(line_number) +
+             ": not a key of the file's map ('name:') and not indented";
+      return false;
     }
     begin = end + 1;
   }

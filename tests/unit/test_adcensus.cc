@@ -81,8 +81,9 @@ TEST(Cost, MatchesMeiFormulaIncludingOutOfImageDisparities) {
 }
 
 // Each ρ term rounded to 1/kCostScale on its own, then summed: the exact
-// fixed-point value, whichever way the row is computed (in-register look-ups
-// on AVX-512 when ρ_AD saturates by a sum of 255, the table otherwise).
+// fixed-point value, whichever way the row is computed (when ρ_AD saturates by
+// a sum of 255: in-register look-ups on AVX-512, the 16-bit table by vector
+// indices on AVX2; the 32-bit table otherwise).
 TEST(Cost, RowsAreTheFixedPointTermsExactlyForColourAndGreyAndAnyLambda) {
   const cv::Mat colour_left = RandomTexture(77, 9, 5), colour_right = RandomTexture(77, 9, 6);
   const Parallel parallel(2);

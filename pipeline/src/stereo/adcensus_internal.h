@@ -149,6 +149,11 @@ class CostComputer {
   std::int16_t census16_[65] = {};
   bool permute_ = false;
   void PermuteRow(int y, Scratch* scratch, Cost* out, const std::int32_t* offsets) const;
+  // Without AVX-512 (AVX2): ρ_AD + ρ_census as 16-bit entries
+  // [hamming · 256 + min(sum, 255)] (33 kB) when ρ_AD saturates by 255 and
+  // every cost fits 16 bits; empty otherwise.
+  std::vector<std::int16_t> lut16_;
+  void TableRow(int y, Scratch* scratch, Cost* out, const std::int32_t* offsets) const;
 };
 
 // The whole volume, row by row in parallel (*cost shaped by the caller).

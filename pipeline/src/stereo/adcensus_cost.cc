@@ -278,13 +278,13 @@ void CostComputer::PermuteRow(int, Scratch*, Cost*, const std::int32_t*) const {
 #endif
 
 #if CRAFTSCAN_COST_AVX2
-// Row() on AVX2 (no AVX-512), 8 lanes at a time: the Hamming distances by
+// Row() on AVX2 (no AVX-512), 16 lanes at a time: the Hamming distances by
 // nibble look-ups (vpshufb) and vpsadbw (AVX2 has no vector popcount), the
-// sums of differences and each lane's index into lut16_ as vectors, then
-// the entries read one by one: on Zen 3 a 32-bit gather of the 16-bit table
-// was slower (Teddy's volume on one thread: the int32 table's gathers 13.7
-// ms, gathers of lut16_ 12.5, these loads 10.3). The last lanes (fewer than
-// 8) one by one. Same values as the table's.
+// sums of differences and each lane's index into lut16_ as 16-bit vectors,
+// then the entries read one by one: on Zen 3 a 32-bit gather of the 16-bit
+// table was slower (Teddy's volume on one thread: the int32 table's gathers
+// 13.7 ms, 8 lanes of lut16_ gathered 12.5, read one by one 10.0). The last
+// lanes (fewer than 16) one by one. Same values as the table's.
 void CostComputer::TableRow(int y, Scratch* scratch, Cost* out, const std::int32_t* offsets) const {
   const int width = left_.cols, channels = left_.channels();
   const std::uint8_t* pl = left_.ptr<std::uint8_t>(y);
@@ -293,8 +293,8 @@ void CostComputer::TableRow(int y, Scratch* scratch, Cost* out, const std::int32
                                                  1, 1, 2, 1, 2, 2, 3, 1, 2, 2, 3, 2, 3, 3, 4);
   const __m256i low_nibble = _mm256_set1_epi8(0x0f);
   const __m256i in_order = _mm256_setr_epi32(0, 2, 4, 6, 1, 3, 5, 7);
-  const __m256i top = _mm256_set1_epi32(255);
-  alignas(32) std::int32_t index[8];
+  const __m256i top = _mm256_set1_epi16(255);
+  alignas(32) std::uint16_t index[16];
   // Population counts of four 64-bit words, one per 64-bit lane.
   const auto popcount4 = [&](__m256i v) {
     const __m256i lo = _mm256_and_si256(v, low_nibble);
@@ -311,28 +311,35 @@ void CostComputer::TableRow(int y, Scratch* scratch, Cost* out, const std::int32
         __m256i a[3];
         const std::int16_t* r[3] = {};
         for (int c = 0; c < channels; ++c) {
-          a[c] = _mm256_set1_epi32(pl[channels * x + c]);
+          a[c] = _mm256_set1_epi16(pl[channels * x + c]);
           r[c] = scratch->rev_colour16.data() + static_cast<std::size_t>(c) * width + j0;
         }
         const std::uint64_t* rc = scratch->rev_census.data() + j0;
         int k = k_lo;
-        for (; k + 8 <= k_hi; k += 8) {
-          const __m256i w0 = _mm256_loadu_si256(reinterpret_cast<const __m256i*>(rc + k));
-          const __m256i w1 = _mm256_loadu_si256(reinterpret_cast<const __m256i*>(rc + k + 4));
-          const __m256i c0 = popcount4(_mm256_xor_si256(w0, anchor));
-          const __m256i c1 = popcount4(_mm256_xor_si256(w1, anchor));
-          // (c0₀, c1₀, c0₁, c1₁, …) as 32-bit lanes, then in lane order.
-          const __m256i h = _mm256_permutevar8x32_epi32(
-              _mm256_blend_epi32(c0, _mm256_slli_epi64(c1, 32), 0xaa), in_order);
+        for (; k + 16 <= k_hi; k += 16) {
+          const auto words = [&](int at) {
+            return _mm256_xor_si256(
+                _mm256_loadu_si256(reinterpret_cast<const __m256i*>(rc + k + at)), anchor);
+          };
+          // Pairs of four counts as (c0₀, c1₀, c0₁, c1₁, …) 32-bit lanes, put
+          // in lane order; then narrowed to 16 bits (the pack works per
+          // 128-bit half, the permute puts the halves in order).
+          const auto eight = [&](__m256i c0, __m256i c1) {
+            return _mm256_permutevar8x32_epi32(
+                _mm256_blend_epi32(c0, _mm256_slli_epi64(c1, 32), 0xaa), in_order);
+          };
+          const __m256i h = _mm256_permute4x64_epi64(
+              _mm256_packus_epi32(eight(popcount4(words(0)), popcount4(words(4))),
+                                  eight(popcount4(words(8)), popcount4(words(12)))),
+              0xd8);
           __m256i sad = _mm256_setzero_si256();
-          for (int c = 0; c < channels; ++c) {
-            const __m256i rv =
-                _mm256_cvtepi16_epi32(_mm_loadu_si128(reinterpret_cast<const __m128i*>(r[c] + k)));
-            sad = _mm256_add_epi32(sad, _mm256_abs_epi32(_mm256_sub_epi32(a[c], rv)));
-          }
+          for (int c = 0; c < channels; ++c)
+            sad = _mm256_add_epi16(
+                sad, _mm256_abs_epi16(_mm256_sub_epi16(
+                         a[c], _mm256_loadu_si256(reinterpret_cast<const __m256i*>(r[c] + k)))));
           _mm256_store_si256(reinterpret_cast<__m256i*>(index),
-                             _mm256_add_epi32(_mm256_slli_epi32(h, 8), _mm256_min_epi32(sad, top)));
-          for (int i = 0; i < 8; ++i) o[k + i] = lut16_[index[i]];
+                             _mm256_add_epi16(_mm256_slli_epi16(h, 8), _mm256_min_epu16(sad, top)));
+          for (int i = 0; i < 16; ++i) o[k + i] = lut16_[index[i]];
         }
         for (; k < k_hi; ++k) {
           int sad = 0;
@@ -407,10 +414,28 @@ struct Planes {
   const std::uint8_t* row(int c, int y) const { return plane[c].ptr<std::uint8_t>(y); }
 };
 
-// The image's planes, written into *memory.
+// Bytes readable past the end of every row buffer the arms' vector loops
+// read (and writable past those they write): their last vector reads and
+// writes whole, masked by its lanes (a vector is at most 64 bytes).
+constexpr int kArmPad = 64;
+
+// The image's planes, written into *memory, each with kArmPad readable bytes
+// after its last row (its rows are views of a taller buffer).
 Planes Split(const cv::Mat& image, std::vector<cv::Mat>* memory) {
+  const int channels = image.channels();
+  memory->resize(channels);
+  const int extra = 1 + kArmPad / image.cols;
+  for (cv::Mat& plane : *memory) {
+    if (plane.rows == image.rows && plane.cols == image.cols && plane.type() == CV_8UC1 &&
+        plane.isContinuous() && plane.datalimit - plane.dataend >= kArmPad)
+      continue;
+    plane = cv::Mat(image.rows + extra, image.cols, CV_8UC1).rowRange(0, image.rows);
+  }
+  std::vector<const std::uint8_t*> kept;
+  for (const cv::Mat& plane : *memory) kept.push_back(plane.data);
   cv::split(image, *memory);
-  return Planes{image.channels(), image.cols, image.rows, *memory};
+  for (int c = 0; c < channels; ++c) CV_Assert((*memory)[c].data == kept[c]);
+  return Planes{channels, image.cols, image.rows, *memory};
 }
 
 inline std::uint8_t AbsDiff(std::uint8_t a, std::uint8_t b) {
@@ -428,7 +453,8 @@ struct RowLimits {
 // limit beyond l2, the gradient), and each active anchor's arm grows by one.
 // Returns whether any anchor is still active. Whole vectors, the last one
 // masked (the compiler's version ended in a scalar loop of up to 63 pixels,
-// as long as the rest, for every length of every row).
+// as long as the rest, for every length of every row; AVX2 has no masked
+// byte loads, so the buffers are padded instead).
 bool GrowArms(std::uint8_t len, const RowLimits& lim, const std::uint8_t* __restrict d_anchor,
               const std::uint8_t* __restrict d_prev, const std::uint8_t* __restrict grad_ok, int x0,
               int x1, std::uint8_t* __restrict active, std::uint8_t* __restrict out) {
@@ -438,7 +464,9 @@ bool GrowArms(std::uint8_t len, const RowLimits& lim, const std::uint8_t* __rest
   const auto vlen = hn::Set(d, len);
   const auto zero = hn::Zero(d);
   auto any = zero;
-  const auto step = [&](int x, auto load, auto store) {
+  // Anchors [x, x + lanes) where `valid` (the last vector: those before x1).
+  const auto step = [&](int x, hn::Mask<decltype(d)> valid) {
+    const auto load = [&](const std::uint8_t* p) { return hn::LoadU(d, p); };
     const auto anchor = load(d_anchor + x);
     const auto tau = load(lim.tau.data() + x);
     const auto ok =
@@ -446,43 +474,23 @@ bool GrowArms(std::uint8_t len, const RowLimits& lim, const std::uint8_t* __rest
                         hn::And(hn::Lt(load(d_prev + x), tau), hn::Ne(load(grad_ok + x), zero))),
                 hn::Or(hn::Not(hn::Lt(load(lim.l2.data() + x), vlen)),
                        hn::Lt(anchor, load(lim.tau2.data() + x))));
-    const auto a = hn::IfThenElseZero(ok, load(active + x));
-    store(a, active + x);
-    store(hn::Add(load(out + x), a), out + x);
+    const auto a = hn::IfThenElseZero(hn::And(ok, valid), load(active + x));
+    hn::StoreU(a, d, active + x);
+    hn::StoreU(hn::Add(load(out + x), a), d, out + x);
     any = hn::Or(any, a);
   };
   int x = x0;
-  for (; x + lanes <= x1; x += lanes)
-    step(
-        x, [&](const std::uint8_t* p) { return hn::LoadU(d, p); },
-        [&](hn::Vec<decltype(d)> v, std::uint8_t* p) { hn::StoreU(v, d, p); });
-#if HWY_TARGET <= HWY_AVX3
-  // AVX-512's masked loads and stores touch no byte outside the mask.
-  if (x < x1) {
-    const auto m = hn::FirstN(d, static_cast<std::size_t>(x1 - x));
-    step(
-        x, [&](const std::uint8_t* p) { return hn::MaskedLoad(m, d, p); },
-        [&](hn::Vec<decltype(d)> v, std::uint8_t* p) { hn::BlendedStore(v, m, d, p); });
-  }
+  for (; x + lanes <= x1; x += lanes) step(x, hn::FirstN(d, static_cast<std::size_t>(lanes)));
+  // The last vector whole (every buffer has kArmPad bytes after x1, see
+  // BuildArms), its lanes from x1 on masked: there `active` becomes 0 (it is
+  // 0 already, or padding) and `out` gets + 0.
+  if (x < x1) step(x, hn::FirstN(d, static_cast<std::size_t>(x1 - x)));
   return !hn::AllTrue(d, hn::Eq(any, zero));
-#else
-  // Elsewhere they may read or write the whole vector: the tail pixel by pixel.
-  std::uint8_t any_tail = 0;
-  for (; x < x1; ++x) {
-    const std::uint8_t ok = static_cast<std::uint8_t>(
-        (len < lim.max_len[x]) & (d_anchor[x] < lim.tau[x]) & (d_prev[x] < lim.tau[x]) &
-        ((len <= lim.l2[x]) | (d_anchor[x] < lim.tau2[x])) & grad_ok[x]);
-    active[x] &= ok;
-    out[x] = static_cast<std::uint8_t>(out[x] + active[x]);
-    any_tail |= active[x];
-  }
-  return any_tail != 0 || !hn::AllTrue(d, hn::Eq(any, zero));
-#endif
 }
 
 // d = max over channels |a − b| for whole rows: out[x] = D_c(a[x + da], b[x + db]).
-// All channels in one pass of whole vectors, the last one masked where
-// AVX-512 allows (as GrowArms).
+// All channels in one pass of whole vectors, the last one masked with
+// AVX-512, elsewhere read whole from the padded planes and stored in part.
 void RowColourDiff(const Planes& p, int ya, int da, int yb, int db, int n, std::uint8_t* out) {
   namespace hn = hwy::HWY_NAMESPACE;
   const hn::ScalableTag<std::uint8_t> d;
@@ -521,10 +529,12 @@ void RowColourDiff(const Planes& p, int ya, int da, int yb, int db, int n, std::
                      out + x);
   }
 #else
-  for (; x < n; ++x) {
-    std::uint8_t m = 0;
-    for (int c = 0; c < channels; ++c) m = std::max(m, AbsDiff(a[c][x], b[c][x]));
-    out[x] = m;
+  // The planes have kArmPad readable bytes after their last row (Split):
+  // the last vector is read whole and its first n − x lanes kept.
+  if (x < n) {
+    alignas(64) std::uint8_t last[64];
+    hn::Store(diff(x, [&](const std::uint8_t* q) { return hn::LoadU(d, q); }), d, last);
+    std::memcpy(out + x, last, static_cast<std::size_t>(n - x));
   }
 #endif
 }
@@ -549,6 +559,26 @@ void GradientWithin(const float* a, const float* b, float limit, int x0, int x1,
   const auto vlimit = hn::Set(df, limit);
   const auto one = hn::Set(di, 1);
   int x = x0;
+#if defined(__AVX2__)
+  // 32 at a time, packed to bytes in one chain (the loop below packs each 8
+  // on its own, and was most of the arms' time on AVX2).
+  const __m256 sign = _mm256_castsi256_ps(_mm256_set1_epi32(0x7fffffff));
+  const __m256 vlim = _mm256_set1_ps(limit);
+  const __m256i order = _mm256_setr_epi32(0, 4, 1, 5, 2, 6, 3, 7);
+  const __m256i ones = _mm256_set1_epi8(1);
+  const auto within8 = [&](int at) {
+    const __m256 diff = _mm256_sub_ps(_mm256_loadu_ps(a + at), _mm256_loadu_ps(b + at));
+    return _mm256_castps_si256(_mm256_cmp_ps(_mm256_and_ps(diff, sign), vlim, _CMP_LT_OQ));
+  };
+  for (; x + 32 <= x1; x += 32) {
+    // Per 128-bit half the packs give 4 lanes of each quarter in turn; the
+    // permute puts the quarters' halves back in order.
+    const __m256i packed = _mm256_packs_epi16(_mm256_packs_epi32(within8(x), within8(x + 8)),
+                                              _mm256_packs_epi32(within8(x + 16), within8(x + 24)));
+    _mm256_storeu_si256(reinterpret_cast<__m256i*>(ok + x),
+                        _mm256_and_si256(_mm256_permutevar8x32_epi32(packed, order), ones));
+  }
+#endif
   for (; x + lanes <= x1; x += lanes) {
     const auto within =
         hn::Lt(hn::Abs(hn::Sub(hn::LoadU(df, a + x), hn::LoadU(df, b + x))), vlimit);
@@ -602,7 +632,7 @@ void BuildArms(const cv::Mat& image, const cv::Mat& gradient, const cv::Mat& edg
   // vertical_diff row y = D_c(I(y), I(y − 1)) for y ≥ 1: the vertical arms'
   // step test reads it for every anchor row whose arm passes row y.
   std::vector<std::uint8_t>& vertical_diff = arms.vertical_diff;
-  vertical_diff.assign(static_cast<std::size_t>(width) * height, 0);
+  vertical_diff.assign(static_cast<std::size_t>(width) * height + kArmPad, 0);  // padded
   parallel.For(1, height, [&](int y0, int y1) {
     for (int y = y0; y < y1; ++y)
       RowColourDiff(planes, y, 0, y - 1, 0, width,
@@ -612,13 +642,15 @@ void BuildArms(const cv::Mat& image, const cv::Mat& gradient, const cv::Mat& edg
   // Each direction is one loop over arm length L with an inner, branch-free
   // loop over x: a pixel's arm grows while it is still "active".
   parallel.For(0, height, [&](int y0, int y1) {
+    // Every row buffer GrowArms reads has kArmPad bytes after the row.
+    const std::size_t padded = static_cast<std::size_t>(width) + kArmPad;
     RowLimits lim;
-    lim.max_len.resize(width);
-    lim.l2.resize(width);
-    lim.tau.resize(width);
-    lim.tau2.resize(width);
-    std::vector<std::uint8_t> active(width), d_anchor(width);
-    std::vector<std::uint8_t> prev_diff_h(width), grad_ok(width, 1);
+    lim.max_len.resize(padded);
+    lim.l2.resize(padded);
+    lim.tau.resize(padded);
+    lim.tau2.resize(padded);
+    std::vector<std::uint8_t> active(padded), d_anchor(padded), arm(padded);
+    std::vector<std::uint8_t> prev_diff_h(padded), grad_ok(padded, 1);
     const double beta_max = options.improved.beta_max;
     const bool canny = options.improved.canny_edges_are_edges && !edges.empty();
     for (int y = y0; y < y1; ++y) {
@@ -640,13 +672,11 @@ void BuildArms(const cv::Mat& image, const cv::Mat& gradient, const cv::Mat& edg
       const std::size_t base = static_cast<std::size_t>(y) * width;
       for (int dir = 0; dir < 4; ++dir) {
         // dir 0: right, 1: left, 2: down, 3: up.
-        std::uint8_t* out = (dir == 0   ? arms.right
-                             : dir == 1 ? arms.left
-                             : dir == 2 ? arms.down
-                                        : arms.up)
-                                .data() +
-                            base;
-        std::fill(active.begin(), active.end(), 1);
+        // The arms grow in `arm` (padded, and this thread's own), then are
+        // copied to the row.
+        std::uint8_t* out = arm.data();
+        std::fill(arm.begin(), arm.end(), 0);
+        std::fill_n(active.begin(), width, 1);
         for (int len = 1; len < longest; ++len) {
           // Anchors x whose arm pixel q is inside the image: [x_lo, x_hi).
           int x_lo = 0, x_hi = width, qy = y, dx = 0;
@@ -678,6 +708,13 @@ void BuildArms(const cv::Mat& image, const cv::Mat& gradient, const cv::Mat& edg
                         grad_ok.data(), x_lo, x_hi, active.data(), out))
             break;
         }
+        std::uint8_t* row = (dir == 0   ? arms.right
+                             : dir == 1 ? arms.left
+                             : dir == 2 ? arms.down
+                                        : arms.up)
+                                .data() +
+                            base;
+        std::copy_n(arm.data(), width, row);
       }
     }
   });

@@ -27,22 +27,37 @@ cv::Mat Grey(const cv::Mat& bgr) {
 
 // --- census and cost --------------------------------------------------------
 
+// Widths below, at and past a 32-pixel run (the AVX2 path's), windows up to
+// 64 neighbours, and grey levels at both ends (0 and 255, where a biased
+// signed compare would go wrong if the bias were missing).
 TEST(Census, MatchesBruteForceWithReplicatedBorders) {
-  const cv::Mat grey = Grey(RandomTexture(37, 23, 1));
-  const Parallel parallel(2);
-  const auto census = adcensus::CensusTransform(grey, 9, 7, parallel);
-  for (int y = 0; y < grey.rows; ++y) {
-    for (int x = 0; x < grey.cols; ++x) {
-      std::uint64_t expected = 0;
-      const int centre = grey.at<std::uint8_t>(y, x);
-      for (int dy = -3; dy <= 3; ++dy)
-        for (int dx = -4; dx <= 4; ++dx) {
-          if (dx == 0 && dy == 0) continue;
-          const int v = grey.at<std::uint8_t>(std::clamp(y + dy, 0, grey.rows - 1),
-                                              std::clamp(x + dx, 0, grey.cols - 1));
-          expected = (expected << 1) | (v < centre ? 1u : 0u);
-        }
-      ASSERT_EQ(census[y * grey.cols + x], expected) << "at " << x << "," << y;
+  struct Case {
+    int width, height, win_w, win_h;
+  };
+  for (const Case& c : {Case{37, 23, 9, 7}, Case{5, 4, 3, 3}, Case{70, 9, 13, 5}, Case{64, 6, 1, 3},
+                        Case{33, 7, 5, 13}}) {
+    cv::Mat grey = Grey(RandomTexture(c.width, c.height, 1));
+    grey.at<std::uint8_t>(0, 0) = 0;
+    grey.at<std::uint8_t>(c.height - 1, c.width - 1) = 255;
+    for (int x = 0; x < c.width; x += 3) grey.at<std::uint8_t>(c.height / 2, x) = x % 2 ? 255 : 0;
+    const Parallel parallel(2);
+    const auto census = adcensus::CensusTransform(grey, c.win_w, c.win_h, parallel);
+    const int rw = c.win_w / 2, rh = c.win_h / 2;
+    for (int y = 0; y < grey.rows; ++y) {
+      for (int x = 0; x < grey.cols; ++x) {
+        std::uint64_t expected = 0;
+        const int centre = grey.at<std::uint8_t>(y, x);
+        for (int dy = -rh; dy <= rh; ++dy)
+          for (int dx = -rw; dx <= rw; ++dx) {
+            if (dx == 0 && dy == 0) continue;
+            const int v = grey.at<std::uint8_t>(std::clamp(y + dy, 0, grey.rows - 1),
+                                                std::clamp(x + dx, 0, grey.cols - 1));
+            expected = (expected << 1) | (v < centre ? 1u : 0u);
+          }
+        ASSERT_EQ(census[y * grey.cols + x], expected)
+            << c.width << "x" << c.height << " window " << c.win_w << "x" << c.win_h << " at " << x
+            << "," << y;
+      }
     }
   }
 }

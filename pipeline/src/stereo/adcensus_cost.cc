@@ -66,15 +66,97 @@ std::vector<std::uint64_t> CensusTransform(const cv::Mat& grey, int win_w, int w
   return census;
 }
 
+#if defined(__AVX2__)
+namespace {
+
+// 32 census words of one row from x0 on, into out[0 … 31] (AVX2). Each
+// neighbour's comparison for 32 pixels is a byte mask (the image is biased
+// by 0x80, so that the signed compare orders it as unsigned); its bit goes
+// into byte plane bit / 8 of the word, and the eight planes are transposed
+// into 32 words at the end. `rows[dy + rh]` point at the biased padded rows
+// (each readable 32 bytes past the last pixel), `bits` = neighbours.
+void CensusRun32(const std::uint8_t* const* rows, int rw, int rh, int x0, int bits,
+                 std::uint64_t* out) {
+  const __m256i centre = _mm256_loadu_si256(reinterpret_cast<const __m256i*>(rows[rh] + x0));
+  __m256i plane[8];
+  for (__m256i& p : plane) p = _mm256_setzero_si256();
+  int bit = bits - 1;  // the first neighbour is the highest bit
+  for (int dy = -rh; dy <= rh; ++dy) {
+    const std::uint8_t* row = rows[dy + rh] + x0;
+    for (int dx = -rw; dx <= rw; ++dx, --bit) {
+      if (dx == 0 && dy == 0) {
+        ++bit;
+        continue;
+      }
+      const __m256i darker =
+          _mm256_cmpgt_epi8(centre, _mm256_loadu_si256(reinterpret_cast<const __m256i*>(row + dx)));
+      plane[bit >> 3] = _mm256_or_si256(
+          plane[bit >> 3],
+          _mm256_and_si256(darker, _mm256_set1_epi8(static_cast<char>(1u << (bit & 7)))));
+    }
+  }
+  // Byte planes → words: three levels of unpacks give, per register, the
+  // words of pixels (2i, 2i + 1) in its low half and (2i + 16, 2i + 17) in
+  // its high half.
+  __m256i a[8], b[8], w[8];
+  for (int j = 0; j < 4; ++j) {
+    a[2 * j] = _mm256_unpacklo_epi8(plane[2 * j], plane[2 * j + 1]);      // x 0–7 | 16–23
+    a[2 * j + 1] = _mm256_unpackhi_epi8(plane[2 * j], plane[2 * j + 1]);  // x 8–15 | 24–31
+  }
+  for (int j = 0; j < 2; ++j) {
+    for (int h = 0; h < 2; ++h) {
+      const __m256i lo = a[4 * j + h], hi = a[4 * j + 2 + h];
+      b[4 * j + 2 * h] = _mm256_unpacklo_epi16(lo, hi);
+      b[4 * j + 2 * h + 1] = _mm256_unpackhi_epi16(lo, hi);
+    }
+  }
+  // b[0 … 3]: planes 0–3 of x 0–3, 4–7, 8–11, 12–15 (| +16); b[4 … 7]: planes 4–7.
+  for (int q = 0; q < 4; ++q) {
+    w[2 * q] = _mm256_unpacklo_epi32(b[q], b[4 + q]);
+    w[2 * q + 1] = _mm256_unpackhi_epi32(b[q], b[4 + q]);
+  }
+  for (int q = 0; q < 4; ++q) {
+    _mm256_storeu_si256(reinterpret_cast<__m256i*>(out + 4 * q),
+                        _mm256_permute2x128_si256(w[2 * q], w[2 * q + 1], 0x20));
+    _mm256_storeu_si256(reinterpret_cast<__m256i*>(out + 16 + 4 * q),
+                        _mm256_permute2x128_si256(w[2 * q], w[2 * q + 1], 0x31));
+  }
+}
+
+}  // namespace
+#endif
+
 void CensusTransform(const cv::Mat& grey, int win_w, int win_h, const Parallel& parallel,
                      std::vector<std::uint64_t>* census_out) {
   CV_Assert(grey.type() == CV_8UC1 && win_w % 2 == 1 && win_h % 2 == 1 && win_w * win_h <= 65);
   const int rw = win_w / 2, rh = win_h / 2;
-  cv::Mat padded;
-  cv::copyMakeBorder(grey, padded, rh, rh, rw, rw, cv::BORDER_REPLICATE);
   const int width = grey.cols;
   std::vector<std::uint64_t>& census = *census_out;
   census.resize(grey.total());  // every word is written below
+#if defined(__AVX2__)
+  // 32 pixels at a time (CensusRun32): the padded rows get 32 more columns
+  // on the right for the last run's reads, and the image is biased by 0x80.
+  cv::Mat padded;
+  cv::copyMakeBorder(grey, padded, rh, rh, rw, rw + 32, cv::BORDER_REPLICATE);
+  cv::bitwise_xor(padded, cv::Scalar(0x80), padded);
+  const int bits = win_w * win_h - 1;
+  parallel.For(0, grey.rows, [&](int y0, int y1) {
+    std::vector<const std::uint8_t*> rows(win_h);
+    alignas(32) std::uint64_t last[32];
+    for (int y = y0; y < y1; ++y) {
+      for (int dy = 0; dy < win_h; ++dy) rows[dy] = padded.ptr<std::uint8_t>(y + dy) + rw;
+      std::uint64_t* out = census.data() + static_cast<std::size_t>(y) * width;
+      int x = 0;
+      for (; x + 32 <= width; x += 32) CensusRun32(rows.data(), rw, rh, x, bits, out + x);
+      if (x < width) {
+        CensusRun32(rows.data(), rw, rh, x, bits, last);
+        std::copy_n(last, width - x, out + x);
+      }
+    }
+  });
+#else
+  cv::Mat padded;
+  cv::copyMakeBorder(grey, padded, rh, rh, rw, rw, cv::BORDER_REPLICATE);
   parallel.For(0, grey.rows, [&](int y0, int y1) {
     for (int y = y0; y < y1; ++y) {
       std::uint64_t* out = census.data() + static_cast<std::size_t>(y) * width;
@@ -92,6 +174,7 @@ void CensusTransform(const cv::Mat& grey, int win_w, int win_h, const Parallel& 
       }
     }
   });
+#endif
 }
 
 namespace {

@@ -457,19 +457,14 @@ void Interpolate(const cv::Mat& image, const Parallel& parallel, cv::Mat* dispar
   constexpr int kDirections = 16;
   const int width = image.cols, height = image.rows, ch = image.channels();
   const int max_steps = std::max(width, height);
-  const std::size_t lstep = labels->step;
-  // Integer offsets of every step along each direction, computed once, and
-  // the same as offsets into the label map.
+  // Integer offsets of every step along each direction, computed once.
   std::vector<cv::Point> steps(static_cast<std::size_t>(kDirections) * max_steps);
-  std::vector<std::ptrdiff_t> linear(steps.size(), 0);
   for (int i = 0; i < kDirections; ++i) {
     const double a = 2 * std::numbers::pi * i / kDirections;
     for (int s = 1; s < max_steps; ++s) {
       const std::size_t k = static_cast<std::size_t>(i) * max_steps + s;
       steps[k] = cv::Point(static_cast<int>(std::lround(s * std::cos(a))),
                            static_cast<int>(std::lround(s * std::sin(a))));
-      linear[k] =
-          static_cast<std::ptrdiff_t>(steps[k].y) * static_cast<std::ptrdiff_t>(lstep) + steps[k].x;
     }
   }
   // The first step of each direction that leaves the image, per column and
@@ -519,47 +514,53 @@ void Interpolate(const cv::Mat& image, const Parallel& parallel, cv::Mat* dispar
       out.at<float>(y, x) = labels->at<std::uint8_t>(y, x) == kOccluded ? lowest : most_similar;
     }
   };
-#if HWY_TARGET <= HWY_AVX3
   // The walks of a run of pixels of one row, one direction at a time, in the
   // lanes of a vector: step s reads the labels at the same offset from every
-  // pixel, one masked load for the run (AVX-512 touches no masked-off lane,
-  // so lanes whose ray has left the image read nothing). A run costs its
-  // longest walk rather than the sum of its walks, which in a wide occluded
-  // or unmatched region are all long.
+  // pixel, one load for the run. A run costs its longest walk rather than
+  // the sum of its walks, which in a wide occluded or unmatched region are
+  // all long. The load is whole: while any lane's ray is inside the image,
+  // the vector's other lanes lie within `lanes` labels of it, so the labels
+  // (as 16-bit, row after row) get `lanes` of padding before and after, and
+  // lanes whose ray has left are masked out of the comparison.
   namespace hn = hwy::HWY_NAMESPACE;
   const hn::ScalableTag<std::uint16_t> d16;
   const int lanes = static_cast<int>(hn::Lanes(d16));
-  cv::Mat labels16;
-  labels->convertTo(labels16, CV_16U);
-  const std::ptrdiff_t step16 = static_cast<std::ptrdiff_t>(labels16.step1());
+  std::vector<std::uint16_t> labels16_memory(static_cast<std::size_t>(width) * height + 2 * lanes,
+                                             kMismatch);
+  std::uint16_t* const labels16 = labels16_memory.data() + lanes;
+  for (int y = 0; y < height; ++y) {
+    const std::uint8_t* lab = labels->ptr<std::uint8_t>(y);
+    std::copy_n(lab, width, labels16 + static_cast<std::size_t>(y) * width);
+  }
+  const std::ptrdiff_t step16 = width;
   std::vector<std::ptrdiff_t> linear16(steps.size(), 0);
   for (std::size_t k = 0; k < steps.size(); ++k)
     linear16[k] = static_cast<std::ptrdiff_t>(steps[k].y) * step16 + steps[k].x;
-  std::vector<std::uint16_t> leave_x16(leave_x.begin(), leave_x.end());
+  std::vector<std::uint16_t> leave_x16(leave_x.size() + lanes, 0);  // padded alike
+  std::copy(leave_x.begin(), leave_x.end(), leave_x16.begin());
   parallel.For(0, height, [&](int y0, int y1) {
     std::vector<std::uint16_t> found16(static_cast<std::size_t>(kDirections) * lanes);
     const auto zero = hn::Zero(d16);
     for (int y = y0; y < y1; ++y) {
-      const std::uint16_t* row = labels16.ptr<std::uint16_t>(y);
+      const std::uint16_t* row = labels16 + static_cast<std::size_t>(y) * width;
       for (int x0 = 0; x0 < width; x0 += lanes) {
         const auto in_row = hn::FirstN(d16, static_cast<std::size_t>(std::min(lanes, width - x0)));
-        const auto unreliable =
-            hn::And(in_row, hn::Ne(hn::MaskedLoad(in_row, d16, row + x0), zero));
+        const auto unreliable = hn::And(in_row, hn::Ne(hn::LoadU(d16, row + x0), zero));
         if (hn::AllFalse(d16, unreliable)) continue;
         for (int i = 0; i < kDirections; ++i) {
           const std::size_t base = static_cast<std::size_t>(i) * max_steps;
-          const auto limit = hn::Min(
-              hn::MaskedLoad(in_row, d16, &leave_x16[static_cast<std::size_t>(i) * width + x0]),
-              hn::Set(d16, static_cast<std::uint16_t>(
-                               leave_y[static_cast<std::size_t>(i) * height + y])));
+          const auto limit =
+              hn::Min(hn::LoadU(d16, &leave_x16[static_cast<std::size_t>(i) * width + x0]),
+                      hn::Set(d16, static_cast<std::uint16_t>(
+                                       leave_y[static_cast<std::size_t>(i) * height + y])));
           auto found = zero;
           auto active = unreliable;
           for (int st = 1;; ++st) {
             const auto vs = hn::Set(d16, static_cast<std::uint16_t>(st));
             active = hn::And(active, hn::Lt(vs, limit));
             if (hn::AllFalse(d16, active)) break;
-            const auto hit = hn::And(
-                active, hn::Eq(hn::MaskedLoad(active, d16, row + x0 + linear16[base + st]), zero));
+            const auto hit =
+                hn::And(active, hn::Eq(hn::LoadU(d16, row + x0 + linear16[base + st]), zero));
             found = hn::IfThenElse(hit, vs, found);
             active = hn::AndNot(hit, active);
           }
@@ -576,27 +577,6 @@ void Interpolate(const cv::Mat& image, const Parallel& parallel, cv::Mat* dispar
       }
     }
   });
-#else
-  parallel.For(0, height, [&](int y0, int y1) {
-    for (int y = y0; y < y1; ++y) {
-      const std::uint8_t* lab = labels->ptr<std::uint8_t>(y);
-      for (int x = 0; x < width; ++x) {
-        if (lab[x] == kReliable) continue;
-        int found[kDirections];
-        for (int i = 0; i < kDirections; ++i) {
-          const std::ptrdiff_t* offset = &linear[static_cast<std::size_t>(i) * max_steps];
-          const int limit = std::min(leave_x[static_cast<std::size_t>(i) * width + x],
-                                     leave_y[static_cast<std::size_t>(i) * height + y]);
-          const std::uint8_t* at = lab + x;
-          int st = 1;
-          while (st < limit && at[offset[st]] != kReliable) ++st;
-          found[i] = st < limit ? st : 0;  // 0: left the image without a reliable pixel
-        }
-        settle(y, x, found);
-      }
-    }
-  });
-#endif
   cv::swap(*disparity, *scratch);
 }
 

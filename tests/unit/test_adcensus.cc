@@ -617,6 +617,56 @@ TEST(Scanline, UniformOffsetsEqualTheShiftedBand) {
   EXPECT_GT(cv::countNonZero(band_refined == band_refined), static_cast<int>(left.total() / 2));
 }
 
+// With a store the sweep that reaches a row first computes its costs for
+// both, and the other reads them there (the station's scanline, whose costs
+// are never a volume): the sums and both views' winners are those of every
+// sweep computing its own rows, at one and two threads, with per-pixel
+// ranges that change from pixel to pixel and row to row.
+TEST(Scanline, CostRowsSharedByTheSweepsGiveTheRecomputedResult) {
+  const cv::Mat left = RandomTexture(170, 110, 57);
+  cv::Mat gt;
+  const cv::Mat right = RenderRightView(left, 28, 0.06, 0, &gt);
+  ADCensusOptions o;
+  const int lanes = 32, total = 80;
+  std::vector<std::int32_t> offsets(left.total());
+  for (int y = 0; y < left.rows; ++y)
+    for (int x = 0; x < left.cols; ++x)
+      offsets[static_cast<std::size_t>(y) * left.cols + x] =
+          (x / 7 * 5 + y / 3 * 3) % (total - lanes + 1);
+  for (int threads : {1, 2}) {
+    const Parallel parallel(threads);
+    const auto cl = adcensus::CensusTransform(Grey(left), 9, 7, parallel);
+    const auto cr = adcensus::CensusTransform(Grey(right), 9, 7, parallel);
+    const adcensus::CostComputer costs(left, right, cl, cr, 0, lanes, 10, 30, 1.0);
+    adcensus::CostVolume own(left.cols, left.rows, lanes), shared(left.cols, left.rows, lanes),
+        store;
+    own.SetOffsets(offsets, total);
+    shared.SetOffsets(offsets, total);
+    cv::Mat own_l, own_r, shared_l, shared_r, own_u, shared_u;
+    adcensus::ScanlineOptimize(left, right, 0, o, parallel, nullptr, &costs, &own, &own_l, &own_r,
+                               &own_u);
+    adcensus::ScanlineOptimize(left, right, 0, o, parallel, nullptr, &costs, &shared, &shared_l,
+                               &shared_r, &shared_u, nullptr, &store);
+    // The store holds every row's matching costs.
+    std::vector<adcensus::Cost> row(static_cast<std::size_t>(left.cols) * own.stride());
+    adcensus::CostComputer::Scratch scratch;
+    for (int y : {0, left.rows / 2, left.rows - 1}) {
+      costs.Row(y, &scratch, row.data(), own.offset_row(y));
+      EXPECT_EQ(0, std::memcmp(row.data(), store.row(y), row.size() * sizeof(adcensus::Cost)))
+          << threads << " threads, row " << y;
+    }
+    EXPECT_EQ(0, std::memcmp(own.at(0, 0), shared.at(0, 0),
+                             left.total() * own.stride() * sizeof(adcensus::Cost)))
+        << threads;
+    EXPECT_TRUE(SameOrBothNaN(own_l, shared_l, 0)) << threads;
+    EXPECT_TRUE(SameOrBothNaN(own_r, shared_r, 0)) << threads;
+    EXPECT_EQ(0, std::memcmp(own_u.data, shared_u.data, own_u.total() * own_u.elemSize()))
+        << threads;
+    // The sums are the matching costs' paths: not a constant volume.
+    EXPECT_GT(cv::countNonZero(own_l != own_l.at<float>(0, 0)), static_cast<int>(left.total() / 2));
+  }
+}
+
 // The scanline pass hands the uniqueness test each pixel's winning and
 // runner-up costs; they are what the volume it leaves gives, and the
 // refinement's labels and disparities do not depend on where they came from.

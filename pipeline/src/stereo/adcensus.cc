@@ -445,7 +445,7 @@ DisparityResult StereoMatcher::Compute(const cv::Mat& left, const cv::Mat& right
       // the scanline sums.
       adcensus::ScanlineOptimize(img_l, img_r, dmin, options, parallel, nullptr, &cost_computer,
                                  &cost, &left_index, &right_index, wants_runner_up,
-                                 wants_winner_sums);
+                                 wants_winner_sums, &workspace_->scratch);
     } else if (options.scanline_optimization) {
       adcensus::ScanlineOptimize(img_l, img_r, dmin, options, parallel, &cost, nullptr,
                                  &workspace_->scratch, &left_index, &right_index, wants_runner_up,

@@ -681,7 +681,7 @@ void ScanlineOptimize(const cv::Mat& left, const cv::Mat& right, int min_dispari
                       const ADCensusOptions& options, const Parallel& parallel,
                       const CostVolume* cost, const CostComputer* recompute, CostVolume* result,
                       cv::Mat* left_index, cv::Mat* right_index, cv::Mat* runner_up,
-                      cv::Mat* winner_sums) {
+                      cv::Mat* winner_sums, CostVolume* store) {
   if (cost) {
     result->Reshape(cost->width(), cost->height(), cost->ndisp());
     result->CopyOffsetsFrom(*cost);
@@ -778,8 +778,11 @@ void ScanlineOptimize(const cv::Mat& left, const cv::Mat& right, int min_dispari
     // column whose offset changed from the row before is read shifted
     // through `shifted`, whose pads always hold sentinels.
     const std::size_t vlane = stride + 2;
+    // Without a store each sweep computes every row's costs itself.
+    if (!cost && store) store->Reshape(width, height, in.ndisp());
+    const bool shared = !cost && store;
     parallel.For(0, 2, [&](int s0, int s1) {
-      std::vector<Cost> costs(cost ? 0 : static_cast<std::size_t>(width) * stride);
+      std::vector<Cost> costs(cost || shared ? 0 : static_cast<std::size_t>(width) * stride);
       std::vector<Cost> vprev(width * vlane, kMaxCost), vcur(width * vlane, kMaxCost);
       std::vector<Cost> hprev(lane, kMaxCost), hcur(lane, kMaxCost), shifted(lane, kMaxCost);
       std::vector<Cost> vmin(width);
@@ -796,11 +799,13 @@ void ScanlineOptimize(const cv::Mat& left, const cv::Mat& right, int min_dispari
           const std::uint8_t* row = left.ptr<std::uint8_t>(y);
           const std::uint8_t* prow = i == 0 ? row : left.ptr<std::uint8_t>(y - ystep);
           const std::int32_t* offsets = in.offset_row(y);
-          const Cost* c_row = cost ? cost->at(y, 0) : costs.data();
-          if (!cost) recompute->Row(y, &scratch, costs.data(), offsets);
+          const Cost* c_row = cost ? cost->at(y, 0) : shared ? store->row(y) : costs.data();
+          if (!cost && !shared) recompute->Row(y, &scratch, costs.data(), offsets);
           std::uint8_t untouched = 0;
           const bool first =
               state[y].compare_exchange_strong(untouched, 1, std::memory_order_acq_rel);
+          // The first sweep at the row computes its costs for both.
+          if (first && shared) recompute->Row(y, &scratch, store->row(y), offsets);
           // Second: the other sweep is writing the row (both are at the same
           // row, where they cross) or has written it.
           if (!first)

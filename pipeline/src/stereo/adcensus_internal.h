@@ -231,11 +231,15 @@ int SupportSize(const Arms& arms, int y, int x, bool horizontal_first);
 // With `winner_sums` (may be null) likewise the final sums at the winning
 // lane and its two neighbours, S(k − 1), S(k), S(k + 1) (CV_16SC3; 0 where a
 // neighbour lies outside the lanes), for the sub-pixel step.
+// With `recompute` and `store` (may be null) on up to two threads, each
+// row's costs are computed once, by the sweep that reaches the row first,
+// into *store (reshaped like *result), and the other sweep reads them there
+// instead of computing them again.
 void ScanlineOptimize(const cv::Mat& left, const cv::Mat& right, int min_disparity,
                       const ADCensusOptions& options, const Parallel& parallel,
                       const CostVolume* cost, const CostComputer* recompute, CostVolume* result,
                       cv::Mat* left_index, cv::Mat* right_index, cv::Mat* runner_up = nullptr,
-                      cv::Mat* winner_sums = nullptr);
+                      cv::Mat* winner_sums = nullptr, CostVolume* store = nullptr);
 
 // The uniqueness test's runner-up: the least of c[j] over the disparities a
 // pixel holds (j < n) at least 2 from its winner k (|j − k| ≥ 2; the winner's

@@ -678,8 +678,14 @@ class ScanCommand : public BenchCommand {
     // fused cloud's, 1.1 mm on the box's tilted long axis).
     PointCloud truth_cloud;
     truth_cloud.points_mm = GridSample(seen, kGridMm);
+    // Upright like the scan's when the scan has a turntable frame: its z
+    // (the platter's normal) in the object's frame.
+    OrientedBoxOptions truth_box_options;
+    if (r.turntable_from_view0)
+      truth_box_options.up = object_from_result.get_minor<3, 3>(0, 0) * cv::Vec3d(0, 0, 1);
     OrientedBox truth_box;
-    if (ComputeOrientedBox(truth_cloud, &truth_box, &error)) fig.truth_obb = truth_box.extents_mm;
+    if (ComputeOrientedBox(truth_cloud, truth_box_options, &truth_box, &error))
+      fig.truth_obb = truth_box.extents_mm;
     // Each box is a local minimum of the volume. Where two orientations
     // enclose nearly the same volume (an irregular figure whose two shorter
     // sides are alike) the two clouds' searches can settle in different

@@ -359,6 +359,119 @@ TEST(OrientedBox, IrregularFiguresGetTheSmallestBox) {
   }
 }
 
+// With `up` (a scan's turntable axis) the box stands: one axis along up,
+// the other two about it where the footprint is smallest. A box standing on
+// a tilted plane and turned 23° about its normal gets its own sides back; a
+// tilted ellipsoid (whose smallest box over all orientations is tilted with
+// it) keeps an axis along up, with the least footprint a 0.25° grid of
+// turns about up finds, or less.
+TEST(OrientedBox, UprightBoxStandsAlongUpWithTheSmallestFootprint) {
+  const cv::Matx33d tilt = [] {
+    cv::Matx33d r;
+    cv::Rodrigues(cv::Vec3d(0.3, -0.2, 0.1), r);
+    return r;
+  }();
+  const cv::Vec3d up = tilt * cv::Vec3d(0, 0, 1);
+  const auto turn = [](double deg) {
+    cv::Matx33d r;
+    cv::Rodrigues(cv::Vec3d(0, 0, deg * CV_PI / 180), r);
+    return r;
+  };
+  std::mt19937 rng(11);
+  std::uniform_real_distribution<double> u(0, 1);
+  {
+    const cv::Matx33d world_from_object = tilt * turn(23);
+    PointCloud cloud;
+    for (int i = 0; i < 40000; ++i) {  // the four sides and the top of 80 × 60 × 50
+      const int face = i % 5;
+      cv::Vec3d p(80 * u(rng) - 40, 60 * u(rng) - 30, 50 * u(rng));
+      if (face == 0) p[0] = -40;
+      if (face == 1) p[0] = 40;
+      if (face == 2) p[1] = -30;
+      if (face == 3) p[1] = 30;
+      if (face == 4) p[2] = 50;
+      const cv::Vec3d w = world_from_object * p + cv::Vec3d(5, -7, 300);
+      cloud.points_mm.emplace_back(cv::Vec3f(w));
+    }
+    OrientedBoxOptions options;
+    options.up = up * 3;  // need not be unit
+    OrientedBox obb;
+    std::string error;
+    ASSERT_TRUE(ComputeOrientedBox(cloud, options, &obb, &error)) << error;
+    EXPECT_NEAR(obb.extents_mm[0], 80, 0.2);
+    EXPECT_NEAR(obb.extents_mm[1], 60, 0.2);
+    EXPECT_NEAR(obb.extents_mm[2], 50, 0.2);
+    for (int k = 0; k < 3; ++k) {
+      const cv::Vec3d truth(world_from_object(0, k), world_from_object(1, k),
+                            world_from_object(2, k));
+      const cv::Vec3d axis(obb.axes(0, k), obb.axes(1, k), obb.axes(2, k));
+      EXPECT_GT(std::abs(axis.dot(truth)), std::cos(0.1 * CV_PI / 180)) << "axis " << k;
+    }
+    EXPECT_NEAR(std::abs(cv::Vec3d(obb.axes(0, 2), obb.axes(1, 2), obb.axes(2, 2)).dot(up)), 1,
+                1e-9);
+  }
+  {
+    // An ellipsoid of semi-axes 30, 14, 9 tilted 25° about its long axis and
+    // 15° about its middle one, then stood on the tilted plane.
+    cv::Matx33d lean;
+    cv::Rodrigues(cv::Vec3d(25 * CV_PI / 180, 15 * CV_PI / 180, 0), lean);
+    const cv::Matx33d world_from_object = tilt * turn(40) * lean;
+    PointCloud cloud;
+    std::normal_distribution<double> g(0, 1);
+    for (int i = 0; i < 30000; ++i) {
+      cv::Vec3d d(g(rng), g(rng), g(rng));
+      d /= cv::norm(d);
+      const cv::Vec3d w = world_from_object * cv::Vec3d(30 * d[0], 14 * d[1], 9 * d[2]);
+      cloud.points_mm.emplace_back(cv::Vec3f(w));
+    }
+    OrientedBoxOptions options;
+    options.up = up;
+    options.trim_fraction = 0;
+    OrientedBox obb;
+    std::string error;
+    ASSERT_TRUE(ComputeOrientedBox(cloud, options, &obb, &error)) << error;
+    int along_up = 0;
+    for (int k = 0; k < 3; ++k)
+      along_up +=
+          std::abs(cv::Vec3d(obb.axes(0, k), obb.axes(1, k), obb.axes(2, k)).dot(up)) > 1 - 1e-9;
+    EXPECT_EQ(along_up, 1);
+    // The footprint: the product of the two extents across up.
+    double footprint = 1;
+    for (int k = 0; k < 3; ++k)
+      if (std::abs(cv::Vec3d(obb.axes(0, k), obb.axes(1, k), obb.axes(2, k)).dot(up)) < 0.5)
+        footprint *= obb.extents_mm[k];
+    const cv::Vec3d e1 = tilt * cv::Vec3d(1, 0, 0), e2 = tilt * cv::Vec3d(0, 1, 0);
+    double grid_best = std::numeric_limits<double>::infinity();
+    for (int step = 0; step < 360; ++step) {
+      const double a = step * 0.25 * CV_PI / 180;
+      const cv::Vec3d x = std::cos(a) * e1 + std::sin(a) * e2, y = up.cross(x);
+      double lo[2] = {1e300, 1e300}, hi[2] = {-1e300, -1e300};
+      for (const cv::Vec3f& p : cloud.points_mm) {
+        const double v[2] = {x.dot(cv::Vec3d(p)), y.dot(cv::Vec3d(p))};
+        for (int k = 0; k < 2; ++k) lo[k] = std::min(lo[k], v[k]), hi[k] = std::max(hi[k], v[k]);
+      }
+      grid_best = std::min(grid_best, (hi[0] - lo[0]) * (hi[1] - lo[1]));
+    }
+    EXPECT_LE(footprint, grid_best * 1.0001);
+    // Not the smallest box over all orientations: that one leans.
+    OrientedBox free;
+    ASSERT_TRUE(ComputeOrientedBox(cloud, &free, &error)) << error;
+    EXPECT_LT(free.extents_mm[0] * free.extents_mm[1] * free.extents_mm[2],
+              0.97 * obb.extents_mm[0] * obb.extents_mm[1] * obb.extents_mm[2]);
+  }
+  OrientedBoxOptions bad;
+  bad.up = cv::Vec3d(0, 0, 0);
+  PointCloud four;
+  for (int i = 0; i < 4; ++i) four.points_mm.emplace_back(i, i * i, 1 - i);
+  OrientedBox obb;
+  std::string error;
+  EXPECT_FALSE(ComputeOrientedBox(four, bad, &obb, &error));
+  EXPECT_CONTAINS(error, "up must be finite and non-zero");
+  bad.up = cv::Vec3d(0, std::nan(""), 1);
+  EXPECT_FALSE(ComputeOrientedBox(four, bad, &obb, &error));
+  EXPECT_CONTAINS(error, "OrientedBoxOptions.up");
+}
+
 TEST(OrientedBox, DegenerateInputsFail) {
   OrientedBox obb;
   std::string error;

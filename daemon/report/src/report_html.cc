@@ -172,13 +172,20 @@ void Measurements(Page& p, const Json& scan) {
     return;
   }
   if (const Json* obb = Find(*measurement, "oriented_box")) {
-    p << "<h3>Oriented bounding box</h3><table class=\"kv\">\n";
     const Json* ext = Find(*obb, "extents_mm");
-    const char* names[3] = {"Length (longest axis)", "Width", "Height (shortest axis)"};
+    const Json* height = Find(*obb, "height_mm");
+    const bool upright = Flag(*obb, "upright") == 1 && height && height->is_number();
+    p << (upright
+              ? "<h3>Oriented bounding box, upright (as the object stands on the turntable)</h3>"
+              : "<h3>Oriented bounding box</h3>")
+      << "<table class=\"kv\">\n";
+    const char* names[3] = {"Length (longest axis)", "Width", "Depth (shortest axis)"};
     for (int k = 0; k < 3; ++k) {
       const bool ok = ext && ext->is_array() && ext->size() == 3 && (*ext)[k].is_number();
       p.Row(names[k], (ok ? Fixed((*ext)[k].get<double>(), 2) : kDash) + std::string(" mm"));
     }
+    if (upright)
+      p.Row("Height (along the turntable's axis)", Fixed(height->get<double>(), 2) + " mm");
     p.Row("Centre", Triple(Find(*obb, "center_mm"), 2, ", ") + " mm");
     p.Row("Points", Count(*obb, "points"));
     p << "</table>\n";

@@ -748,6 +748,104 @@ void MeasureEdges(const BoxMeasureOptions& o, BoxMeasurement* m) {
   m->dims_mm = cv::Vec3d(dims_sum[0], dims_sum[1], dims_sum[2]);
 }
 
+// The smallest trimmed-volume box's axes over all orientations.
+Matrix3d SmallestBoxAxes(const std::vector<Vector3d>& search, double trim,
+                         std::vector<double>* buffer_ptr) {
+  std::vector<double>& buffer = *buffer_ptr;
+  Vector3d mean = Vector3d::Zero();
+  for (const Vector3d& p : search) mean += p;
+  mean /= static_cast<double>(search.size());
+  Matrix3d cov = Matrix3d::Zero();
+  for (const Vector3d& p : search) cov += (p - mean) * (p - mean).transpose();
+  Eigen::SelfAdjointEigenSolver<Matrix3d> eig(cov);
+  Matrix3d pca = eig.info() == Eigen::Success ? eig.eigenvectors() : Matrix3d::Identity();
+  if (!pca.allFinite()) pca = Matrix3d::Identity();
+  if (pca.determinant() < 0) pca.col(2) = -pca.col(2);
+  // The volume has several local minima: PCA is ambiguous for symmetric
+  // shapes (a cube), and an irregular figure whose two shorter sides are
+  // alike has boxes of nearly equal volume in different orientations (a
+  // search from PCA alone settled in different ones for a scan and its
+  // truth, their extents a millimetre apart). So the search starts from
+  // PCA turned by 0°, 30° and 60° about each of its axes (a box repeats
+  // every 90°), 27 starts, each searched on a subset of the points down to
+  // 0.5°; the three best then run to the end on all the search points.
+  constexpr std::size_t kCoarsePoints = 2000;  // every k-th point: evenly over the cloud
+  std::vector<Vector3d> coarse;
+  const std::size_t stride = (search.size() + kCoarsePoints - 1) / kCoarsePoints;
+  for (std::size_t i = 0; i < search.size(); i += stride) coarse.push_back(search[i]);
+  std::vector<std::pair<double, Matrix3d>> starts;
+  for (int a = 0; a < 3; ++a)
+    for (int b = 0; b < 3; ++b)
+      for (int c = 0; c < 3; ++c) {
+        const Matrix3d initial = pca * AxisRotation(2, c * kPi / 6) * AxisRotation(1, b * kPi / 6) *
+                                 AxisRotation(0, a * kPi / 6);
+        double volume = 0;
+        const Matrix3d axes = MinimiseVolume(coarse, initial, trim, &buffer, &volume, 0.5 * kDeg);
+        starts.emplace_back(volume, axes);
+      }
+  std::stable_sort(starts.begin(), starts.end(),
+                   [](const auto& x, const auto& y) { return x.first < y.first; });
+  Matrix3d best_axes = pca;
+  double best_volume = std::numeric_limits<double>::infinity();
+  for (std::size_t k = 0; k < std::min<std::size_t>(3, starts.size()); ++k) {
+    double volume = 0;
+    const Matrix3d axes = MinimiseVolume(search, starts[k].second, trim, &buffer, &volume);
+    if (volume < best_volume * (1 - 1e-9)) {
+      best_volume = volume;
+      best_axes = axes;
+    }
+  }
+  return best_axes;
+}
+
+// The axes of the upright box: the third along `up` (unit), the first two
+// about it where the trimmed footprint's area is least: every 1° of a
+// quarter turn (the footprint's box repeats every 90°), then the best three
+// refined with halving steps down to 0.005°.
+Matrix3d UprightAxes(const std::vector<Vector3d>& search, const Vector3d& up, double trim,
+                     std::vector<double>* buffer) {
+  const Vector3d e1 = up.unitOrthogonal();
+  const Vector3d e2 = up.cross(e1);
+  const auto axes_at = [&](double yaw) {
+    Matrix3d r;
+    r.col(0) = std::cos(yaw) * e1 + std::sin(yaw) * e2;
+    r.col(1) = up.cross(r.col(0));
+    r.col(2) = up;
+    return r;
+  };
+  const auto area = [&](double yaw) {
+    const Extents e = TrimmedExtents(search, axes_at(yaw), trim, buffer);
+    const Vector3d size = (e.hi - e.lo).cwiseMax(1e-6);
+    return size[0] * size[1];
+  };
+  std::vector<std::pair<double, double>> grid;  // (area, yaw)
+  for (int deg = 0; deg < 90; ++deg) grid.emplace_back(area(deg * kDeg), deg * kDeg);
+  std::stable_sort(grid.begin(), grid.end(),
+                   [](const auto& x, const auto& y) { return x.first < y.first; });
+  double best_yaw = grid[0].second, best_area = grid[0].first;
+  for (std::size_t k = 0; k < std::min<std::size_t>(3, grid.size()); ++k) {
+    double yaw = grid[k].second, value = grid[k].first;
+    for (double step = 0.5 * kDeg; step > 0.005 * kDeg; step *= 0.5) {
+      for (bool moved = true; moved;) {
+        moved = false;
+        for (double next : {yaw - step, yaw + step}) {
+          const double a = area(next);
+          if (a < value * (1 - 1e-12)) {
+            value = a;
+            yaw = next;
+            moved = true;
+          }
+        }
+      }
+    }
+    if (value < best_area * (1 - 1e-9)) {
+      best_area = value;
+      best_yaw = yaw;
+    }
+  }
+  return axes_at(best_yaw);
+}
+
 }  // namespace
 
 // -------------------------------------------------------------- options ----
@@ -777,6 +875,9 @@ bool OrientedBoxOptions::IsValid(std::string* why) const {
     return Fail(why, "OrientedBoxOptions.trim_fraction must be within [0, 0.2)");
   if (max_search_points < 100)
     return Fail(why, "OrientedBoxOptions.max_search_points must be >= 100");
+  if (up && !(std::isfinite((*up)[0]) && std::isfinite((*up)[1]) && std::isfinite((*up)[2]) &&
+              cv::norm(*up) > 1e-9))
+    return Fail(why, "OrientedBoxOptions.up must be finite and non-zero");
   return true;
 }
 
@@ -852,51 +953,13 @@ bool ComputeOrientedBox(const PointCloud& cloud, const OrientedBoxOptions& optio
       std::shuffle(search.begin(), search.end(), rng);
       search.resize(static_cast<std::size_t>(options.max_search_points));
     }
-    Vector3d mean = Vector3d::Zero();
-    for (const Vector3d& p : search) mean += p;
-    mean /= static_cast<double>(search.size());
-    Matrix3d cov = Matrix3d::Zero();
-    for (const Vector3d& p : search) cov += (p - mean) * (p - mean).transpose();
-    Eigen::SelfAdjointEigenSolver<Matrix3d> eig(cov);
-    Matrix3d pca = eig.info() == Eigen::Success ? eig.eigenvectors() : Matrix3d::Identity();
-    if (!pca.allFinite()) pca = Matrix3d::Identity();
-    if (pca.determinant() < 0) pca.col(2) = -pca.col(2);
-    // The volume has several local minima: PCA is ambiguous for symmetric
-    // shapes (a cube), and an irregular figure whose two shorter sides are
-    // alike has boxes of nearly equal volume in different orientations (a
-    // search from PCA alone settled in different ones for a scan and its
-    // truth, their extents a millimetre apart). So the search starts from
-    // PCA turned by 0°, 30° and 60° about each of its axes (a box repeats
-    // every 90°), 27 starts, each searched on a subset of the points down to
-    // 0.5°; the three best then run to the end on all the search points.
     std::vector<double> buffer;
-    constexpr std::size_t kCoarsePoints = 2000;  // every k-th point: evenly over the cloud
-    std::vector<Vector3d> coarse;
-    const std::size_t stride = (search.size() + kCoarsePoints - 1) / kCoarsePoints;
-    for (std::size_t i = 0; i < search.size(); i += stride) coarse.push_back(search[i]);
-    std::vector<std::pair<double, Matrix3d>> starts;
-    for (int a = 0; a < 3; ++a)
-      for (int b = 0; b < 3; ++b)
-        for (int c = 0; c < 3; ++c) {
-          const Matrix3d initial = pca * AxisRotation(2, c * kPi / 6) *
-                                   AxisRotation(1, b * kPi / 6) * AxisRotation(0, a * kPi / 6);
-          double volume = 0;
-          const Matrix3d axes =
-              MinimiseVolume(coarse, initial, options.trim_fraction, &buffer, &volume, 0.5 * kDeg);
-          starts.emplace_back(volume, axes);
-        }
-    std::stable_sort(starts.begin(), starts.end(),
-                     [](const auto& x, const auto& y) { return x.first < y.first; });
-    Matrix3d best_axes = pca;
-    double best_volume = std::numeric_limits<double>::infinity();
-    for (std::size_t k = 0; k < std::min<std::size_t>(3, starts.size()); ++k) {
-      double volume = 0;
-      const Matrix3d axes =
-          MinimiseVolume(search, starts[k].second, options.trim_fraction, &buffer, &volume);
-      if (volume < best_volume * (1 - 1e-9)) {
-        best_volume = volume;
-        best_axes = axes;
-      }
+    Matrix3d best_axes;
+    if (options.up) {
+      best_axes =
+          UprightAxes(search, ToEigen(*options.up).normalized(), options.trim_fraction, &buffer);
+    } else {
+      best_axes = SmallestBoxAxes(search, options.trim_fraction, &buffer);
     }
     const Extents e = TrimmedExtents(pts, best_axes, options.trim_fraction, &buffer);
     const Vector3d size = e.hi - e.lo;
@@ -909,6 +972,10 @@ bool ComputeOrientedBox(const PointCloud& cloud, const OrientedBoxOptions& optio
       extents[k] = size[order[static_cast<std::size_t>(k)]];
     }
     if (axes.determinant() < 0) axes.col(2) = -axes.col(2);
+    box->up_axis = -1;
+    if (options.up)
+      for (int k = 0; k < 3; ++k)
+        if (order[static_cast<std::size_t>(k)] == 2) box->up_axis = k;  // UprightAxes: up third
     box->center_mm = ToCv(Vector3d(best_axes * (0.5 * (e.lo + e.hi))));
     box->axes = ToCv(axes);
     box->extents_mm = ToCv(extents);
@@ -1141,6 +1208,9 @@ std::string MeasurementReportJson(const OrientedBox& box, const BoxMeasurement* 
     obb["axes"] = axes;  // one unit vector per box axis
     obb["extents_mm"] = Vec(box.extents_mm);
     obb["points"] = box.points;
+    // Upright: one axis along the turntable's (the object as it stands).
+    obb["upright"] = box.up_axis >= 0;
+    if (box.up_axis >= 0) obb["height_mm"] = box.extents_mm[box.up_axis];
     report["oriented_box"] = obb;
     if (measurement) {
       const BoxMeasurement& m = *measurement;

@@ -93,7 +93,10 @@ void RefuseStraying(const RegistrationOptions& pair, const PointCloud& source,
 // error, empty on success (a failed box measurement is a note, not an error).
 std::string Measure(const ScanOptions& options, bool have_axis, ScanResult* result) {
   std::string box_error;
-  if (!ComputeOrientedBox(result->fused, &result->box, &box_error)) return box_error;
+  // In the turntable frame the box stands on the platter (z up).
+  OrientedBoxOptions box_options;
+  if (have_axis) box_options.up = cv::Vec3d(0, 0, 1);
+  if (!ComputeOrientedBox(result->fused, box_options, &result->box, &box_error)) return box_error;
   if (options.measure_box) {
     BoxMeasureOptions box = options.box;
     if (have_axis && !box.base_plane) {

@@ -36,6 +36,15 @@ struct OrientedBoxOptions {
   // subset); the final extents use every finite point. ≥ 100.
   int max_search_points = 20000;
   std::uint64_t seed = 1;
+  // An upright box (non-zero, finite; need not be unit): one axis along
+  // `up`, the other two about it where the footprint's trimmed area is
+  // least, as catalogue dimensions are taken (height as the object stands,
+  // width and depth of its footprint). A scan has the turntable's axis:
+  // there the smallest box over all orientations is ill-conditioned for
+  // irregular figures (boxes of nearly equal volume in several tilts, a
+  // millimetre apart in their extents), the upright one is not. Unset: the
+  // smallest box over all orientations.
+  std::optional<cv::Vec3d> up;
 
   bool IsValid(std::string* why) const;  // names the offending field
 };
@@ -47,6 +56,7 @@ struct OrientedBox {
   cv::Matx33d axes = cv::Matx33d::eye();  // columns: unit axes, sorted by extent desc; det = +1
   cv::Vec3d extents_mm{0, 0, 0};          // full side lengths along the columns of axes, desc
   std::size_t points = 0;                 // finite points used
+  int up_axis = -1;  // upright box (OrientedBoxOptions::up): the column along up; else −1
 };
 
 // Computes a tight oriented box: axes from PCA, then refined by a local

@@ -1,6 +1,7 @@
 #include "craftscan/pipeline/surface/fusion.h"
 
 #include <algorithm>
+#include <array>
 #include <bit>
 #include <cmath>
 #include <cstdint>
@@ -10,6 +11,7 @@
 #include <unordered_map>
 #include <utility>
 
+#include "common/parallel.h"
 #include "craftscan/pipeline/common/status.h"
 
 namespace craftscan {
@@ -125,6 +127,10 @@ struct Voxels {
   std::vector<std::uint64_t> keys;
   std::vector<std::pair<cv::Vec3d, double>> sums;
   std::vector<std::uint64_t> views;
+  // With FusionOptions::local_surface_support: each voxel's points per
+  // cloud (mean), voxel v's at view_points[view_start[v] … view_start[v + 1]).
+  std::vector<std::uint32_t> view_start;
+  std::vector<std::pair<std::uint32_t, cv::Vec3f>> view_points;
 };
 
 // Averages the points (normals, colours) of every voxel holding at least
@@ -134,6 +140,8 @@ Voxels AverageVoxels(const std::vector<PointCloud>& clouds, const KeyedPoints& p
   const auto& keyed = points.keyed;
   Voxels out;
   std::size_t kept_points = 0;
+  const bool per_view = options.local_surface_support && options.min_views > 1;
+  int view_count = 0;
   for (std::size_t begin = 0; begin < keyed.size();) {
     std::size_t end = begin + 1;
     while (end < keyed.size() && keyed[end].first == keyed[begin].first) ++end;
@@ -148,11 +156,25 @@ Voxels AverageVoxels(const std::vector<PointCloud>& clouds, const KeyedPoints& p
     bool have_first_n = false;
     std::size_t normals = 0;
     std::uint64_t views = 0;
+    if (per_view) out.view_start.push_back(static_cast<std::uint32_t>(out.view_points.size()));
+    const std::size_t first_view_point = out.view_points.size();
     for (std::size_t k = begin; k < end; ++k) {
       const auto [c, i] = points.where[keyed[k].second];
       views |= std::uint64_t{1} << std::min<std::uint32_t>(c, 63);
       const PointCloud& cloud = clouds[c];
       sum_p += cv::Vec3d(cloud.points_mm[i]);
+      if (per_view) {  // a voxel's points are sorted by cloud: one run each
+        if (out.view_points.size() == first_view_point || out.view_points.back().first != c) {
+          if (out.view_points.size() > first_view_point) {
+            auto& [last, mean] = out.view_points.back();
+            mean /= static_cast<float>(view_count);
+          }
+          out.view_points.emplace_back(c, cv::Vec3f(0, 0, 0));
+          view_count = 0;
+        }
+        out.view_points.back().second += cloud.points_mm[i];
+        ++view_count;
+      }
       if (summary.all_normals) {
         const cv::Vec3f& nf = cloud.normals[i];
         if (Finite(nf)) {
@@ -168,6 +190,7 @@ Voxels AverageVoxels(const std::vector<PointCloud>& clouds, const KeyedPoints& p
       }
       if (summary.all_colors) sum_c += cv::Vec3d(cloud.colors_rgb[i]);
     }
+    if (per_view && view_count > 0) out.view_points.back().second /= static_cast<float>(view_count);
     const double inv = 1.0 / static_cast<double>(count);
     const cv::Vec3d mean = sum_p * inv;
     out.cloud.points_mm.emplace_back(static_cast<float>(mean[0]), static_cast<float>(mean[1]),
@@ -197,6 +220,7 @@ Voxels AverageVoxels(const std::vector<PointCloud>& clouds, const KeyedPoints& p
     kept_points += count;
     begin = end;
   }
+  if (per_view) out.view_start.push_back(static_cast<std::uint32_t>(out.view_points.size()));
   s->output_points = out.cloud.size();
   if (!out.cloud.empty()) {
     s->mean_points_per_voxel =
@@ -222,7 +246,7 @@ std::size_t FilterVoxels(const std::vector<char>& keep, Voxels* voxels) {
     kept.sums.push_back(voxels->sums[v]);
     kept.views.push_back(voxels->views[v]);
   }
-  *voxels = std::move(kept);
+  *voxels = std::move(kept);  // the per-view points go: only multi-view support reads them
   return dropped;
 }
 
@@ -293,6 +317,18 @@ void KeepMultiViewVoxels(const FusionOptions& options, const std::vector<cv::Vec
     const cv::Vec3f d = cloud.points_mm[w] - cloud.points_mm[v];
     return std::abs(d.dot(cloud.normals[v])) <= tol || std::abs(d.dot(cloud.normals[w])) <= tol;
   };
+  // Calls fn(w) for every voxel w in the cube of `radius` voxels around v
+  // (v included) while fn returns true.
+  const auto for_block = [&](std::size_t v, std::int64_t radius, auto&& fn) {
+    for (std::int64_t dx = -radius; dx <= radius; ++dx)
+      for (std::int64_t dy = -radius; dy <= radius; ++dy)
+        for (std::int64_t dz = -radius; dz <= radius; ++dz) {
+          std::uint64_t neighbour = 0;
+          if (!NeighbourKey(keys[v], dx, dy, dz, &neighbour)) continue;
+          const auto it = index.find(neighbour);
+          if (it != index.end() && !fn(it->second)) return;
+        }
+  };
   const double lone = options.lone_view_radius_mm;
   std::unordered_map<std::uint64_t, std::uint64_t> cells;  // cell → clouds
   if (lone > 0)
@@ -315,19 +351,72 @@ void KeepMultiViewVoxels(const FusionOptions& options, const std::vector<cv::Vec
     return p.dot(up) + options.platter[3] < options.platter_shadow_mm &&
            cloud.normals[v].dot(up) <= -cos_down;
   };
+  // Local-surface support (FusionOptions::local_surface_support): each
+  // cloud's points in the block around v, on v's side of any edge, their
+  // offsets along v's normal; the cloud supports v when their median is
+  // within tolerance. Clouds with fewer points there, or whose camera saw
+  // v's surface at a grazing angle, support v as below (any point near
+  // either tangent plane, or being v's own).
+  const bool local =
+      options.local_surface_support && along_normal && voxels->view_start.size() == keys.size() + 1;
+  std::vector<std::uint64_t> local_views;
+  if (local) {
+    const auto same_side =
+        static_cast<float>(std::cos(options.local_support_normal_deg * std::numbers::pi / 180));
+    const bool grazing = options.local_support_incidence_deg > 0 && with_cameras;
+    local_views.resize(keys.size());
+    Parallel(options.num_threads).For(0, static_cast<int>(keys.size()), [&](int v0, int v1) {
+      std::array<std::vector<float>, 64> per_cloud;
+      for (std::size_t v = static_cast<std::size_t>(v0); v < static_cast<std::size_t>(v1); ++v) {
+        std::uint64_t seen = 0, near_plane = voxels->views[v];
+        const cv::Vec3f& pv = cloud.points_mm[v];
+        const cv::Vec3f& nv = cloud.normals[v];
+        for_block(v, r, [&](std::size_t w) {
+          if (w != v && on_plane(v, w)) near_plane |= voxels->views[w];
+          // Another face (the far wall of a groove, the other side of an
+          // edge) is not the surface v is on.
+          if (nv.dot(cloud.normals[w]) < same_side) return true;
+          for (std::uint32_t k = voxels->view_start[w]; k < voxels->view_start[w + 1]; ++k) {
+            const auto& [c, p] = voxels->view_points[k];
+            const std::uint32_t slot = std::min<std::uint32_t>(c, 63);
+            if (!(seen >> slot & 1)) per_cloud[slot].clear();
+            seen |= std::uint64_t{1} << slot;
+            per_cloud[slot].push_back((p - pv).dot(nv));
+          }
+          return true;
+        });
+        const std::uint64_t facing =
+            grazing ? FacingCameras(pv, nv, *centers, options.local_support_incidence_deg)
+                    : ~std::uint64_t{0};
+        std::uint64_t supported = 0;
+        for (std::uint64_t rest = seen; rest != 0; rest &= rest - 1) {
+          const int slot = std::countr_zero(rest);
+          const std::uint64_t bit = std::uint64_t{1} << slot;
+          std::vector<float>& o = per_cloud[static_cast<std::size_t>(slot)];
+          if ((facing & bit) && o.size() >= static_cast<std::size_t>(options.min_local_points)) {
+            const auto middle = o.begin() + static_cast<std::ptrdiff_t>(o.size() / 2);
+            std::nth_element(o.begin(), middle, o.end());
+            if (std::abs(*middle) <= tol) supported |= bit;
+          } else if (near_plane & bit) {
+            supported |= bit;
+          }
+        }
+        local_views[v] = supported;
+      }
+    });
+  }
   std::vector<char> keep(keys.size(), 0);
   for (std::size_t v = 0; v < keys.size(); ++v) {
     std::uint64_t views = voxels->views[v];
-    for (std::int64_t dx = -r; dx <= r && std::popcount(views) < options.min_views; ++dx)
-      for (std::int64_t dy = -r; dy <= r; ++dy)
-        for (std::int64_t dz = -r; dz <= r; ++dz) {
-          std::uint64_t neighbour = 0;
-          if (!NeighbourKey(keys[v], dx, dy, dz, &neighbour)) continue;
-          const auto it = index.find(neighbour);
-          if (it == index.end()) continue;
-          const std::uint64_t more = voxels->views[it->second] & ~views;
-          if (more && (!along_normal || on_plane(v, it->second))) views |= more;
-        }
+    if (local) {
+      views = local_views[v];
+    } else {
+      for_block(v, r, [&](std::size_t w) {
+        const std::uint64_t more = voxels->views[w] & ~views;
+        if (more && (!along_normal || on_plane(v, w))) views |= more;
+        return std::popcount(views) < options.min_views;
+      });
+    }
     // Sparse but consistent: another view's points farther along the
     // surface, each on the other's tangent plane with normals alike, and
     // around the voxel, not only to one side of it (a face one view saw
@@ -339,27 +428,21 @@ void KeepMultiViewVoxels(const FusionOptions& options, const std::vector<cv::Vec
       cv::Vec3f around(0, 0, 0);
       int n_around = 0;
       const cv::Vec3f& nv = cloud.normals[v];
-      for (std::int64_t dx = -r_plane; dx <= r_plane; ++dx)
-        for (std::int64_t dy = -r_plane; dy <= r_plane; ++dy)
-          for (std::int64_t dz = -r_plane; dz <= r_plane; ++dz) {
-            std::uint64_t neighbour = 0;
-            if (!NeighbourKey(keys[v], dx, dy, dz, &neighbour)) continue;
-            const auto it = index.find(neighbour);
-            if (it == index.end()) continue;
-            const std::size_t w = it->second;
-            const std::uint64_t more = voxels->views[w] & ~voxels->views[v];
-            if (!more) continue;
-            const cv::Vec3f d = cloud.points_mm[w] - cloud.points_mm[v];
-            if (std::abs(d.dot(nv)) > tol || std::abs(d.dot(cloud.normals[w])) > tol ||
-                nv.dot(cloud.normals[w]) < kPlaneCos)
-              continue;
-            const cv::Vec3f along = d - d.dot(nv) * nv;
-            const float length = static_cast<float>(cv::norm(along));
-            if (length <= 0) continue;
-            around += along / length;
-            ++n_around;
-            plane_views |= more;
-          }
+      for_block(v, r_plane, [&](std::size_t w) {
+        const std::uint64_t more = voxels->views[w] & ~voxels->views[v];
+        if (!more) return true;
+        const cv::Vec3f d = cloud.points_mm[w] - cloud.points_mm[v];
+        if (std::abs(d.dot(nv)) > tol || std::abs(d.dot(cloud.normals[w])) > tol ||
+            nv.dot(cloud.normals[w]) < kPlaneCos)
+          return true;
+        const cv::Vec3f along = d - d.dot(nv) * nv;
+        const float length = static_cast<float>(cv::norm(along));
+        if (length <= 0) return true;
+        around += along / length;
+        ++n_around;
+        plane_views |= more;
+        return true;
+      });
       if (n_around >= 2 && cv::norm(around) < 0.5 * n_around &&
           std::popcount(views | plane_views) >= options.min_views) {
         views |= plane_views;
@@ -486,6 +569,12 @@ bool FusionOptions::IsValid(std::string* why) const {
     return Fail(why, "FusionOptions.voxel_mm must be finite and > 0");
   if (min_points_per_voxel < 1) return Fail(why, "FusionOptions.min_points_per_voxel must be >= 1");
   if (min_views < 1) return Fail(why, "FusionOptions.min_views must be >= 1");
+  if (min_local_points < 1) return Fail(why, "FusionOptions.min_local_points must be >= 1");
+  if (num_threads < 1) return Fail(why, "FusionOptions.num_threads must be >= 1");
+  if (!(local_support_normal_deg > 0 && local_support_normal_deg <= 180))
+    return Fail(why, "FusionOptions.local_support_normal_deg must be in (0, 180]");
+  if (!(local_support_incidence_deg >= 0 && local_support_incidence_deg < 90))
+    return Fail(why, "FusionOptions.local_support_incidence_deg must be in [0, 90)");
   if (!(view_support_mm > 0) || !std::isfinite(view_support_mm))
     return Fail(why, "FusionOptions.view_support_mm must be > 0");
   if (!(view_support_normal_mm >= 0) || !std::isfinite(view_support_normal_mm))

@@ -340,6 +340,7 @@ ScanResult IncrementalScan::Impl::Finish() {
     centers[k] = cv::Vec3d(out_from_view[k](0, 3), out_from_view[k](1, 3), out_from_view[k](2, 3));
   // In the turntable frame the platter is z = 0.
   FusionOptions fusion = options.fusion;
+  fusion.num_threads = options.num_threads;
   if (have_axis) fusion.platter = {0, 0, 1, 0};
   auto fuse = [&](const std::vector<PointCloud>& in_rig) {
     std::vector<PointCloud> clouds;

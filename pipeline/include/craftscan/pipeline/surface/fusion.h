@@ -51,6 +51,24 @@ struct FusionOptions {
   // matched at a slightly wrong disparity): they lie inside the cube of
   // view_support_mm around the surface, but not on its plane.
   double view_support_normal_mm = 0;
+  // Local-surface support (needs view_support_normal_mm and normals): a
+  // cloud supports a voxel when the median offset, along the voxel's
+  // normal, of that cloud's points within view_support_mm (in voxels whose
+  // normal is within local_support_normal_deg of the voxel's: the far wall
+  // of a groove is another surface) is within view_support_normal_mm. The
+  // voxel's own clouds are tested alike. A cloud with fewer than
+  // min_local_points such points, or whose camera faced the voxel at more
+  // than local_support_incidence_deg (a grazing view measures badly; needs
+  // FuseClouds' camera centres, 0 = no such exception), supports it as
+  // without this option. Two views that each matched a patch a millimetre
+  // or two off (a periodic stitch along both views' epipolar lines, each
+  // view's points a noisy sheet of its own) have points near each other's
+  // planes by chance, but their surfaces do not agree (README 11.9, stop 63).
+  bool local_surface_support = false;
+  int min_local_points = 3;                 // ≥ 1
+  double local_support_normal_deg = 45;     // (0, 180]
+  double local_support_incidence_deg = 70;  // [0, 90)
+  int num_threads = 1;  // ≥ 1, for the local-surface support; the result does not depend on it
   // Support from farther along the surface (mm, ≥ 0; 0 = off; needs
   // view_support_normal_mm): a voxel without support within
   // view_support_mm is also supported by another cloud's voxel within this

@@ -85,6 +85,7 @@ struct ScanOptions {
     f.hidden_view_incidence_deg = 85;
     f.min_cluster_fraction = 0.05;
     f.platter_shadow_mm = 3;
+    f.local_surface_support = true;
     return f;
   }();
   bool mesh = true;

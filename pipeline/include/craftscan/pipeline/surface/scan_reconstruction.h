@@ -74,7 +74,10 @@ struct ScanOptions {
   // are dropped as floaters (FusionOptions::min_cluster_fraction). README 11.9 has what each
   // bought. Within 3 mm of the platter a voxel facing down needs two views
   // with no exception (FusionOptions::platter_shadow_mm; in the turntable
-  // frame, so only with a turntable axis).
+  // frame, so only with a turntable axis). A view's support is its local
+  // surface's (FusionOptions::local_surface_support: the median of its
+  // points around the voxel within 0.5 mm of the voxel's tangent plane, not
+  // any one point; README 11.9, stop 63).
   FusionOptions fusion = [] {
     FusionOptions f;
     f.min_views = 2;

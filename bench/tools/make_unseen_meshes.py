@@ -1,5 +1,5 @@
 #!/usr/bin/python3
-"""Two objects for checking the scan and two-turn goals on shapes no setting
+"""Three objects for checking the scan and two-turn goals on shapes no setting
 was chosen on (README 11.9 and 11.11), written as PLY meshes for
 `craftscan-bench scan --object mesh:FILE`:
 
@@ -12,6 +12,10 @@ was chosen on (README 11.9 and 11.11), written as PLY meshes for
              its length, +z up, centred on x = y = 0, lowest point at z = 0.
   torus.ply  a ring standing on its edge (radii 25 and 10 mm): symmetric
              about its own axis, so a second turn laid flat must be refused.
+  statue.ply a figurine of primitives, 54 × 30 × 64 mm: a plinth (44 × 30
+             × 8 mm), an ellipsoid body, a head with a conical nose, one arm
+             held out with a hand; overlapping solids, the hidden parts of
+             their surfaces never seen (stop 64).
 
   /usr/bin/python3 bench/tools/make_unseen_meshes.py [--data ../shared/data] [--out DIR]
 
@@ -71,6 +75,33 @@ def torus():
     return mesh
 
 
+def statue():
+    def placed(mesh, scale=(1, 1, 1), rotation=None, at=(0, 0, 0)):
+        v = np.asarray(mesh.vertices) * np.array(scale)
+        if rotation is not None:
+            v = v @ rotation.T
+        mesh.vertices = o3d.utility.Vector3dVector(v + np.array(at))
+        return mesh
+
+    def about_y(deg):
+        return o3d.geometry.get_rotation_matrix_from_axis_angle([0, np.deg2rad(deg), 0])
+
+    g = o3d.geometry.TriangleMesh
+    parts = [
+        placed(g.create_box(44, 30, 8), at=(-22, -15, 0)),  # plinth
+        placed(g.create_sphere(1, resolution=60), scale=(13, 10, 22), at=(0, 0, 28)),  # body
+        placed(g.create_sphere(8.5, resolution=50), at=(2, -1, 55)),  # head
+        placed(g.create_cylinder(3.2, 28, resolution=40, split=8), rotation=about_y(-50),
+               at=(16, 0, 34)),  # arm
+        placed(g.create_sphere(4.5, resolution=30), at=(27, 0, 25)),  # hand
+        placed(g.create_cone(2.5, 6, resolution=30), rotation=about_y(90), at=(9, -1, 55)),  # nose
+    ]
+    mesh = parts[0]
+    for part in parts[1:]:
+        mesh += part
+    return mesh
+
+
 def seat(mesh):
     v = np.asarray(mesh.vertices)
     v = v - [v[:, 0].mean(), v[:, 1].mean(), v[:, 2].min()]
@@ -85,7 +116,7 @@ def main():
     parser.add_argument("--out", default=".")
     args = parser.parse_args()
     os.makedirs(args.out, exist_ok=True)
-    for name, mesh in (("bunny", bunny(args.data)), ("torus", torus())):
+    for name, mesh in (("bunny", bunny(args.data)), ("torus", torus()), ("statue", statue())):
         mesh = seat(mesh)
         path = os.path.join(args.out, name + ".ply")
         if not o3d.io.write_triangle_mesh(path, mesh, write_ascii=False,

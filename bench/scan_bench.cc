@@ -979,6 +979,7 @@ class ScanCommand : public BenchCommand {
                            {"rmse_mm", Number(j.rmse_mm)},
                            {"ambiguity", Number(j.ambiguity)},
                            {"constraint", Number(j.constraint)},
+                           {"held_weakly", j.held_weakly},
                            {"alternative_deg", Number(j.alternative_deg)},
                            {"alternative_mm", Number(j.alternative_mm)},
                            {"hypotheses", j.hypotheses},

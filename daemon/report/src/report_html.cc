@@ -453,8 +453,13 @@ void Turns(Page& p, const Json& scan) {
                                  "&deg;, " + Number(*j, "alternative_mm", 1) + " mm away) fits " +
                                  Fixed(100 * ambiguity, 0) + " % as well (refused from 90 %)"
                            : std::string("no other placement fits nearly as well"));
+    const bool weakly = Text(*j, "held") == "weakly";
     p.Row("Constraint", Number(*j, "constraint", 3) +
-                            " (the least held motion over the best held; refused below 0.005)");
+                            " (the least held motion over the best held; refused below 0.005)" +
+                            (weakly ? std::string(" &mdash; held weakly, by one small feature: "
+                                                  "the turns may be a few tenths of a degree "
+                                                  "apart about it")
+                                    : std::string()));
     p.Row("Hypotheses refined", Count(*j, "hypotheses"));
     p.Row("Points compared",
           Count(*j, "points_a") + " of turn 1, " + Count(*j, "points_b") + " of the later turn");

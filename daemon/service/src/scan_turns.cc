@@ -94,6 +94,7 @@ nlohmann::json TurnJoinJson(const ScanResult& r) {
           {"alternative_deg", Finite(j.alternative_deg)},
           {"alternative_mm", Finite(j.alternative_mm)},
           {"constraint", j.constraint},
+          {"held", j.IsUsable() ? (j.held_weakly ? "weakly" : "firmly") : "not joined"},
           {"hypotheses", j.hypotheses},
           {"points_a", j.points_a},
           {"points_b", j.points_b},
@@ -119,6 +120,10 @@ std::string TurnJoinSummary(const nlohmann::json& join) {
     std::snprintf(text, sizeof text, " fits %.0f %% as well)", 100 * ambiguity);
     out.pop_back();
     out += text;
+  }
+  if (join.value("held", std::string()) == "weakly") {
+    out.pop_back();
+    out += ", held weakly)";
   }
   return out;
 }

@@ -277,6 +277,8 @@ bool TurnJoinOptions::IsValid(std::string* why) const {
   if (!(min_overlap >= 0 && min_overlap <= 1)) return fail("min_overlap must be in [0, 1]");
   if (!(max_ambiguity > 0 && max_ambiguity <= 1)) return fail("max_ambiguity must be in (0, 1]");
   if (!(min_constraint >= 0 && min_constraint < 1)) return fail("min_constraint must be in [0, 1)");
+  if (!(weak_constraint >= min_constraint && weak_constraint < 1))
+    return fail("weak_constraint must be in [min_constraint, 1)");
   if (!(contradiction_mm > fit_distance_mm))
     return fail("contradiction_mm must be > fit_distance_mm");
   if (!(max_contradicted >= 0 && max_contradicted <= 1))
@@ -558,6 +560,17 @@ TurnJoinResult JoinTurns(const PointCloud& turn_a, const PointCloud& turn_b,
                             Fixed(100 * dismissed_ratio, 0) +
                             " % as well but misplaces a distinctive part the join fits (" +
                             Fixed(100 * dismissed_part, 1) + " % of turn B in one piece)";
+        if (result.constraint < options.weak_constraint) {
+          result.held_weakly = true;
+          result.message +=
+              "; held weakly (constraint " + Fixed(result.constraint, 4) + ", below " +
+              Fixed(options.weak_constraint, 3) +
+              "): one small feature holds the turns' alignment " +
+              (result.weak_motion_rotation >= 0.5 ? "about one axis" : "along one direction") +
+              ", so they may be a few tenths of a degree apart there; for a "
+              "closer join lay the object so that more of its distinctive shape "
+              "is seen in both turns";
+        }
         return result;
       });
 }

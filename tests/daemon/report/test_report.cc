@@ -221,6 +221,14 @@ TEST(ReportHtml, ShowsBothTurnsAndHowTheyWereJoined) {
         "72.6 % of the later turn", "0.183 mm", "no other placement fits", "0.208", ">23<",
         "19893 of turn 1", "8.12 s", "&lt;fine&gt;"})
     EXPECT_TRUE(Contains(html, figure)) << figure;
+  EXPECT_FALSE(Contains(html, "held weakly"));
+  // Held weakly (one small feature holds it): the constraint's row says so.
+  report["turn_join"]["constraint"] = 0.0152;
+  report["turn_join"]["held"] = "weakly";
+  in.scan_report_json = report.dump();
+  ASSERT_TRUE(ReportHtml(in, {}, {}, &html, &error)) << error;
+  for (const char* figure : {"0.015 (the least held", "held weakly, by one small feature"})
+    EXPECT_TRUE(Contains(html, figure)) << figure;
   // Refused: its status as the verdict, the rival's figures.
   report["turn_join"]["status"] = "refused_ambiguous";
   report["turn_join"]["ambiguity"] = 0.95;

@@ -11,6 +11,7 @@
 
 #include "../sessions/session_test_util.h"
 #include "craftscan/daemon/scan_outputs.h"
+#include "craftscan/daemon/scan_turns.h"
 #include "craftscan/pipeline/common/ply.h"
 #include "craftscan/pipeline/common/triangle_mesh.h"
 #include "craftscan/pipeline/surface/mesh.h"
@@ -85,6 +86,34 @@ TEST_F(ScanOutputFiles, WithoutMeshPlyOrWithItsObjNothingIsWritten) {
       << error;
   EXPECT_TRUE(StoreMeshObjFromPly(*session).ok());
   EXPECT_EQ(ReadAll(session->dir() + "/mesh.obj"), "# kept\n");
+}
+
+// How a join is told to people (scan_turns.h): report.json's "held" and
+// the one line craftscanctl and the progress topic show.
+TEST(TurnJoinSummary, SaysWhenTheJoinIsHeldWeakly) {
+  ScanResult result;
+  EXPECT_TRUE(TurnJoinJson(result).is_null());
+  TurnJoinResult& j = result.turn_join.emplace();
+  j.status = TurnJoinResult::Status::kJoined;
+  j.overlap = 0.726;
+  j.rmse_mm = 0.21;
+  j.constraint = 0.18;
+  nlohmann::json json = TurnJoinJson(result);
+  EXPECT_EQ(json.value("held", ""), "firmly");
+  EXPECT_EQ(TurnJoinSummary(json), "joined (fit 72.6 %, RMSE 0.21 mm, no rival)");
+  j.constraint = 0.015;
+  j.held_weakly = true;
+  json = TurnJoinJson(result);
+  EXPECT_EQ(json.value("held", ""), "weakly");
+  EXPECT_EQ(TurnJoinSummary(json), "joined (fit 72.6 %, RMSE 0.21 mm, no rival, held weakly)");
+  j.ambiguity = 0.5;
+  EXPECT_EQ(TurnJoinSummary(TurnJoinJson(result)),
+            "joined (fit 72.6 %, RMSE 0.21 mm, rival fits 50 % as well, held weakly)");
+  j.status = TurnJoinResult::Status::kRefusedAmbiguous;
+  j.message = "the turns cannot be joined unambiguously";
+  json = TurnJoinJson(result);
+  EXPECT_EQ(json.value("held", ""), "not joined");
+  EXPECT_EQ(TurnJoinSummary(json), "refused_ambiguous: the turns cannot be joined unambiguously");
 }
 
 }  // namespace

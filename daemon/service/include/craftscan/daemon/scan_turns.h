@@ -46,12 +46,13 @@ bool SessionTurns(const Manifest& manifest, std::vector<TurnRecord>* turns, std:
 nlohmann::json TurnsJson(const std::vector<TurnRecord>& turns);
 // The figures of a join (ScanResult::turn_join and the platter-contact
 // points dropped): status, message, overlap (0..1) and overlap_pct, rmse_mm,
-// ambiguity, alternative_deg/_mm, constraint, hypotheses, points_a/_b,
+// ambiguity, alternative_deg/_mm, constraint, held ("firmly", "weakly":
+// TurnJoinResult::held_weakly, or "not joined"), hypotheses, points_a/_b,
 // coarse_voxel_mm, time_ms, a_from_b (row-major 4×4), contact_dropped_a/_b.
 // Null without a join.
 nlohmann::json TurnJoinJson(const ScanResult& result);
-// One line for people: "joined (fit 72.6 %, RMSE 0.21 mm, no rival)" or
-// "refused_overlap: <message>".
+// One line for people: "joined (fit 72.6 %, RMSE 0.21 mm, no rival)",
+// "joined (…, no rival, held weakly)" or "refused_overlap: <message>".
 std::string TurnJoinSummary(const nlohmann::json& join);
 
 }  // namespace craftscan::daemon

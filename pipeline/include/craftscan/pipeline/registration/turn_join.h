@@ -129,6 +129,15 @@ struct TurnJoinOptions {
   // revolution (an egg on its side, a plain vase) turns about its axis
   // without leaving itself: no rival placement need be found for that.
   double min_constraint = 0.005;
+  // Joined, but held weakly, below this (min_constraint..1): the least held
+  // motion rests on one small feature (a jug's handle, an owl's beak and
+  // ears), and there each turn's reconstruction of that feature decides the
+  // join: on the simulated station such joins (constraint 0.014–0.017) came
+  // out 0.06–0.33° from the truth, those held by more of the shape (0.14–0.19:
+  // the box, the bunny, a figurine) 0.03–0.07° (README 11.11, stop 64). The
+  // result says so (TurnJoinResult::held_weakly), for the operator to lay
+  // the object so that more of its distinctive shape is seen in both turns.
+  double weak_constraint = 0.05;
   // Platter contact (MergeTurns): a turn's points lower than
   // contact_band_mm in its own frame go where the other turn has a point
   // within contact_cover_mm (it sees that surface, not at a grazing angle
@@ -164,7 +173,8 @@ struct TurnJoinResult {
   // and how much of its least held motion is a rotation (0..1).
   double constraint = 0;
   double weak_motion_rotation = 0;
-  int hypotheses = 0;                      // refined by ICP, the join's included
+  bool held_weakly = false;  // joined with constraint < TurnJoinOptions::weak_constraint
+  int hypotheses = 0;        // refined by ICP, the join's included
   std::size_t points_a = 0, points_b = 0;  // fine points the fit is counted on
   double coarse_voxel_mm = 0;              // the one used
   double time_ms = 0;

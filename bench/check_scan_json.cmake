@@ -5,6 +5,8 @@
 #         [-DMAX_OBB_ERROR_MM=x] [-DMIN_LARGEST_COMPONENT_PCT=x]
 #         [-DMAX_OBB_ERROR_MM_2=x (one axis: 0, 1 or 2, the OBB's extents
 #          largest first)] [-DMAX_BOX_EDGE_MEAN_MM=x] [-DMAX_BOX_EDGE_STD_MM=x]
+#         [-DMAX_VIEW_POSE_ERR_DEG=x (every view's registered pose against
+#          its true one, the largest over the views)]
 #         -P check_scan_json.cmake
 file(REMOVE "${JSON}")
 execute_process(COMMAND "${BENCH}" scan ${SCAN_ARGS} --json "${JSON}" RESULT_VARIABLE code)
@@ -59,6 +61,9 @@ if(NOT no_edges)
   check_max(edge_mean_abs MAX_BOX_EDGE_MEAN_MM "|box edge mean error| (mm)")
   check_max(edge_std MAX_BOX_EDGE_STD_MM "box edge error std (mm)")
 endif()
+string(JSON pose_max GET "${text}" view_pose_err_deg 0 max)
+message("view poses against the truth: max ${pose_max} deg")
+check_max(pose_max MAX_VIEW_POSE_ERR_DEG "view pose error, max (deg)")
 if(failures)
   message(FATAL_ERROR "scan figures outside their limits:\n${failures}${text}")
 endif()

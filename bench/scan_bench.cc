@@ -37,6 +37,8 @@
 //   views_to_truth_mm  the same for every view's own cloud at its exact pose
 //                      (what stereo alone leaves): median, p95, outlier_pct,
 //                      completeness_pct (of all views' points together)
+//   view_pose_err_deg  per turn, each view's registered pose against its true
+//                      one (rotation, relative to view 0): median, max
 //   completeness_pct   `visible` sampled on a 0.5 mm grid: the share with a
 //                      fused point within 1 mm
 //   mesh_to_truth_mm   the same distance for the mesh vertices more than 1 mm
@@ -489,6 +491,22 @@ class ScanCommand : public BenchCommand {
                                               : cv::Matx44d::eye();
     out->object_from_result =
         out->geometry[0].world_from_object.inv() * world_from_rig * view0_from_result;
+    // Each view's pose as registered against its true pose, both relative to
+    // view 0 (whose pose defines the scan's frame).
+    if (out->result.view0_from_view.size() == out->geometry.size()) {
+      std::vector<double> errors;
+      for (std::size_t k = 1; k < out->geometry.size(); ++k) {
+        const cv::Matx44d truth =
+            out->geometry[0].object_from_rig.inv() * out->geometry[k].object_from_rig;
+        errors.push_back(RotationErrorDeg(truth, out->result.view0_from_view[k]));
+      }
+      if (!errors.empty()) {
+        std::sort(errors.begin(), errors.end());
+        pose_errors_.push_back({errors[errors.size() / 2], errors.back()});
+        std::printf("  %sview poses against the truth: median %.3f°, max %.3f°\n",
+                    turn == 0 ? "" : "turn 2 ", errors[errors.size() / 2], errors.back());
+      }
+    }
     return kExitOk;
   }
 
@@ -994,6 +1012,12 @@ class ScanCommand : public BenchCommand {
       root["turn_trans_err_mm"] = Number(tf->trans_err_mm);
       root["first_turn_completeness_pct"] = Number(tf->first_turn_completeness_pct);
     }
+    // Per turn: each view's registered pose against its true pose (rotation,
+    // relative to view 0), median and max over the views.
+    nlohmann::ordered_json poses = nlohmann::ordered_json::array();
+    for (const auto& [median, max] : pose_errors_)
+      poses.push_back({{"median", Number(median)}, {"max", Number(max)}});
+    root["view_pose_err_deg"] = poses;
     root["views"] = views_;
     root["seed"] = seed_;
     root["threads"] = threads_;
@@ -1051,6 +1075,7 @@ class ScanCommand : public BenchCommand {
   std::vector<std::unique_ptr<sim::SimStation>> bracketed_;
   int turns_ = 1;
   std::vector<double> turn2_rotation_deg_{90, 0, 0};
+  std::vector<std::pair<double, double>> pose_errors_;  // per turn: median, max (deg)
   std::string object_ = "carved_box";
   std::string mesh_path_;
   double mesh_size_mm_ = 0;

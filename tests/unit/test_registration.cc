@@ -458,6 +458,60 @@ TEST(Registration, InvalidOptionsAreNamed) {
   const ViewCloud v = ConditionCloud(BumpySurface(1), c);
   EXPECT_FALSE(v.ok());
   EXPECT_NE(v.error.find("coarse_voxel_mm"), std::string::npos) << v.error;
+  RegistrationOptions weak;
+  weak.prior_weak_constraint = 1.0;
+  EXPECT_FALSE(weak.IsValid(&why));
+  EXPECT_NE(why.find("prior_weak_constraint"), std::string::npos) << why;
+}
+
+// A vase: radius 20 + 5·sin(z / 8) mm about the z axis, z in [0, 60], with
+// its outward normals; optionally a handle (the two sides of a fin at
+// x = 25…35 mm, y = ±2 mm, z = 10…50 mm) that holds the turn about the axis.
+PointCloud Vase(bool handle) {
+  PointCloud cloud;
+  for (double z = 0; z <= 60; z += 0.5) {
+    const double r = 20 + 5 * std::sin(z / 8), dr = 5.0 / 8 * std::cos(z / 8);
+    for (double a = 0; a < 2 * M_PI; a += 0.5 / r) {
+      cloud.points_mm.emplace_back(r * std::cos(a), r * std::sin(a), z);
+      const cv::Vec3d n = cv::normalize(cv::Vec3d(std::cos(a), std::sin(a), -dr));
+      cloud.normals.emplace_back(n);
+    }
+  }
+  if (handle) {
+    for (double x = 25; x <= 35; x += 0.25)
+      for (double z = 10; z <= 50; z += 0.25)
+        for (const double side : {-1.0, 1.0}) {
+          cloud.points_mm.emplace_back(x, 2 * side, z);
+          cloud.normals.emplace_back(0, side, 0);
+        }
+  }
+  return cloud;
+}
+
+// The prior kept along what the surface does not hold, the registration's
+// motion along what it holds: on a vase turned 0.3° about its axis and moved
+// (0.2, −0.1, 0.15) mm off the prior, 99 % of the turn is dropped and the
+// shift kept to the micrometre; with a handle (or without the rule) all of
+// it is kept.
+TEST(Registration, WeakMotionsKeepThePrior) {
+  const cv::Matx44d prior = Pose({0.1, -0.2, 0.5}, {5, -3, 2});
+  const cv::Matx44d turn = Pose({0, 0, 0.3 * M_PI / 180}, {0, 0, 0});
+  const cv::Matx44d shift = Pose({0, 0, 0}, {0.2, -0.1, 0.15});
+  const cv::Matx44d registered = prior * shift * turn;
+  int weak = -1;
+  const cv::Matx44d kept = KeepPriorAlongWeakMotions(Vase(false), prior, registered, 0.05, &weak);
+  EXPECT_EQ(weak, 1);
+  const cv::Matx44d expected = prior * shift;
+  EXPECT_LT(RotationErrorDeg(expected, kept), 0.003);
+  for (int i = 0; i < 3; ++i) EXPECT_NEAR(kept(i, 3), expected(i, 3), 1e-3) << i;
+
+  const cv::Matx44d held = KeepPriorAlongWeakMotions(Vase(true), prior, registered, 0.05, &weak);
+  EXPECT_EQ(weak, 0);
+  EXPECT_LT(RotationErrorDeg(registered, held), 1e-6);
+  const cv::Matx44d off = KeepPriorAlongWeakMotions(Vase(false), prior, registered, 0, &weak);
+  EXPECT_EQ(weak, 0);
+  EXPECT_LT(RotationErrorDeg(registered, off), 1e-6);
+  EXPECT_EQ(KeepPriorAlongWeakMotions(PointCloud{}, prior, registered, 0.05, &weak), registered);
 }
 
 // --- Loop closure ----------------------------------------------------------------

@@ -447,6 +447,8 @@ bool RegistrationOptions::IsValid(std::string* why) const {
   if (!(max_rmse_ratio > 0)) return Fail(why, "max_rmse_ratio must be > 0");
   if (!(prior_slide_deg >= 0)) return Fail(why, "prior_slide_deg must be ≥ 0");
   if (!(prior_slide_gain >= 0)) return Fail(why, "prior_slide_gain must be ≥ 0");
+  if (!(prior_weak_constraint >= 0 && prior_weak_constraint < 1))
+    return Fail(why, "prior_weak_constraint must be in [0, 1)");
   if (num_threads < 1) return Fail(why, "num_threads must be ≥ 1");
   return true;
 }
@@ -1357,32 +1359,85 @@ RegistrationResult RegisterFine(const ViewCloud& source, const ViewCloud& target
 
 namespace {
 
-// Smallest over largest eigenvalue of the point-to-plane information matrix
-// of `cloud` against itself (rotations scaled by the cloud's radius): near 0
-// when some motion leaves the surface on itself (a plane, a sphere, a
-// cylinder about its axis).
-double Constrainedness(const PointCloud& cloud) {
-  if (cloud.size() < 6 || !cloud.HasNormals()) return 0;
+// The point-to-plane information matrix of `cloud` against itself, for
+// motions x = (radius · rotation vector, translation) about the centroid
+// (rotations scaled by the cloud's radius, so that both halves are in mm).
+// False when the cloud has fewer than 6 points, no normals or no extent.
+bool SelfInformation(const PointCloud& cloud, Eigen::Matrix<double, 6, 6>* H,
+                     Eigen::Vector3d* centroid, double* radius) {
+  if (cloud.size() < 6 || !cloud.HasNormals()) return false;
   Eigen::Vector3d c = Eigen::Vector3d::Zero();
   for (const auto& p : cloud.points_mm) c += V(p).cast<double>();
   c /= static_cast<double>(cloud.size());
-  double radius = 0;
-  for (const auto& p : cloud.points_mm) radius = std::max(radius, (V(p).cast<double>() - c).norm());
-  if (!(radius > 0)) return 0;
-  Eigen::Matrix<double, 6, 6> H = Eigen::Matrix<double, 6, 6>::Zero();
+  double r = 0;
+  for (const auto& p : cloud.points_mm) r = std::max(r, (V(p).cast<double>() - c).norm());
+  if (!(r > 0)) return false;
+  H->setZero();
   for (std::size_t i = 0; i < cloud.size(); ++i) {
-    const Eigen::Vector3d p = (V(cloud.points_mm[i]).cast<double>() - c) / radius;
+    const Eigen::Vector3d q = (V(cloud.points_mm[i]).cast<double>() - c) / r;
     const Eigen::Vector3d n = V(cloud.normals[i]).cast<double>();
     Eigen::Matrix<double, 6, 1> J;
-    J.head<3>() = p.cross(n);
+    J.head<3>() = q.cross(n);
     J.tail<3>() = n;
-    H += J * J.transpose();
+    *H += J * J.transpose();
   }
+  *centroid = c;
+  *radius = r;
+  return true;
+}
+
+// Smallest over largest eigenvalue of SelfInformation: near 0 when some
+// motion leaves the surface on itself (a plane, a sphere, a cylinder about
+// its axis).
+double Constrainedness(const PointCloud& cloud) {
+  Eigen::Matrix<double, 6, 6> H;
+  Eigen::Vector3d c;
+  double radius = 0;
+  if (!SelfInformation(cloud, &H, &c, &radius)) return 0;
   const auto ev = Eigen::SelfAdjointEigenSolver<Eigen::Matrix<double, 6, 6>>(H).eigenvalues();
   return ev[5] > 0 ? ev[0] / ev[5] : 0;
 }
 
 }  // namespace
+
+cv::Matx44d KeepPriorAlongWeakMotions(const PointCloud& source, const cv::Matx44d& prior,
+                                      const cv::Matx44d& registered, double min_constraint,
+                                      int* weak_motions) {
+  if (weak_motions) *weak_motions = 0;
+  Eigen::Matrix<double, 6, 6> H;
+  Eigen::Vector3d c;
+  double radius = 0;
+  if (!(min_constraint > 0) || !SelfInformation(source, &H, &c, &radius)) return registered;
+  // The registration's motion away from the prior, on the source's points
+  // (registered = prior · delta), as x = (radius · rotation vector,
+  // displacement of the centroid).
+  const Eigen::Matrix4d delta = ToEigen(InvertRigid(prior) * registered);
+  const Eigen::Matrix3d R = delta.topLeftCorner<3, 3>();
+  const Eigen::AngleAxisd turn(R);
+  Eigen::Matrix<double, 6, 1> x;
+  x.head<3>() = radius * turn.angle() * turn.axis();
+  x.tail<3>() = R * c + delta.topRightCorner<3, 1>() - c;
+  const Eigen::SelfAdjointEigenSolver<Eigen::Matrix<double, 6, 6>> eigen(H);
+  const double strongest = eigen.eigenvalues()[5];
+  if (!(strongest > 0)) return registered;
+  Eigen::Matrix<double, 6, 1> kept = Eigen::Matrix<double, 6, 1>::Zero();
+  int weak = 0;
+  for (int i = 0; i < 6; ++i) {
+    const Eigen::Matrix<double, 6, 1> v = eigen.eigenvectors().col(i);
+    if (eigen.eigenvalues()[i] >= min_constraint * strongest)
+      kept += v * v.dot(x);
+    else
+      ++weak;
+  }
+  if (weak_motions) *weak_motions = weak;
+  if (weak == 0) return registered;
+  const Eigen::Vector3d w = kept.head<3>() / radius;
+  Eigen::Matrix4d moved = Eigen::Matrix4d::Identity();
+  if (w.norm() > 0)
+    moved.topLeftCorner<3, 3>() = Eigen::AngleAxisd(w.norm(), w / w.norm()).toRotationMatrix();
+  moved.topRightCorner<3, 1>() = kept.tail<3>() + c - moved.topLeftCorner<3, 3>() * c;
+  return prior * ToCv(moved);
+}
 
 RegistrationResult RegisterPair(const ViewCloud& source, const ViewCloud& target,
                                 const RegistrationOptions& options) {
@@ -1511,6 +1566,18 @@ RegistrationResult RegisterPair(const ViewCloud& source, const ViewCloud& target
             prior_pose_kept = true;
           }
         }
+        int weak_motions = 0;
+        if (use_prior && !prior_pose_kept && options.prior_weak_constraint > 0) {
+          const cv::Matx44d registered = fine.target_from_source;
+          fine.target_from_source =
+              KeepPriorAlongWeakMotions(source.fine, *options.coarse.prior_target_from_source,
+                                        registered, options.prior_weak_constraint, &weak_motions);
+          if (weak_motions > 0) {
+            fine.slid_target_from_source = registered;
+            fine.weak_motions_kept = weak_motions;
+            evaluate(&fine);
+          }
+        }
 
         fine.coarse_ms = coarse.time_ms;
         fine.fine_ms =
@@ -1525,7 +1592,12 @@ RegistrationResult RegisterPair(const ViewCloud& source, const ViewCloud& target
           notes += std::string(notes.empty() ? "" : "; ") +
                    "fine registration slid away from the prior without fitting better: the prior "
                    "pose is kept";
-        if (constrained < kMinConstrainedness && !prior_pose_kept)
+        if (weak_motions > 0)
+          notes += std::string(notes.empty() ? "" : "; ") + std::to_string(weak_motions) +
+                   (weak_motions == 1 ? " motion" : " motions") +
+                   " the surface barely holds (a body of revolution turning about its axis) "
+                   "kept from the prior";
+        if (constrained < kMinConstrainedness && !prior_pose_kept && weak_motions == 0)
           notes +=
               std::string(notes.empty() ? "" : "; ") +
               "surface of revolution or similar: the unconstrained motion is kept from the prior";

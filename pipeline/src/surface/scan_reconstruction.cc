@@ -434,6 +434,7 @@ Json RegistrationJson(const RegistrationResult& r) {
   j["iterations"] = r.iterations;
   j["converged"] = r.converged;
   j["prior_kept"] = r.prior_kept;
+  j["weak_motions_kept"] = r.weak_motions_kept;
   j["correspondences"] = r.correspondences;
   j["coarse_ms"] = Num(r.coarse_ms);
   j["fine_ms"] = Num(r.fine_ms);

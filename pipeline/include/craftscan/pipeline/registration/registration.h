@@ -176,6 +176,16 @@ struct RegistrationOptions {
   // On the simulated egg ICP slid 1.1–1.5° per pair at +0.00–0.005 fitness.
   double prior_slide_deg = 0.3;
   double prior_slide_gain = 0.02;
+  // With a prior, fine registration moves the view away from it only along
+  // the motions the source's surface holds (degeneracy-aware registration,
+  // "solution remapping": Zhang, Kaess & Singh, ICRA 2016). Along a motion
+  // whose point-to-plane information is below this fraction of the
+  // strongest's (KeepPriorAlongWeakMotions) the prior's pose is kept: the
+  // surface cannot place the view there better than the turntable does, and
+  // ICP follows the stereo's small biases instead. A body of revolution on
+  // the turntable (the owl, the jug) is held about its axis by 0.004–0.04 of
+  // the strongest; a box, a statue 0.1 and more. 0 = off; [0, 1).
+  double prior_weak_constraint = 0.05;
   int min_points = 30;  // fewer (coarse) points than this on either side: fails
   int num_threads = 1;  // ≥ 1; results are deterministic for a given count
 
@@ -207,10 +217,26 @@ struct RegistrationResult {
   // source. The kept pose is the turntable's motion; loop closure checks the
   // calibrated axis against the registrations' own motions, which a stale
   // calibration's kept motion would otherwise hide.
+  // Also set when motions the surface barely holds were kept from the prior
+  // (RegistrationOptions::prior_weak_constraint): then weak_motions_kept
+  // (1–5) says how many.
   std::optional<cv::Matx44d> slid_target_from_source;
+  int weak_motions_kept = 0;
 
   bool IsUsable() const { return status == Status::kOk; }
 };
+
+// `registered` (target_from_source) with its motion away from `prior` kept
+// only along the motions the surface of `source` (with normals) holds: the
+// eigenvectors of its point-to-plane information matrix about its centroid
+// (rotations scaled by its radius) whose eigenvalue is at least
+// min_constraint times the largest; along the others the prior's pose
+// stays. *weak_motions (optional) gets how many were reverted. Returns
+// `registered` unchanged when min_constraint is 0 or the cloud has fewer than
+// 6 points or no normals.
+cv::Matx44d KeepPriorAlongWeakMotions(const PointCloud& source, const cv::Matx44d& prior,
+                                      const cv::Matx44d& registered, double min_constraint,
+                                      int* weak_motions = nullptr);
 
 // Coarse stage only (method §7) on the coarse clouds.
 RegistrationResult RegisterCoarse(const ViewCloud& source, const ViewCloud& target,
